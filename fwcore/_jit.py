@@ -1,0 +1,106 @@
+"""One place for numba flags, and the vectorizable exp2/log2 the kernels use.
+
+numba has no SVML on this kind of machine and a libm call blocks SIMD, so the
+hot model loop uses its own exp2/log2 built from float bit tricks and short
+polynomials; LLVM vectorizes them over the samples axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+from numba.extending import intrinsic
+
+# fastmath lets LLVM reassociate and vectorize; results stay deterministic for
+# a given compiled kernel. NaN checks never happen inside these kernels.
+# error_model="numpy": no zero-division checks, whose exception branch blocks SIMD.
+JIT = dict(cache=True, fastmath=True, nogil=True, error_model="numpy")
+JIT_INLINE = dict(JIT, inline="always")
+PARALLEL_JIT = dict(JIT, parallel=True)
+
+_F32 = np.float32
+
+
+@intrinsic
+def _bits_of_f32(typingctx, x):
+    sig = types.int32(types.float32)
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int32))
+
+    return sig, codegen
+
+
+@intrinsic
+def _f32_of_bits(typingctx, x):
+    sig = types.float32(types.int32)
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float32))
+
+    return sig, codegen
+
+
+# 2**f on [0, 1): degree-5 Chebyshev fit, relative error 1.1e-7.
+_E0, _E1, _E2, _E3, _E4, _E5 = (
+    _F32(0.9999999), _F32(0.69315462), _F32(0.24014077),
+    _F32(0.05586328), _F32(0.00894621), _F32(0.00189511),
+)
+_LO_EXP = _F32(-126.0)
+_HI_EXP = _F32(126.0)
+_ONE = _F32(1.0)
+# log2(1 + f) on f in [0, 1): degree-6 Chebyshev fit, absolute error 2.1e-6 (no division, which is slow in SIMD).
+_L0, _L1, _L2, _L3, _L4, _L5, _L6 = (
+    _F32(2.12374084e-06), _F32(1.44247532), _F32(-0.717557847), _F32(0.455527097),
+    _F32(-0.274623245), _F32(0.119298235), _F32(-0.0251232032),
+)
+_MANTISSA = np.int32(0x007FFFFF)
+_ONE_BITS = np.int32(0x3F800000)
+
+
+@njit(**JIT_INLINE)
+def fast_exp2(x):
+    """2**x for float32 x, clamped to the normal range."""
+    x = min(max(x, _LO_EXP), _HI_EXP)
+    xi = np.floor(x)
+    f = x - xi
+    p = _E0 + f * (_E1 + f * (_E2 + f * (_E3 + f * (_E4 + f * _E5))))
+    scale = _f32_of_bits((np.int32(xi) + np.int32(127)) << np.int32(23))
+    return p * scale
+
+
+@njit(**JIT_INLINE)
+def fast_log2(x):
+    """log2(x) for float32 x > 0 (x == 0 gives about -127)."""
+    bits = _bits_of_f32(x)
+    e = _F32((bits >> np.int32(23)) - np.int32(127))
+    f = _f32_of_bits((bits & _MANTISSA) | _ONE_BITS) - _ONE
+    return e + (_L0 + f * (_L1 + f * (_L2 + f * (_L3 + f * (_L4 + f * (_L5 + f * _L6))))))
+
+
+@njit(**JIT)
+def _exp2_array(x, out):
+    for i in range(x.size):
+        out[i] = fast_exp2(x[i])
+
+
+@njit(**JIT)
+def _log2_array(x, out):
+    for i in range(x.size):
+        out[i] = fast_log2(x[i])
+
+
+def exp2_approx(x: np.ndarray) -> np.ndarray:
+    """The kernels' exp2, over an array (for tests)."""
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    out = np.empty_like(x)
+    _exp2_array(x.ravel(), out.ravel())
+    return out
+
+
+def log2_approx(x: np.ndarray) -> np.ndarray:
+    """The kernels' log2, over an array of positive values (for tests)."""
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    out = np.empty_like(x)
+    _log2_array(x.ravel(), out.ravel())
+    return out

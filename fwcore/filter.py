@@ -1,0 +1,70 @@
+"""The filter of spurious echoes (the method's section 1.2).
+
+Spurious echoes stay in the results with their reason: fit accuracy is
+computed with every echo, point clouds use the kept ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT
+
+KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE = range(6)
+REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide")
+
+
+@njit(**JIT)
+def mark_spurious(amplitude, position, width, first, last, pulse_fwhm,
+                  min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, reason):
+    """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions).
+
+    (1) amplitude below min_amplitude_ratio x the largest; (3) centre outside
+    [first, last]; (4) FWHM below min_width_factor or above max_width_factor x the
+    pulse FWHM; then (2) of two echoes closer than min_separation_factor x the
+    pulse FWHM the weaker is spurious, so a weak early bump cannot knock out the
+    strong echo after it.
+    """
+    n = amplitude.size
+    largest = 0.0
+    for k in range(n):
+        largest = max(largest, amplitude[k])
+    for k in range(n):
+        if amplitude[k] < min_amplitude_ratio * largest or amplitude[k] <= 0.0:
+            reason[k] = WEAK
+        elif position[k] < first or position[k] > last:
+            reason[k] = OUT_OF_RANGE
+        elif width[k] < min_width_factor * pulse_fwhm:
+            reason[k] = TOO_NARROW
+        elif width[k] > max_width_factor * pulse_fwhm:
+            reason[k] = TOO_WIDE
+        else:
+            reason[k] = KEPT
+    previous = -1
+    for k in range(n):
+        if reason[k] != KEPT:
+            continue
+        if previous >= 0 and position[k] - position[previous] < min_separation_factor * pulse_fwhm:
+            if amplitude[k] > amplitude[previous]:
+                reason[previous] = TOO_CLOSE
+                previous = k
+            else:
+                reason[k] = TOO_CLOSE
+        else:
+            previous = k
+
+
+def filter_echoes(amplitude, position, width, first: float, last: float, pulse_fwhm: float,
+                  min_amplitude_ratio: float = 0.2, min_separation_factor: float = 1.0,
+                  min_width_factor: float = 1.0, max_width_factor: float = 3.0) -> np.ndarray:
+    """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position."""
+    amplitude = np.ascontiguousarray(amplitude, dtype=np.float64)
+    position = np.ascontiguousarray(position, dtype=np.float64)
+    if np.any(np.diff(position) < 0):
+        raise ValueError("echoes must be sorted by position")
+    reason = np.zeros(amplitude.size, dtype=np.int8)
+    mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
+                  float(pulse_fwhm), float(min_amplitude_ratio), float(min_separation_factor),
+                  float(min_width_factor), float(max_width_factor), reason)
+    return reason

@@ -1,0 +1,80 @@
+"""Waveforms in the NEON CSV layout: `waveform_id, n_samples, s0, s1, ...`.
+
+Valid samples are the non-zero ones; zeros are padding, and a zero gap
+between two recorded segments keeps every valid sample at its own time.
+NEON digitizes in 1 ns bins.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+NEON_SAMPLE_SPACING_PS = 1000.0
+_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+
+
+@dataclasses.dataclass(frozen=True)
+class CsvWaveforms:
+    waveform_id: np.ndarray  # int64
+    samples: list[np.ndarray]  # float64, trailing padding removed
+    valid: list[np.ndarray]  # bool
+
+
+def read_neon_csv(path: str | Path) -> CsvWaveforms:
+    """Read a NEON-layout waveform CSV; errors name the file, line and problem."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such waveform CSV")
+    ids, samples, valid = [], [], []
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if not header or header[:3] != ["waveform_id", "n_samples", "s0"]:
+            raise ValueError(f"{path}: not a NEON waveform CSV (expected header waveform_id, n_samples, s0, ...)")
+        for line, row in enumerate(reader, start=2):
+            if not row:
+                continue
+            try:
+                values = np.array([float(v) if v not in ("", "NA") else np.nan for v in row[2:]])
+                wid = int(float(row[0]))
+            except ValueError as err:
+                raise ValueError(f"{path}:{line}: unreadable value ({err})") from None
+            present = (values != 0) & ~np.isnan(values)
+            end = int(np.flatnonzero(present)[-1]) + 1 if present.any() else 0
+            ids.append(wid)
+            samples.append(values[:end])
+            mask = values[:end] != 0  # NaN stays "valid" so that the engine reports it
+            valid.append(mask)
+    if not ids:
+        raise ValueError(f"{path}: no waveforms")
+    return CsvWaveforms(np.array(ids, dtype=np.int64), samples, valid)
+
+
+def pulse_fwhm_ps(outgoing: CsvWaveforms, spacing_ps: float = NEON_SAMPLE_SPACING_PS) -> float:
+    """The system pulse FWHM (ps): the median over outgoing pulses of their width at half height above baseline."""
+    widths = []
+    for y, v in zip(outgoing.samples, outgoing.valid):
+        y = y[v]
+        if y.size < 5:
+            continue
+        base = np.min(y)
+        half = base + 0.5 * (np.max(y) - base)
+        peak = int(np.argmax(y))
+        above = y >= half
+        left = peak
+        while left > 0 and above[left - 1]:
+            left -= 1
+        right = peak
+        while right < y.size - 1 and above[right + 1]:
+            right += 1
+        # interpolate both crossings
+        lx = left - (y[left] - half) / (y[left] - y[left - 1]) if left > 0 else float(left)
+        rx = right + (y[right] - half) / (y[right] - y[right + 1]) if right < y.size - 1 else float(right)
+        widths.append(rx - lx)
+    if not widths:
+        raise ValueError("no usable outgoing pulse to measure the system pulse width")
+    return float(np.median(widths) * spacing_ps)

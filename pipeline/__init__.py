@@ -1,0 +1,1 @@
+"""pipeline: the Beam layer and the command line over fwcore."""

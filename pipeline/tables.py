@@ -1,0 +1,73 @@
+"""Arrow tables of decomposition results (what the command line and sinks write)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+
+from fwcore.config import DecompositionConfig
+from fwcore.decompose import STATUS_REASONS, BatchDecomposition
+from fwcore.filter import REJECT_REASONS
+
+CONFIG_METADATA_KEY = b"fwlidar.config"
+
+
+def _with_config(table: pa.Table, config: DecompositionConfig) -> pa.Table:
+    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(config.to_dict()).encode()})
+
+
+def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig) -> pa.Table:
+    """One row per echo, spurious ones included; times and widths in samples, amplitudes in digitizer units."""
+    counts = np.diff(result.echo_offsets)
+    owner = np.repeat(np.arange(len(result)), counts)
+    echo_index = np.arange(owner.size) - result.echo_offsets[owner]
+    reasons = np.array(REJECT_REASONS, dtype=object)[result.reject]
+    table = pa.table({
+        "waveform_id": pa.array(waveform_id[owner], pa.int64()),
+        "echo_index": pa.array(echo_index, pa.int32()),
+        "echo_count": pa.array(counts[owner], pa.int32()),
+        "amplitude": result.amplitude,
+        "time": result.position,
+        "sigma": result.sigma,
+        "alpha": result.alpha,
+        "fwhm": result.fwhm,
+        "energy": result.energy,
+        "background": result.background[owner],
+        "kept": pa.array(result.reject == 0),
+        "reject_reason": pa.array(reasons.tolist(), pa.string()),
+        "fit_error": result.fit_error[owner],
+        "fit_error_raw": result.fit_error_raw[owner],
+        "rmse": result.rmse[owner],
+        "r2": result.r2[owner],
+        "optimizer": pa.array([config.optimizer.value] * owner.size, pa.string()),
+        "model": pa.array([config.model.value] * owner.size, pa.string()),
+    })
+    return _with_config(table, config)
+
+
+def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig,
+                   n_samples: np.ndarray) -> pa.Table:
+    """One row per waveform, whether or not it was decomposed: none is dropped."""
+    counts = np.diff(result.echo_offsets)
+    kept = np.add.reduceat((result.reject == 0).astype(np.int64), result.echo_offsets[:-1]) if result.reject.size else np.zeros(len(result), np.int64)
+    kept = np.where(counts > 0, kept, 0)
+    table = pa.table({
+        "waveform_id": pa.array(waveform_id, pa.int64()),
+        "status": pa.array([STATUS_REASONS[s] for s in result.status], pa.string()),
+        "n_samples": pa.array(n_samples, pa.int32()),
+        "noise_sigma": result.noise_sigma,
+        "background": result.background,
+        "fit_error": result.fit_error,
+        "fit_error_raw": result.fit_error_raw,
+        "rmse": result.rmse,
+        "r2": result.r2,
+        "n_echoes_initial": pa.array(result.n_echoes_initial, pa.int32()),
+        "n_echoes": pa.array(counts, pa.int32()),
+        "n_echoes_kept": pa.array(kept, pa.int32()),
+        "model_evaluations": pa.array(result.nfev, pa.int64()),
+        "optimizer": pa.array([config.optimizer.value] * len(result), pa.string()),
+        "model": pa.array([config.model.value] * len(result), pa.string()),
+    })
+    return _with_config(table, config)
