@@ -1,0 +1,122 @@
+import math
+
+import numpy as np
+import pytest
+
+from fwcore.optimize import (OPT_MDE, binomial_crossover, chaotic_scale_factors, evolve, fit_error,
+                             init_population, mutate_de, mutate_mde, padded_length)
+from fwcore.rng import SplitMix64, next_u64, pulse_seed
+from tests.fwcore import naive
+
+
+def test_chaotic_scale_factors_match_a_hand_computation():
+    # seed 0.5 in [0.2, 1.0] -> z = 0.375; logistic map mu = 4:
+    # 0.9375, 0.234375, 0.7177734375 -> back to [0.2, 1.0]
+    f = chaotic_scale_factors([0.5, 0.2], k=3, a=0.2, b=1.0)
+    np.testing.assert_allclose(f[0], [0.2 + 0.8 * 0.9375, 0.2 + 0.8 * 0.234375, 0.2 + 0.8 * 0.7177734375])
+    # a seed at the range's lower end maps to z = 0, a fixed point of the map
+    np.testing.assert_allclose(f[1], [0.2, 0.2, 0.2])
+
+
+def test_chaotic_scale_factors_reject_seeds_outside_the_range():
+    with pytest.raises(ValueError, match="seeds must lie"):
+        chaotic_scale_factors([1.5], k=2, a=0.2, b=1.0)
+
+
+POP = np.array([[0.0, 0.0], [1.0, 2.0], [3.0, 1.0], [2.0, 5.0], [4.0, 4.0]])
+LOWER = np.array([-10.0, -10.0])
+UPPER = np.array([10.0, 6.0])
+
+
+def test_mde_mutation_on_a_tiny_population():
+    out = np.empty(2)
+    mutate_mde(POP[1], POP[2], POP[3], POP[4], POP[0], 0.5, 0.25, LOWER, UPPER, out)
+    # best + 0.5 * (x2 - x3) + 0.25 * (x4 - x0) = (1, 2) + (0.5, -2) + (1, 1)
+    np.testing.assert_allclose(out, [2.5, 1.0])
+
+
+def test_mde_mutation_repairs_out_of_bounds_halfway_to_the_base():
+    out = np.empty(2)
+    mutate_mde(POP[1], POP[3], POP[0], POP[3], POP[0], 1.0, 1.0, LOWER, UPPER, out)
+    # y: 2 + 5 + 5 = 12 > 6 -> (6 + 2) / 2
+    np.testing.assert_allclose(out, [5.0, 4.0])
+
+
+def test_de_mutation_on_a_tiny_population():
+    out = np.empty(2)
+    mutate_de(POP[2], POP[4], POP[1], 0.5, LOWER, UPPER, out)
+    np.testing.assert_allclose(out, [3.0 + 0.5 * 3.0, 1.0 + 0.5 * 2.0])
+
+
+def test_binomial_crossover_takes_the_mutant_at_jrand_even_with_cr_zero():
+    state = np.array([7], dtype=np.uint64)
+    ref = SplitMix64(7)
+    out = np.empty(5)
+    binomial_crossover(np.zeros(5), np.ones(5), 0.0, state, out)
+    jrand = ref.randint(5)
+    assert out.tolist() == [1.0 if j == jrand else 0.0 for j in range(5)]
+    binomial_crossover(np.zeros(5), np.ones(5), 1.0, state, out)
+    assert out.tolist() == [1.0] * 5
+
+
+def test_numba_and_python_random_streams_agree():
+    state = np.array([12345], dtype=np.uint64)
+    ref = SplitMix64(12345)
+    assert [int(next_u64(state)) for _ in range(5)] == [ref.next_u64() for _ in range(5)]
+
+
+def test_pulse_seed_is_stable_and_distinct():
+    assert pulse_seed(0, "a.las", 92) == pulse_seed(0, "a.las", 92)
+    assert len({pulse_seed(0, "a.las", o) for o in range(1000)}) == 1000
+    assert pulse_seed(1, "a.las", 92) != pulse_seed(0, "a.las", 92)
+
+
+def _problem(seed=0):
+    """A 3-echo waveform and a population around a perturbed guess."""
+    rng = np.random.default_rng(seed)
+    n = 60
+    n_pad = padded_length(n)
+    truth = np.array([20.0, 100, 15, 3, 1.5, 60, 25, 2.5, 1.3, 30, 40, 4, 1.7])
+    t = np.arange(n)
+    target = np.zeros(n_pad, np.float32)
+    target[:n] = naive.model_of_individual(truth, t) + rng.normal(0, 1, n)
+    weight = np.zeros(n_pad, np.float32)
+    weight[:n] = 1
+    lower = truth * 0.5
+    upper = truth * 1.5
+    lower[4::4], upper[4::4] = 1.0, 2.4
+    state = np.array([99], dtype=np.uint64)
+    pop = np.empty((8, truth.size))
+    init_population(truth * 1.1, lower, upper, 0.3, state, pop)
+    tpos = np.arange(n_pad, dtype=np.float32)
+    model = np.empty(n_pad, np.float32)
+
+    def objective(x):
+        return fit_error(np.ascontiguousarray(x), 3, tpos, target, weight, False, 1e-3, model)
+
+    fitness = np.array([objective(x) for x in pop])
+    return pop, fitness, lower, upper, tpos, target, weight, objective
+
+
+def test_one_mde_generation_matches_the_numpy_reference():
+    pop, fitness, lower, upper, tpos, target, weight, objective = _problem()
+    expected_pop, expected_fit = naive.mde_generation(pop, fitness, lower, upper, 0.9, 2, 3, 0.2, 1.0,
+                                                      SplitMix64(2024), objective)
+    state = np.array([2024], dtype=np.uint64)
+    nfev = evolve(pop, fitness, lower, upper, 1, 0.9, OPT_MDE, False, 2, 3, 0.2, 1.0, 0.5, state,
+                  3, tpos, target, weight, False, 1e-3)
+    assert nfev == 8 * (2 * 3 + 1)  # k x t candidates plus the trial, per individual
+    # same draws, same decisions; values differ only by FMA contraction (1e-16)
+    np.testing.assert_allclose(pop, expected_pop, rtol=1e-13)
+    np.testing.assert_allclose(fitness, expected_fit, rtol=1e-13)
+
+
+def test_evolution_never_worsens_the_best_and_stays_in_bounds():
+    pop, fitness, lower, upper, tpos, target, weight, _ = _problem(1)
+    start = fitness.min()
+    state = np.array([5], dtype=np.uint64)
+    evolve(pop, fitness, lower, upper, 30, 0.9, OPT_MDE, False, 1, 5, 0.2, 1.0, 0.5, state,
+           3, tpos, target, weight, False, 1e-3)
+    assert fitness.min() < start
+    assert (pop >= lower).all() and (pop <= upper).all()
+    assert math.isfinite(fitness.min())

@@ -1,0 +1,74 @@
+import math
+
+import numpy as np
+import pytest
+
+from fwcore.model import waveform_model
+from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes, patent_peak_ranges
+from tests.fwcore import naive
+
+
+def test_smoothing_matches_the_numpy_reference():
+    y = np.random.default_rng(0).normal(100, 5, 200)
+    np.testing.assert_allclose(gaussian_smooth(y, 2.5), naive.gaussian_smooth(y, 2.5), rtol=1e-12)
+
+
+def test_smoothing_ignores_invalid_samples_in_a_gap():
+    y = np.full(40, 50.0)
+    valid = np.ones(40, bool)
+    y[15:20], valid[15:20] = 0.0, False  # a zero gap must not pull neighbours down
+    np.testing.assert_allclose(gaussian_smooth(y, 2.0, valid)[valid], 50.0)
+
+
+def test_noise_is_the_rms_of_raw_minus_smoothed():
+    raw = np.array([1.0, 2.0, 4.0, 3.0])
+    smoothed = np.array([1.5, 2.0, 3.0, 3.0])
+    assert estimate_noise(raw, smoothed) == pytest.approx(math.sqrt((0.25 + 0 + 1 + 0) / 4))
+
+
+def test_noise_estimate_is_close_to_white_noise_sigma_on_a_flat_waveform():
+    raw = np.random.default_rng(1).normal(200, 3.0, 4000)
+    noise = estimate_noise(raw, gaussian_smooth(raw, 1.5))
+    # smoothing keeps part of the noise: sigma_noise underestimates by a known factor
+    assert 0.7 * 3.0 < noise < 3.0
+
+
+def test_inflection_points_give_sigma_of_a_clean_gaussian():
+    t = np.arange(100.0)
+    y = waveform_model(t, 10.0, [200.0], [47.3], [4.0], [math.sqrt(2)])
+    est = initial_echoes(y, 0.0, fallback_sigma=2.0)
+    # noise-free: the threshold is 0, so ripples of the residual follow the first (largest) echo
+    assert est.position[0] == 47
+    assert est.amplitude[0] == pytest.approx(200.0 * math.exp(-0.3**2 / 32), rel=1e-9)
+    assert est.sigma[0] == pytest.approx(4.0, abs=0.15)
+    assert est.background == pytest.approx(10.0)
+
+
+def test_progressive_extraction_finds_a_shoulder_without_its_own_maximum():
+    t = np.arange(120.0)
+    # the second echo is a shoulder: the sum has a single local maximum
+    y = waveform_model(t, 20.0, [300.0, 120.0], [40.0, 50.0], [4.0, 4.0], [math.sqrt(2)] * 2)
+    y = y + np.random.default_rng(2).normal(0, 1.0, t.size)
+    local_maxima = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] > y[2:]) & (y[1:-1] > 100)) + 1
+    assert local_maxima.size == 1
+    est = initial_echoes(y, 1.0, fallback_sigma=4.0)
+    assert est.n_echoes >= 2
+    assert np.any(np.abs(est.position - 50) <= 3)
+
+
+def test_missing_inflection_point_at_the_edge_uses_the_other_side():
+    t = np.arange(40.0)
+    y = waveform_model(t, 5.0, [100.0], [1.0], [3.0], [math.sqrt(2)])  # left side cut off by the record start
+    est = initial_echoes(y, 0.0, fallback_sigma=9.0)
+    assert est.sigma[0] == pytest.approx(3.0, abs=0.3)
+
+
+def test_patent_peaks_and_search_ranges():
+    t = np.arange(100.0)
+    y = waveform_model(t, 10.0, [100.0, 60.0], [30.0, 60.0], [3.0, 3.0], [math.sqrt(2)] * 2)
+    r = patent_peak_ranges(y, 0.0)
+    assert r.peak.tolist() == [30, 60]
+    np.testing.assert_allclose(r.position_range, [[25, 35], [55, 65]])
+    np.testing.assert_allclose(r.amplitude_range[:, 1], [100.0, 60.0], atol=0.01)
+    # two inflection points at +-3: upper sigma = 3 * (p2 - p1) / 2 = 9
+    np.testing.assert_allclose(r.sigma_range[:, 1], [9.0, 9.0], atol=0.5)
