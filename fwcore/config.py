@@ -67,7 +67,7 @@ class DecompositionConfig:
     # Filter of spurious echoes (the method's section 1.2).
     min_amplitude_ratio: float = 0.2
     min_separation_factor: float = 1.0  # x system pulse FWHM
-    min_width_factor: float = 1.0  # x system pulse FWHM
+    min_width_factor: float = 0.8  # x system pulse FWHM; 1.0 flags true echoes whose fitted width is a hair under it
     max_width_factor: float = 3.0  # x system pulse FWHM
     seed: int = 0
 

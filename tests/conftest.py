@@ -1,0 +1,23 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
+
+
+@pytest.fixture(scope="session")
+def neon_dir() -> Path:
+    return DATA / "neon_harvard"
+
+
+@pytest.fixture(scope="session")
+def leica_waveforms() -> np.ndarray:
+    """The Leica sample's 924 distinct packets (8-bit, 256 samples), read straight from the .wdp
+    by byte offset: an independent reader for the engine tests, not the project's LAS reader."""
+    import laspy
+
+    las = laspy.read(DATA / "leica_als" / "leica_a.las")
+    offsets = np.unique(np.asarray(las.wavepacket_offset))
+    raw = np.fromfile(DATA / "leica_als" / "leica_a.wdp", dtype=np.uint8)
+    return np.stack([raw[o:o + 256] for o in offsets]).astype(np.float64)

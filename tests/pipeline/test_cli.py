@@ -1,0 +1,72 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from fwcore.neon import read_neon_csv
+from pipeline.cli import main
+
+
+def test_version():
+    out = subprocess.run([sys.executable, "-m", "pipeline.cli", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.startswith("fwl 0.")
+
+
+@pytest.fixture(scope="module")
+def small_csv(tmp_path_factory, neon_dir):
+    lines = (neon_dir / "return_waveforms.csv").read_text().splitlines()
+    # the first 12 waveforms plus id 145, which has a zero gap between two recorded segments
+    rows = lines[:13] + [line for line in lines if line.startswith("145,")]
+    path = tmp_path_factory.mktemp("csv") / "small.csv"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_decompose_csv_writes_echoes_that_reproduce_the_fitted_model(tmp_path, small_csv, neon_dir):
+    out = tmp_path / "echoes.parquet"
+    code = main(["decompose-csv", str(small_csv), "--output", str(out), "--outgoing", str(neon_dir / "outgoing_pulses.csv"),
+                 "--generations", "30", "--seed", "3"])
+    assert code == 0
+    echoes = pq.read_table(out)
+    waveforms = pq.read_table(tmp_path / "echoes.waveforms.parquet").to_pandas()
+    for column in ("waveform_id", "echo_index", "amplitude", "time", "sigma", "alpha", "fwhm", "energy",
+                   "background", "kept", "reject_reason", "fit_error", "rmse", "r2"):
+        assert column in echoes.column_names
+    config = json.loads(echoes.schema.metadata[b"fwlidar.config"])
+    assert config["generations"] == 30 and config["seed"] == 3
+    assert len(waveforms) == 13 and (waveforms.status == "").all()
+    echoes = echoes.to_pandas()
+    csv = read_neon_csv(small_csv)
+    for wid, samples, valid in zip(csv.waveform_id, csv.samples, csv.valid):
+        rows = echoes[echoes.waveform_id == wid]
+        t = np.arange(samples.size)[valid]
+        model = rows.background.iloc[0] + sum(
+            r.amplitude * np.exp(-np.abs(t - r.time) ** (r.alpha ** 2) / (2 * r.sigma ** 2)) for r in rows.itertuples())
+        # the rows reproduce the model whose raw-sample error the table reports
+        assert np.abs(model - samples[valid]).sum() == pytest.approx(rows.fit_error_raw.iloc[0], rel=1e-9)
+        assert (rows.echo_index.to_numpy() == np.arange(len(rows))).all()
+        assert ((rows.reject_reason == "") == rows.kept).all()
+
+
+def test_decompose_csv_reports_a_missing_file(tmp_path, capsys):
+    assert main(["decompose-csv", str(tmp_path / "nope.csv"), "--output", str(tmp_path / "o.parquet")]) == 2
+    assert "nope.csv: no such waveform CSV" in capsys.readouterr().err
+
+
+def test_decompose_csv_rejects_a_bad_option_value(tmp_path, small_csv, capsys):
+    assert main(["decompose-csv", str(small_csv), "--output", str(tmp_path / "o.parquet"), "--population", "3"]) == 2
+    assert "population (NP) must be at least 5" in capsys.readouterr().err
+
+
+def test_config_loads_from_toml(tmp_path):
+    from fwcore.config import DecompositionConfig, Optimizer
+    path = tmp_path / "c.toml"
+    path.write_text('[decomposition]\noptimizer = "de"\npopulation = 100\n')
+    config = DecompositionConfig.from_toml(path)
+    assert config.optimizer is Optimizer.DE and config.population == 100
+    path.write_text('[decomposition]\nspeed = 3\n')
+    with pytest.raises(ValueError, match="unknown decomposition settings"):
+        DecompositionConfig.from_toml(path)
