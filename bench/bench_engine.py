@@ -1,0 +1,76 @@
+"""Engine benchmark on the bundled real data: waveforms/s on 1 and 2 cores, fit error, peak memory.
+
+    python bench/bench_engine.py [--repeat N]
+
+Compilation happens in a warm-up call first and is not timed. Fit error is
+the method's Eq. 9 (against the denoised samples); "raw" is the same sum
+against the raw samples, the measure the published NEON peers are compared by.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.config import DecompositionConfig
+from fwcore.decompose import WaveformBatch, decompose_batch
+from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.rng import pulse_seed
+
+DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
+SETTINGS = {
+    "none": dict(optimizer="none"),
+    "de (NP 100, G 100)": dict(optimizer="de", population=100, generations=100),
+    "de (NP 60, G 480: MDE's evaluations)": dict(optimizer="de", population=60, generations=480),
+    "mde (NP 60, G 80, k x t = 5)": dict(),
+}
+
+
+def neon_batch() -> tuple[WaveformBatch, DecompositionConfig]:
+    w = read_neon_csv(DATA / "neon_harvard" / "return_waveforms.csv")
+    fwhm = pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
+    batch = WaveformBatch.from_waveforms(w.samples, 1000.0, [pulse_seed(0, i) for i in w.waveform_id], w.valid)
+    return batch, DecompositionConfig(system_pulse_fwhm_ps=fwhm)
+
+
+def leica_batch() -> tuple[WaveformBatch, DecompositionConfig]:
+    import laspy
+    las = laspy.read(DATA / "leica_als" / "leica_a.las")
+    offsets = np.unique(np.asarray(las.wavepacket_offset))
+    raw = np.fromfile(DATA / "leica_als" / "leica_a.wdp", dtype=np.uint8)
+    waves = [raw[o:o + 256].astype(float) for o in offsets]
+    return WaveformBatch.from_waveforms(waves, 2000.0, [pulse_seed(0, "leica_a", o) for o in offsets]), DecompositionConfig()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=1, help="timed runs per setting (best is reported)")
+    args = parser.parse_args()
+    print(f"{'data':6} {'optimizer':38} {'wf/s 1 core':>11} {'wf/s 2 cores':>12} {'fit err':>8} "
+          f"{'raw err':>8} {'RMSE':>6} {'R2':>7} {'evals/wf':>9}")
+    for name, make in (("neon", neon_batch), ("leica", leica_batch)):
+        batch, base = make()
+        for label, changes in SETTINGS.items():
+            config = base.replace(**changes)
+            decompose_batch(WaveformBatch.from_waveforms([batch.samples[:batch.offsets[1]]], 1000.0, [1]), config)
+            rates = {}
+            for threads in (1, 2):
+                best = np.inf
+                for _ in range(args.repeat):
+                    start = time.perf_counter()
+                    result = decompose_batch(batch, config, threads=threads)
+                    best = min(best, time.perf_counter() - start)
+                rates[threads] = len(batch) / best
+            print(f"{name:6} {label:38} {rates[1]:11.1f} {rates[2]:12.1f} {result.fit_error.mean():8.1f} "
+                  f"{result.fit_error_raw.mean():8.1f} {result.rmse.mean():6.2f} {result.r2.mean():7.4f} "
+                  f"{result.nfev.mean():9.0f}", flush=True)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"peak memory (RSS): {peak:.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()
