@@ -1,0 +1,80 @@
+"""Where a file's waveform packets live, and reading one packet's samples.
+
+Packet byte offsets count from the start of the waveform data packet record:
+the `.wdp`/`.wdz` file for external storage, the record's header for
+internal storage (LAS 1.3's "start of waveform data packet record", LAS
+1.4's extended VLR 65535). Files are memory-mapped, so a range of pulses
+touches only its own packets' pages.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.io import wdz
+from fwcore.io.descriptors import WaveformDescriptor
+
+EVLR_HEADER_BYTES = 60
+LASTOOLS_SIGNATURE = b"LAStools waveform "
+
+
+class PacketError(ValueError):
+    """A packet of one pulse cannot be read: the pulse is rejected, the file goes on."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PacketStore:
+    path: Path  # the file that holds the packets
+    record_start: int  # byte of that file where offsets count from
+    compressed: bool  # LAStools .wdz
+
+    def open(self) -> np.ndarray:
+        return np.memmap(self.path, dtype=np.uint8, mode="r")
+
+    def read(self, data: np.ndarray, descriptor: WaveformDescriptor, offset: int, size: int) -> np.ndarray:
+        """Samples of the packet at `offset` (from the record start) as float64 digitizer values."""
+        start = self.record_start + offset
+        if self.compressed:
+            try:
+                return wdz.decode_packet(data, start, descriptor.n_samples, descriptor.bits_per_sample).astype(float)
+            except wdz.WdzError as err:
+                raise PacketError(str(err)) from None
+        need = descriptor.packet_bytes
+        if size and size < need:
+            raise PacketError(f"packet size {size} bytes is less than descriptor {descriptor.index}'s "
+                              f"{descriptor.n_samples} samples x {descriptor.container_bytes} bytes")
+        if offset < 0 or start + need > data.size:
+            raise PacketError(f"packet at byte {offset} ({need} bytes) lies beyond the end of {self.path.name} "
+                              f"({data.size - self.record_start} bytes of packets)")
+        raw = np.asarray(data[start:start + need])
+        dtype = {1: "<u1", 2: "<u2", 4: "<u4"}[descriptor.container_bytes]
+        samples = raw.view(dtype).astype(np.float64)
+        if descriptor.bits_per_sample not in (8, 16, 32):
+            samples = np.mod(samples, float(1 << descriptor.bits_per_sample))  # padding bits are not signal
+        return samples
+
+
+def lastools_compression(path: Path) -> bool | None:
+    """Whether a LAStools packet file says its packets are compressed (None: no LAStools header)."""
+    with open(path, "rb") as f:
+        head = f.read(EVLR_HEADER_BYTES + 24 + 2 + 6)
+    if head[EVLR_HEADER_BYTES:EVLR_HEADER_BYTES + len(LASTOOLS_SIGNATURE)] != LASTOOLS_SIGNATURE:
+        return None
+    if len(head) < EVLR_HEADER_BYTES + 24 + 2 + 6:
+        return None
+    return head[EVLR_HEADER_BYTES + 24 + 2 + 2] == 1  # first descriptor's compression byte
+
+
+def external_packet_file(las_path: Path) -> Path:
+    """The .wdp (or LAStools .wdz) beside a LAS/LAZ file, same base name, either case."""
+    laz = las_path.suffix.lower() == ".laz"
+    suffixes = (".wdz", ".WDZ", ".wdp", ".WDP") if laz else (".wdp", ".WDP", ".wdz", ".WDZ")
+    for suffix in suffixes:
+        candidate = las_path.with_suffix(suffix)
+        if candidate.exists():
+            return candidate
+    raise FileNotFoundError(f"{las_path}: waveform packets are external but {las_path.with_suffix('.wdp').name} "
+                            "(or .wdz) is missing beside it")
