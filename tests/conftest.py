@@ -21,3 +21,8 @@ def leica_waveforms() -> np.ndarray:
     offsets = np.unique(np.asarray(las.wavepacket_offset))
     raw = np.fromfile(DATA / "leica_als" / "leica_a.wdp", dtype=np.uint8)
     return np.stack([raw[o:o + 256] for o in offsets]).astype(np.float64)
+
+
+@pytest.fixture(scope="session")
+def leica_dir() -> Path:
+    return DATA / "leica_als"

@@ -1,0 +1,57 @@
+import laspy
+import numpy as np
+import pytest
+
+from fwcore.config import DecompositionConfig
+from fwcore.decompose import decompose_batch
+from fwcore.io import read_pulses
+from fwcore.io.writer import decomposed_echoes, write_point_cloud, write_waveform_las
+
+
+@pytest.fixture(scope="module")
+def leica(leica_dir):
+    return read_pulses(leica_dir / "leica_a.las")
+
+
+def test_las13_wdp_round_trip(tmp_path, leica):
+    path = write_waveform_las(tmp_path / "a.las", leica, "las13-wdp", 8)
+    assert (tmp_path / "a.wdp").exists()
+    back = read_pulses(path)
+    np.testing.assert_array_equal(back.samples, leica.samples)
+    np.testing.assert_allclose(back.return_xyz, leica.return_xyz, atol=5e-4)
+    np.testing.assert_array_equal(back.gps_time, leica.gps_time)
+    las = laspy.read(path)
+    assert las.header.version.minor == 3 and las.header.point_format.id == 4 and len(las.points) == 1125
+
+
+def test_las14_internal_packets_with_several_descriptors_round_trip(tmp_path, leica):
+    bits = np.where(np.arange(len(leica)) % 3 == 0, 16, 8)
+    path = write_waveform_las(tmp_path / "b.las", leica, "las14-internal", bits)
+    las = laspy.read(path)
+    assert las.header.version.minor == 4 and las.header.point_format.id == 9
+    assert las.header.global_encoding.waveform_data_packets_internal
+    back = read_pulses(path)
+    assert sorted(set(back.descriptor_index.tolist())) == [1, 2]
+    assert set(back.bits_per_sample.tolist()) == {8, 16}
+    np.testing.assert_array_equal(back.samples, leica.samples)
+    np.testing.assert_array_equal(back.return_number, leica.return_number)
+    np.testing.assert_array_equal(back.return_location_ps, leica.return_location_ps.astype(np.float32))
+
+
+def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
+    pulses = leica
+    result = decompose_batch(pulses.waveforms(0), DecompositionConfig(generations=10))
+    echoes = decomposed_echoes(pulses, result)
+    path = write_point_cloud(tmp_path / "cloud.laz", leica_dir / "leica_a.las", echoes)
+    las = laspy.read(path)
+    assert las.header.version.minor == 4 and las.header.point_format.id == 6
+    assert len(las.points) == (result.reject == 0).sum()
+    assert {"amplitude", "echo_width", "sigma", "alpha", "echo_energy", "fit_error"} <= set(
+        las.point_format.extra_dimension_names)
+    np.testing.assert_allclose(las.x, echoes["x"], atol=5e-4)
+    np.testing.assert_allclose(np.asarray(las.amplitude), echoes["amplitude"], rtol=1e-6)
+    # return numbers run 1..n in time order within each pulse
+    returns, totals = np.asarray(las.return_number), np.asarray(las.number_of_returns)
+    assert (returns >= 1).all() and (returns <= totals).all()
+    assert any(isinstance(v, laspy.vlrs.known.GeoKeyDirectoryVlr) for v in las.header.vlrs)
+    assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
