@@ -78,8 +78,8 @@ def _exact_model(x, n_echoes, n):
 @njit(**JIT)
 def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, seed, method, gaussian,
                    fit_denoised, population, generations, cr, immediate, chaos_seeds, chaos_iterations,
-                   scale_min, scale_max, de_scale, init_spread, noise_threshold, max_echoes,
-                   alpha_min, alpha_max, min_amplitude_ratio, min_separation_factor,
+                   scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma, max_echoes,
+                   alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
                    min_width_factor, max_width_factor,
                    out_scalars, out_echoes, out_reasons):
     """One waveform end to end. out_scalars: background, noise, fit_error, fit_error_raw, rmse, r2,
@@ -93,7 +93,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
         last -= 1
     smoothed = np.empty(n)
     _smooth(samples, valid, smoothing_sigma, smoothed)
-    noise = _noise_sigma(samples, smoothed, valid)
+    noise = max(_noise_sigma(samples, smoothed, valid), min_noise_sigma)
     background = _valid_min(smoothed, valid)
     amp0 = np.zeros(max_echoes)
     pos0 = np.zeros(max_echoes)
@@ -179,15 +179,15 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
         out_echoes[j, 3] = alpha
         widths[j] = 2.0 * h
     mark_spurious(out_echoes[:n_echoes, 0].copy(), out_echoes[:n_echoes, 1].copy(), widths, first, last,
-                  pulse_fwhm, min_amplitude_ratio, min_separation_factor, min_width_factor,
+                  pulse_fwhm, noise, min_snr, min_amplitude_ratio, min_separation_factor, min_width_factor,
                   max_width_factor, out_reasons[:n_echoes])
 
 
 @njit(**PARALLEL_JIT)
 def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, method, gaussian,
                     fit_denoised, population, generations, cr, immediate, chaos_seeds, chaos_iterations,
-                    scale_min, scale_max, de_scale, init_spread, noise_threshold, max_echoes,
-                    alpha_min, alpha_max, min_amplitude_ratio, min_separation_factor,
+                    scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma, max_echoes,
+                    alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
                     min_width_factor, max_width_factor, out_scalars, out_echoes, out_reasons):
     for w in prange(offsets.size - 1):
         if status[w] != 0:
@@ -196,8 +196,8 @@ def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigm
         _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w],
                        pulse_sigma[w] * _FWHM_PER_SIGMA, seeds[w], method, gaussian, fit_denoised,
                        population, generations, cr, immediate, chaos_seeds, chaos_iterations,
-                       scale_min, scale_max, de_scale, init_spread, noise_threshold, max_echoes,
-                       alpha_min, alpha_max, min_amplitude_ratio, min_separation_factor,
+                       scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma,
+                       max_echoes, alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
                        min_width_factor, max_width_factor,
                        out_scalars[w], out_echoes[w], out_reasons[w])
 
@@ -351,7 +351,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
             config.fit_target is FitTarget.DENOISED, config.population, config.generations,
             config.crossover_rate, immediate, config.chaos_seeds, config.chaos_iterations,
             config.scale_min, config.scale_max, config.de_scale_factor, config.init_spread,
-            config.noise_threshold, k, config.alpha_min, config.alpha_max, config.min_amplitude_ratio,
+            config.noise_threshold, config.min_noise_sigma, k, config.alpha_min, config.alpha_max, config.min_snr, config.min_amplitude_ratio,
             config.min_separation_factor, config.min_width_factor, config.max_width_factor,
             scalars, echoes, reasons)
     finally:

@@ -16,11 +16,12 @@ REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wi
 
 
 @njit(**JIT)
-def mark_spurious(amplitude, position, width, first, last, pulse_fwhm,
+def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sigma, min_snr,
                   min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, reason):
     """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions).
 
-    (1) amplitude below min_amplitude_ratio x the largest; (3) centre outside
+    (1) amplitude below min_amplitude_ratio x the largest, or below min_snr x
+    sigma_noise (a bump of a few counts is not a return); (3) centre outside
     [first, last]; (4) FWHM below min_width_factor or above max_width_factor x the
     pulse FWHM; then (2) of two echoes closer than min_separation_factor x the
     pulse FWHM the weaker is spurious, so a weak early bump cannot knock out the
@@ -31,7 +32,7 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm,
     for k in range(n):
         largest = max(largest, amplitude[k])
     for k in range(n):
-        if amplitude[k] < min_amplitude_ratio * largest or amplitude[k] <= 0.0:
+        if amplitude[k] < max(min_amplitude_ratio * largest, min_snr * noise_sigma) or amplitude[k] <= 0.0:
             reason[k] = WEAK
         elif position[k] < first or position[k] > last:
             reason[k] = OUT_OF_RANGE
@@ -56,8 +57,9 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm,
 
 
 def filter_echoes(amplitude, position, width, first: float, last: float, pulse_fwhm: float,
-                  min_amplitude_ratio: float = 0.2, min_separation_factor: float = 1.0,
-                  min_width_factor: float = 1.0, max_width_factor: float = 3.0) -> np.ndarray:
+                  noise_sigma: float = 0.0, min_snr: float = 0.0, min_amplitude_ratio: float = 0.2,
+                  min_separation_factor: float = 1.0, min_width_factor: float = 1.0,
+                  max_width_factor: float = 3.0) -> np.ndarray:
     """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position."""
     amplitude = np.ascontiguousarray(amplitude, dtype=np.float64)
     position = np.ascontiguousarray(position, dtype=np.float64)
@@ -65,6 +67,6 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
         raise ValueError("echoes must be sorted by position")
     reason = np.zeros(amplitude.size, dtype=np.int8)
     mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
-                  float(pulse_fwhm), float(min_amplitude_ratio), float(min_separation_factor),
+                  float(pulse_fwhm), float(noise_sigma), float(min_snr), float(min_amplitude_ratio), float(min_separation_factor),
                   float(min_width_factor), float(max_width_factor), reason)
     return reason

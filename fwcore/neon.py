@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fwcore.preprocess import median_pulse_fwhm
+
 NEON_SAMPLE_SPACING_PS = 1000.0
-_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,26 +56,5 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
 
 
 def pulse_fwhm_ps(outgoing: CsvWaveforms, spacing_ps: float = NEON_SAMPLE_SPACING_PS) -> float:
-    """The system pulse FWHM (ps): the median over outgoing pulses of their width at half height above baseline."""
-    widths = []
-    for y, v in zip(outgoing.samples, outgoing.valid):
-        y = y[v]
-        if y.size < 5:
-            continue
-        base = np.min(y)
-        half = base + 0.5 * (np.max(y) - base)
-        peak = int(np.argmax(y))
-        above = y >= half
-        left = peak
-        while left > 0 and above[left - 1]:
-            left -= 1
-        right = peak
-        while right < y.size - 1 and above[right + 1]:
-            right += 1
-        # interpolate both crossings
-        lx = left - (y[left] - half) / (y[left] - y[left - 1]) if left > 0 else float(left)
-        rx = right + (y[right] - half) / (y[right] - y[right + 1]) if right < y.size - 1 else float(right)
-        widths.append(rx - lx)
-    if not widths:
-        raise ValueError("no usable outgoing pulse to measure the system pulse width")
-    return float(np.median(widths) * spacing_ps)
+    """The system pulse FWHM (ps): the median half-height width of the outgoing pulses."""
+    return median_pulse_fwhm([y[v] for y, v in zip(outgoing.samples, outgoing.valid)]) * spacing_ps

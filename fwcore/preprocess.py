@@ -273,3 +273,29 @@ def patent_peak_ranges(samples, smoothing_sigma: float, valid=None, window: int 
         amplitude_range=np.stack([np.zeros(peaks.size), heights], axis=1),
         sigma_range=np.stack([np.full(peaks.size, MIN_SIGMA), np.maximum(sigma_hi, MIN_SIGMA)], axis=1),
     )
+
+
+def half_height_width(samples) -> float:
+    """Width (samples) of the highest peak at half its height above the minimum, crossings interpolated."""
+    y = np.asarray(samples, dtype=float)
+    base = y.min()
+    half = base + 0.5 * (y.max() - base)
+    peak = int(np.argmax(y))
+    left = peak
+    while left > 0 and y[left - 1] >= half:
+        left -= 1
+    right = peak
+    while right < y.size - 1 and y[right + 1] >= half:
+        right += 1
+    lx = left - (y[left] - half) / (y[left] - y[left - 1]) if left > 0 else float(left)
+    rx = right + (y[right] - half) / (y[right] - y[right + 1]) if right < y.size - 1 else float(right)
+    return float(rx - lx)
+
+
+def median_pulse_fwhm(waveforms, min_samples: int = 5) -> float:
+    """The median half-height width (samples) over waveforms of single pulses: outgoing pulses, or
+    returns that the system itself saw as single. Raises when no waveform is usable."""
+    widths = [half_height_width(w) for w in waveforms if len(w) >= min_samples and np.ptp(w) > 0]
+    if not widths:
+        raise ValueError("no usable waveform to measure the system pulse width")
+    return float(np.median(widths))

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.decompose import WaveformBatch
+from fwcore.preprocess import median_pulse_fwhm
 from fwcore.rng import pulse_seed
 
 
@@ -47,6 +48,15 @@ class PulseBatch:
 
     def pulse_samples(self, i: int) -> np.ndarray:
         return self.samples[self.sample_offsets[i]:self.sample_offsets[i + 1]]
+
+    def single_return_pulse_fwhm_ps(self) -> float:
+        """The system pulse FWHM (ps) measured on pulses the system saw as single returns:
+        the file does not record it, and the filter and smoothing need it."""
+        single = np.flatnonzero(np.diff(self.return_offsets) == 1)
+        if single.size == 0:
+            raise ValueError(f"{self.source_file}: no single-return pulse to measure the system pulse width")
+        width = median_pulse_fwhm([self.pulse_samples(i) for i in single])
+        return width * float(np.median(self.sample_spacing_ps[single]))
 
     def waveforms(self, seed: int) -> WaveformBatch:
         """The engine's input; each pulse's seed comes from the run seed, file name and pulse id."""
