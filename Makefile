@@ -13,8 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/fwl decompose-csv examples/data/neon_harvard/return_waveforms.csv \
-		--outgoing examples/data/neon_harvard/outgoing_pulses.csv --output out/neon_echoes.parquet
+	$(BIN)/fwl run --output out/run --points-per-range 300
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

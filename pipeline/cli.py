@@ -79,6 +79,28 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
+    import logging
+
+    from pipeline.run import run
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    for noisy in ("apache_beam", "distributed", "numba"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+    config = _config_from_args(args)
+    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    print(f"fwl run: {len(args.inputs) or 'the bundled sample'} input(s) -> {args.output} "
+          f"({', '.join(formats)}); optimizer {config.optimizer.value}, model {config.model.value}")
+    summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args)
+    c = summary["counts"]
+    print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
+          f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
+    print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
+    if c["pulses_rejected"] or c["files_rejected"]:
+        print(f"see {args.output}/rejected/ for the reasons")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -91,13 +113,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
+
+    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline",
+                       epilog="Any other option is a Beam pipeline option (--runner, --dask_client_address, ...); "
+                              "the default runner is the DirectRunner with 2 worker processes.")
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ files or glob patterns (default: the bundled Leica sample)")
+    r.add_argument("--output", default="out/run", help="output directory (default out/run)")
+    r.add_argument("--formats", default="parquet,las,mcap", help="comma-separated: parquet, las, mcap")
+    r.add_argument("--limit", type=int, help="at most N pulses per input file")
+    r.add_argument("--points-per-range", dest="points_per_range", type=int, default=5000,
+                   help="points per unit of work (default 5000)")
+    r.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
+    _add_method_options(r)
+    r.set_defaults(handler=_run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args, rest = build_parser().parse_known_args(argv)
+    if rest and args.command != "run":
+        build_parser().error(f"unrecognized arguments: {' '.join(rest)}")
     try:
-        return args.handler(args)
+        return args.handler(args, rest) if args.command == "run" else args.handler(args)
     except (ValueError, FileNotFoundError) as err:
         print(f"fwl: error: {err}", file=sys.stderr)
         return 2

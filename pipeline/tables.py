@@ -71,3 +71,71 @@ def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: 
         "model": pa.array([config.model.value] * len(result), pa.string()),
     })
     return _with_config(table, config)
+
+
+def _strings(value: str, n: int) -> pa.Array:
+    return pa.array([value] * n, pa.string())
+
+
+def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
+                 xyz: np.ndarray, ok: np.ndarray) -> tuple[pa.Table, pa.Table]:
+    """Echo rows (kept and spurious, geolocated) and pulse rows of the decomposed pulses `ok`."""
+    from fwcore.model import sigma_to_time_unit
+
+    counts = np.diff(result.echo_offsets)
+    owner = np.repeat(np.arange(len(result)), counts)
+    echo_index = np.arange(owner.size) - result.echo_offsets[owner]
+    spacing = pulses.sample_spacing_ps[owner]
+    gain = pulses.digitizer_gain[owner]
+    echoes = pa.table({
+        "source_file": _strings(source_file, owner.size),
+        "pulse_id": pa.array(pulses.pulse_id[owner], pa.int64()),
+        "gps_time": pulses.gps_time[owner],
+        "echo_index": pa.array(echo_index, pa.int32()),
+        "echo_count": pa.array(counts[owner], pa.int32()),
+        "time_ps": result.position * spacing,
+        "amplitude": result.amplitude,
+        "amplitude_volts": result.amplitude * gain,
+        "sigma_ps": sigma_to_time_unit(result.sigma, result.alpha, spacing),
+        "alpha": result.alpha,
+        "fwhm_ps": result.fwhm * spacing,
+        "energy": result.energy * spacing,
+        "background": result.background[owner],
+        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+        "kept": pa.array(result.reject == 0),
+        "reject_reason": pa.array(np.array(REJECT_REASONS, dtype=object)[result.reject].tolist(), pa.string()),
+        "fit_error": result.fit_error[owner],
+        "fit_error_raw": result.fit_error_raw[owner],
+        "rmse": result.rmse[owner],
+        "r2": result.r2[owner],
+        "optimizer": _strings(config.optimizer.value, owner.size),
+        "model": _strings(config.model.value, owner.size),
+    })
+    kept = np.bincount(owner[result.reject == 0], minlength=len(result))
+    sel = np.flatnonzero(ok)
+    table = pa.table({
+        "source_file": _strings(source_file, sel.size),
+        "pulse_id": pa.array(pulses.pulse_id[sel], pa.int64()),
+        "gps_time": pulses.gps_time[sel],
+        "n_samples": pa.array(np.diff(pulses.sample_offsets)[sel], pa.int32()),
+        "sample_spacing_ps": pulses.sample_spacing_ps[sel],
+        "noise_sigma": result.noise_sigma[sel],
+        "background": result.background[sel],
+        "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
+        "fit_error": result.fit_error[sel],
+        "fit_error_raw": result.fit_error_raw[sel],
+        "rmse": result.rmse[sel],
+        "r2": result.r2[sel],
+        "n_echoes_initial": pa.array(result.n_echoes_initial[sel], pa.int32()),
+        "n_echoes": pa.array(counts[sel], pa.int32()),
+        "n_echoes_kept": pa.array(kept[sel], pa.int32()),
+        "n_system_returns": pa.array(np.diff(pulses.return_offsets)[sel], pa.int32()),
+        "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
+        "optimizer": _strings(config.optimizer.value, sel.size),
+        "model": _strings(config.model.value, sel.size),
+    })
+    return _with_config(echoes, config), _with_config(table, config)
+
+
+REJECTED_SCHEMA = pa.schema([("source_file", pa.string()), ("pulse_id", pa.int64()), ("stage", pa.string()),
+                             ("reason", pa.string())])

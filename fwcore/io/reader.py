@@ -48,6 +48,8 @@ class PointRange:
     stop: int
     extra_points: tuple[int, ...] = ()
     foreign_points: tuple[int, ...] = ()
+    n_pulses: int = -1  # pulses this range owns (-1: not planned)
+    max_pulses: int | None = None  # read only the first max_pulses of them (a run's --limit)
 
 
 def open_waveform_file(path: str | Path) -> WaveformFile:
@@ -119,6 +121,7 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
     unique, first, inverse = np.unique(keys[has], return_index=True, return_inverse=True)
     point_index = np.flatnonzero(has)
     owner = range_of_point[point_index[first]][inverse]
+    pulses_per_range = np.bincount(range_of_point[point_index[first]], minlength=starts.size)
     straying = point_index[owner != range_of_point[point_index]]
     stray_owner = owner[owner != range_of_point[point_index]]
     ranges = []
@@ -126,7 +129,7 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
         stop = min(n, start + points_per_range)
         extra = tuple(int(p) for p in straying[stray_owner == r])
         foreign = tuple(int(p) for p in straying[(straying >= start) & (straying < stop)])
-        ranges.append(PointRange(str(path), int(start), int(stop), extra, foreign))
+        ranges.append(PointRange(str(path), int(start), int(stop), extra, foreign, int(pulses_per_range[r])))
     return ranges
 
 
@@ -176,7 +179,7 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     bounds = np.append(starts, order.size)
     # pulses in file order of their first point, as a reader would meet them
     first_point = np.array([index[order[bounds[i]:bounds[i + 1]]].min() for i in range(pulse_keys.size)])
-    pulse_order = np.argsort(first_point, kind="stable")
+    pulse_order = np.argsort(first_point, kind="stable")[:point_range.max_pulses]
 
     data = wf.packets.open()
     good, samples, rejected = [], [], []
