@@ -37,4 +37,4 @@ class DecomposedBatch:
     echoes: pa.Table  # one row per echo, kept and spurious
     pulses: pa.Table  # one row per decomposed pulse
     cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.io.writer.decomposed_echoes)
-    views: list[dict] | None = None  # per pulse, for MCAP: raw samples, fitted model, echoes
+    views: dict[str, np.ndarray] | None = None  # for MCAP: per pulse raw samples, fitted model, echoes

@@ -51,7 +51,27 @@ WAVEFORM_SCHEMA = {
 }
 
 
-def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: list[dict]) -> Path:
+def _waveform_messages(views: list[dict[str, np.ndarray]]):
+    """(gps_time, pulse_id, JSON) per pulse of the ranges' view arrays, in time order."""
+    keys = [(float(v["gps_time"][i]), int(v["pulse_id"][i]), b, i) for b, v in enumerate(views)
+            for i in range(v["pulse_id"].size)]
+    from fwcore.filter import REJECT_REASONS
+    for gps_time, pulse_id, b, i in sorted(keys):
+        v = views[b]
+        lo, hi = v["sample_offsets"][i], v["sample_offsets"][i + 1]
+        e_lo, e_hi = v["echo_offsets"][i], v["echo_offsets"][i + 1]
+        yield gps_time, json.dumps({
+            "pulse_id": pulse_id, "gps_time": gps_time,
+            "time_ps": (np.arange(hi - lo) * float(v["sample_spacing_ps"][i])).tolist(),
+            "raw": v["raw"][lo:hi].tolist(), "model": np.round(v["model"][lo:hi], 3).tolist(),
+            "echoes": [{"time_ps": float(t), "amplitude": float(a), "fwhm_ps": float(f), "kept": not r,
+                        "reject_reason": REJECT_REASONS[r]}
+                       for t, a, f, r in zip(v["echo_time_ps"][e_lo:e_hi], v["echo_amplitude"][e_lo:e_hi],
+                                             v["echo_fwhm_ps"][e_lo:e_hi], v["echo_reject"][e_lo:e_hi])],
+        }).encode()
+
+
+def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: list[dict[str, np.ndarray]]) -> Path:
     """Kept echoes as foxglove.PointCloud messages on /echoes (chunks of consecutive pulses, GPS time
     stamps) and each pulse's raw waveform, fitted model and echoes as JSON on /waveform."""
     from mcap.writer import Writer
@@ -75,8 +95,8 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: list[dict]) -> P
                     else pulse_of_echo.size
                 message, ns = _point_cloud_message(cloud, np.arange(lo, hi), origin)
                 writer.add_message(cloud_channel, log_time=ns, data=message.SerializeToString(), publish_time=ns)
-        for view in views:
-            ns = int(round(view["gps_time"] * 1e9))
-            writer.add_message(wave_channel, log_time=ns, data=json.dumps(view).encode(), publish_time=ns)
+        for gps_time, data in _waveform_messages(views):
+            ns = int(round(gps_time * 1e9))
+            writer.add_message(wave_channel, log_time=ns, data=data, publish_time=ns)
         writer.finish()
     return path

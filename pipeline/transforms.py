@@ -153,22 +153,21 @@ class Decompose(beam.DoFn):
 
 # ---------------------------------------------------------------- geolocate
 
-def _waveform_views(pulses: PulseBatch, result: BatchDecomposition) -> list[dict]:
-    views = []
+def _waveform_views(pulses: PulseBatch, result: BatchDecomposition) -> dict[str, np.ndarray]:
+    """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing)."""
+    model = np.zeros(pulses.samples.size, dtype=np.float32)
     for i in range(len(pulses)):
         w = result.waveform(i)
-        spacing = float(pulses.sample_spacing_ps[i])
-        samples = pulses.pulse_samples(i)
-        t = np.arange(samples.size)
-        views.append({
-            "pulse_id": int(pulses.pulse_id[i]), "gps_time": float(pulses.gps_time[i]),
-            "time_ps": (t * spacing).tolist(), "raw": samples.tolist(),
-            "model": np.round(w.model(t), 3).tolist() if not w.status else [],
-            "echoes": [{"time_ps": float(u * spacing), "amplitude": float(a), "fwhm_ps": float(f * spacing),
-                        "kept": not r, "reject_reason": r}
-                       for u, a, f, r in zip(w.position, w.amplitude, w.fwhm, w.reject_reason)],
-        })
-    return views
+        lo, hi = pulses.sample_offsets[i], pulses.sample_offsets[i + 1]
+        if not w.status:
+            model[lo:hi] = w.model(np.arange(hi - lo))
+    owner = np.repeat(np.arange(len(result)), np.diff(result.echo_offsets))
+    spacing = pulses.sample_spacing_ps
+    return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
+            "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32), "model": model,
+            "echo_offsets": result.echo_offsets, "echo_time_ps": result.position * spacing[owner],
+            "echo_amplitude": result.amplitude, "echo_fwhm_ps": result.fwhm * spacing[owner],
+            "echo_reject": result.reject}
 
 
 class Geolocate(beam.DoFn):
@@ -245,8 +244,7 @@ class WritePerFile(beam.PTransform):
                 suffix = ".laz" if self.laz else ".las"
                 write_point_cloud(Path(self.output) / "las" / f"{stem}{suffix}", parts[0][0], cloud)
             if "mcap" in self.formats:
-                views = sorted((v for p in parts for v in (p[2] or [])), key=lambda v: (v["gps_time"], v["pulse_id"]))
-                write_mcap(Path(self.output) / "mcap" / f"{stem}.mcap", cloud, views)
+                write_mcap(Path(self.output) / "mcap" / f"{stem}.mcap", cloud, [p[2] for p in parts])
             return name
 
         return batches | "KeyByFile" >> beam.Map(key) | "GroupByFile" >> beam.GroupByKey() | "Write" >> beam.Map(write)
