@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 import platform
 import shutil
@@ -79,6 +80,9 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         shutil.rmtree(output / name, ignore_errors=True)
     output.mkdir(parents=True, exist_ok=True)
     inputs = [str(Path(i).resolve()) if Path(i).exists() else i for i in (inputs or [str(BUNDLED_SAMPLE)])]
+    for pattern in inputs:  # local patterns are checked here, so a typo is an error and not an empty run
+        if "://" not in pattern and not glob.glob(pattern):
+            raise FileNotFoundError(f"{pattern}: no file matches this input")
     options = beam_options(beam_args or [])
     began = time.perf_counter()
     pipeline = beam.Pipeline(options=options)

@@ -127,3 +127,8 @@ def test_directory_with_a_truncated_and_a_plain_file(tmp_path, leica_dir):
     assert len(cut) == c["pulses_rejected"] > 0 and (cut.stage == "read").all()
     assert cut.reason.str.contains("beyond the end of cut.wdp").all()
     assert {p.name for p in (out / "las").iterdir()} == {"good.las", "cut.las"}
+
+
+def test_an_input_that_matches_nothing_is_an_error(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nothing*.las"), "--output", str(tmp_path / "out")]) == 2
+    assert "nothing*.las: no file matches this input" in capsys.readouterr().err

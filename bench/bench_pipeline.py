@@ -1,0 +1,127 @@
+"""Pipeline benchmark: pulses/s end to end (DirectRunner, 2 workers) against the engine alone on 2 cores.
+
+    python bench/bench_pipeline.py [--copies 109] [--generations 20] [--workdir DIR]
+
+Makes a file of copies x 924 pulses by repeating the Leica sample (shifted in
+space and time, each copy its own packets), then times (1) the engine alone:
+decompose_batch over all pulses on 2 numba threads, and (2) `fwl run` on the
+file with --formats parquet,las. Peak memory is the largest sum of RSS over
+the process and all its children, sampled every 0.2 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+from fwcore.config import DecompositionConfig
+from fwcore.decompose import decompose_batch
+from fwcore.io import PulseBatch, read_pulses
+from fwcore.io.writer import write_waveform_las
+
+SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
+
+
+def repeated(pulses: PulseBatch, copies: int) -> PulseBatch:
+    """The pulses `copies` times, copy k shifted by k x 100 m in x and by k x the time span."""
+    span = float(np.ptp(pulses.gps_time)) + 1.0
+    n, m = len(pulses), pulses.return_xyz.shape[0]
+
+    def tile(a):
+        return np.concatenate([a] * copies)
+
+    shift_pulse = np.repeat(np.arange(copies), n)
+    shift_return = np.repeat(np.arange(copies), m)
+    anchor = tile(pulses.anchor) + np.stack([shift_pulse * 100.0, np.zeros(n * copies), np.zeros(n * copies)], 1)
+    returns = tile(pulses.return_xyz) + np.stack([shift_return * 100.0, np.zeros(m * copies), np.zeros(m * copies)], 1)
+
+    def offsets(o):
+        return np.concatenate([[0], np.cumsum(np.tile(np.diff(o), copies))])
+
+    return dataclasses.replace(
+        pulses, pulse_id=np.arange(n * copies), descriptor_index=tile(pulses.descriptor_index),
+        gps_time=tile(pulses.gps_time) + shift_pulse * span, anchor=anchor,
+        anchor_location_ps=tile(pulses.anchor_location_ps), direction=tile(pulses.direction),
+        scan_angle=tile(pulses.scan_angle), point_source_id=tile(pulses.point_source_id),
+        scan_direction_flag=tile(pulses.scan_direction_flag), edge_of_flight_line=tile(pulses.edge_of_flight_line),
+        user_data=tile(pulses.user_data), sample_spacing_ps=tile(pulses.sample_spacing_ps),
+        digitizer_gain=tile(pulses.digitizer_gain), digitizer_offset=tile(pulses.digitizer_offset),
+        bits_per_sample=tile(pulses.bits_per_sample), samples=tile(pulses.samples),
+        sample_offsets=offsets(pulses.sample_offsets), return_xyz=returns, return_number=tile(pulses.return_number),
+        return_intensity=tile(pulses.return_intensity), return_location_ps=tile(pulses.return_location_ps),
+        return_offsets=offsets(pulses.return_offsets))
+
+
+class PeakMemory:
+    """Largest total RSS of this process and its children (Beam's workers), sampled in a thread."""
+
+    def __init__(self):
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self):
+        me = psutil.Process()
+        while not self._stop.is_set():
+            total = 0
+            for p in [me, *me.children(recursive=True)]:
+                try:
+                    total += p.memory_info().rss
+                except psutil.Error:
+                    pass
+            self.peak = max(self.peak, total)
+            time.sleep(0.2)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--copies", type=int, default=109, help="924 pulses each (109: 100,716 pulses)")
+    parser.add_argument("--generations", type=int, default=20)
+    parser.add_argument("--workdir", default=None)
+    args = parser.parse_args()
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-bench-"))
+    sample = read_pulses(SAMPLE)
+    big = repeated(sample, args.copies)
+    path = write_waveform_las(work / "flight.las", big, "las13-wdp", 8)
+    fwhm = sample.single_return_pulse_fwhm_ps()
+    config = DecompositionConfig(generations=args.generations, system_pulse_fwhm_ps=fwhm)
+    print(f"{len(big)} pulses in {path} ({path.stat().st_size / 1e6:.0f} MB + "
+          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); MDE NP 60, G {args.generations}")
+
+    pulses = read_pulses(path)
+    decompose_batch(pulses.waveforms(0), config.replace(generations=1), threads=2)  # compile
+    with PeakMemory() as engine_memory:
+        start = time.perf_counter()
+        decompose_batch(pulses.waveforms(0), config, threads=2)
+        engine = len(pulses) / (time.perf_counter() - start)
+    del pulses
+
+    from pipeline.run import run
+    with PeakMemory() as pipeline_memory:
+        start = time.perf_counter()
+        summary = run([str(path)], work / "out", config, ("parquet", "las"), points_per_range=5000)
+        pipeline = summary["counts"]["pulses_read"] / (time.perf_counter() - start)
+    print(f"{'':34} {'pulses/s':>9} {'peak RSS MiB':>13}")
+    print(f"{'engine alone, 2 threads':34} {engine:9.1f} {engine_memory.peak / 2**20:13.0f}")
+    print(f"{'fwl run, DirectRunner 2 workers':34} {pipeline:9.1f} {pipeline_memory.peak / 2**20:13.0f}")
+    print(f"pipeline / engine: {pipeline / engine:.0%} (pulses read {summary['counts']['pulses_read']}, "
+          f"decomposed {summary['counts']['pulses_decomposed']})")
+
+
+if __name__ == "__main__":
+    main()
