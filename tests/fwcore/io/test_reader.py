@@ -80,3 +80,42 @@ def test_pulse_whose_points_lie_far_apart_is_read_once(tmp_path, leica_dir):
     owner = next(p for p in parts if offsets[multi] in p.pulse_id)
     j = int(np.flatnonzero(owner.pulse_id == offsets[multi])[0])
     assert owner.return_offsets[j + 1] - owner.return_offsets[j] == las.number_of_returns[-1]
+
+
+@pytest.mark.parametrize("point_format,version", [(5, "1.3"), (10, "1.4")])
+def test_colour_formats_carry_rgb_and_nir(tmp_path, leica_dir, point_format, version):
+    import laspy
+    las = laspy.convert(laspy.read(leica_dir / "leica_a.las"), point_format_id=point_format, file_version=version)
+    las.red[:] = np.arange(len(las.points)) % 65536
+    if point_format == 10:
+        las.nir[:] = 7
+    path = tmp_path / "colour.las"
+    las.write(path)
+    (tmp_path / "colour.wdp").write_bytes((leica_dir / "leica_a.wdp").read_bytes())
+    pulses = read_pulses(path)
+    reference = read_pulses(leica_dir / "leica_a.las")
+    np.testing.assert_array_equal(pulses.samples, reference.samples)
+    assert pulses.rgb is not None and pulses.rgb.shape == (924, 3)
+    assert (pulses.nir == 7).all() if point_format == 10 else pulses.nir is None
+
+
+def test_las13_internal_packets(tmp_path, leica_dir):
+    """LAS 1.3 internal storage: the header's 'start of waveform data packet record' points at the
+    record (its 60-byte header first), and offsets count from there."""
+    import struct
+    import laspy
+    las = laspy.read(leica_dir / "leica_a.las")
+    wdp = (leica_dir / "leica_a.wdp").read_bytes()  # a record header + LAStools header + packets
+    path = tmp_path / "internal13.las"
+    las.header.global_encoding.waveform_data_packets_external = False
+    las.header.global_encoding.waveform_data_packets_internal = True
+    las.write(path)
+    start = path.stat().st_size
+    with open(path, "r+b") as f:
+        f.seek(0, 2)
+        f.write(wdp)
+        f.seek(227)
+        f.write(struct.pack("<Q", start))
+    wf = open_waveform_file(path)
+    assert wf.packets.path == path and wf.packets.record_start == start
+    np.testing.assert_array_equal(read_pulses(path).samples, read_pulses(leica_dir / "leica_a.las").samples)
