@@ -19,11 +19,10 @@ from numba import njit, prange
 from fwcore._jit import JIT, PARALLEL_JIT
 from fwcore.config import DecompositionConfig, FitTarget, Model, Optimizer
 from fwcore.filter import REJECT_REASONS, mark_spurious
-from fwcore.model import echo_energy
+from fwcore.model import echo_energy, fwhm, waveform_model
 from fwcore.optimize import (LANES, OPT_DE, OPT_MDE, OPT_NONE, PARAMS_PER_ECHO, evolve, fit_error,
                              init_population)
 from fwcore.preprocess import _noise_sigma, _progressive_echoes, _smooth, _valid_min
-from fwcore.rng import uniform
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 _LN2 = math.log(2.0)
@@ -261,7 +260,6 @@ class Decomposition:
         return np.array([r == "" for r in self.reject_reason], dtype=bool)
 
     def model(self, t) -> np.ndarray:
-        from fwcore.model import waveform_model
         return waveform_model(t, self.background, self.amplitude, self.position, self.sigma, self.alpha)
 
 
@@ -289,6 +287,11 @@ class BatchDecomposition:
 
     def __len__(self) -> int:
         return self.status.size
+
+    @property
+    def echo_waveform(self) -> np.ndarray:
+        """For each echo, the index of its waveform in the batch."""
+        return np.repeat(np.arange(len(self)), np.diff(self.echo_offsets))
 
     def waveform(self, i: int) -> Decomposition:
         lo, hi = self.echo_offsets[i], self.echo_offsets[i + 1]
@@ -362,7 +365,6 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     has = np.arange(k)[None, :] < counts[:, None]
     flat = echoes[has]
     amplitude, position, sigma, alpha = flat[:, 0], flat[:, 1], flat[:, 2], flat[:, 3]
-    from fwcore.model import fwhm
     return BatchDecomposition(
         status=status, background=scalars[:, 0], noise_sigma=scalars[:, 1], fit_error=scalars[:, 2],
         fit_error_raw=scalars[:, 3], rmse=scalars[:, 4], r2=scalars[:, 5],

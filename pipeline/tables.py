@@ -21,7 +21,7 @@ def _with_config(table: pa.Table, config: DecompositionConfig) -> pa.Table:
 def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig) -> pa.Table:
     """One row per echo, spurious ones included; times and widths in samples, amplitudes in digitizer units."""
     counts = np.diff(result.echo_offsets)
-    owner = np.repeat(np.arange(len(result)), counts)
+    owner = result.echo_waveform
     echo_index = np.arange(owner.size) - result.echo_offsets[owner]
     reasons = np.array(REJECT_REASONS, dtype=object)[result.reject]
     table = pa.table({
@@ -51,8 +51,8 @@ def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: 
                    n_samples: np.ndarray) -> pa.Table:
     """One row per waveform, whether or not it was decomposed: none is dropped."""
     counts = np.diff(result.echo_offsets)
-    kept = np.add.reduceat((result.reject == 0).astype(np.int64), result.echo_offsets[:-1]) if result.reject.size else np.zeros(len(result), np.int64)
-    kept = np.where(counts > 0, kept, 0)
+    owner = result.echo_waveform
+    kept = np.bincount(owner[result.reject == 0], minlength=len(result))
     table = pa.table({
         "waveform_id": pa.array(waveform_id, pa.int64()),
         "status": pa.array([STATUS_REASONS[s] for s in result.status], pa.string()),
@@ -83,7 +83,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     from fwcore.model import sigma_to_time_unit
 
     counts = np.diff(result.echo_offsets)
-    owner = np.repeat(np.arange(len(result)), counts)
+    owner = result.echo_waveform
     echo_index = np.arange(owner.size) - result.echo_offsets[owner]
     spacing = pulses.sample_spacing_ps[owner]
     gain = pulses.digitizer_gain[owner]

@@ -161,7 +161,7 @@ def _waveform_views(pulses: PulseBatch, result: BatchDecomposition) -> dict[str,
         lo, hi = pulses.sample_offsets[i], pulses.sample_offsets[i + 1]
         if not w.status:
             model[lo:hi] = w.model(np.arange(hi - lo))
-    owner = np.repeat(np.arange(len(result)), np.diff(result.echo_offsets))
+    owner = result.echo_waveform
     spacing = pulses.sample_spacing_ps
     return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
             "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32), "model": model,
@@ -183,14 +183,12 @@ class Geolocate(beam.DoFn):
             yield element
             return
         pulses, config, start, result = element
-        owner = np.repeat(np.arange(len(result)), np.diff(result.echo_offsets))
+        owner = result.echo_waveform
         time_ps = result.position * pulses.sample_spacing_ps[owner]
         xyz = geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
         name = Path(pulses.source_file).name
         echoes, table = pulse_tables(name, pulses, result, config, xyz, result.status == 0)
         cloud = decomposed_echoes(pulses, result)
-        cloud["pulse_id"] = pulses.pulse_id[np.repeat(np.arange(len(result)), np.diff(result.echo_offsets))][
-            result.reject == 0]
         n_kept = int((result.reject == 0).sum())
         self.kept.inc(n_kept)
         self.spurious.inc(int(result.reject.size - n_kept))

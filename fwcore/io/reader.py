@@ -178,7 +178,7 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     pulse_keys, starts = np.unique(keys[order], return_index=True)
     bounds = np.append(starts, order.size)
     # pulses in file order of their first point, as a reader would meet them
-    first_point = np.array([index[order[bounds[i]:bounds[i + 1]]].min() for i in range(pulse_keys.size)])
+    first_point = np.minimum.reduceat(index[order], starts) if order.size else np.zeros(0, np.int64)
     pulse_order = np.argsort(first_point, kind="stable")[:point_range.max_pulses]
 
     data = wf.packets.open()

@@ -31,8 +31,7 @@ _CRS_RECORDS = {("LASF_Projection", 34735), ("LASF_Projection", 34736), ("LASF_P
 
 def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition) -> dict[str, np.ndarray]:
     """Columns of the kept echoes, geolocated, with return numbers recomputed in time order."""
-    counts = np.diff(result.echo_offsets)
-    owner = np.repeat(np.arange(len(result)), counts)
+    owner = result.echo_waveform
     kept = result.reject == 0
     owner = owner[kept]
     spacing = pulses.sample_spacing_ps[owner]
@@ -44,6 +43,7 @@ def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition) -> dict[st
     xyz = geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
     amplitude = result.amplitude[kept]
     columns = {
+        "pulse_id": pulses.pulse_id[owner],
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
         "gps_time": pulses.gps_time[owner],
         "return_number": return_number,

@@ -4,7 +4,6 @@ import shutil
 import struct
 
 import laspy
-import numpy as np
 import pytest
 
 from fwcore.io import WaveformFileError, open_waveform_file, read_pulses
