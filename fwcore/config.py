@@ -73,7 +73,7 @@ class DecompositionConfig:
     min_amplitude_ratio: float = 0.05
     min_snr: float = 4.0  # amplitude below min_snr x sigma_noise is weak too
     min_separation_factor: float = 1.0  # x system pulse FWHM
-    min_width_factor: float = 0.6  # x system pulse FWHM
+    min_width_factor: float = 0.5  # x system pulse FWHM
     max_width_factor: float = 3.0  # x system pulse FWHM
     seed: int = 0
 

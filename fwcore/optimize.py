@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, fast_exp2, fast_log2
+from fwcore._jit import JIT, JIT_INLINE, _bits_of_f32, fast_exp2, fast_log2
 from fwcore.rng import randint, uniform
 
 PARAMS_PER_ECHO = 4
@@ -31,11 +31,15 @@ OPT_NONE, OPT_DE, OPT_MDE = 0, 1, 2
 
 @njit(**JIT_INLINE)
 def _echo_reach(amplitude, h, p, eps):
-    """How far from its centre (in samples) an echo stays above eps: h * log2(A/eps)**(1/p)."""
+    """How far from its centre (in samples) an echo stays above eps: h * log2(A/eps)**(1/p),
+    with log2(A/eps) bounded above by its float exponent + 1 (cheap, and only widens the window)."""
     ratio = _F32(amplitude / eps)
     if ratio <= _F32(1.0):
         return -1.0
-    return h * fast_exp2(fast_log2(fast_log2(ratio)) / _F32(p))
+    levels = _F32((_bits_of_f32(ratio) >> np.int32(23)) - np.int32(126))
+    if p == 2.0:
+        return h * math.sqrt(levels)
+    return h * fast_exp2(fast_log2(levels) / _F32(p))
 
 
 LANES = 8  # float32 lanes of AVX2: echo windows and buffers are whole blocks of LANES samples
@@ -117,12 +121,10 @@ def _draw_chaotic_factors(state, t, k, a, b, seeds, out):
 
 @njit(**JIT_INLINE)
 def _repair(value, base, lo, hi):
-    """Out of bounds: halfway between the bound and the mutation's base vector (keeps diversity, unlike clipping)."""
-    if value < lo:
-        return 0.5 * (lo + base)
-    if value > hi:
-        return 0.5 * (hi + base)
-    return value
+    """Out of bounds: halfway between the bound and the mutation's base vector (keeps diversity, unlike clipping).
+    Written as selects, not branches, so the loops over parameters vectorize."""
+    value = 0.5 * (lo + base) if value < lo else value
+    return 0.5 * (hi + base) if value > hi else value
 
 
 @njit(**JIT)
