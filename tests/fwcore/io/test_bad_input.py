@@ -75,7 +75,7 @@ def test_point_format_without_waveforms(tmp_path, leica_dir):
 
 def test_corrupt_header(tmp_path, leica_dir):
     data = bytearray((leica_dir / "leica_a.las").read_bytes())
-    data[0:4] = b"XXXX"
+    data[0:4] = b"JUNK"  # not the LASF signature
     (tmp_path / "bad.las").write_bytes(bytes(data))
     with pytest.raises(WaveformFileError, match=r"bad\.las: not a readable LAS/LAZ file"):
         open_waveform_file(tmp_path / "bad.las")
