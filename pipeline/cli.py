@@ -89,7 +89,8 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
         logging.getLogger(noisy).setLevel(logging.WARNING)
     config = _config_from_args(args)
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-    print(f"fwl run: {len(args.inputs) or 'the bundled sample'} input(s) -> {args.output} "
+    what = f"{len(args.inputs)} input pattern(s)" if args.inputs else "the bundled Leica sample"
+    print(f"fwl run: {what} -> {args.output} "
           f"({', '.join(formats)}); optimizer {config.optimizer.value}, model {config.model.value}")
     summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args)
     c = summary["counts"]
