@@ -354,8 +354,9 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
             config.fit_target is FitTarget.DENOISED, config.population, config.generations,
             config.crossover_rate, immediate, config.chaos_seeds, config.chaos_iterations,
             config.scale_min, config.scale_max, config.de_scale_factor, config.init_spread,
-            config.noise_threshold, config.min_noise_sigma, k, config.alpha_min, config.alpha_max, config.min_snr, config.min_amplitude_ratio,
-            config.min_separation_factor, config.min_width_factor, config.max_width_factor,
+            config.noise_threshold, config.min_noise_sigma, k, config.alpha_min, config.alpha_max,
+            config.min_snr, config.min_amplitude_ratio, config.min_separation_factor,
+            config.min_width_factor, config.max_width_factor,
             scalars, echoes, reasons)
     finally:
         numba.set_num_threads(previous_threads)

@@ -67,6 +67,6 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
         raise ValueError("echoes must be sorted by position")
     reason = np.zeros(amplitude.size, dtype=np.int8)
     mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
-                  float(pulse_fwhm), float(noise_sigma), float(min_snr), float(min_amplitude_ratio), float(min_separation_factor),
-                  float(min_width_factor), float(max_width_factor), reason)
+                  float(pulse_fwhm), float(noise_sigma), float(min_snr), float(min_amplitude_ratio),
+                  float(min_separation_factor), float(min_width_factor), float(max_width_factor), reason)
     return reason

@@ -127,19 +127,17 @@ def _repair(value, base, lo, hi):
     return 0.5 * (hi + base) if value > hi else value
 
 
+@njit(**JIT_INLINE)
+def _mde_candidate(best, diff1, diff2, f1, f2, lower, upper, out):
+    """V = X_best + F1 diff1 + F2 diff2, repaired: evolve computes the differences once for all k x t candidates."""
+    for j in range(out.size):
+        out[j] = _repair(best[j] + f1 * diff1[j] + f2 * diff2[j], best[j], lower[j], upper[j])
+
+
 @njit(**JIT)
 def mutate_mde(best, x1, x2, x3, x4, f1, f2, lower, upper, out):
     """MDE mutation: V = X_best + F1 (X_r1 - X_r2) + F2 (X_r3 - X_r4), repaired into the bounds."""
-    for j in range(out.size):
-        v = best[j] + f1 * (x1[j] - x2[j]) + f2 * (x3[j] - x4[j])
-        out[j] = _repair(v, best[j], lower[j], upper[j])
-
-
-@njit(**JIT_INLINE)
-def _mde_candidate(best, diff1, diff2, f1, f2, lower, upper, out):
-    """mutate_mde with the two differences computed once for all k x t candidates."""
-    for j in range(out.size):
-        out[j] = _repair(best[j] + f1 * diff1[j] + f2 * diff2[j], best[j], lower[j], upper[j])
+    _mde_candidate(best, x1 - x2, x3 - x4, f1, f2, lower, upper, out)
 
 
 @njit(**JIT)

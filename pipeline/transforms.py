@@ -25,7 +25,8 @@ from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
 from fwcore.decompose import STATUS_REASONS, BatchDecomposition, decompose_batch
-from fwcore.io import PulseBatch, geolocate, plan_point_ranges, read_pulses
+from fwcore.io import PulseBatch, plan_point_ranges, read_pulses
+from fwcore.io.geolocate import echo_positions
 from fwcore.io.reader import PointRange
 from fwcore.io.writer import decomposed_echoes, write_point_cloud
 from pipeline.records import DecomposedBatch, ReadTask, RejectedPulse
@@ -183,12 +184,10 @@ class Geolocate(beam.DoFn):
             yield element
             return
         pulses, config, start, result = element
-        owner = result.echo_waveform
-        time_ps = result.position * pulses.sample_spacing_ps[owner]
-        xyz = geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
+        xyz = echo_positions(pulses, result)
         name = Path(pulses.source_file).name
         echoes, table = pulse_tables(name, pulses, result, config, xyz, result.status == 0)
-        cloud = decomposed_echoes(pulses, result)
+        cloud = decomposed_echoes(pulses, result, xyz)
         n_kept = int((result.reject == 0).sum())
         self.kept.inc(n_kept)
         self.spurious.inc(int(result.reject.size - n_kept))

@@ -11,7 +11,7 @@ import numpy as np
 
 from fwcore.decompose import BatchDecomposition
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.geolocate import geolocate
+from fwcore.io.geolocate import echo_positions
 from fwcore.io.packets import EVLR_HEADER_BYTES
 from fwcore.io.records import PulseBatch
 from fwcore.model import sigma_to_time_unit
@@ -29,18 +29,20 @@ _CRS_RECORDS = {("LASF_Projection", 34735), ("LASF_Projection", 34736), ("LASF_P
                 ("LASF_Projection", 2112)}
 
 
-def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition) -> dict[str, np.ndarray]:
-    """Columns of the kept echoes, geolocated, with return numbers recomputed in time order."""
-    owner = result.echo_waveform
+def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,
+                      positions: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Columns of the kept echoes, geolocated, with return numbers recomputed in time order.
+
+    `positions` are those of every echo (fwcore.io.geolocate.echo_positions), when the caller has them.
+    """
     kept = result.reject == 0
-    owner = owner[kept]
+    owner = result.echo_waveform[kept]
     spacing = pulses.sample_spacing_ps[owner]
-    time_ps = result.position[kept] * spacing
+    xyz = (echo_positions(pulses, result) if positions is None else positions)[kept]
     # echoes are sorted by position within a pulse, so a running count is the return number
     n_kept = np.bincount(owner, minlength=len(result))
     first = np.concatenate([[0], np.cumsum(n_kept)[:-1]])
     return_number = np.arange(owner.size) - first[owner] + 1
-    xyz = geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
     amplitude = result.amplitude[kept]
     columns = {
         "pulse_id": pulses.pulse_id[owner],

@@ -27,8 +27,8 @@ def small_csv(tmp_path_factory, neon_dir):
 
 def test_decompose_csv_writes_echoes_that_reproduce_the_fitted_model(tmp_path, small_csv, neon_dir):
     out = tmp_path / "echoes.parquet"
-    code = main(["decompose-csv", str(small_csv), "--output", str(out), "--outgoing", str(neon_dir / "outgoing_pulses.csv"),
-                 "--generations", "30", "--seed", "3"])
+    code = main(["decompose-csv", str(small_csv), "--output", str(out),
+                 "--outgoing", str(neon_dir / "outgoing_pulses.csv"), "--generations", "30", "--seed", "3"])
     assert code == 0
     echoes = pq.read_table(out)
     waveforms = pq.read_table(tmp_path / "echoes.waveforms.parquet").to_pandas()
