@@ -18,10 +18,13 @@ from numba import njit, prange
 
 from fwcore._jit import JIT, PARALLEL_JIT
 from fwcore.config import DecompositionConfig, FitTarget, Model, Optimizer
-from fwcore.filter import REJECT_REASONS, mark_spurious
+from fwcore.filter import REJECT_REASONS, TOO_CLOSE, TOO_NARROW, TOO_WIDE, mark_spurious
 from fwcore.model import echo_energy, fwhm, waveform_model
-from fwcore.optimize import (LANES, OPT_DE, OPT_MDE, OPT_NONE, PARAMS_PER_ECHO, evolve, fit_error,
-                             init_population)
+from fwcore.lm import lbfgs, levenberg_marquardt, model_and_jacobian
+from fwcore.optimize import (LANES, OPT_DE, OPT_GA, OPT_GA_ITERATIVE, OPT_LBFGS, OPT_LM, OPT_MDE, OPT_MDE_LM,
+                             OPT_NONE, OPT_PSO, PARAMS_PER_ECHO, POPULATION_METHODS, evolve, evolve_ga,
+                             fit_error, init_population, swarm)
+from fwcore.patent import ga_iterative
 from fwcore.preprocess import _noise_sigma, _progressive_echoes, _smooth, _valid_min
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -31,15 +34,22 @@ _GAUSSIAN_ALPHA = math.sqrt(2.0)
 
 STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
 STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")
-_OPTIMIZER_CODES = {Optimizer.NONE: OPT_NONE, Optimizer.DE: OPT_DE, Optimizer.MDE: OPT_MDE}
+_OPTIMIZER_CODES = {Optimizer.NONE: OPT_NONE, Optimizer.DE: OPT_DE, Optimizer.MDE: OPT_MDE, Optimizer.GA: OPT_GA,
+                    Optimizer.PSO: OPT_PSO, Optimizer.LM: OPT_LM, Optimizer.LBFGS: OPT_LBFGS,
+                    Optimizer.MDE_LM: OPT_MDE_LM, Optimizer.GA_ITERATIVE: OPT_GA_ITERATIVE}
 
 
 # ---------------------------------------------------------------- kernels
 
 @njit(**JIT)
-def _parameter_bounds(background, noise, amplitude, position, sigma, first, last,
-                      gaussian, alpha_min, alpha_max, scale, x0, lower, upper):
-    """The initial individual and box bounds around it, all physical (A >= 0, s > 0, u inside)."""
+def _parameter_bounds(background, noise, amplitude, position, sigma, signal, first, last,
+                      gaussian, alpha_min, alpha_max, scale, x0, lower, upper, local_upper):
+    """The initial individual and box bounds around it, all physical (A >= 0, s > 0, u inside).
+
+    The population optimizers search amplitudes up to 1.5 x the estimate; the local ones
+    (local_upper) up to 1.5 x the signal's height at the echo: the progressive estimate gives a
+    flank echo only what the stronger one left, and a gradient can grow it to its true height,
+    where a population spread over that range would mostly split single echoes in two."""
     spread_b = max(3.0 * noise, scale)
     x0[0] = background
     lower[0] = background - spread_b
@@ -56,6 +66,11 @@ def _parameter_bounds(background, noise, amplitude, position, sigma, first, last
         x0[base + 3] = _GAUSSIAN_ALPHA
         lower[base + 3] = _GAUSSIAN_ALPHA if gaussian else alpha_min
         upper[base + 3] = _GAUSSIAN_ALPHA if gaussian else alpha_max
+    local_upper[:] = upper
+    for k in range(amplitude.size):
+        base = 1 + PARAMS_PER_ECHO * k
+        height = signal[min(max(int(round(position[k])), 0), signal.size - 1)] - background
+        local_upper[base] = 1.5 * max(amplitude[k], height) + 3.0 * noise
 
 
 @njit(**JIT)
@@ -75,11 +90,121 @@ def _exact_model(x, n_echoes, n):
 
 
 @njit(**JIT)
+def _spurious_reasons(x, n_echoes, first, last, pulse_fwhm, noise, min_snr, min_amplitude_ratio,
+                      min_separation_factor, min_width_factor, max_width_factor):
+    """The filter's reason for each echo of individual x, in the individual's order."""
+    position = np.array([x[1 + PARAMS_PER_ECHO * k + 1] for k in range(n_echoes)])
+    order = np.argsort(position)
+    amplitude = np.empty(n_echoes)
+    width = np.empty(n_echoes)
+    for j in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * order[j]
+        amplitude[j] = x[base]
+        width[j] = 2.0 * x[base + 2] * _SQRT_2LN2
+    sorted_reasons = np.zeros(n_echoes, dtype=np.int8)
+    mark_spurious(amplitude, position[order], width, first, last, pulse_fwhm, noise, min_snr,
+                  min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, sorted_reasons)
+    reasons = np.empty(n_echoes, dtype=np.int8)
+    for j in range(n_echoes):
+        reasons[order[j]] = sorted_reasons[j]
+    return reasons
+
+
+@njit(**JIT)
+def _without_echo(x, k):
+    keep = np.ones(x.size, dtype=np.bool_)
+    keep[1 + PARAMS_PER_ECHO * k:1 + PARAMS_PER_ECHO * (k + 1)] = False
+    return x[keep]
+
+
+@njit(**JIT)
+def _valid_samples(samples, smoothed, valid, fit_denoised):
+    """Times, fit target and raw values of the valid samples, for the local optimizers."""
+    m = 0
+    for i in range(samples.size):
+        m += valid[i]
+    times = np.empty(m)
+    fit_target = np.empty(m)
+    raw = np.empty(m)
+    j = 0
+    for i in range(samples.size):
+        if valid[i]:
+            times[j] = i
+            fit_target[j] = smoothed[i] if fit_denoised else samples[i]
+            raw[j] = samples[i]
+            j += 1
+    return times, fit_target, raw
+
+
+@njit(**JIT)
+def _squared_error(x, n_echoes, times, samples):
+    model = np.empty(times.size)
+    jac = np.empty((times.size, x.size))
+    model_and_jacobian(x, n_echoes, times, model, jac)
+    acc = 0.0
+    for i in range(times.size):
+        acc += (model[i] - samples[i]) ** 2
+    return acc
+
+
+@njit(**JIT)
+def _prune_echoes(best, lower, upper, n_echoes, times, target, raw, gaussian, lm_iterations,
+                  first, last, pulse_fwhm, noise, min_snr, min_amplitude_ratio, min_separation_factor,
+                  min_width_factor, max_width_factor):
+    """Drop spurious echoes the data does not need: the progressive estimate peels heavy tails and
+    flanks off as extra echoes, which then share one echo's signal and bend its shape.
+
+    An echo flagged too close, too narrow or too wide (weakest first) is removed and
+    the rest refitted by LM, as is the model with it; the smaller model is taken when
+    the Bayesian information criterion on the raw samples does not rise:
+    (SSR without - SSR with) / sigma^2 <= parameters per echo x ln(m), sigma^2 the
+    optimizer's mean squared residual. Returns the new individual, echo count and the
+    Jacobians evaluated.
+    """
+    m = times.size
+    per_echo = 3 if gaussian else PARAMS_PER_ECHO
+    penalty = per_echo * math.log(m)  # the BIC's price of one echo
+    variance = max(_squared_error(best, n_echoes, times, raw) / m, 1e-12)
+    n_jacobians = 0
+    while n_echoes > 0:
+        reasons = _spurious_reasons(best, n_echoes, first, last, pulse_fwhm, noise, min_snr,
+                                    min_amplitude_ratio, min_separation_factor, min_width_factor,
+                                    max_width_factor)
+        # too close, too narrow or too wide: the shapes that take a share of another echo's signal
+        amplitude = np.array([best[1 + PARAMS_PER_ECHO * k] if reasons[k] in (TOO_CLOSE, TOO_NARROW, TOO_WIDE)
+                              else np.inf for k in range(n_echoes)])
+        if not np.isfinite(amplitude.min()):
+            break
+        full = best.copy()  # the model with every echo, refitted the same way for a fair comparison
+        _, used = levenberg_marquardt(full, n_echoes, times, target, lower, upper, lm_iterations, 1e-8)
+        n_jacobians += used
+        full_ssr = _squared_error(full, n_echoes, times, raw)
+        removed = False
+        for k in np.argsort(amplitude):
+            if not np.isfinite(amplitude[k]):
+                break
+            reduced = _without_echo(best, k)
+            _, used = levenberg_marquardt(reduced, n_echoes - 1, times, target, _without_echo(lower, k),
+                                          _without_echo(upper, k), lm_iterations, 1e-8)
+            n_jacobians += used
+            gain = _squared_error(reduced, n_echoes - 1, times, raw) - full_ssr
+            if gain <= penalty * variance:
+                best, lower, upper = reduced, _without_echo(lower, k), _without_echo(upper, k)
+                n_echoes -= 1
+                removed = True
+                break
+        if not removed:
+            break
+    return best, n_echoes, n_jacobians
+
+
+@njit(**JIT)
 def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, seed, method, gaussian,
                    fit_denoised, population, generations, cr, immediate, chaos_seeds, chaos_iterations,
                    scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma, max_echoes,
                    alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
-                   min_width_factor, max_width_factor,
+                   min_width_factor, max_width_factor, prune, lm_iterations, ga_mutation_rate,
+                   ga_iterative_r2, ga_iterative_generations,
                    out_scalars, out_echoes, out_reasons):
     """One waveform end to end. out_scalars: background, noise, fit_error, fit_error_raw, rmse, r2,
     nfev, n_initial, n_echoes. out_echoes[k]: A, u, sigma (Chauve, samples), alpha, sorted by u."""
@@ -99,21 +224,28 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
     sig0 = np.zeros(max_echoes)
     n_echoes = _progressive_echoes(smoothed, valid, background, noise_threshold * noise, max_echoes,
                                    pulse_sigma, amp0, pos0, sig0)
+    n_initial = n_echoes
     d = 1 + PARAMS_PER_ECHO * n_echoes
     x0 = np.empty(d)
     lower = np.empty(d)
     upper = np.empty(d)
+    local_upper = np.empty(d)
     peak = 0.0
     for i in range(n):
         if valid[i]:
             peak = max(peak, abs(smoothed[i] - background))
     scale = max(1e-6 * peak, 1e-12)
-    _parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes],
-                      first, last, gaussian, alpha_min, alpha_max, scale, x0, lower, upper)
+    _parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed,
+                      first, last, gaussian, alpha_min, alpha_max, scale, x0, lower, upper, local_upper)
 
     best = x0.copy()
     nfev = 0
-    if method != OPT_NONE and n_echoes > 0:
+    times, fit_target, raw = _valid_samples(samples, smoothed, valid, fit_denoised)
+    if method == OPT_GA_ITERATIVE:
+        best, n_echoes, n_initial, nfev = ga_iterative(samples, valid, smoothed, background, noise, noise_threshold,
+                                            max_echoes, first, last, times, fit_target, raw, ga_iterative_r2,
+                                            population, ga_iterative_generations, seed)
+    elif method in POPULATION_METHODS and n_echoes > 0:
         state = np.empty(1, dtype=np.uint64)
         state[0] = seed
         n_pad = (n + LANES - 1) // LANES * LANES
@@ -130,10 +262,32 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
         for i in range(population):
             fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, gaussian, eps, model)
         nfev = population
-        nfev += evolve(pop, fitness, lower, upper, generations, cr, method, immediate, chaos_seeds,
-                       chaos_iterations, scale_min, scale_max, de_scale, state, n_echoes, tpos, target,
-                       weight, gaussian, eps)
+        if method == OPT_GA:
+            nfev += evolve_ga(pop, fitness, lower, upper, generations, cr, ga_mutation_rate, state, n_echoes,
+                              tpos, target, weight, gaussian, eps)
+        elif method == OPT_PSO:
+            nfev += swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target, weight,
+                          gaussian, eps)
+        else:
+            evolution = OPT_MDE if method == OPT_MDE_LM else method
+            nfev += evolve(pop, fitness, lower, upper, generations, cr, evolution, immediate, chaos_seeds,
+                           chaos_iterations, scale_min, scale_max, de_scale, state, n_echoes, tpos, target,
+                           weight, gaussian, eps)
         best = pop[np.argmin(fitness)].copy()
+    if (method == OPT_LM or method == OPT_MDE_LM) and n_echoes > 0:
+        _, used = levenberg_marquardt(best, n_echoes, times, fit_target, lower, local_upper, lm_iterations,
+                                      1e-8)
+        nfev += used
+    elif method == OPT_LBFGS and n_echoes > 0:
+        _, used = lbfgs(best, n_echoes, times, fit_target, lower, local_upper, 4 * lm_iterations, 10, 1e-9)
+        nfev += used
+
+    if method != OPT_NONE and method != OPT_GA_ITERATIVE and prune and n_echoes > 0:
+        best, n_echoes, n_jacobians = _prune_echoes(
+            best, lower, local_upper, n_echoes, times, fit_target, raw, gaussian, lm_iterations,
+            first, last, pulse_fwhm, noise, min_snr, min_amplitude_ratio, min_separation_factor,
+            min_width_factor, max_width_factor)
+        nfev += n_jacobians
 
     # metrics, exact, against the denoised (Eq. 9) and the raw samples
     model = _exact_model(best, n_echoes, n)
@@ -162,7 +316,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
     out_scalars[4] = math.sqrt(ss_res / m)
     out_scalars[5] = 1.0 - ss_res / ss_tot if ss_tot > 0.0 else 0.0
     out_scalars[6] = nfev
-    out_scalars[7] = n_echoes
+    out_scalars[7] = n_initial
     out_scalars[8] = n_echoes
 
     # echoes sorted by position, in Chauve's parameters
@@ -187,7 +341,9 @@ def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigm
                     fit_denoised, population, generations, cr, immediate, chaos_seeds, chaos_iterations,
                     scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma, max_echoes,
                     alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
-                    min_width_factor, max_width_factor, out_scalars, out_echoes, out_reasons):
+                    min_width_factor, max_width_factor, prune, lm_iterations, ga_mutation_rate, ga_iterative_r2,
+                    ga_iterative_generations, out_scalars, out_echoes,
+                    out_reasons):
     for w in prange(offsets.size - 1):
         if status[w] != 0:
             continue
@@ -197,8 +353,8 @@ def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigm
                        population, generations, cr, immediate, chaos_seeds, chaos_iterations,
                        scale_min, scale_max, de_scale, init_spread, noise_threshold, min_noise_sigma,
                        max_echoes, alpha_min, alpha_max, min_snr, min_amplitude_ratio, min_separation_factor,
-                       min_width_factor, max_width_factor,
-                       out_scalars[w], out_echoes[w], out_reasons[w])
+                       min_width_factor, max_width_factor, prune, lm_iterations, ga_mutation_rate,
+                       ga_iterative_r2, ga_iterative_generations, out_scalars[w], out_echoes[w], out_reasons[w])
 
 
 # ---------------------------------------------------------------- records
@@ -356,8 +512,8 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
             config.scale_min, config.scale_max, config.de_scale_factor, config.init_spread,
             config.noise_threshold, config.min_noise_sigma, k, config.alpha_min, config.alpha_max,
             config.min_snr, config.min_amplitude_ratio, config.min_separation_factor,
-            config.min_width_factor, config.max_width_factor,
-            scalars, echoes, reasons)
+            config.min_width_factor, config.max_width_factor, config.prune_echoes, config.lm_iterations,
+            config.ga_mutation_rate, config.ga_iterative_r2, config.ga_iterative_generations, scalars, echoes, reasons)
     finally:
         numba.set_num_threads(previous_threads)
     counts = scalars[:, 8].astype(np.int64)

@@ -1,4 +1,4 @@
-"""The optimizers: MDE (the default), plain DE and none, on one machinery.
+"""The population optimizers: MDE (the default), plain DE, a real-coded GA and PSO, on one machinery.
 
 An individual is [b, (A, u, s, alpha) per echo], with s the equal-FWHM Gaussian
 sigma (see fwcore.model). Its fitness is the method's Eq. 9 fit error,
@@ -24,7 +24,17 @@ _ZERO32 = _F32(0.0)
 _LOGISTIC_MU = 4.0
 
 # Optimizer codes shared by the kernels (the Python side maps enums onto these).
-OPT_NONE, OPT_DE, OPT_MDE = 0, 1, 2
+OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE = range(9)
+POPULATION_METHODS = (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM)
+
+# GA: blend (BLX-alpha) crossover, Gaussian mutation of this fraction of a parameter's range.
+_BLX_ALPHA = 0.5
+_GA_MUTATION_SCALE = 0.1
+# PSO: Clerc's constriction values for inertia and the cognitive and social terms; speed limit.
+_PSO_INERTIA = 0.7298
+_PSO_COGNITIVE = 1.49618
+_PSO_SOCIAL = 1.49618
+_PSO_MAX_SPEED = 0.2
 
 
 # ---------------------------------------------------------------- objective
@@ -258,6 +268,87 @@ def evolve(pop, fitness, lower, upper, generations, cr, method, immediate,
         if not immediate:
             pop[:] = next_pop
             fitness[:] = next_fit
+    return nfev
+
+
+@njit(**JIT)
+def _normal(state):
+    """A standard normal draw (Box-Muller on the waveform's own stream)."""
+    u1 = max(uniform(state), 1e-300)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * uniform(state))
+
+
+@njit(**JIT)
+def _tournament(state, fitness):
+    a = randint(state, fitness.size)
+    b = randint(state, fitness.size)
+    return a if fitness[a] <= fitness[b] else b
+
+
+@njit(**JIT)
+def evolve_ga(pop, fitness, lower, upper, generations, crossover_rate, mutation_rate, state,
+              n_echoes, tpos, target, weight, gaussian, eps):
+    """Real-coded GA: binary tournaments, BLX-0.5 blend crossover (rate crossover_rate),
+    Gaussian mutation of each parameter with probability mutation_rate, one elite. Returns evaluations."""
+    np_, d = pop.shape
+    model = np.empty(tpos.size, dtype=np.float32)
+    next_pop = np.empty_like(pop)
+    next_fit = np.empty_like(fitness)
+    nfev = 0
+    for _ in range(generations):
+        elite = np.argmin(fitness)
+        next_pop[0] = pop[elite]
+        next_fit[0] = fitness[elite]
+        for i in range(1, np_):
+            p1 = pop[_tournament(state, fitness)]
+            p2 = pop[_tournament(state, fitness)]
+            child = next_pop[i]
+            blend = uniform(state) < crossover_rate
+            for j in range(d):
+                v = p1[j]
+                if blend:
+                    v = p1[j] + (uniform(state) * (1.0 + 2.0 * _BLX_ALPHA) - _BLX_ALPHA) * (p2[j] - p1[j])
+                if uniform(state) < mutation_rate:
+                    v += _GA_MUTATION_SCALE * (upper[j] - lower[j]) * _normal(state)
+                child[j] = min(max(v, lower[j]), upper[j])
+            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, gaussian, eps, model)
+            nfev += 1
+        pop[:] = next_pop
+        fitness[:] = next_fit
+    return nfev
+
+
+@njit(**JIT)
+def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target, weight, gaussian, eps):
+    """Global-best PSO: v <- w v + c1 r1 (personal best - x) + c2 r2 (global best - x), speed limited
+    to a fraction of each range, positions kept in the box. On return pop and fitness hold the
+    personal bests. Returns evaluations."""
+    np_, d = pop.shape
+    model = np.empty(tpos.size, dtype=np.float32)
+    x = pop.copy()
+    velocity = np.empty_like(pop)
+    for i in range(np_):
+        for j in range(d):
+            velocity[i, j] = (2.0 * uniform(state) - 1.0) * 0.1 * (upper[j] - lower[j])
+    best = np.argmin(fitness)
+    nfev = 0
+    for _ in range(generations):
+        for i in range(np_):
+            for j in range(d):
+                limit = _PSO_MAX_SPEED * (upper[j] - lower[j])
+                v = (_PSO_INERTIA * velocity[i, j]
+                     + _PSO_COGNITIVE * uniform(state) * (pop[i, j] - x[i, j])
+                     + _PSO_SOCIAL * uniform(state) * (pop[best, j] - x[i, j]))
+                v = min(max(v, -limit), limit)
+                velocity[i, j] = v
+                x[i, j] = min(max(x[i, j] + v, lower[j]), upper[j])
+            err = fit_error(x[i], n_echoes, tpos, target, weight, gaussian, eps, model)
+            nfev += 1
+            if err <= fitness[i]:
+                fitness[i] = err
+                pop[i] = x[i]
+                if err < fitness[best]:
+                    best = i
     return nfev
 
 

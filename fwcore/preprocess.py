@@ -220,61 +220,6 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     return InitialEstimate(smoothed, noise, background, amplitude[:n], position[:n], sigma[:n])
 
 
-@dataclasses.dataclass(frozen=True)
-class PeakSearchRange:
-    """The GA patent's estimate: peaks with a search range for each parameter (samples)."""
-
-    background: float
-    noise_sigma: float
-    peak: np.ndarray  # sample index of each peak
-    height: np.ndarray  # peak height above background
-    position_range: np.ndarray  # (n, 2)
-    amplitude_range: np.ndarray  # (n, 2)
-    sigma_range: np.ndarray  # (n, 2)
-
-
-def patent_peak_ranges(samples, smoothing_sigma: float, valid=None, window: int = 5,
-                       noise_threshold: float = 3.0) -> PeakSearchRange:
-    """Peaks as the largest sample within +-window bins and above threshold, each with search ranges.
-
-    sigma's upper limit is 3 (p2 - p1) / 2 with two inflection points, 3 |p - t_peak|
-    with one, and a triangle estimate from the half-height width with none.
-    """
-    samples, valid = _as_waveform(samples, valid)
-    smoothed = gaussian_smooth(samples, smoothing_sigma, valid)
-    noise = estimate_noise(samples, smoothed, valid)
-    background = float(_valid_min(smoothed, valid))
-    residual = smoothed - background
-    masked = np.where(valid, residual, -np.inf)
-    padded = np.pad(masked, window, constant_values=-np.inf)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * window + 1)
-    is_peak = (masked >= windows.max(axis=1)) & (masked > noise_threshold * noise) & valid
-    # a flat top would give several equal maxima: keep the first of each run
-    is_peak &= ~np.concatenate([[False], is_peak[:-1]])
-    peaks = np.flatnonzero(is_peak)
-    heights = residual[peaks]
-    sigma_hi = np.empty(peaks.size)
-    for j, p in enumerate(peaks):
-        left = _inflection(residual, valid, p, -1)
-        right = _inflection(residual, valid, p, 1)
-        if left > 0 and right > 0:
-            sigma_hi[j] = 3.0 * (left + right) / 2.0
-        elif left > 0 or right > 0:
-            sigma_hi[j] = 3.0 * max(left, right)
-        else:
-            # a triangle with the same half-height width: sigma of its equal-FWHM Gaussian, times 3
-            sigma_hi[j] = 3.0 * max(_half_height_sigma(residual, valid, p), MIN_SIGMA)
-    return PeakSearchRange(
-        background=background,
-        noise_sigma=noise,
-        peak=peaks,
-        height=heights,
-        position_range=np.stack([peaks - window, peaks + window], axis=1).astype(float),
-        amplitude_range=np.stack([np.zeros(peaks.size), heights], axis=1),
-        sigma_range=np.stack([np.full(peaks.size, MIN_SIGMA), np.maximum(sigma_hi, MIN_SIGMA)], axis=1),
-    )
-
-
 def half_height_width(samples) -> float:
     """Width (samples) of the highest peak at half its height above the minimum, crossings interpolated."""
     y = np.asarray(samples, dtype=float)

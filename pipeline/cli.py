@@ -11,22 +11,26 @@ from pathlib import Path
 import numpy as np
 
 import fwcore
-from fwcore.config import DecompositionConfig, Model, Optimizer
+from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
 
 
 def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
-    """Defaults <- TOML file <- explicit flags, validated once."""
-    config = DecompositionConfig.from_toml(args.config) if args.config else DecompositionConfig()
+    """Defaults <- preset <- TOML file <- explicit flags, validated once."""
+    config = DecompositionConfig(**PRESETS[args.preset]) if getattr(args, "preset", None) else DecompositionConfig()
+    if args.config:
+        config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
                  if getattr(args, f.name, None) is not None}
     return config.replace(**overrides)
 
 
-def _add_method_options(parser: argparse.ArgumentParser) -> None:
+def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
     g = parser.add_argument_group("method (defaults: the built-in configuration, then --config)")
     g.add_argument("--config", help="TOML file with a [decomposition] table")
-    g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
-    g.add_argument("--model", choices=[m.value for m in Model])
+    g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
+    if not compare:
+        g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
+        g.add_argument("--model", choices=[m.value for m in Model])
     g.add_argument("--population", type=int, help="NP")
     g.add_argument("--generations", type=int, help="G")
     g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")
@@ -38,6 +42,11 @@ def _add_method_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
     g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
     g.add_argument("--max-echoes", dest="max_echoes", type=int)
+    g.add_argument("--prune-echoes", dest="prune_echoes", action="store_const", const=True,
+                   help="drop spurious echoes the data does not need (BIC with LM refits)")
+    g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
+    g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
+    g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
     g.add_argument("--seed", type=int)
 
 
@@ -102,6 +111,28 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     return 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from pipeline.compare import run_comparison
+
+    config = _config_from_args(args)
+    optimizers = [Optimizer(o.strip()) for o in args.optimizers.split(",") if o.strip()]
+    models = [Model(m.strip()) for m in args.models.split(",") if m.strip()]
+    pulses = [int(p) for p in args.pulses.split(",")] if args.pulses else None
+    print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
+          f"{', '.join(m.value for m in models)} -> {args.output}")
+    summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
+                             args.distance, args.budget, args.threads, args.outgoing)
+    for row in summary["rows"]:
+        print(f"  {row['optimizer']:13} {row['model']:11} fit error {row['fit_error']:8.1f}  R2 {row['r2']:.4f}  "
+              f"{row['waveforms_per_second']:9.1f} waveforms/s")
+    if "fast" in summary:
+        fast = summary["fast"]
+        print(f"fastest within 5% of MDE's fit error {summary['paper_fit_error']:.1f}: {fast['family']} "
+              f"{fast['setting']} ({fast['fit_error']:.1f}, {fast['waveforms_per_second']:.1f} waveforms/s)")
+    print(f"wrote {', '.join(summary['written'])} in {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -127,6 +158,22 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
     _add_method_options(r)
     r.set_defaults(handler=_run)
+
+    c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ file or a NEON CSV: tables and figures")
+    c.add_argument("input", help="full-waveform LAS/LAZ file, or a NEON-layout CSV")
+    c.add_argument("--optimizers", default=",".join(o.value for o in Optimizer),
+                   help="comma-separated (default: all)")
+    c.add_argument("--model", dest="models", default="generalized",
+                   help="comma-separated models: gaussian, generalized")
+    c.add_argument("--limit", type=int, help="the first N waveforms only")
+    c.add_argument("--pulses", help="comma-separated pulse ids to plot (default: the 3 most complex)")
+    c.add_argument("--distance", type=float, default=0.5, help="point match distance, metres (default 0.5)")
+    c.add_argument("--budget", action="store_true", help="also run the evaluation budget study")
+    c.add_argument("--threads", type=int, default=1, help="numba threads (default 1: per-core speeds)")
+    c.add_argument("--outgoing", help="CSV input: outgoing pulses CSV that measures the system pulse FWHM")
+    c.add_argument("--output", required=True, help="output directory")
+    _add_method_options(c, compare=True)
+    c.set_defaults(handler=_compare)
     return parser
 
 

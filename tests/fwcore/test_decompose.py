@@ -41,12 +41,12 @@ def test_separated_echoes_are_recovered(n_echoes):
     assert r.r2 > 0.99
 
 
-@pytest.mark.xfail(strict=True, reason="known limitation: the progressive estimate seeds one echo for two "
-                   "echoes 1.5 sigma apart and MDE, which keeps the echo count, cannot split it")
 def test_two_echoes_one_and_a_half_sigma_apart_are_both_fitted():
+    # the progressive estimate gives the second echo only what the first left (A = 12); MDE searches
+    # near that, its LM polish (mde-lm) may grow it to the signal's height and reaches both
     position = [60.0, 60.0 + 1.5 * PULSE_SIGMA]
     y = synthetic([150.0, 100.0], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=1.0, seed=3)
-    r = decompose_waveform(y, SPACING, seed=2, config=CONFIG.replace(model="gaussian"))
+    r = decompose_waveform(y, SPACING, seed=2, config=CONFIG.replace(model="gaussian", optimizer="mde-lm"))
     strong = r.amplitude > 30
     assert strong.sum() == 2
     np.testing.assert_allclose(np.sort(r.position[strong]), position, atol=0.6)
@@ -65,17 +65,17 @@ def test_weak_echo_at_four_noise_sigma_is_found():
     assert r.amplitude[weak] == pytest.approx(8.0, rel=0.35)
 
 
-HEAVY_TAILS = pytest.mark.xfail(strict=True, reason="known limitation: alpha = 1.2 tails leave residuals "
-                                "that the progressive estimate takes for extra echoes, which share the signal")
-
-
-@pytest.mark.parametrize("alpha", [pytest.param(1.2, marks=HEAVY_TAILS), 1.5, 1.8, 2.2])
+@pytest.mark.parametrize("alpha", [1.2, 1.5, 1.8, 2.2])
 def test_shape_factor_alpha_is_recovered(alpha):
     from fwcore.model import sigma_from_half_width
     h = 4.0  # half width at half maximum, samples
     sigma = float(sigma_from_half_width(h, alpha))
     y = synthetic([200.0], [70.0], [sigma], [alpha], noise=1.0, seed=int(alpha * 10))
-    r = decompose_waveform(y, SPACING, seed=4, config=CONFIG)
+    # alpha = 1.2 tails leave residuals the progressive estimate takes for extra echoes, which then
+    # share the signal and bend the shape: pruning the echoes the data does not need undoes that.
+    # The shape is fitted to the raw samples: the denoising filter rounds flat tops (2.2 looks like 1.94).
+    r = decompose_waveform(y, SPACING, seed=4, config=CONFIG.replace(prune_echoes=True, fit_target="raw"))
+    assert r.kept.sum() == 1
     k = matched(r, [70.0])[0]
     assert r.alpha[k] == pytest.approx(alpha, abs=0.25)
     assert r.fwhm[k] == pytest.approx(2 * h, rel=0.06)

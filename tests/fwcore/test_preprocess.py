@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from fwcore.model import waveform_model
-from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes, patent_peak_ranges
+from fwcore.patent import patent_peak_ranges
+from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes
 from tests.fwcore import naive
 
 

@@ -1,0 +1,177 @@
+"""The method comparison: every optimizer on the same waveforms, their point clouds, the evaluation budget.
+
+Pure functions over a WaveformBatch (and, for LAS input, its PulseBatch);
+`fwl compare` (pipeline.compare) writes the tables and figures. Every
+optimizer sees the same initial estimate, bounds and fit error; the
+population methods of the method's comparison (GA, PSO, DE) run at its
+100 x 100, MDE at the paper's 60 x 80.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Iterable, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fwcore.config import DecompositionConfig, Model, Optimizer
+from fwcore.decompose import BatchDecomposition, WaveformBatch, decompose_batch
+
+# The comparison's settings per optimizer (on top of the caller's configuration).
+COMPARISON_SETTINGS: dict[Optimizer, dict] = {
+    Optimizer.GA: dict(population=100, generations=100),
+    Optimizer.PSO: dict(population=100, generations=100),
+    Optimizer.DE: dict(population=100, generations=100),
+    Optimizer.MDE: dict(population=60, generations=80),
+    Optimizer.MDE_LM: dict(population=60, generations=80),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodRun:
+    """One optimizer and model over the batch: its configuration, result and wall time."""
+
+    label: str
+    config: DecompositionConfig
+    result: BatchDecomposition
+    seconds: float
+    threads: int
+    immediate: bool = False
+
+    def row(self) -> dict:
+        """The comparison table's row (the method's Table 1 plus our columns)."""
+        r = self.result
+        ok = r.status == 0
+        n = int(ok.sum())
+        counts = np.diff(r.echo_offsets)
+        kept = np.bincount(r.echo_waveform[r.reject == 0], minlength=len(r))
+        return {
+            "optimizer": self.label, "model": self.config.model.value, "waveforms": n,
+            "fit_error": float(r.fit_error[ok].mean()), "fit_error_raw": float(r.fit_error_raw[ok].mean()),
+            "rmse": float(r.rmse[ok].mean()), "r2": float(r.r2[ok].mean()),
+            "echoes": float(counts[ok].mean()), "echoes_kept": float(kept[ok].mean()),
+            "evaluations": float(r.nfev[ok].mean()), "seconds": self.seconds,
+            "waveforms_per_second": n / self.seconds if self.seconds > 0 else float("inf"),
+            "threads": self.threads,
+        }
+
+
+def _warm_up(batch: WaveformBatch, config: DecompositionConfig, immediate: bool) -> None:
+    """Compile outside the timed call (numba compiles on first use and caches)."""
+    first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
+                          batch.sample_spacing_ps[:1], batch.seeds[:1])
+    decompose_batch(first, config, threads=1, immediate=immediate)
+
+
+def run_method(batch: WaveformBatch, config: DecompositionConfig, label: str | None = None,
+               threads: int = 1, immediate: bool = False) -> MethodRun:
+    """Decompose the batch with one configuration, timed after compilation."""
+    _warm_up(batch, config, immediate)
+    start = time.perf_counter()
+    result = decompose_batch(batch, config, threads=threads, immediate=immediate)
+    return MethodRun(label or config.optimizer.value, config, result, time.perf_counter() - start, threads,
+                     immediate)
+
+
+def compare_methods(batch: WaveformBatch, base: DecompositionConfig, optimizers: Sequence[Optimizer],
+                    models: Sequence[Model], threads: int = 1) -> list[MethodRun]:
+    """Every optimizer x model on the batch, each at the comparison's settings."""
+    runs = []
+    for model in models:
+        for optimizer in optimizers:
+            config = base.replace(optimizer=optimizer, model=model, **COMPARISON_SETTINGS.get(optimizer, {}))
+            runs.append(run_method(batch, config, threads=threads))
+    return runs
+
+
+@dataclasses.dataclass(frozen=True)
+class PointComparison:
+    """Decomposed points (kept echoes) against the system's own returns, within `distance` metres."""
+
+    distance: float
+    system_points: int
+    decomposed_points: int
+    matched_system: int  # system points with a decomposed point within the distance
+    missed_system: int  # the rest: matched_system + missed_system = system_points
+    matched_decomposed: int  # decomposed points with a system point within the distance
+    new_points: int  # the rest: matched_decomposed + new_points = decomposed_points
+    mean_distance: float  # over matched system points, to their nearest decomposed point
+    median_distance: float
+    p95_distance: float
+
+    def row(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance: float = 0.5) -> PointComparison:
+    """Nearest-neighbour matching both ways between the system's returns and the decomposed points."""
+    system_xyz = np.asarray(system_xyz, dtype=float).reshape(-1, 3)
+    decomposed_xyz = np.asarray(decomposed_xyz, dtype=float).reshape(-1, 3)
+    if len(system_xyz) and len(decomposed_xyz):
+        to_ours, _ = cKDTree(decomposed_xyz).query(system_xyz)
+        to_system, _ = cKDTree(system_xyz).query(decomposed_xyz)
+    else:
+        to_ours = np.full(len(system_xyz), np.inf)
+        to_system = np.full(len(decomposed_xyz), np.inf)
+    matched = to_ours <= distance
+    close = to_ours[matched]
+    stat = (lambda f: float(f(close))) if close.size else (lambda f: float("nan"))
+    return PointComparison(
+        distance=distance, system_points=len(system_xyz), decomposed_points=len(decomposed_xyz),
+        matched_system=int(matched.sum()), missed_system=int((~matched).sum()),
+        matched_decomposed=int((to_system <= distance).sum()), new_points=int((to_system > distance).sum()),
+        mean_distance=stat(np.mean), median_distance=stat(np.median),
+        p95_distance=stat(lambda d: np.percentile(d, 95)))
+
+
+# ---------------------------------------------------------------- the evaluation budget
+
+@dataclasses.dataclass(frozen=True)
+class BudgetSetting:
+    """One point of the budget study: a label and the configuration changes it makes."""
+
+    family: str
+    label: str
+    changes: dict
+    immediate: bool = False
+
+
+def budget_settings(generations: Iterable[int] = (10, 20, 40, 80),
+                    lm_iterations: Iterable[int] = (3, 5, 10, 20, 50)) -> list[BudgetSetting]:
+    """MDE with k x t = 1, 5, 10; DE generational and immediate; LM; MDE + LM polish."""
+    out = []
+    for g in generations:
+        for k in (1, 5, 10):
+            out.append(BudgetSetting(f"mde k x t = {k}", f"G {g}",
+                                     dict(optimizer="mde", chaos_seeds=1, chaos_iterations=k, generations=g)))
+        for immediate in (False, True):
+            family = "de immediate" if immediate else "de generational"
+            out.append(BudgetSetting(family, f"G {g * 5}",
+                                     dict(optimizer="de", population=60, generations=g * 5), immediate))
+        out.append(BudgetSetting("mde-lm", f"G {g}", dict(optimizer="mde-lm", generations=g)))
+    for n in lm_iterations:
+        out.append(BudgetSetting("lm", f"{n} iterations", dict(optimizer="lm", lm_iterations=n)))
+    return out
+
+
+def budget_study(batch: WaveformBatch, base: DecompositionConfig, settings: Sequence[BudgetSetting],
+                 threads: int = 1) -> list[dict]:
+    """Mean fit error against model evaluations and seconds for each setting."""
+    rows = []
+    for s in settings:
+        run = run_method(batch, base.replace(**s.changes), label=s.family, threads=threads, immediate=s.immediate)
+        row = run.row()
+        rows.append({"family": s.family, "setting": s.label, **{k: row[k] for k in (
+            "evaluations", "seconds", "waveforms_per_second", "fit_error", "fit_error_raw", "rmse", "r2")},
+            "threads": threads})
+    return rows
+
+
+def choose_fast_preset(rows: Sequence[dict], reference_error: float, tolerance: float = 0.05) -> dict:
+    """The budget row with the highest throughput whose fit error is within `tolerance` of the reference."""
+    eligible = [r for r in rows if r["fit_error"] <= (1.0 + tolerance) * reference_error]
+    if not eligible:
+        raise ValueError("no setting of the budget study keeps the fit error within the tolerance")
+    return max(eligible, key=lambda r: r["waveforms_per_second"])

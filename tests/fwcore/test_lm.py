@@ -1,0 +1,59 @@
+"""The local optimizers: the analytic Jacobian, LM and L-BFGS on known echoes."""
+
+import numpy as np
+import pytest
+
+from fwcore.lm import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
+from tests.fwcore.naive import model_of_individual
+
+T = np.arange(100.0)
+TRUE = np.array([10.0, 100.0, 40.0, 3.0, 1.6, 50.0, 55.0, 4.0, 1.2])  # b, (A, u, s, alpha) x 2
+START = np.array([12.0, 80.0, 42.0, 4.0, 1.414, 40.0, 53.0, 3.0, 1.414])
+LOWER = np.array([0.0, 0.0, 30.0, 0.5, 1.0, 0.0, 45.0, 0.5, 1.0])
+UPPER = np.array([30.0, 200.0, 50.0, 10.0, 2.6, 200.0, 65.0, 10.0, 2.6])
+
+
+def test_jacobian_matches_central_differences():
+    model = np.empty(T.size)
+    jac = np.empty((T.size, START.size))
+    model_and_jacobian(START, 2, T, model, jac)
+    np.testing.assert_allclose(model, model_of_individual(START, T), rtol=1e-12)
+    numeric = np.empty_like(jac)
+    for j in range(START.size):
+        step = np.zeros(START.size)
+        step[j] = 1e-6
+        numeric[:, j] = (model_of_individual(START + step, T) - model_of_individual(START - step, T)) / 2e-6
+    np.testing.assert_allclose(jac, numeric, atol=1e-6)
+
+
+@pytest.mark.parametrize("fit", [fit_levenberg_marquardt, fit_lbfgs])
+def test_noiseless_echoes_are_recovered_exactly(fit):
+    x, ssr, _ = fit(START, 2, T, model_of_individual(TRUE, T), LOWER, UPPER)
+    np.testing.assert_allclose(x, TRUE, atol=1e-3)
+    assert ssr < 1e-6
+
+
+def test_lm_converges_from_a_good_start_in_few_iterations():
+    y = model_of_individual(TRUE, T) + np.random.default_rng(0).normal(0, 1.0, T.size)
+    x, ssr, jacobians = fit_levenberg_marquardt(START, 2, T, y, LOWER, UPPER)
+    assert jacobians <= 15
+    np.testing.assert_allclose(x[[2, 6]], TRUE[[2, 6]], atol=0.1)  # positions
+    np.testing.assert_allclose(x[[1, 5]], TRUE[[1, 5]], rtol=0.05)  # amplitudes
+    assert ssr < 1.3 * T.size  # white noise of sigma 1 alone gives about T.size
+
+
+def test_bounds_hold_and_fixed_parameters_do_not_move():
+    lower, upper = LOWER.copy(), UPPER.copy()
+    lower[[4, 8]] = upper[[4, 8]] = np.sqrt(2)  # the Gaussian model: alpha fixed
+    upper[1] = 60.0  # the true amplitude 100 is out of reach
+    for fit in (fit_levenberg_marquardt, fit_lbfgs):
+        start = START.copy()
+        start[[4, 8]] = np.sqrt(2)
+        x, _, _ = fit(start, 2, T, model_of_individual(TRUE, T), lower, upper)
+        assert np.all(x >= lower) and np.all(x <= upper)
+        assert x[1] == 60.0 and x[4] == x[8] == np.sqrt(2)
+
+
+def test_wrong_individual_size_is_refused():
+    with pytest.raises(ValueError, match="2 echoes has 9 parameters"):
+        fit_levenberg_marquardt(START[:5], 2, T, T, LOWER[:5], UPPER[:5])

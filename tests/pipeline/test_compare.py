@@ -1,0 +1,92 @@
+"""`fwl compare` on small real samples: tables for every optimizer, figures, point counts that add up."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from fwcore.compare import budget_settings, choose_fast_preset, compare_points
+from pipeline.cli import main
+
+FAST = "none,lm,lbfgs,ga,pso,de,mde,mde-lm,ga-iterative"
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def leica_compare(tmp_path_factory, leica_dir):
+    out = tmp_path_factory.mktemp("compare")
+    # small budgets keep the test short; the README's tables use the defaults
+    assert main(["compare", str(leica_dir / "leica_a.las"), "--optimizers", FAST, "--limit", "40",
+                 "--generations", "5", "--ga-iterative-generations", "30", "--output", str(out)]) == 0
+    return out
+
+
+def test_every_optimizer_has_a_row_with_physical_numbers(leica_compare):
+    rows = read_csv(leica_compare / "compare.csv")
+    assert [r["optimizer"] for r in rows] == FAST.split(",")
+    by = {r["optimizer"]: r for r in rows}
+    for r in rows:
+        assert int(r["waveforms"]) == 40
+        assert float(r["fit_error"]) >= 0 and float(r["rmse"]) >= 0 and float(r["r2"]) <= 1
+        assert float(r["echoes_kept"]) <= float(r["echoes"])
+        assert float(r["seconds"]) > 0
+    # every optimizer starts from the initial estimate: the local ones can only improve it
+    for name in ("lm", "lbfgs", "mde-lm"):
+        assert float(by[name]["fit_error"]) < float(by["none"]["fit_error"])
+    assert "| lm | generalized | 40 |" in (leica_compare / "compare.md").read_text()
+
+
+def test_point_counts_add_up(leica_compare):
+    for r in read_csv(leica_compare / "points.csv"):
+        n = {k: int(r[k]) for k in ("system_points", "decomposed_points", "matched_system", "missed_system",
+                                    "matched_decomposed", "new_points")}
+        assert n["matched_system"] + n["missed_system"] == n["system_points"] > 0
+        assert n["matched_decomposed"] + n["new_points"] == n["decomposed_points"]
+        assert float(r["median_distance"]) <= 0.5
+
+
+def test_figures_are_written(leica_compare):
+    pulses = list(leica_compare.glob("fit_pulse_*.png"))
+    assert len(pulses) == 3
+    for png in pulses + [leica_compare / "methods.png"]:
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_chosen_pulses_and_a_csv_input(tmp_path, neon_dir):
+    assert main(["compare", str(neon_dir / "return_waveforms.csv"), "--outgoing",
+                 str(neon_dir / "outgoing_pulses.csv"), "--optimizers", "none,lm", "--model", "gaussian,generalized",
+                 "--limit", "10", "--pulses", "3", "--output", str(tmp_path)]) == 0
+    rows = read_csv(tmp_path / "compare.csv")
+    assert [(r["optimizer"], r["model"]) for r in rows] == [("none", "gaussian"), ("lm", "gaussian"),
+                                                              ("none", "generalized"), ("lm", "generalized")]
+    assert (tmp_path / "fit_pulse_3.png").exists()
+    assert not (tmp_path / "points.csv").exists()  # a CSV has no geometry
+
+
+def test_an_unknown_pulse_is_an_error(tmp_path, neon_dir, capsys):
+    assert main(["compare", str(neon_dir / "return_waveforms.csv"), "--optimizers", "none", "--limit", "5",
+                 "--pulses", "999999", "--output", str(tmp_path)]) == 2
+    assert "no pulse with id [999999]" in capsys.readouterr().err
+
+
+def test_compare_points_by_hand():
+    system = np.array([[0, 0, 0], [10, 0, 0], [20, 0, 0]], float)
+    ours = np.array([[0.1, 0, 0], [10, 0.3, 0], [30, 0, 0], [40, 0, 0]], float)
+    c = compare_points(system, ours, 0.5)
+    assert (c.matched_system, c.missed_system, c.matched_decomposed, c.new_points) == (2, 1, 2, 2)
+    assert c.mean_distance == pytest.approx(0.2)
+
+
+def test_fast_preset_choice_is_the_fastest_within_tolerance():
+    rows = [dict(fit_error=100.0, waveforms_per_second=50.0), dict(fit_error=104.0, waveforms_per_second=400.0),
+            dict(fit_error=110.0, waveforms_per_second=900.0)]
+    assert choose_fast_preset(rows, 100.0)["waveforms_per_second"] == 400.0
+    with pytest.raises(ValueError, match="within the tolerance"):
+        choose_fast_preset(rows, 50.0)
+    families = {s.family for s in budget_settings()}
+    assert families == {"mde k x t = 1", "mde k x t = 5", "mde k x t = 10", "de generational", "de immediate",
+                        "mde-lm", "lm"}
