@@ -133,6 +133,47 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _simulate(args: argparse.Namespace) -> int:
+    from fwcore.io.writer import write_waveform_las
+    from fwcore.simulate import SceneConfig, SensorConfig, simulate_flight
+    from pipeline.evaluate import truth_path, write_truth
+
+    sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps,
+                          samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
+                          background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
+                          bits=args.bits, detection_threshold=args.detection_threshold)
+    scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
+                        canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
+                        weak_echo_fraction=args.weak_fraction)
+    output = Path(args.output)
+    start = time.perf_counter()
+    flight = simulate_flight(args.pulses, sensor, scene, args.seed, source_file=output.name)
+    write_waveform_las(output, flight.pulses, args.format, bits=args.bits)
+    truth = write_truth(truth_path(output), flight, sensor, scene, args.seed)
+    n_echoes = flight.truth["time_ps"].size
+    print(f"wrote {output} ({args.format}, {args.bits}-bit): {args.pulses} pulses, {flight.pulses.return_xyz.shape[0]} "
+          f"system returns; {truth}: {n_echoes} true echoes; {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from pipeline.compare import markdown_table, write_csv
+    from pipeline.evaluate import EVALUATION_COLUMNS, evaluate_runs
+
+    rows = evaluate_runs(args.results, args.truth, args.match_ps)
+    table = markdown_table(rows, EVALUATION_COLUMNS)
+    print(table, end="")
+    if args.output:
+        output = Path(args.output)
+        output.parent.mkdir(parents=True, exist_ok=True)
+        if output.suffix == ".csv":
+            write_csv(output, rows)
+        else:
+            output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
+        print(f"wrote {output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -174,6 +215,41 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--output", required=True, help="output directory")
     _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)
+
+    s = sub.add_parser("simulate", help="write a synthetic full-waveform flight and the truth of its echoes")
+    s.add_argument("--pulses", type=int, required=True)
+    s.add_argument("--output", required=True, help="FILE.las; the truth goes to FILE.truth.parquet")
+    s.add_argument("--format", default="las13-wdp", choices=["las13-wdp", "las14-internal"])
+    s.add_argument("--bits", type=int, default=8, choices=[8, 16])
+    s.add_argument("--seed", type=int, default=0)
+    sensor = s.add_argument_group("sensor")
+    sensor.add_argument("--pulse-fwhm-ps", dest="pulse_fwhm_ps", type=float, default=4000.0)
+    sensor.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
+    sensor.add_argument("--samples", type=int, default=200, help="samples per packet")
+    sensor.add_argument("--gain", type=float, default=0.01, help="digitizer gain, volts per DN")
+    sensor.add_argument("--offset", type=float, default=0.0, help="digitizer offset, volts")
+    sensor.add_argument("--background", type=float, default=12.0, help="DN")
+    sensor.add_argument("--noise", type=float, default=1.5, help="Gaussian noise sigma, DN")
+    sensor.add_argument("--shot-noise", dest="shot_noise", type=float, default=0.05,
+                        help="signal-dependent noise: variance per DN of signal")
+    sensor.add_argument("--detection-threshold", dest="detection_threshold", type=float, default=6.0,
+                        help="the online detector's threshold, x noise sigma")
+    scene = s.add_argument_group("scene")
+    scene.add_argument("--altitude", type=float, default=500.0, help="metres above the terrain")
+    scene.add_argument("--max-scan-angle", dest="max_scan_angle", type=float, default=20.0, help="degrees")
+    scene.add_argument("--canopy-cover", dest="canopy_cover", type=float, default=0.45)
+    scene.add_argument("--roof-fraction", dest="roof_fraction", type=float, default=0.12)
+    scene.add_argument("--weak-fraction", dest="weak_fraction", type=float, default=0.15,
+                       help="fraction of vegetation echoes near the noise floor")
+    s.set_defaults(handler=_simulate)
+
+    e = sub.add_parser("evaluate", help="accuracy of fwl run outputs against a simulated flight's truth")
+    e.add_argument("results", nargs="+", help="fwl run output directories")
+    e.add_argument("--truth", required=True, help="FILE.truth.parquet from fwl simulate")
+    e.add_argument("--match-ps", dest="match_ps", type=float, default=1000.0,
+                   help="a true and a decomposed echo match within this time (default 1000 ps)")
+    e.add_argument("--output", help="write the table (.md, or .csv)")
+    e.set_defaults(handler=_evaluate)
     return parser
 
 

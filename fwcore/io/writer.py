@@ -114,6 +114,13 @@ def _evlr_header(record_length: int, description: str) -> bytes:
     return struct.pack("<H16sHQ32s", 0, b"LASF_Spec", 65535, record_length, description.encode()[:32])
 
 
+def packet_byte_offsets(lengths: np.ndarray, bits: np.ndarray) -> np.ndarray:
+    """Where write_waveform_las puts each pulse's packet (after the record header), in pulse order:
+    the byte offsets the reader reports as pulse ids."""
+    sizes = np.asarray(lengths, dtype=np.int64) * (np.asarray(bits, dtype=np.int64) // 8)
+    return EVLR_HEADER_BYTES + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+
+
 def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las13-wdp",
                        bits: int | np.ndarray = 8, scales=(0.001, 0.001, 0.001), offsets=(0.0, 0.0, 0.0)) -> Path:
     """A full-waveform file of these pulses: their system returns as points, their samples as packets.
@@ -138,14 +145,11 @@ def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las1
     table = {kind: i + 1 for i, kind in enumerate(dict.fromkeys(kinds))}
     descriptors = [WaveformDescriptor(i, k[0], 0, k[1], k[2], k[3], k[4]) for k, i in table.items()]
     # packets, in pulse order, after the record header
-    blobs, packet_offset, at = [], np.empty(n, dtype=np.int64), EVLR_HEADER_BYTES
+    blobs, packet_offset = [], packet_byte_offsets(lengths, bits)
     for i in range(n):
         dtype = "<u1" if bits[i] == 8 else "<u2"
         top = (1 << int(bits[i])) - 1
-        blob = np.clip(np.round(pulses.pulse_samples(i)), 0, top).astype(dtype).tobytes()
-        packet_offset[i] = at
-        at += len(blob)
-        blobs.append(blob)
+        blobs.append(np.clip(np.round(pulses.pulse_samples(i)), 0, top).astype(dtype).tobytes())
     packet_data = b"".join(blobs)
     record = _evlr_header(len(packet_data), "fwlidar waveform packets") + packet_data
 

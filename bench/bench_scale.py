@@ -1,0 +1,77 @@
+"""Scale benchmark: simulated flights of growing size through `fwl run`, pulses/s and peak memory.
+
+    python bench/bench_scale.py [--sizes 10000,100000,1000000] [--preset fast] [--dask 100000] [--workdir DIR]
+
+For each size, `fwl simulate` writes a flight (not timed with the run), then
+`fwl run` decomposes it in a fresh process on the DirectRunner with 2 workers
+(parquet and LAS outputs). Throughput is pulses over the run's wall time,
+start-up included; peak memory is the largest sum of RSS over the run's
+process and all its children (Beam's workers; with --dask, the cluster's
+worker processes too), sampled every 0.2 s. --dask N adds the run of size N
+on Beam's Dask runner against a local distributed cluster of 2 workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pipeline import PeakMemory  # noqa: E402
+
+
+def fwl(*args: str) -> None:
+    subprocess.run([sys.executable, "-m", "pipeline.cli", *args], check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+
+
+def timed_run(las: Path, out: Path, preset: str, extra: list[str]) -> tuple[float, float]:
+    with PeakMemory() as memory:
+        start = time.perf_counter()
+        fwl("run", str(las), "--output", str(out), "--formats", "parquet,las", "--preset", preset, *extra)
+        seconds = time.perf_counter() - start
+    return seconds, memory.peak / 2**20
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="10000,100000,1000000")
+    parser.add_argument("--preset", default="fast", help="decomposition preset (fast: LM; paper: MDE)")
+    parser.add_argument("--dask", type=int, default=100000, help="size also run on the Dask runner (0: none)")
+    parser.add_argument("--workdir", default=None)
+    args = parser.parse_args()
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-scale-"))
+    print(f"{'pulses':>9} {'runner':10} {'preset':7} {'simulate s':>10} {'run s':>8} {'pulses/s':>9} "
+          f"{'peak RSS MiB':>13}", flush=True)
+    sizes = [int(s) for s in args.sizes.split(",") if s]
+    for n in sorted(set(sizes) | ({args.dask} if args.dask else set())):
+        las = work / f"sim_{n}.las"
+        start = time.perf_counter()
+        fwl("simulate", "--pulses", str(n), "--output", str(las), "--seed", "1")
+        simulate = time.perf_counter() - start
+        runs = []
+        if n in sizes:
+            runs.append(("direct", []))
+        if n == args.dask:
+            runs.append(("dask", None))
+        for runner, extra in runs:
+            if extra is None:
+                from distributed import LocalCluster
+                with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+                    extra = ["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
+                             f"--dask_client_address={c.scheduler_address}"]
+                    seconds, peak = timed_run(las, work / f"out_{runner}_{n}", args.preset, extra)
+            else:
+                seconds, peak = timed_run(las, work / f"out_{runner}_{n}", args.preset, extra)
+            print(f"{n:9d} {runner:10} {args.preset:7} {simulate:10.1f} {seconds:8.1f} {n / seconds:9.1f} "
+                  f"{peak:13.0f}", flush=True)
+        for f in work.glob(f"sim_{n}.*"):
+            f.unlink()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,302 @@
+"""Synthetic flights with known echoes: a scene, a sensor, and the truth of every echo.
+
+A flight line at constant altitude scans across track (sawtooth scan angle)
+over gently rolling terrain with trees (one to five vegetation layers over
+the ground) and flat roofs (some pulses split between a roof edge and the
+ground). Each surface the beam meets is a generalized Gaussian echo of its own
+amplitude, width and shape; the sensor adds background, Gaussian noise plus
+signal-dependent (Poisson-like) noise, and quantises to 8 or 16 bits with
+saturation. An online detector (threshold crossings, as a scanner's) gives
+the system's own returns, written as the points that carry each packet.
+
+Times count from each packet's first sample, as the pipeline's do; sigma is
+Chauve's, with t in ps (fwcore.model); x, y, z follow the same geolocation as
+the reader's (X = X0 + (L0 - t) x_t).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT
+from fwcore.io.records import PulseBatch
+from fwcore.io.writer import packet_byte_offsets
+from fwcore.model import LN2
+
+LIGHT_M_PER_PS = 299792458.0e-12
+RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range
+MAX_ECHOES = 6
+MAX_RETURNS = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorConfig:
+    """The digitizer and the emitted pulse."""
+
+    pulse_fwhm_ps: float = 4000.0
+    sample_spacing_ps: float = 1000.0
+    samples_per_packet: int = 200
+    digitizer_gain: float = 0.01  # volts per DN, written to the descriptor
+    digitizer_offset: float = 0.0
+    background: float = 12.0  # DN
+    noise_sigma: float = 1.5  # DN, Gaussian
+    shot_noise: float = 0.05  # DN of variance per DN of signal (Poisson-like)
+    bits: int = 8
+    detection_threshold: float = 6.0  # x noise_sigma above background: the online detector
+    pre_trigger_ps: float = 15000.0  # the packet starts this long before the first surface
+
+    def __post_init__(self) -> None:
+        if self.bits not in (8, 16):
+            raise ValueError("bits must be 8 or 16")
+        if self.samples_per_packet < 20 or self.sample_spacing_ps <= 0 or self.pulse_fwhm_ps <= 0:
+            raise ValueError("need at least 20 samples per packet and positive spacing and pulse width")
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneConfig:
+    """The flight line and what it flies over."""
+
+    altitude_m: float = 500.0
+    speed_m_s: float = 60.0
+    pulse_rate_hz: float = 100_000.0
+    pulses_per_line: int = 400  # one scan line, edge to edge
+    max_scan_angle_deg: float = 20.0
+    canopy_cover: float = 0.45  # fraction of pulses through vegetation
+    canopy_height_m: tuple[float, float] = (6.0, 22.0)
+    roof_fraction: float = 0.12
+    roof_height_m: tuple[float, float] = (4.0, 12.0)
+    weak_echo_fraction: float = 0.15  # vegetation layers near the noise floor
+    start_gps_time: float = 400_000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulatedFlight:
+    """The pulses (ready for fwcore.io.writer.write_waveform_las) and the truth of every echo."""
+
+    pulses: PulseBatch
+    truth: dict[str, np.ndarray]  # one entry per true echo, see TRUTH_COLUMNS
+    bits: int
+
+
+TRUTH_COLUMNS = ("pulse_id", "echo_index", "surface", "time_ps", "amplitude", "sigma_ps", "alpha", "fwhm_ps",
+                 "noise_sigma", "x", "y", "z")
+SURFACES = ("ground", "vegetation", "roof")
+
+
+def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Rolling terrain, metres."""
+    return 120.0 + 6.0 * np.sin(x / 90.0) + 4.0 * np.cos(y / 70.0) + 1.5 * np.sin((x + y) / 23.0)
+
+
+def _scene_echoes(n: int, scene: SceneConfig, sensor: SensorConfig, rng: np.random.Generator):
+    """Per pulse: geometry, and up to MAX_ECHOES surfaces (range, amplitude, FWHM factor, alpha, kind)."""
+    i = np.arange(n)
+    gps = scene.start_gps_time + i / scene.pulse_rate_hz
+    line, step = np.divmod(i, scene.pulses_per_line)
+    frac = step / max(scene.pulses_per_line - 1, 1)
+    forward = line % 2 == 0  # the mirror sweeps back and forth
+    angle = np.radians(scene.max_scan_angle_deg) * np.where(forward, 2 * frac - 1, 1 - 2 * frac)
+    sensor_xyz = np.stack([scene.speed_m_s * (gps - scene.start_gps_time), np.zeros(n),
+                           np.full(n, scene.altitude_m + 120.0)], axis=1)
+    beam = np.stack([np.zeros(n), np.sin(angle), -np.cos(angle)], axis=1)
+    # ground range: two fixed-point steps on the terrain height are plenty at these slopes
+    ground_range = (sensor_xyz[:, 2] - 120.0) / np.cos(angle)
+    for _ in range(3):
+        hit = sensor_xyz + beam * ground_range[:, None]
+        ground_range = (sensor_xyz[:, 2] - _terrain(hit[:, 0], hit[:, 1])) / np.cos(angle)
+    hit = sensor_xyz + beam * ground_range[:, None]
+
+    rng_range = np.zeros((n, MAX_ECHOES))
+    amplitude = np.zeros((n, MAX_ECHOES))
+    width = np.ones((n, MAX_ECHOES))
+    alpha = np.zeros((n, MAX_ECHOES))
+    kind = np.zeros((n, MAX_ECHOES), dtype=np.int8)
+    count = np.ones(n, dtype=np.int64)
+    # roofs on a block grid, trees elsewhere by chance
+    block = (np.floor(hit[:, 0] / 35.0) * 7 + np.floor(hit[:, 1] / 35.0) * 3) % 9
+    roof = (block < 9 * scene.roof_fraction) & (rng.random(n) < 0.95)
+    tree = ~roof & (rng.random(n) < scene.canopy_cover)
+    # ground: the last echo; under canopy it keeps what the layers let through
+    ground_amplitude = rng.uniform(40, 200, n)
+    rng_range[:, 0] = ground_range
+    width[:, 0] = 1.0 + 0.8 * np.sin(angle) ** 2 + rng.uniform(0, 0.15, n)
+    alpha[:, 0] = rng.uniform(1.3, 2.0, n)
+    kind[:, 0] = 0
+    # roofs: one flat echo, or at an edge a roof and the ground
+    roof_height = rng.uniform(*scene.roof_height_m, n)
+    edge = roof & (rng.random(n) < 0.3)
+    rng_range[roof, 0] = ground_range[roof] - roof_height[roof] / np.cos(angle[roof])
+    kind[roof, 0] = 2
+    alpha[roof, 0] = rng.uniform(1.6, 2.2, roof.sum())
+    rng_range[edge, 1] = ground_range[edge]
+    amplitude[edge, 1] = rng.uniform(20, 120, edge.sum())
+    width[edge, 1] = 1.0 + rng.uniform(0, 0.2, edge.sum())
+    alpha[edge, 1] = rng.uniform(1.3, 2.0, edge.sum())
+    kind[edge, 1] = 0
+    count[edge] = 2
+    # trees: 1 to 5 layers between 1 m above ground and the crown top, then the ground
+    layers = rng.integers(1, 6, n)
+    height = rng.uniform(*scene.canopy_height_m, n)
+    transmitted = np.ones(n)
+    for k in range(MAX_ECHOES - 1):
+        on = tree & (layers > k)
+        depth = height * (1.0 - (k + rng.uniform(0.1, 0.9, n)) / (MAX_ECHOES - 1))  # metres above ground, top first
+        depth = np.maximum(depth, 1.0)
+        layer_amplitude = rng.uniform(15, 110, n) * transmitted
+        weak = rng.random(n) < scene.weak_echo_fraction
+        layer_amplitude = np.where(weak, rng.uniform(3.0, 6.0, n) * sensor.noise_sigma, layer_amplitude)
+        rng_range[on, k] = ground_range[on] - depth[on] / np.cos(angle[on])
+        amplitude[on, k] = layer_amplitude[on]
+        width[on, k] = rng.uniform(1.0, 1.8, on.sum())
+        alpha[on, k] = rng.uniform(1.2, 2.2, on.sum())
+        kind[on, k] = 1
+        transmitted = np.where(on, transmitted * rng.uniform(0.5, 0.85, n), transmitted)
+    rows = np.flatnonzero(tree)
+    last = layers[tree]
+    rng_range[rows, last] = ground_range[tree]
+    amplitude[rows, last] = ground_amplitude[tree] * transmitted[tree]
+    width[rows, last] = 1.0 + 0.8 * np.sin(angle[tree]) ** 2
+    alpha[rows, last] = rng.uniform(1.3, 2.0, tree.sum())
+    kind[rows, last] = 0
+    count[tree] = layers[tree] + 1
+    amplitude[~tree & ~edge, 0] = ground_amplitude[~tree & ~edge]
+    amplitude[edge, 0] = rng.uniform(40, 200, edge.sum())
+    # echoes in time order: the layers are drawn top first, but keep the guarantee explicit
+    order = np.argsort(np.where(np.arange(MAX_ECHOES)[None, :] < count[:, None], rng_range, np.inf), axis=1)
+    take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
+    return (gps, angle, sensor_xyz, beam, count, take(rng_range), take(amplitude), take(width), take(alpha),
+            take(kind))
+
+
+@njit(**JIT)
+def _render(time_ps, amplitude, sigma_ps, alpha, count, n_samples, spacing, background, noise, shot, top,
+            normal, out):
+    """Waveforms (pulse-major) with noise from `normal` (standard normal draws), quantised and saturated."""
+    for p in range(count.size):
+        for i in range(n_samples):
+            t = i * spacing
+            signal = 0.0
+            for k in range(count[p]):
+                z = abs(t - time_ps[p, k])
+                signal += amplitude[p, k] * math.exp(-z ** (alpha[p, k] ** 2) / (2.0 * sigma_ps[p, k] ** 2))
+            sd = math.sqrt(noise * noise + shot * signal)
+            v = round(background + signal + sd * normal[p * n_samples + i])
+            out[p * n_samples + i] = min(max(v, 0.0), top)
+
+
+@njit(**JIT)
+def _detect(samples, n_samples, threshold, out_index, out_count):
+    """The online detector: one return per excursion above threshold, at its highest sample."""
+    for p in range(out_count.size):
+        base = p * n_samples
+        found = 0
+        i = 0
+        while i < n_samples and found < out_index.shape[1]:
+            if samples[base + i] > threshold:
+                best = i
+                while i < n_samples and samples[base + i] > threshold:
+                    if samples[base + i] > samples[base + best]:
+                        best = i
+                    i += 1
+                out_index[p, found] = best
+                found += 1
+            i += 1
+        if found == 0:  # a pulse still needs a point to carry its packet: the strongest sample
+            best = 0
+            for i in range(n_samples):
+                if samples[base + i] > samples[base + best]:
+                    best = i
+            out_index[p, 0] = best
+            found = 1
+        out_count[p] = found
+
+
+def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene: SceneConfig = SceneConfig(),
+                    seed: int = 0, source_file: str = "simulated.las") -> SimulatedFlight:
+    """Simulate n_pulses pulses; the same arguments give the same flight."""
+    if n_pulses < 1:
+        raise ValueError("simulate at least one pulse")
+    rng = np.random.default_rng(seed)
+    gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind = _scene_echoes(
+        n_pulses, scene, sensor, rng)
+    has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
+    top_range = ranges[:, 0]
+    time_ps = np.where(has, sensor.pre_trigger_ps + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
+    window_ps = (sensor.samples_per_packet - 1) * sensor.sample_spacing_ps
+    if np.any(time_ps[has] > window_ps - 3 * sensor.pulse_fwhm_ps):
+        raise ValueError("the packet is too short for the scene's heights: raise samples_per_packet")
+    fwhm_ps = sensor.pulse_fwhm_ps * width
+    half = fwhm_ps / 2.0
+    p = alpha ** 2
+    sigma_ps = np.where(has, np.sqrt(np.where(has, half, 1.0) ** p / (2.0 * LN2)), 1.0)
+    n_samples = sensor.samples_per_packet
+    top = float((1 << sensor.bits) - 1)
+    samples = np.empty(n_pulses * n_samples)
+    _render(time_ps, np.where(has, amplitude, 0.0), sigma_ps, np.where(has, alpha, 1.0), count, n_samples,
+            sensor.sample_spacing_ps, sensor.background, sensor.noise_sigma, sensor.shot_noise, top,
+            rng.standard_normal(n_pulses * n_samples), samples)
+    return_index = np.zeros((n_pulses, MAX_RETURNS), dtype=np.int64)
+    return_count = np.zeros(n_pulses, dtype=np.int64)
+    threshold = sensor.background + sensor.detection_threshold * sensor.noise_sigma
+    _detect(samples, n_samples, threshold, return_index, return_count)
+
+    # geometry: a point at packet time t lies at P0 + beam (t - pre_trigger) c/2, P0 the first surface
+    first_surface = sensor_xyz + beam * top_range[:, None]
+    direction = -beam * RANGE_M_PER_PS  # the reader's X = X0 + (L0 - t) x_t
+
+    def position(owner, t_ps):
+        return first_surface[owner] + beam[owner] * ((t_ps - sensor.pre_trigger_ps) * RANGE_M_PER_PS)[:, None]
+
+    r_has = np.arange(MAX_RETURNS)[None, :] < return_count[:, None]
+    r_owner = np.repeat(np.arange(n_pulses), return_count)
+    r_time = (return_index[r_has] * sensor.sample_spacing_ps).astype(np.float64)
+    r_xyz = position(r_owner, r_time)
+    r_intensity = samples[r_owner * n_samples + return_index[r_has]].astype(np.uint16)
+    return_offsets = np.zeros(n_pulses + 1, dtype=np.int64)
+    np.cumsum(return_count, out=return_offsets[1:])
+    return_number = (np.arange(r_owner.size) - return_offsets[r_owner] + 1).astype(np.uint8)
+    first_return = return_offsets[:-1]
+
+    lengths = np.full(n_pulses, n_samples)
+    pulse_id = packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits))
+    pulses = PulseBatch(
+        source_file=source_file, pulse_id=pulse_id, descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
+        anchor=r_xyz[first_return], anchor_location_ps=r_time[first_return], direction=direction,
+        scan_angle=np.degrees(angle), point_source_id=np.ones(n_pulses, np.uint16),
+        scan_direction_flag=((np.arange(n_pulses) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
+        edge_of_flight_line=np.isin(np.arange(n_pulses) % scene.pulses_per_line,
+                                    (0, scene.pulses_per_line - 1)).astype(np.uint8),
+        user_data=np.zeros(n_pulses, np.uint8), sample_spacing_ps=np.full(n_pulses, sensor.sample_spacing_ps),
+        digitizer_gain=np.full(n_pulses, sensor.digitizer_gain),
+        digitizer_offset=np.full(n_pulses, sensor.digitizer_offset),
+        bits_per_sample=np.full(n_pulses, sensor.bits, np.int16), samples=samples,
+        sample_offsets=np.arange(n_pulses + 1, dtype=np.int64) * n_samples, return_xyz=r_xyz,
+        return_number=return_number, return_intensity=r_intensity, return_location_ps=r_time,
+        return_offsets=return_offsets)
+
+    e_owner = np.repeat(np.arange(n_pulses), count)
+    e_time = time_ps[has]
+    e_xyz = position(e_owner, e_time)
+    truth = {
+        "pulse_id": pulse_id[e_owner], "echo_index": np.concatenate([np.arange(c) for c in count]),
+        "surface": np.array(SURFACES, dtype=object)[kind[has]], "time_ps": e_time, "amplitude": amplitude[has],
+        "sigma_ps": sigma_ps[has], "alpha": alpha[has], "fwhm_ps": fwhm_ps[has],
+        "noise_sigma": np.full(e_owner.size, sensor.noise_sigma),
+        "x": e_xyz[:, 0], "y": e_xyz[:, 1], "z": e_xyz[:, 2],
+    }
+    return SimulatedFlight(pulses, truth, sensor.bits)
+
+
+def render_truth(truth: dict[str, np.ndarray], n_samples: int, spacing_ps: float, background: float) -> np.ndarray:
+    """The noiseless waveform of each pulse in the truth (pulse order of first appearance), (pulses, samples)."""
+    ids, owner = np.unique(truth["pulse_id"], return_inverse=True)
+    t = np.arange(n_samples) * spacing_ps
+    out = np.full((ids.size, n_samples), background, dtype=float)
+    for k in range(owner.size):
+        out[owner[k]] += truth["amplitude"][k] * np.exp(
+            -np.abs(t - truth["time_ps"][k]) ** (truth["alpha"][k] ** 2) / (2 * truth["sigma_ps"][k] ** 2))
+    return out

@@ -1,0 +1,176 @@
+"""`fwl simulate` output and `fwl evaluate`: the pipeline's echoes against a simulated flight's truth.
+
+A true echo and a decomposed (kept) echo of the same pulse match when each
+is the other's nearest in time and they lie within `match_ps` (default
+1 ns). Reported per run, overall and split by SNR band (true amplitude over
+the noise sigma) and by separation (single echo; resolved: the nearest other
+true echo of the pulse at least one FWHM away; overlapping: closer), with the
+Cramer-Rao lower bound of the range error of a single echo in the same noise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+from fwcore.simulate import RANGE_M_PER_PS, SceneConfig, SensorConfig, SimulatedFlight
+
+TRUTH_METADATA_KEY = b"fwlidar.simulation"
+SNR_BANDS = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 50.0), (50.0, np.inf))
+_CM_PER_PS = RANGE_M_PER_PS * 100.0
+_KEY_STRIDE = 1.0e6  # ps: wider than any packet, so pulse_id * stride + time never mixes pulses
+
+
+def truth_path(las_path: str | Path) -> Path:
+    """sim.las -> sim.truth.parquet"""
+    las_path = Path(las_path)
+    return las_path.with_name(las_path.stem + ".truth.parquet")
+
+
+def write_truth(path: str | Path, flight: SimulatedFlight, sensor: SensorConfig, scene: SceneConfig,
+                seed: int) -> Path:
+    """The truth table, with the sensor, scene and seed in its metadata."""
+    table = pa.table({k: (pa.array(v.tolist(), pa.string()) if v.dtype == object else v)
+                      for k, v in flight.truth.items()})
+    meta = {"sensor": dataclasses.asdict(sensor), "scene": dataclasses.asdict(scene), "seed": seed}
+    table = table.replace_schema_metadata({TRUTH_METADATA_KEY: json.dumps(meta).encode()})
+    pq.write_table(table, path)
+    return Path(path)
+
+
+def _sensor_of(truth: pa.Table) -> SensorConfig:
+    meta = json.loads((truth.schema.metadata or {}).get(TRUTH_METADATA_KEY, b"{}"))
+    if "sensor" not in meta:
+        raise ValueError("the truth table carries no simulation metadata (was it written by fwl simulate?)")
+    return SensorConfig(**meta["sensor"])
+
+
+def match_echoes(true_pulse, true_time, found_pulse, found_time, match_ps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (true, found) of mutual nearest echoes of the same pulse within match_ps."""
+    tk = np.asarray(true_pulse, float) * _KEY_STRIDE + np.asarray(true_time, float)
+    fk = np.asarray(found_pulse, float) * _KEY_STRIDE + np.asarray(found_time, float)
+    if tk.size == 0 or fk.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    t_order, f_order = np.argsort(tk, kind="stable"), np.argsort(fk, kind="stable")
+    ts, fs = tk[t_order], fk[f_order]
+
+    def nearest(keys, sorted_other):
+        j = np.clip(np.searchsorted(sorted_other, keys), 1, sorted_other.size - 1) if sorted_other.size > 1 \
+            else np.zeros(keys.size, np.int64)
+        if sorted_other.size > 1:
+            left_closer = np.abs(keys - sorted_other[j - 1]) <= np.abs(sorted_other[j] - keys)
+            j = np.where(left_closer, j - 1, j)
+        return j
+
+    t_to_f = nearest(ts, fs)
+    f_to_t = nearest(fs, ts)
+    mutual = (f_to_t[t_to_f] == np.arange(ts.size)) & (np.abs(ts - fs[t_to_f]) <= match_ps)
+    return t_order[mutual], f_order[t_to_f[mutual]]
+
+
+def range_crlb_cm(amplitude, sigma_ps, alpha, sensor: SensorConfig) -> np.ndarray:
+    """Cramer-Rao bound (cm) of the range of one generalized Gaussian echo of known shape in the
+    sensor's noise (Gaussian + signal-dependent + quantisation), sampled on the packet's grid."""
+    amplitude, sigma_ps, alpha = (np.asarray(a, float) for a in (amplitude, sigma_ps, alpha))
+    out = np.empty(amplitude.size)
+    # the echo centred mid-sample and on a sample average out the grid phase: use both
+    offsets = np.arange(-40, 41) * sensor.sample_spacing_ps
+    for lo in range(0, amplitude.size, 20000):
+        a, s, p = amplitude[lo:lo + 20000, None], sigma_ps[lo:lo + 20000, None], alpha[lo:lo + 20000, None] ** 2
+        info = 0.0
+        for phase in (0.0, 0.5 * sensor.sample_spacing_ps):
+            d = offsets[None, :] + phase
+            z = np.abs(d)
+            f = a * np.exp(-z ** p / (2 * s ** 2))
+            slope = f * p * z ** (p - 1) * np.sign(d) / (2 * s ** 2)
+            var = sensor.noise_sigma ** 2 + sensor.shot_noise * f + 1.0 / 12.0
+            info = info + 0.5 * (slope ** 2 / var).sum(axis=1)
+        out[lo:lo + 20000] = _CM_PER_PS / np.sqrt(info)
+    return out
+
+
+def _separation_class(pulse_id: np.ndarray, time_ps: np.ndarray, fwhm_ps: np.ndarray) -> np.ndarray:
+    order = np.lexsort((time_ps, pulse_id))
+    pid, t = pulse_id[order], time_ps[order]
+    gap = np.full(t.size, np.inf)
+    same_prev = np.r_[False, pid[1:] == pid[:-1]]
+    d = np.r_[np.inf, np.diff(t)]
+    gap = np.where(same_prev, d, gap)
+    gap_next = np.r_[gap[1:], np.inf]
+    nearest = np.minimum(gap, gap_next)
+    out = np.empty(t.size, dtype=object)
+    out[order] = np.where(np.isinf(nearest), "single", np.where(nearest >= fwhm_ps[order], "resolved", "overlapping"))
+    return out
+
+
+def _stats(label: str, kind: str, true_sel: np.ndarray, found_count: int | None, pairs, truth, found, crlb) -> dict:
+    t_idx, f_idx = pairs
+    in_band = true_sel[t_idx]
+    ti, fi = t_idx[in_band], f_idx[in_band]
+    dt = found["time_ps"][fi] - truth["time_ps"][ti]
+    range_cm = dt * _CM_PER_PS
+    n_true = int(true_sel.sum())
+    row = {"run": label, "split": kind, "true_echoes": n_true, "matched": int(ti.size),
+           "recall": ti.size / n_true if n_true else float("nan"),
+           "precision": (ti.size / found_count) if found_count else float("nan"),
+           "range_bias_cm": float(range_cm.mean()) if ti.size else float("nan"),
+           "range_rmse_cm": float(np.sqrt((range_cm ** 2).mean())) if ti.size else float("nan"),
+           "amplitude_error": float(np.median((found["amplitude"][fi] - truth["amplitude"][ti])
+                                              / truth["amplitude"][ti])) if ti.size else float("nan"),
+           "fwhm_error": float(np.median((found["fwhm_ps"][fi] - truth["fwhm_ps"][ti])
+                                         / truth["fwhm_ps"][ti])) if ti.size else float("nan"),
+           "crlb_cm": float(np.sqrt((crlb[ti] ** 2).mean())) if ti.size else float("nan")}
+    row["rmse_over_crlb"] = row["range_rmse_cm"] / row["crlb_cm"] if ti.size else float("nan")
+    return row
+
+
+def evaluate_run(results_dir: str | Path, truth_file: str | Path, match_ps: float = 1000.0) -> list[dict]:
+    """Rows of accuracy statistics for one `fwl run` output directory against the truth."""
+    results_dir = Path(results_dir)
+    if not (results_dir / "echoes").is_dir():
+        raise FileNotFoundError(f"{results_dir}: no echoes/ table (is it an fwl run output directory?)")
+    truth_table = pq.read_table(truth_file)
+    sensor = _sensor_of(truth_table)
+    truth = {c: truth_table.column(c).to_numpy() for c in ("pulse_id", "time_ps", "amplitude", "sigma_ps",
+                                                             "alpha", "fwhm_ps", "noise_sigma")}
+    echoes = ds.dataset(str(results_dir / "echoes"), format="parquet").to_table(
+        columns=["pulse_id", "time_ps", "amplitude", "fwhm_ps", "kept"])
+    kept = echoes.column("kept").to_numpy(zero_copy_only=False)
+    found = {c: echoes.column(c).to_numpy()[kept] for c in ("pulse_id", "time_ps", "amplitude", "fwhm_ps")}
+    run_json = results_dir / "run.json"
+    config = json.loads(run_json.read_text()).get("config", {}) if run_json.exists() else {}
+    label = f"{results_dir.name} ({config.get('optimizer', '?')}, {config.get('model', '?')})"
+    pairs = match_echoes(truth["pulse_id"], truth["time_ps"], found["pulse_id"], found["time_ps"], match_ps)
+    crlb = range_crlb_cm(truth["amplitude"], truth["sigma_ps"], truth["alpha"], sensor)
+    snr = truth["amplitude"] / truth["noise_sigma"]
+    separation = _separation_class(truth["pulse_id"], truth["time_ps"], truth["fwhm_ps"])
+    everything = np.ones(snr.size, bool)
+    rows = [_stats(label, "all", everything, found["pulse_id"].size, pairs, truth, found, crlb)]
+    for lo, hi in SNR_BANDS:
+        name = f"SNR {lo:g}-{hi:g}" if np.isfinite(hi) else f"SNR >= {lo:g}"
+        rows.append(_stats(label, name, (snr >= lo) & (snr < hi), None, pairs, truth, found, crlb))
+    for kind in ("single", "resolved", "overlapping"):
+        rows.append(_stats(label, kind, separation == kind, None, pairs, truth, found, crlb))
+    return rows
+
+
+EVALUATION_COLUMNS = [("run", "run", "{}"), ("split", "echoes", "{}"), ("true_echoes", "true", "{}"),
+                      ("matched", "matched", "{}"), ("recall", "recall", "{:.3f}"),
+                      ("precision", "precision", "{:.3f}"), ("range_bias_cm", "range bias (cm)", "{:.2f}"),
+                      ("range_rmse_cm", "range RMSE (cm)", "{:.2f}"), ("crlb_cm", "CRLB (cm)", "{:.2f}"),
+                      ("rmse_over_crlb", "RMSE / CRLB", "{:.2f}"), ("amplitude_error", "amplitude err", "{:+.3f}"),
+                      ("fwhm_error", "FWHM err", "{:+.3f}")]
+
+
+def evaluate_runs(results_dirs: Sequence[str | Path], truth_file: str | Path, match_ps: float = 1000.0) -> list[dict]:
+    rows = []
+    for d in results_dirs:
+        rows.extend(evaluate_run(d, truth_file, match_ps))
+    return rows

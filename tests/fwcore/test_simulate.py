@@ -1,0 +1,73 @@
+"""Simulated flights: the truth renders to the stored samples, and the file reads back as written."""
+
+import numpy as np
+import pytest
+
+from fwcore.io import read_pulses
+from fwcore.io.geolocate import geolocate
+from fwcore.io.writer import write_waveform_las
+from fwcore.simulate import MAX_ECHOES, SceneConfig, SensorConfig, render_truth, simulate_flight
+
+NOISELESS = SensorConfig(noise_sigma=0.0, shot_noise=0.0)
+
+
+def test_truth_renders_to_the_stored_samples_within_quantisation():
+    flight = simulate_flight(300, NOISELESS, seed=3)
+    rendered = render_truth(flight.truth, NOISELESS.samples_per_packet, NOISELESS.sample_spacing_ps,
+                            NOISELESS.background)
+    stored = flight.pulses.samples.reshape(300, -1)
+    unsaturated = rendered < 255
+    assert np.abs(stored - rendered)[unsaturated].max() <= 0.5 + 1e-9
+    assert (stored[~unsaturated] == 255).all()
+
+
+def test_the_scene_has_one_to_six_echoes_of_varied_shape():
+    flight = simulate_flight(4000, seed=1)
+    counts = np.unique(flight.truth["pulse_id"], return_counts=True)[1]
+    assert counts.min() == 1 and counts.max() == MAX_ECHOES
+    assert set(flight.truth["surface"]) == {"ground", "vegetation", "roof"}
+    assert flight.truth["alpha"].min() < 1.3 and flight.truth["alpha"].max() > 2.1
+    snr = flight.truth["amplitude"] / flight.truth["noise_sigma"]
+    assert (snr < 6).sum() > 100  # weak echoes near the noise floor
+
+
+@pytest.mark.parametrize("layout, bits", [("las13-wdp", 8), ("las14-internal", 16)])
+def test_the_file_reads_back_with_the_truths_pulse_ids_and_geometry(tmp_path, layout, bits):
+    sensor = SensorConfig(bits=bits, background=300.0 if bits == 16 else 12.0)
+    flight = simulate_flight(200, sensor, SceneConfig(), seed=5, source_file="sim.las")
+    path = write_waveform_las(tmp_path / "sim.las", flight.pulses, layout, bits=bits)
+    pulses = read_pulses(path)
+    assert sorted(pulses.pulse_id) == sorted(np.unique(flight.truth["pulse_id"]))
+    np.testing.assert_array_equal(pulses.samples, flight.pulses.samples)
+    assert (pulses.bits_per_sample == bits).all()
+    # each true echo, geolocated the reader's way from the file's anchor and direction, is where the truth says
+    index = {int(p): i for i, p in enumerate(pulses.pulse_id)}
+    owner = np.array([index[int(p)] for p in flight.truth["pulse_id"]])
+    xyz = geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner],
+                    flight.truth["time_ps"])
+    truth = np.stack([flight.truth[c] for c in "xyz"], axis=1)
+    assert np.abs(xyz - truth).max() < 0.01  # 1 cm: LAS millimetre coordinates and float32 directions
+
+
+def test_system_returns_are_threshold_crossings():
+    sensor = SensorConfig()
+    flight = simulate_flight(500, sensor, seed=2)
+    p = flight.pulses
+    threshold = sensor.background + sensor.detection_threshold * sensor.noise_sigma
+    samples = p.samples.reshape(500, -1)
+    owner = np.repeat(np.arange(500), np.diff(p.return_offsets))
+    at = (p.return_location_ps / sensor.sample_spacing_ps).astype(int)
+    crossing = samples[owner, at] > threshold
+    strongest = at == samples[owner].argmax(axis=1)
+    assert np.all(crossing | strongest)  # a pulse with no crossing keeps its strongest sample
+    assert np.all(np.diff(p.return_offsets) >= 1)
+
+
+def test_same_seed_same_flight_and_bad_settings_are_refused():
+    a, b = simulate_flight(50, seed=9), simulate_flight(50, seed=9)
+    np.testing.assert_array_equal(a.pulses.samples, b.pulses.samples)
+    assert not np.array_equal(a.pulses.samples, simulate_flight(50, seed=10).pulses.samples)
+    with pytest.raises(ValueError, match="bits must be 8 or 16"):
+        SensorConfig(bits=12)
+    with pytest.raises(ValueError, match="packet is too short"):
+        simulate_flight(200, SensorConfig(samples_per_packet=40))
