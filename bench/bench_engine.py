@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import DecompositionConfig
+from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.decompose import WaveformBatch, decompose_batch
 from fwcore.io import read_pulses
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
@@ -25,9 +25,13 @@ from fwcore.rng import pulse_seed
 DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
 SETTINGS = {
     "none": dict(optimizer="none"),
+    "lm (50 iterations)": dict(optimizer="lm"),
+    "fast preset (lm, 20 iterations)": PRESETS["fast"],
     "de (NP 100, G 100)": dict(optimizer="de", population=100, generations=100),
     "de (NP 60, G 480: MDE's evaluations)": dict(optimizer="de", population=60, generations=480),
     "mde (NP 60, G 80, k x t = 5)": dict(),
+    "mde-lm": dict(optimizer="mde-lm"),
+    "accurate preset (mde + pruning)": PRESETS["accurate"],
 }
 
 

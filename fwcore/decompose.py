@@ -242,9 +242,9 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
     nfev = 0
     times, fit_target, raw = _valid_samples(samples, smoothed, valid, fit_denoised)
     if method == OPT_GA_ITERATIVE:
-        best, n_echoes, n_initial, nfev = ga_iterative(samples, valid, smoothed, background, noise, noise_threshold,
-                                            max_echoes, first, last, times, fit_target, raw, ga_iterative_r2,
-                                            population, ga_iterative_generations, seed)
+        best, n_echoes, n_initial, nfev = ga_iterative(
+            valid, smoothed, background, noise, noise_threshold, max_echoes, first, last, times, fit_target, raw,
+            ga_iterative_r2, population, ga_iterative_generations, seed)
     elif method in POPULATION_METHODS and n_echoes > 0:
         state = np.empty(1, dtype=np.uint64)
         state[0] = seed

@@ -42,7 +42,8 @@ _LEVELS = float((1 << BITS) - 1)
 
 @njit(**JIT)
 def patent_peaks(smoothed, valid, background, threshold, max_echoes, first, last, ranges):
-    """The patent's peaks and search ranges; ranges[k] = (A_lo, A_hi, u_lo, u_hi, s_lo, s_hi, peak). Returns the count."""
+    """The patent's peaks and search ranges, ranges[k] = (A_lo, A_hi, u_lo, u_hi, s_lo, s_hi, peak).
+    Returns the count."""
     n = smoothed.size
     residual = smoothed - background
     count = 0
@@ -210,7 +211,7 @@ def _bounds(ranges, n_echoes, background, noise):
 
 
 @njit(**JIT)
-def ga_iterative(samples, valid, smoothed, background, noise, noise_threshold, max_echoes, first, last,
+def ga_iterative(valid, smoothed, background, noise, noise_threshold, max_echoes, first, last,
                  times, fit_target, raw, target_r2, population, generations, seed):
     """The patent's decomposition. Returns (individual in the engine's layout [b, (A, u, s, alpha)],
     echo count, peaks found by the search, evaluations)."""
@@ -302,5 +303,5 @@ def patent_peak_ranges(samples, smoothing_sigma: float, valid=None, noise_thresh
     n = patent_peaks(smoothed, valid, background, noise_threshold * noise, max_echoes, float(first), float(last),
                      ranges)
     ranges = ranges[:n]
-    return PeakSearchRange(background, noise, peak=ranges[:, 6].astype(np.int64), position_range=ranges[:, 2:4], amplitude_range=ranges[:, 0:2],
-                           sigma_range=ranges[:, 4:6])
+    return PeakSearchRange(background, noise, peak=ranges[:, 6].astype(np.int64), position_range=ranges[:, 2:4],
+                           amplitude_range=ranges[:, 0:2], sigma_range=ranges[:, 4:6])

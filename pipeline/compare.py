@@ -234,7 +234,7 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
     summary = {"rows": rows, "points": point_rows, "written": written}
     if budget:
         budget_rows = budget_study(data.batch, data.config, budget_settings(), threads)
-        paper = next(r["fit_error"] for r in budget_rows if r["family"] == PAPER_MDE[0] and r["setting"] == PAPER_MDE[1])
+        paper = next(r["fit_error"] for r in budget_rows if (r["family"], r["setting"]) == PAPER_MDE)
         fast = choose_fast_preset(budget_rows, paper)
         write_csv(output / "budget.csv", budget_rows)
         budget_columns = [("family", "method", "{}"), ("setting", "setting", "{}"),

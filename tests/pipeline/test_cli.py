@@ -70,3 +70,15 @@ def test_config_loads_from_toml(tmp_path):
     path.write_text('[decomposition]\nspeed = 3\n')
     with pytest.raises(ValueError, match="unknown decomposition settings"):
         DecompositionConfig.from_toml(path)
+
+
+def test_presets_then_toml_then_flags(tmp_path):
+    from fwcore.config import Optimizer
+    from pipeline.cli import _config_from_args, build_parser
+    path = tmp_path / "c.toml"
+    path.write_text('[decomposition]\nlm_iterations = 7\n')
+    args = build_parser().parse_args(["run", "--preset", "fast", "--config", str(path), "--seed", "3"])
+    config = _config_from_args(args)
+    assert config.optimizer is Optimizer.LM and config.lm_iterations == 7 and config.seed == 3
+    accurate = _config_from_args(build_parser().parse_args(["run", "--preset", "accurate"]))
+    assert accurate.prune_echoes and accurate.optimizer is Optimizer.MDE
