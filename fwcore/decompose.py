@@ -20,7 +20,7 @@ from fwcore._jit import JIT, PARALLEL_JIT
 from fwcore.config import DecompositionConfig, FitTarget, Model, Optimizer
 from fwcore.filter import REJECT_REASONS, TOO_CLOSE, TOO_NARROW, TOO_WIDE, mark_spurious
 from fwcore.model import echo_energy, fwhm, waveform_model
-from fwcore.lm import lbfgs, levenberg_marquardt, model_and_jacobian
+from fwcore.lm import lbfgs, levenberg_marquardt, squared_error
 from fwcore.optimize import (LANES, OPT_DE, OPT_GA, OPT_GA_ITERATIVE, OPT_LBFGS, OPT_LM, OPT_MDE, OPT_MDE_LM,
                              OPT_NONE, OPT_PSO, PARAMS_PER_ECHO, POPULATION_METHODS, evolve, evolve_ga,
                              fit_error, init_population, swarm)
@@ -118,33 +118,23 @@ def _without_echo(x, k):
 
 
 @njit(**JIT)
-def _valid_samples(samples, smoothed, valid, fit_denoised):
-    """Times, fit target and raw values of the valid samples, for the local optimizers."""
+def _valid_samples(samples, smoothed, valid, fit_denoised, wanted):
+    """Times, fit target and raw values of the valid samples (empty unless wanted)."""
+    n = samples.size if wanted else 0
     m = 0
-    for i in range(samples.size):
+    for i in range(n):
         m += valid[i]
     times = np.empty(m)
     fit_target = np.empty(m)
     raw = np.empty(m)
     j = 0
-    for i in range(samples.size):
+    for i in range(n):
         if valid[i]:
             times[j] = i
             fit_target[j] = smoothed[i] if fit_denoised else samples[i]
             raw[j] = samples[i]
             j += 1
     return times, fit_target, raw
-
-
-@njit(**JIT)
-def _squared_error(x, n_echoes, times, samples):
-    model = np.empty(times.size)
-    jac = np.empty((times.size, x.size))
-    model_and_jacobian(x, n_echoes, times, model, jac)
-    acc = 0.0
-    for i in range(times.size):
-        acc += (model[i] - samples[i]) ** 2
-    return acc
 
 
 @njit(**JIT)
@@ -164,7 +154,7 @@ def _prune_echoes(best, lower, upper, n_echoes, times, target, raw, gaussian, lm
     m = times.size
     per_echo = 3 if gaussian else PARAMS_PER_ECHO
     penalty = per_echo * math.log(m)  # the BIC's price of one echo
-    variance = max(_squared_error(best, n_echoes, times, raw) / m, 1e-12)
+    variance = max(squared_error(best, n_echoes, times, raw) / m, 1e-12)
     n_jacobians = 0
     while n_echoes > 0:
         reasons = _spurious_reasons(best, n_echoes, first, last, pulse_fwhm, noise, min_snr,
@@ -178,7 +168,7 @@ def _prune_echoes(best, lower, upper, n_echoes, times, target, raw, gaussian, lm
         full = best.copy()  # the model with every echo, refitted the same way for a fair comparison
         _, used = levenberg_marquardt(full, n_echoes, times, target, lower, upper, lm_iterations, 1e-8)
         n_jacobians += used
-        full_ssr = _squared_error(full, n_echoes, times, raw)
+        full_ssr = squared_error(full, n_echoes, times, raw)
         removed = False
         for k in np.argsort(amplitude):
             if not np.isfinite(amplitude[k]):
@@ -187,7 +177,7 @@ def _prune_echoes(best, lower, upper, n_echoes, times, target, raw, gaussian, lm
             _, used = levenberg_marquardt(reduced, n_echoes - 1, times, target, _without_echo(lower, k),
                                           _without_echo(upper, k), lm_iterations, 1e-8)
             n_jacobians += used
-            gain = _squared_error(reduced, n_echoes - 1, times, raw) - full_ssr
+            gain = squared_error(reduced, n_echoes - 1, times, raw) - full_ssr
             if gain <= penalty * variance:
                 best, lower, upper = reduced, _without_echo(lower, k), _without_echo(upper, k)
                 n_echoes -= 1
@@ -240,7 +230,9 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, pulse_fwhm, see
 
     best = x0.copy()
     nfev = 0
-    times, fit_target, raw = _valid_samples(samples, smoothed, valid, fit_denoised)
+    # the valid samples as arrays, for the methods that work on them (not the population kernels)
+    local = method in (OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE) or (prune and method != OPT_NONE)
+    times, fit_target, raw = _valid_samples(samples, smoothed, valid, fit_denoised, local)
     if method == OPT_GA_ITERATIVE:
         best, n_echoes, n_initial, nfev = ga_iterative(
             valid, smoothed, background, noise, noise_threshold, max_echoes, first, last, times, fit_target, raw,

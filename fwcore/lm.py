@@ -72,6 +72,24 @@ def model_and_jacobian(x, n_echoes, times, model, jac):
 
 
 @njit(**JIT)
+def squared_error(x, n_echoes, times, target):
+    """sum (model(x, times) - target)**2, the model alone (no Jacobian), over the same echo windows."""
+    model = np.full(times.size, x[0])
+    for k in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * k
+        a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+        h = s * _SQRT_2LN2
+        p = alpha * alpha
+        reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
+        for i in range(np.searchsorted(times, u - reach), np.searchsorted(times, u + reach, side="right")):
+            model[i] += a * math.exp(-_LN2 * (abs(times[i] - u) / h) ** p)
+    acc = 0.0
+    for i in range(times.size):
+        acc += (model[i] - target[i]) ** 2
+    return acc
+
+
+@njit(**JIT)
 def _solve_damped(jtj, grad, lam, free, step):
     """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky; False if singular."""
     d = grad.size

@@ -99,10 +99,8 @@ def range_crlb_cm(amplitude, sigma_ps, alpha, sensor: SensorConfig) -> np.ndarra
 def _separation_class(pulse_id: np.ndarray, time_ps: np.ndarray, fwhm_ps: np.ndarray) -> np.ndarray:
     order = np.lexsort((time_ps, pulse_id))
     pid, t = pulse_id[order], time_ps[order]
-    gap = np.full(t.size, np.inf)
     same_prev = np.r_[False, pid[1:] == pid[:-1]]
-    d = np.r_[np.inf, np.diff(t)]
-    gap = np.where(same_prev, d, gap)
+    gap = np.where(same_prev, np.r_[np.inf, np.diff(t)], np.inf)  # to the previous echo of the same pulse
     gap_next = np.r_[gap[1:], np.inf]
     nearest = np.minimum(gap, gap_next)
     out = np.empty(t.size, dtype=object)
