@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.config import PRESETS, DecompositionConfig
-from fwcore.decompose import WaveformBatch, decompose_batch
+from fwcore.engine import decompose_batch
+from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
 from fwcore.rng import pulse_seed

@@ -22,7 +22,7 @@ import numpy as np
 import psutil
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import decompose_batch
+from fwcore.engine import decompose_batch
 from fwcore.io import PulseBatch, read_pulses
 from fwcore.io.writer import write_waveform_las
 

@@ -11,10 +11,12 @@ import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
 
-# fastmath lets LLVM reassociate and vectorize; results stay deterministic for
-# a given compiled kernel. NaN checks never happen inside these kernels.
+# fastmath lets LLVM reassociate and vectorize (results stay deterministic for a given compiled
+# kernel), but without nnan/ninf (stumpy's set): with them LLVM may assume no inf or NaN exists,
+# and np.isfinite(np.inf) is True inside a kernel, which breaks every inf sentinel.
 # error_model="numpy": no zero-division checks, whose exception branch blocks SIMD.
-JIT = dict(cache=True, fastmath=True, nogil=True, error_model="numpy")
+FASTMATH = frozenset({"nsz", "arcp", "contract", "afn", "reassoc"})
+JIT = dict(cache=True, fastmath=set(FASTMATH), nogil=True, error_model="numpy")
 JIT_INLINE = dict(JIT, inline="always")
 PARALLEL_JIT = dict(JIT, parallel=True)
 

@@ -17,7 +17,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fwcore.config import DecompositionConfig, Model, Optimizer
-from fwcore.decompose import BatchDecomposition, WaveformBatch, decompose_batch
+from fwcore.engine import decompose_batch
+from fwcore.records import BatchDecomposition, WaveformBatch
 
 # The comparison's settings per optimizer (on top of the caller's configuration).
 COMPARISON_SETTINGS: dict[Optimizer, dict] = {
@@ -38,7 +39,6 @@ class MethodRun:
     result: BatchDecomposition
     seconds: float
     threads: int
-    immediate: bool = False
 
     def row(self) -> dict:
         """The comparison table's row (the method's Table 1 plus our columns)."""
@@ -58,21 +58,20 @@ class MethodRun:
         }
 
 
-def _warm_up(batch: WaveformBatch, config: DecompositionConfig, immediate: bool) -> None:
+def _warm_up(batch: WaveformBatch, config: DecompositionConfig) -> None:
     """Compile outside the timed call (numba compiles on first use and caches)."""
     first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
                           batch.sample_spacing_ps[:1], batch.seeds[:1])
-    decompose_batch(first, config, threads=1, immediate=immediate)
+    decompose_batch(first, config, threads=1)
 
 
 def run_method(batch: WaveformBatch, config: DecompositionConfig, label: str | None = None,
-               threads: int = 1, immediate: bool = False) -> MethodRun:
+               threads: int = 1) -> MethodRun:
     """Decompose the batch with one configuration, timed after compilation."""
-    _warm_up(batch, config, immediate)
+    _warm_up(batch, config)
     start = time.perf_counter()
-    result = decompose_batch(batch, config, threads=threads, immediate=immediate)
-    return MethodRun(label or config.optimizer.value, config, result, time.perf_counter() - start, threads,
-                     immediate)
+    result = decompose_batch(batch, config, threads=threads)
+    return MethodRun(label or config.optimizer.value, config, result, time.perf_counter() - start, threads)
 
 
 def compare_methods(batch: WaveformBatch, base: DecompositionConfig, optimizers: Sequence[Optimizer],
@@ -135,22 +134,22 @@ class BudgetSetting:
     family: str
     label: str
     changes: dict
-    immediate: bool = False
 
 
 def budget_settings(generations: Iterable[int] = (10, 20, 40, 80),
                     lm_iterations: Iterable[int] = (3, 5, 10, 20, 50)) -> list[BudgetSetting]:
-    """MDE with k x t = 1, 5, 10; DE generational and immediate; LM; MDE + LM polish."""
+    """MDE with k x t = 1, 5, 10; DE generational and immediate; LM; MDE + LM polish; every
+    population method for exactly its G (tol 0), so that the budget is the setting."""
     out = []
     for g in generations:
         for k in (1, 5, 10):
             out.append(BudgetSetting(f"mde k x t = {k}", f"G {g}",
-                                     dict(optimizer="mde", chaos_seeds=1, chaos_iterations=k, generations=g)))
+                                     dict(optimizer="mde", chaos_seeds=1, chaos_iterations=k, generations=g, tol=0.0)))
         for immediate in (False, True):
             family = "de immediate" if immediate else "de generational"
-            out.append(BudgetSetting(family, f"G {g * 5}",
-                                     dict(optimizer="de", population=60, generations=g * 5), immediate))
-        out.append(BudgetSetting("mde-lm", f"G {g}", dict(optimizer="mde-lm", generations=g)))
+            out.append(BudgetSetting(family, f"G {g * 5}", dict(optimizer="de", population=60, generations=g * 5,
+                                                                 tol=0.0, immediate=immediate)))
+        out.append(BudgetSetting("mde-lm", f"G {g}", dict(optimizer="mde-lm", generations=g, tol=0.0)))
     for n in lm_iterations:
         out.append(BudgetSetting("lm", f"{n} iterations", dict(optimizer="lm", lm_iterations=n)))
     return out
@@ -161,7 +160,7 @@ def budget_study(batch: WaveformBatch, base: DecompositionConfig, settings: Sequ
     """Mean fit error against model evaluations and seconds for each setting."""
     rows = []
     for s in settings:
-        run = run_method(batch, base.replace(**s.changes), label=s.family, threads=threads, immediate=s.immediate)
+        run = run_method(batch, base.replace(**s.changes), label=s.family, threads=threads)
         row = run.row()
         rows.append({"family": s.family, "setting": s.label, **{k: row[k] for k in (
             "evaluations", "seconds", "waveforms_per_second", "fit_error", "fit_error_raw", "rmse", "r2")},

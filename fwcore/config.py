@@ -11,7 +11,7 @@ import enum
 import math
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 
 class Optimizer(str, enum.Enum):
@@ -36,15 +36,25 @@ class FitTarget(str, enum.Enum):
     RAW = "raw"
 
 
+class NoiseEstimator(str, enum.Enum):
+    # sqrt(mean((raw - smoothed)**2)): the method's formula, which keeps only the part of white
+    # noise that the light smoothing removes (about 0.4 of it at the default smoothing)
+    RESIDUAL = "residual"
+    # the median absolute (raw - smoothed), divided by the filter's known attenuation of white noise
+    # per sample, sqrt(1 - 2 w_ii + sum_j w_ij**2): unbiased for white noise and robust to the echoes
+    ROBUST = "robust"
+
+
 @dataclasses.dataclass(frozen=True)
 class DecompositionConfig:
     """Every method parameter of a decomposition run."""
 
-    optimizer: Optimizer = Optimizer.MDE
+    optimizer: Optimizer = Optimizer.MDE_LM
     model: Model = Model.GENERALIZED
-    # Evolution: population NP and generations G (the MDE paper: 60 and 80).
+    # Evolution: population NP and generations G (the MDE paper: 60 and 80); with tol > 0,
+    # G is the most a waveform may take.
     population: int = 60
-    generations: int = 80
+    generations: int = 200
     crossover_rate: float = 0.9  # CR
     # MDE's chaotic scale factors: t seeds, k logistic-map iterations, range [a, b].
     chaos_seeds: int = 1  # t
@@ -53,6 +63,8 @@ class DecompositionConfig:
     scale_max: float = 1.0  # b
     # Plain DE's fixed scale factor (the paper's Eq. 4).
     de_scale_factor: float = 0.5
+    # Write each DE/MDE winner back at once (asynchronous DE) instead of once per generation.
+    immediate: bool = False
     # Half size of the box around the initial estimate that seeds the population,
     # as a fraction of each parameter's bound range.
     init_spread: float = 0.25
@@ -65,11 +77,20 @@ class DecompositionConfig:
     smoothing_factor: float = 0.25
     smoothing_sigma_ps: float | None = None
     fit_target: FitTarget = FitTarget.DENOISED
-    # Initial estimate: an echo must rise noise_threshold * sigma_noise above background.
+    # Initial estimate: an echo must rise noise_threshold x the noise at its sample above background.
     noise_threshold: float = 3.0
-    # sigma_noise is floored here (digitizer units): integer samples with little smoothing
-    # otherwise give sigma_noise = 0 and every quantisation ripple becomes an echo.
-    min_noise_sigma: float = 1.0
+    noise_estimator: NoiseEstimator = NoiseEstimator.ROBUST
+    # sigma_noise is floored here (digitizer units): the quantisation of an integer digitizer is
+    # uniform noise of 1/sqrt(12) DN whatever the analogue noise below it.
+    min_noise_sigma: float = 1.0 / math.sqrt(12.0)
+    # The noise model of a sample with signal s above background (digitizer units):
+    # variance = sigma_noise**2 + g s + (shape_tolerance s)**2. g (Poisson-like shot noise) is
+    # fitted per waveform to the residual of the optimizer's fit; shape_tolerance is how far the
+    # system's pulse may depart from a generalized Gaussian without being another echo (0: the
+    # model is exact; the Leica pulse rings and is skewed, 0.06 suits it: README).
+    # 0 and signal_dependent_noise=False give the method's constant noise.
+    signal_dependent_noise: bool = True
+    shape_tolerance: float = 0.0
     max_echoes: int = 12
     alpha_min: float = 1.0
     alpha_max: float = 2.6
@@ -77,14 +98,21 @@ class DecompositionConfig:
     # these defaults were measured against the Leica system returns (README): the paper's 20% drops
     # weak ground returns under canopy, and an SNR floor removes the few-count bumps instead.
     min_amplitude_ratio: float = 0.05
-    min_snr: float = 4.0  # amplitude below min_snr x sigma_noise is weak too
+    min_snr: float = 6.0  # amplitude below min_snr x sigma_noise is weak too
     min_separation_factor: float = 1.0  # x system pulse FWHM
     min_width_factor: float = 0.5  # x system pulse FWHM
     max_width_factor: float = 3.0  # x system pulse FWHM
-    # After the optimizer: drop spurious echoes that the data does not need (BIC, LM refit);
-    # lm_iterations bounds each Levenberg-Marquardt refit.
-    prune_echoes: bool = False
+    # Model-order selection after the optimizer: drop the echoes the filter flags when the raw
+    # samples do not need them, add one where the residual holds an echo, each by the Bayesian
+    # information criterion under the noise model, with warm-started LM refits.
+    select_echoes: bool = True
+    max_added_echoes: int = 2  # echoes the selection may add per waveform
     lm_iterations: int = 50  # LM iterations (L-BFGS gets 4x as many)
+    # Population methods stop when the spread of the population's fitness is small
+    # (SciPy's rule: std(fitness) <= atol + tol |mean(fitness)|), at most after `generations`.
+    # tol = atol = 0 runs every generation (the paper's fixed G).
+    tol: float = 0.01
+    atol: float = 0.0
     # GA: probability that a parameter mutates (the crossover rate is CR above).
     ga_mutation_rate: float = 0.1
     # ga-iterative (the patent): add echoes while R^2 is below this; generations per GA fit.
@@ -93,7 +121,8 @@ class DecompositionConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name, kind in (("optimizer", Optimizer), ("model", Model), ("fit_target", FitTarget)):
+        for name, kind in (("optimizer", Optimizer), ("model", Model), ("fit_target", FitTarget),
+                           ("noise_estimator", NoiseEstimator)):
             value = getattr(self, name)
             if not isinstance(value, kind):
                 try:
@@ -111,12 +140,16 @@ class DecompositionConfig:
         self._check(self.max_echoes >= 1, "max_echoes must be >= 1")
         self._check(0.5 <= self.alpha_min <= math.sqrt(2) <= self.alpha_max <= 4.0,
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
-        self._check(self.default_pulse_fwhm_ps > 0 and (self.system_pulse_fwhm_ps or 1) > 0,
-                    "system pulse FWHM must be positive (ps)")
+        self._check(self.default_pulse_fwhm_ps > 0, "default_pulse_fwhm_ps must be positive (ps)")
+        self._check(self.system_pulse_fwhm_ps is None or self.system_pulse_fwhm_ps > 0,
+                    "system_pulse_fwhm_ps must be positive (ps), or unset to measure it from the data")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")
         self._check(self.min_noise_sigma >= 0, "min_noise_sigma must be >= 0")
+        self._check(self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
+        self._check(self.max_added_echoes >= 0, "max_added_echoes must be >= 0")
+        self._check(self.tol >= 0 and self.atol >= 0, "tol and atol must be >= 0")
         self._check(self.lm_iterations >= 1, "lm_iterations must be >= 1")
         self._check(0.0 <= self.ga_mutation_rate <= 1.0, "ga_mutation_rate must lie in [0, 1]")
         self._check(0.0 < self.ga_iterative_r2 <= 1.0, "ga_iterative_r2 must lie in (0, 1]")
@@ -134,7 +167,28 @@ class DecompositionConfig:
         return self.chaos_seeds * self.chaos_iterations
 
     def pulse_fwhm_ps(self) -> float:
-        return self.system_pulse_fwhm_ps or self.default_pulse_fwhm_ps
+        return self.system_pulse_fwhm_ps if self.system_pulse_fwhm_ps is not None else self.default_pulse_fwhm_ps
+
+    def kernel_params(self) -> "KernelParams":
+        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
+        from fwcore.optimizers import OPTIMIZERS
+
+        return KernelParams(
+            method=OPTIMIZERS[self.optimizer].code, gaussian=self.model is Model.GAUSSIAN,
+            fit_denoised=self.fit_target is FitTarget.DENOISED,
+            robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
+            population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
+            chaos_seeds=self.chaos_seeds, chaos_iterations=self.chaos_iterations, scale_min=self.scale_min,
+            scale_max=self.scale_max, de_scale_factor=self.de_scale_factor, immediate=self.immediate, init_spread=self.init_spread,
+            tol=self.tol, atol=self.atol, noise_threshold=self.noise_threshold,
+            min_noise_sigma=self.min_noise_sigma, signal_dependent_noise=self.signal_dependent_noise,
+            shape_tolerance=self.shape_tolerance, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
+            alpha_max=self.alpha_max, min_snr=self.min_snr, min_amplitude_ratio=self.min_amplitude_ratio,
+            min_separation_factor=self.min_separation_factor, min_width_factor=self.min_width_factor,
+            max_width_factor=self.max_width_factor, select_echoes=self.select_echoes,
+            max_added_echoes=self.max_added_echoes, lm_iterations=self.lm_iterations,
+            ga_mutation_rate=self.ga_mutation_rate, ga_iterative_r2=self.ga_iterative_r2,
+            ga_iterative_generations=self.ga_iterative_generations)
 
     def replace(self, **changes: Any) -> "DecompositionConfig":
         return dataclasses.replace(self, **changes)
@@ -168,13 +222,53 @@ class DecompositionConfig:
             raise ValueError(f"{path}: {err}") from None
 
 
-# Named configurations. "paper": MDE at the method's settings (the defaults). "fast": chosen by
-# the budget study of `fwl compare --budget` as the highest throughput whose mean fit error stays
-# within 5% of "paper" on the bundled NEON and Leica samples (README, "The evaluation budget").
-# "accurate": MDE, then the spurious echoes the data does not need are pruned: against the truth of
-# simulated flights it cuts the range RMSE about threefold (README, "Accuracy against truth").
+class KernelParams(NamedTuple):
+    """DecompositionConfig as the kernels see it: enums as codes and flags, nothing else."""
+
+    method: int
+    gaussian: bool
+    fit_denoised: bool
+    robust_noise: bool
+    population: int
+    generations: int
+    crossover_rate: float
+    chaos_seeds: int
+    chaos_iterations: int
+    scale_min: float
+    scale_max: float
+    de_scale_factor: float
+    immediate: bool
+    init_spread: float
+    tol: float
+    atol: float
+    noise_threshold: float
+    min_noise_sigma: float
+    signal_dependent_noise: bool
+    shape_tolerance: float
+    max_echoes: int
+    alpha_min: float
+    alpha_max: float
+    min_snr: float
+    min_amplitude_ratio: float
+    min_separation_factor: float
+    min_width_factor: float
+    max_width_factor: float
+    select_echoes: bool
+    max_added_echoes: int
+    lm_iterations: int
+    ga_mutation_rate: float
+    ga_iterative_r2: float
+    ga_iterative_generations: int
+
+
+# Named configurations (README, "Presets"): the defaults are the best we know.
+# "paper": the MDE method exactly as published: its noise formula and constant noise, its filter
+# (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
+# polish, no selection. "fast": LM from the initial estimate, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
+    "paper": {"optimizer": Optimizer.MDE, "generations": 80, "tol": 0.0, "atol": 0.0,
+              "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
+              "signal_dependent_noise": False, "shape_tolerance": 0.0, "select_echoes": False,
+              "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0},
     "fast": {"optimizer": Optimizer.LM, "lm_iterations": 20},
-    "accurate": {"prune_echoes": True},
 }

@@ -21,10 +21,43 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT, JIT_INLINE
 
 GAUSSIAN_ALPHA = math.sqrt(2.0)
 LN2 = math.log(2.0)
 SQRT_2LN2 = math.sqrt(2.0 * LN2)  # half width at half maximum of a unit-sigma Gaussian
+# The layout of an individual: [b, (A, u, s, alpha) per echo], s the equal-FWHM Gaussian sigma.
+PARAMS_PER_ECHO = 4
+
+
+@njit(**JIT_INLINE)
+def echo_value(amplitude, position, s, alpha, t):
+    """One echo of an individual at time t, float64 and libm: A exp(-ln2 (|t - u| / h)**(alpha**2)),
+    h = s sqrt(2 ln 2) the half width at half maximum. The kernels' one formula."""
+    return amplitude * math.exp(-LN2 * (abs(t - position) / (s * SQRT_2LN2)) ** (alpha * alpha))
+
+
+@njit(**JIT)
+def individual_model(x, n_echoes, times, out):
+    """The model of individual x at `times` into `out` (float64), every echo over every sample."""
+    for i in range(times.size):
+        out[i] = x[0]
+    for k in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * k
+        if x[base] <= 0.0:
+            continue
+        for i in range(times.size):
+            out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
+
+
+def model_of_individual(x, t) -> np.ndarray:
+    """The NumPy twin of individual_model: [b, (A, u, s, alpha)...] -> model at t, through Chauve's sigma."""
+    x = np.asarray(x, dtype=float)
+    echoes = x[1:].reshape(-1, PARAMS_PER_ECHO)
+    return waveform_model(t, x[0], echoes[:, 0], echoes[:, 1],
+                          sigma_from_equivalent(echoes[:, 2], echoes[:, 3]), echoes[:, 3])
 
 _gamma = np.vectorize(math.gamma, otypes=[float])
 

@@ -44,6 +44,7 @@ def _smooth(samples, valid, sigma, out):
 
 @njit(**JIT)
 def _noise_sigma(samples, smoothed, valid):
+    """The method's sigma_noise = sqrt(mean((raw - smoothed)**2)) over the valid samples."""
     acc = 0.0
     m = 0
     for i in range(samples.size):
@@ -52,6 +53,126 @@ def _noise_sigma(samples, smoothed, valid):
             acc += d * d
             m += 1
     return math.sqrt(acc / m) if m > 0 else 0.0
+
+
+@njit(**JIT)
+def _residual_attenuation(valid, sigma, out):
+    """Per sample, the standard deviation of raw - smoothed per unit of white noise,
+    sqrt(1 - 2 w_ii + sum_j w_ij**2), with w the filter's weights normalised over the valid samples."""
+    n = valid.size
+    if sigma <= 0.0:
+        out[:] = 0.0
+        return
+    half = int(math.ceil(4.0 * sigma))
+    weights = np.empty(2 * half + 1)
+    for j in range(-half, half + 1):
+        weights[j + half] = math.exp(-0.5 * (j / sigma) ** 2)
+    for i in range(n):
+        norm = 0.0
+        square = 0.0
+        for j in range(max(0, i - half), min(n, i + half + 1)):
+            if valid[j]:
+                w = weights[j - i + half]
+                norm += w
+                square += w * w
+        if not valid[i] or norm <= 0.0:
+            out[i] = 0.0
+            continue
+        own = weights[half] / norm
+        out[i] = math.sqrt(max(1.0 - 2.0 * own + square / (norm * norm), 0.0))
+
+
+_MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a normal's sigma from its median absolute deviation
+_MIN_ATTENUATION = 0.05  # below this a sample's residual says too little about the noise
+
+
+@njit(**JIT)
+def _robust_noise_sigma(samples, smoothed, valid, attenuation):
+    """sigma of white noise from the median absolute residual, each residual divided by its
+    attenuation: the echoes, which the light smoothing follows, barely move a median.
+    Without smoothing, the same from first differences of consecutive valid samples (/ sqrt 2)."""
+    n = samples.size
+    values = np.empty(n)
+    m = 0
+    for i in range(n):
+        if valid[i] and attenuation[i] > _MIN_ATTENUATION:
+            values[m] = (samples[i] - smoothed[i]) / attenuation[i]
+            m += 1
+    scale = 1.0
+    if m < 3:
+        m = 0
+        for i in range(n - 1):
+            if valid[i] and valid[i + 1]:
+                values[m] = samples[i + 1] - samples[i]
+                m += 1
+        scale = 1.0 / math.sqrt(2.0)
+    if m == 0:
+        return 0.0
+    v = values[:m]
+    centre = np.median(v)
+    return _MAD_TO_SIGMA * np.median(np.abs(v - centre)) * scale
+
+
+@njit(**JIT)
+def _baseline(samples, valid, noise):
+    """The background level robustly: the median of the samples, repeatedly leaving out those more
+    than 3 noise sigma above it (the echoes), then the mean of those within 3 sigma of it. The method's minimum of the smoothed waveform sits
+    at the undershoot after a strong return, and the baseline then looks like signal."""
+    values = np.empty(samples.size)
+    m = 0
+    for i in range(samples.size):
+        if valid[i]:
+            values[m] = samples[i]
+            m += 1
+    level = np.median(values[:m])
+    for _ in range(8):
+        kept = values[:m][values[:m] <= level + 3.0 * noise]
+        new = np.median(kept)
+        if new == level:
+            break
+        level = new
+    # the mean within +-3 sigma: a median of integer samples is itself an integer
+    near = values[:m][np.abs(values[:m] - level) <= 3.0 * noise]
+    return np.mean(near) if near.size > 0 else level
+
+
+_MAX_CORRELATION = 0.9
+
+
+_MIN_BACKGROUND_PAIRS = 20
+
+
+@njit(**JIT)
+def _correlation_inflation(samples, smoothed, valid, level, noise):
+    """How much more variance the noise has at an echo's bandwidth than white noise of the same
+    sigma: (1 + rho) / (1 - rho) for lag-1 correlation rho (AR(1)) of the background: pairs of
+    neighbours whose smoothed values stay within 1.5 sigma of the baseline, so that no echo's
+    flank counts as correlation (1 when fewer than 20 such pairs). Digitizers low-pass their
+    input, so neighbouring samples share noise (Leica: rho ~ 0.4)."""
+    num = 0.0
+    den = 0.0
+    pairs = 0
+    limit = 1.5 * noise
+    for i in range(samples.size - 1):
+        if valid[i] and valid[i + 1] and abs(smoothed[i] - level) <= limit and abs(smoothed[i + 1] - level) <= limit:
+            a = samples[i] - level
+            b = samples[i + 1] - level
+            num += a * b
+            den += 0.5 * (a * a + b * b)
+            pairs += 1
+    if pairs < _MIN_BACKGROUND_PAIRS or den <= 0.0:
+        return 1.0
+    rho = min(max(num / den, 0.0), _MAX_CORRELATION)
+    return (1.0 + rho) / (1.0 - rho)
+
+
+@njit(**JIT)
+def _noise_threshold(smoothed, valid, background, noise, shape_tolerance, k, out):
+    """k x the noise of each sample under the constant-plus-shape noise model:
+    sqrt(sigma**2 + (shape_tolerance x signal)**2), signal the smoothed height above background."""
+    for i in range(smoothed.size):
+        s = max(smoothed[i] - background, 0.0) * shape_tolerance if valid[i] else 0.0
+        out[i] = k * math.sqrt(noise * noise + s * s)
 
 
 @njit(**JIT)
@@ -135,7 +256,8 @@ def _echo_sigma(residual, valid, peak, fallback):
 @njit(**JIT)
 def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma,
                         amplitude, position, sigma):
-    """Extract echoes one by one from the largest remaining peak; returns how many were found."""
+    """Extract echoes one by one from the largest remaining peak that rises above its sample's
+    threshold; returns how many were found."""
     n = smoothed.size
     residual = smoothed - background
     count = 0
@@ -143,10 +265,10 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
         peak = -1
         height = -np.inf
         for i in range(n):
-            if valid[i] and residual[i] > height:
+            if valid[i] and residual[i] > threshold[i] and residual[i] > height:
                 height = residual[i]
                 peak = i
-        if peak < 0 or height <= threshold:
+        if peak < 0:
             break
         s = _echo_sigma(residual, valid, peak, fallback_sigma)
         amplitude[count] = height
@@ -158,6 +280,32 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             d = i - peak
             residual[i] -= height * math.exp(-d * d * inv)
     return count
+
+
+@njit(**JIT)
+def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, robust, min_noise_sigma, shape_tolerance,
+                     noise_threshold, max_echoes, smoothed, amplitude, position, sigma):
+    """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
+    noise and background, then peel echoes off. Returns (noise sigma, background, echo count).
+
+    robust: the noise is the robust white sigma, inflated for the correlation of neighbouring
+    samples (the noise an echo-wide feature sees), and the background the robust baseline;
+    otherwise the method's residual formula and the smoothed minimum."""
+    _smooth(samples, valid, smoothing_sigma, smoothed)
+    if robust:
+        attenuation = np.empty(samples.size)
+        _residual_attenuation(valid, smoothing_sigma, attenuation)
+        noise = max(_robust_noise_sigma(samples, smoothed, valid, attenuation), min_noise_sigma)
+        background = _baseline(samples, valid, noise)
+        noise *= math.sqrt(_correlation_inflation(samples, smoothed, valid, background, noise))
+    else:
+        noise = max(_noise_sigma(samples, smoothed, valid), min_noise_sigma)
+        background = _valid_min(smoothed, valid)
+    threshold = np.empty(samples.size)
+    _noise_threshold(smoothed, valid, background, noise, shape_tolerance, noise_threshold, threshold)
+    n = _progressive_echoes(smoothed, valid, background, threshold, max_echoes, pulse_sigma,
+                            amplitude, position, sigma)
+    return noise, background, n
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,30 +342,34 @@ def gaussian_smooth(samples, sigma: float, valid=None) -> np.ndarray:
     return out
 
 
-def estimate_noise(samples, smoothed, valid=None) -> float:
-    """sigma_noise = sqrt(sum((raw - smoothed)**2) / m) over the m valid samples."""
-    samples, valid = _as_waveform(samples, valid)
-    return float(_noise_sigma(samples, np.ascontiguousarray(smoothed, dtype=np.float64), valid))
-
-
-def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid=None,
-                   noise_threshold: float = 3.0, max_echoes: int = 12) -> InitialEstimate:
-    """The method's progressive estimate: smooth, measure noise, then peel echoes off one by one.
-
-    An echo is accepted while the largest remaining peak rises more than
-    noise_threshold * sigma_noise above the background (the smoothed minimum).
-    """
+def estimate_noise(samples, smoothing_sigma: float, valid=None, robust: bool = True) -> float:
+    """sigma_noise of a waveform smoothed with `smoothing_sigma` samples: robust (median absolute
+    residual over its white-noise attenuation) or the method's sqrt(mean((raw - smoothed)**2))."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     _smooth(samples, valid, float(smoothing_sigma), smoothed)
-    noise = _noise_sigma(samples, smoothed, valid)
-    background = _valid_min(smoothed, valid)
+    if not robust:
+        return float(_noise_sigma(samples, smoothed, valid))
+    attenuation = np.empty_like(samples)
+    _residual_attenuation(valid, float(smoothing_sigma), attenuation)
+    return float(_robust_noise_sigma(samples, smoothed, valid, attenuation))
+
+
+def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid=None,
+                   noise_threshold: float = 3.0, max_echoes: int = 12, robust: bool = True,
+                   min_noise_sigma: float = 1.0 / math.sqrt(12.0), shape_tolerance: float = 0.0) -> InitialEstimate:
+    """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
+    one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
+    above the background (the smoothed minimum)."""
+    samples, valid = _as_waveform(samples, valid)
+    smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)
     position = np.zeros(max_echoes)
     sigma = np.zeros(max_echoes)
-    n = _progressive_echoes(smoothed, valid, background, noise_threshold * noise, max_echoes,
-                            float(fallback_sigma), amplitude, position, sigma)
-    return InitialEstimate(smoothed, noise, background, amplitude[:n], position[:n], sigma[:n])
+    noise, background, n = initial_estimate(
+        samples, valid, float(smoothing_sigma), float(fallback_sigma), bool(robust), float(min_noise_sigma),
+        float(shape_tolerance), float(noise_threshold), int(max_echoes), smoothed, amplitude, position, sigma)
+    return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
 
 
 def half_height_width(samples) -> float:
@@ -244,3 +396,71 @@ def median_pulse_fwhm(waveforms, min_samples: int = 5) -> float:
     if not widths:
         raise ValueError("no usable waveform to measure the system pulse width")
     return float(np.median(widths))
+
+
+@dataclasses.dataclass(frozen=True)
+class PulseWidthEstimate:
+    """The system pulse FWHM measured on the waveforms themselves, and on how many."""
+
+    fwhm_samples: float
+    n_waveforms: int  # isolated single echoes measured
+    n_candidates: int  # waveforms looked at
+
+
+_SINGLE_ECHO_SNR = 20.0  # a peak this far above the noise has a well-defined half height
+_SINGLE_ECHO_FLOOR = 0.1  # of the peak: where an echo's support begins
+_MEASURE_SMOOTHING = 1.0  # samples; removed again from the width in quadrature
+_SINGLE_ECHO_QUANTILE = 20.0
+
+
+def _single_echo_fwhm(samples: np.ndarray, valid: np.ndarray) -> float | None:
+    """The FWHM (samples) of a waveform's echo if it holds one strong, isolated echo, else None."""
+    smoothed = np.empty_like(samples)
+    _smooth(samples, valid, _MEASURE_SMOOTHING, smoothed)
+    attenuation = np.empty_like(samples)
+    _residual_attenuation(valid, _MEASURE_SMOOTHING, attenuation)
+    noise = max(_robust_noise_sigma(samples, smoothed, valid, attenuation), 1.0 / math.sqrt(12.0))
+    level = _baseline(samples, valid, noise)
+    signal = np.where(valid, smoothed - level, 0.0)
+    peak = int(np.argmax(signal))
+    height = signal[peak]
+    if height < _SINGLE_ECHO_SNR * noise:
+        return None
+    above = signal > _SINGLE_ECHO_FLOOR * height
+    lo = peak
+    while lo > 0 and above[lo - 1]:
+        lo -= 1
+    hi = peak
+    while hi < samples.size - 1 and above[hi + 1]:
+        hi += 1
+    if lo == 0 or hi == samples.size - 1 or above[:lo].any() or above[hi + 1:].any():
+        return None  # cut by the record's edge, or another echo elsewhere
+    inner = signal[lo:hi + 1]
+    maxima = np.flatnonzero((inner[1:-1] > inner[:-2]) & (inner[1:-1] >= inner[2:]))
+    if maxima.size != 1:
+        return None  # a shoulder or a second peak: not a single echo
+    width = half_height_width(signal[lo - 1:hi + 2])
+    corrected = width * width - (2.0 * _SQRT_2LN2 * _MEASURE_SMOOTHING) ** 2
+    return math.sqrt(corrected) if corrected > 0 else None
+
+
+def estimate_pulse_fwhm(waveforms, valid=None, min_waveforms: int = 5) -> PulseWidthEstimate:
+    """The system pulse FWHM (samples) from the waveforms alone, where no outgoing pulse or system
+    return says it: the median half-height width of the strong echoes that stand alone in their
+    waveform (one local maximum, SNR >= 20, the record's edges clear), at their 20th percentile:
+    targets (slopes, canopy) only ever widen an echo, so the narrow ones are nearest the system's
+    own response (NEON: 18.7 ns against 15.2 ns outgoing and 15.9 ns impulse response; Leica:
+    10.3 ns against 11.0 ns from its single returns). Raises when fewer than min_waveforms qualify."""
+    widths = []
+    for i, y in enumerate(waveforms):
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        v = np.ones(y.size, bool) if valid is None else np.ascontiguousarray(valid[i], dtype=bool)
+        if y.size < 8 or not np.isfinite(y[v]).all() or v.sum() < 8:
+            continue
+        width = _single_echo_fwhm(y, v)
+        if width is not None:
+            widths.append(width)
+    if len(widths) < min_waveforms:
+        raise ValueError(f"only {len(widths)} of {len(waveforms)} waveforms hold an isolated strong echo "
+                         f"(need {min_waveforms}) to measure the system pulse width")
+    return PulseWidthEstimate(float(np.percentile(widths, _SINGLE_ECHO_QUANTILE)), len(widths), len(waveforms))

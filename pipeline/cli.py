@@ -42,8 +42,11 @@ def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) 
     g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
     g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
     g.add_argument("--max-echoes", dest="max_echoes", type=int)
-    g.add_argument("--prune-echoes", dest="prune_echoes", action="store_const", const=True,
-                   help="drop spurious echoes the data does not need (BIC with LM refits)")
+    g.add_argument("--select-echoes", dest="select_echoes", action=argparse.BooleanOptionalAction,
+                   help="model-order selection: drop and add echoes by the BIC (default on)")
+    g.add_argument("--noise-estimator", dest="noise_estimator", choices=["robust", "residual"])
+    g.add_argument("--shape-tolerance", dest="shape_tolerance", type=float)
+    g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)|")
     g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
     g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
     g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
@@ -53,7 +56,8 @@ def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) 
 def _decompose_csv(args: argparse.Namespace) -> int:
     import pyarrow.parquet as pq
 
-    from fwcore.decompose import WaveformBatch, decompose_batch
+    from fwcore.engine import decompose_batch
+    from fwcore.records import WaveformBatch
     from fwcore.neon import pulse_fwhm_ps, read_neon_csv
     from fwcore.rng import pulse_seed
     from pipeline.tables import echo_table, waveform_table

@@ -21,7 +21,7 @@ import numpy as np
 from fwcore.compare import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
                             compare_points)
 from fwcore.config import DecompositionConfig, Model, Optimizer
-from fwcore.decompose import WaveformBatch
+from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
 from fwcore.io.geolocate import echo_positions
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv

@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import STATUS_REASONS, BatchDecomposition
+from fwcore.records import STATUS_REASONS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"

@@ -24,7 +24,8 @@ from apache_beam.io import fileio
 from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import STATUS_REASONS, BatchDecomposition, decompose_batch
+from fwcore.engine import decompose_batch
+from fwcore.records import STATUS_REASONS, BatchDecomposition
 from fwcore.io import PulseBatch, plan_point_ranges, read_pulses
 from fwcore.io.geolocate import echo_positions
 from fwcore.io.reader import PointRange
@@ -127,7 +128,7 @@ class Decompose(beam.DoFn):
         self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
 
     def setup(self):
-        from fwcore.decompose import WaveformBatch
+        from fwcore.records import WaveformBatch
         warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
         decompose_batch(warm, self.config.replace(generations=1), threads=1)
 

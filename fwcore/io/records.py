@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.decompose import WaveformBatch
+from fwcore.records import WaveformBatch
 from fwcore.preprocess import median_pulse_fwhm
 from fwcore.rng import pulse_seed
 

@@ -9,7 +9,7 @@ import laspy
 from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 
-from fwcore.decompose import BatchDecomposition
+from fwcore.records import BatchDecomposition
 from fwcore.io.descriptors import WaveformDescriptor
 from fwcore.io.geolocate import echo_positions
 from fwcore.io.packets import EVLR_HEADER_BYTES

@@ -22,3 +22,18 @@ def test_log2_matches_numpy():
 def test_log2_of_zero_is_very_negative_not_nan():
     # a sample exactly at an echo centre has |t - u| = 0
     assert log2_approx(np.array([0.0]))[0] <= -126
+
+
+def test_kernels_see_inf_and_nan():
+    # fastmath without nnan/ninf: an inf sentinel stays infinite inside a kernel
+    from numba import njit
+
+    from fwcore._jit import JIT
+
+    @njit(**JIT)
+    def finite(x):
+        return np.isfinite(x), np.isnan(x)
+
+    assert finite(np.inf) == (False, False)
+    assert finite(np.nan) == (False, True)
+    assert finite(1.0) == (True, False)

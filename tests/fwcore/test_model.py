@@ -5,7 +5,7 @@ import pytest
 
 from fwcore.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
                           sigma_from_equivalent, sigma_to_time_unit, waveform_model)
-from fwcore.optimize import fill_model, padded_length
+from fwcore.optimizers.objective import fill_model, padded_length
 from tests.fwcore.naive import model_of_individual
 
 

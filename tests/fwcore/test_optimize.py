@@ -3,8 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.optimize import (OPT_MDE, binomial_crossover, chaotic_scale_factors, evolve, fit_error,
-                             init_population, mutate_de, mutate_mde, padded_length)
+from fwcore.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
+                                        mutate_de, mutate_mde)
+from fwcore.optimizers.objective import fit_error, padded_length
 from fwcore.rng import SplitMix64, next_u64, pulse_seed
 from tests.fwcore import naive
 
@@ -103,9 +104,9 @@ def test_one_mde_generation_matches_the_numpy_reference():
     expected_pop, expected_fit = naive.mde_generation(pop, fitness, lower, upper, 0.9, 2, 3, 0.2, 1.0,
                                                       SplitMix64(2024), objective)
     state = np.array([2024], dtype=np.uint64)
-    nfev = evolve(pop, fitness, lower, upper, 1, 0.9, OPT_MDE, False, 2, 3, 0.2, 1.0, 0.5, state,
-                  3, tpos, target, weight, False, 1e-3)
-    assert nfev == 8 * (2 * 3 + 1)  # k x t candidates plus the trial, per individual
+    nfev, nit, _ = evolve(pop, fitness, lower, upper, 1, 0.9, True, False, 2, 3, 0.2, 1.0, 0.5, 0.0, 0.0, state,
+                          3, tpos, target, weight, False, 1e-3)
+    assert (nfev, nit) == (8 * (2 * 3 + 1), 1)  # k x t candidates plus the trial, per individual
     # same draws, same decisions; values differ only by FMA contraction (1e-16)
     np.testing.assert_allclose(pop, expected_pop, rtol=1e-13)
     np.testing.assert_allclose(fitness, expected_fit, rtol=1e-13)
@@ -115,7 +116,7 @@ def test_evolution_never_worsens_the_best_and_stays_in_bounds():
     pop, fitness, lower, upper, tpos, target, weight, _ = _problem(1)
     start = fitness.min()
     state = np.array([5], dtype=np.uint64)
-    evolve(pop, fitness, lower, upper, 30, 0.9, OPT_MDE, False, 1, 5, 0.2, 1.0, 0.5, state,
+    evolve(pop, fitness, lower, upper, 30, 0.9, True, False, 1, 5, 0.2, 1.0, 0.5, 0.0, 0.0, state,
            3, tpos, target, weight, False, 1e-3)
     assert fitness.min() < start
     assert (pop >= lower).all() and (pop <= upper).all()

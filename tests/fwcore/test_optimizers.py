@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import WaveformBatch, decompose_batch, decompose_waveform
+from fwcore.engine import decompose_batch, decompose_waveform
+from fwcore.records import WaveformBatch
 from tests.fwcore.test_decompose import CONFIG, PULSE_SIGMA, SPACING, SQ2, synthetic
 
 # the comparison's population and generations for the population methods
@@ -50,7 +51,8 @@ def test_the_patent_method_adds_the_echo_its_peak_search_missed():
     # search finds one echo, R^2 stays below the threshold, and added echoes take the shoulder
     position = [60.0, 60.0 + 2.2 * PULSE_SIGMA]
     y = synthetic([150.0, 90.0], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=1.0, seed=11)
-    config = CONFIG.replace(optimizer="ga-iterative", ga_iterative_r2=0.999, noise_threshold=6.0)
+    config = CONFIG.replace(optimizer="ga-iterative", ga_iterative_r2=0.999, noise_threshold=6.0,
+                            noise_estimator="residual", min_noise_sigma=1.0)  # the patent's own estimate
     single = decompose_waveform(y, SPACING, seed=3, config=config.replace(ga_iterative_r2=0.5))
     r = decompose_waveform(y, SPACING, seed=3, config=config)
     assert single.n_echoes_initial == r.n_echoes_initial == 1

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import WaveformBatch, decompose_batch
+from fwcore.engine import decompose_batch
+from fwcore.records import WaveformBatch
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
 from fwcore.rng import pulse_seed
 

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import decompose_batch
+from fwcore.engine import decompose_batch
 from fwcore.io import read_pulses
 from pipeline.cli import main
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import decompose_batch
+from fwcore.engine import decompose_batch
 from fwcore.io import read_pulses
 from fwcore.io.writer import decomposed_echoes, write_point_cloud, write_waveform_las
 

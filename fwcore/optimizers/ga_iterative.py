@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.preprocess import (MIN_SIGMA, _as_waveform, _half_height_sigma, _inflection, _valid_min,
-                               estimate_noise, gaussian_smooth)
+from fwcore.preprocess import (MIN_SIGMA, _as_waveform, _half_height_sigma, _inflection, _noise_sigma, _valid_min,
+                               gaussian_smooth)
 from fwcore.rng import randint, uniform
 
 PEAK_WINDOW = 5  # bins either side
@@ -296,7 +296,7 @@ def patent_peak_ranges(samples, smoothing_sigma: float, valid=None, noise_thresh
     each with the patent's search ranges for A, u and sigma."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = gaussian_smooth(samples, smoothing_sigma, valid)
-    noise = estimate_noise(samples, smoothed, valid)
+    noise = float(_noise_sigma(samples, smoothed, valid))  # the method's formula, as the patent's peers use
     background = float(_valid_min(smoothed, valid))
     ranges = np.zeros((max_echoes, 7))
     first, last = np.flatnonzero(valid)[[0, -1]]

@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
+from fwcore.model import PARAMS_PER_ECHO, echo_value
 
-PARAMS_PER_ECHO = 4
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
 _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplitude
@@ -72,20 +72,18 @@ def model_and_jacobian(x, n_echoes, times, model, jac):
 
 
 @njit(**JIT)
-def squared_error(x, n_echoes, times, target):
-    """sum (model(x, times) - target)**2, the model alone (no Jacobian), over the same echo windows."""
+def squared_error(x, n_echoes, times, target, weights):
+    """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows."""
     model = np.full(times.size, x[0])
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
-        h = s * _SQRT_2LN2
-        p = alpha * alpha
-        reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
+        reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
         for i in range(np.searchsorted(times, u - reach), np.searchsorted(times, u + reach, side="right")):
-            model[i] += a * math.exp(-_LN2 * (abs(times[i] - u) / h) ** p)
+            model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0
     for i in range(times.size):
-        acc += (model[i] - target[i]) ** 2
+        acc += (weights[i] * (model[i] - target[i])) ** 2
     return acc
 
 
@@ -129,27 +127,30 @@ def _solve_damped(jtj, grad, lam, free, step):
 
 
 @njit(**JIT)
-def _normal_equations(jac, residual, jtj, grad):
+def _normal_equations(jac, residual, weights, jtj, grad):
+    """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted."""
     m, d = jac.shape
     for r in range(d):
         g = 0.0
         for i in range(m):
-            g += jac[i, r] * residual[i]
+            g += jac[i, r] * weights[i] * residual[i]
         grad[r] = g
         for c in range(r, d):
             acc = 0.0
             for i in range(m):
-                acc += jac[i, r] * jac[i, c]
+                acc += jac[i, r] * jac[i, c] * weights[i] * weights[i]
             jtj[r, c] = acc
             jtj[c, r] = acc
 
 
 @njit(**JIT)
-def levenberg_marquardt(x, n_echoes, times, target, lower, upper, max_iterations, tolerance):
-    """Minimise sum (model(x, times) - target)**2 inside [lower, upper], x updated in place.
+def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_iterations, tolerance):
+    """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
+    (weights: 1 / the noise sigma of each sample, or ones).
 
-    Returns (sum of squares, Jacobians evaluated). Stops when an accepted step lowers the
-    sum by less than `tolerance` of it, when damping runs away, or after max_iterations.
+    Returns (weighted sum of squares, Jacobians evaluated, converged): converged when an accepted
+    step lowers the sum by less than `tolerance` of it or no step can lower it (damping runs away);
+    not when max_iterations ran out first.
     """
     m = times.size
     d = x.size
@@ -166,15 +167,17 @@ def levenberg_marquardt(x, n_echoes, times, target, lower, upper, max_iterations
     model_and_jacobian(x, n_echoes, times, model, jac)
     ssr = 0.0
     for i in range(m):
-        residual[i] = model[i] - target[i]
+        residual[i] = weights[i] * (model[i] - target[i])
         ssr += residual[i] * residual[i]
     n_jacobians = 1
     lam = 1e-3
-    _normal_equations(jac, residual, jtj, grad)
+    done = False
+    _normal_equations(jac, residual, weights, jtj, grad)
     for _ in range(max_iterations):
         if not _solve_damped(jtj, grad, lam, free, step):
             lam *= 10.0
             if lam > 1e12:
+                done = True
                 break
             continue
         for j in range(d):
@@ -183,24 +186,26 @@ def levenberg_marquardt(x, n_echoes, times, target, lower, upper, max_iterations
         n_jacobians += 1
         trial_ssr = 0.0
         for i in range(m):
-            r = trial_model[i] - target[i]
+            r = weights[i] * (trial_model[i] - target[i])
             trial_ssr += r * r
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
             x[:] = trial
             jac[:, :] = trial_jac
             for i in range(m):
-                residual[i] = trial_model[i] - target[i]
+                residual[i] = weights[i] * (trial_model[i] - target[i])
             ssr = trial_ssr
             lam = max(lam * 0.3, 1e-9)
             if gain <= tolerance * ssr:
+                done = True
                 break
-            _normal_equations(jac, residual, jtj, grad)
+            _normal_equations(jac, residual, weights, jtj, grad)
         else:
             lam *= 4.0
             if lam > 1e12:
+                done = True
                 break
-    return ssr, n_jacobians
+    return ssr, n_jacobians, done
 
 
 @njit(**JIT)
@@ -226,7 +231,8 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
 
     The two-loop recursion gives the direction; parameters held at a bound with the
     gradient pushing outwards are frozen for the step; a backtracking (Armijo) line
-    search along the projected path accepts it. Returns (sum of squares, gradients).
+    search along the projected path accepts it. Returns (sum of squares, gradients, converged):
+    converged unless max_iterations ran out first.
     """
     m = times.size
     d = x.size
@@ -245,6 +251,7 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
     head = 0
     ssr = _ssr_and_gradient(x, n_echoes, times, target, free, model, jac, grad)
     n_gradients = 1
+    done = False
     for _ in range(max_iterations):
         active = np.zeros(d, dtype=np.bool_)
         for j in range(d):
@@ -273,6 +280,7 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
                 direction[j] = 0.0 if active[j] else -grad[j]
             slope = np.dot(grad, direction)
             if slope >= 0.0:
+                done = True
                 break
         step = 1.0
         accepted = False
@@ -286,7 +294,8 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
                 accepted = True
                 break
             step *= 0.5
-        if not accepted:
+        if not accepted:  # no step lowers the sum: a minimum to the line search's precision
+            done = True
             break
         slot = head % memory
         s_hist[slot] = trial - x
@@ -301,8 +310,9 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
             head = (head + 1) % memory
             stored = min(stored + 1, memory)
         if gain <= tolerance * ssr:
+            done = True
             break
-    return ssr, n_gradients
+    return ssr, n_gradients, done
 
 
 # ---------------------------------------------------------------- Python API
@@ -316,9 +326,10 @@ def fit_levenberg_marquardt(x0, n_echoes: int, times, target, lower, upper, max_
     if x.size != 1 + PARAMS_PER_ECHO * n_echoes or lower.shape != x.shape or upper.shape != x.shape:
         raise ValueError(f"an individual of {n_echoes} echoes has {1 + PARAMS_PER_ECHO * n_echoes} parameters")
     x = np.clip(x, lower, upper)
-    ssr, n_jacobians = levenberg_marquardt(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64),
-                                           np.ascontiguousarray(target, dtype=np.float64), lower, upper,
-                                           int(max_iterations), float(tolerance))
+    times = np.ascontiguousarray(times, dtype=np.float64)
+    ssr, n_jacobians, _ = levenberg_marquardt(x, int(n_echoes), times, np.ascontiguousarray(target, dtype=np.float64),
+                                              np.ones(times.size), lower, upper, int(max_iterations),
+                                              float(tolerance))
     return x, float(ssr), int(n_jacobians)
 
 
@@ -326,7 +337,7 @@ def fit_lbfgs(x0, n_echoes: int, times, target, lower, upper, max_iterations: in
               tolerance: float = 1e-9) -> tuple[np.ndarray, float, int]:
     """Projected L-BFGS from x0 inside the bounds: (best individual, sum of squares, gradients evaluated)."""
     x = np.clip(np.array(x0, dtype=np.float64), lower, upper)
-    ssr, n_gradients = lbfgs(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64),
+    ssr, n_gradients, _ = lbfgs(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64),
                              np.ascontiguousarray(target, dtype=np.float64),
                              np.ascontiguousarray(lower, dtype=np.float64),
                              np.ascontiguousarray(upper, dtype=np.float64), int(max_iterations), int(memory),

@@ -1,0 +1,274 @@
+"""Decompose waveforms: the orchestration of the engine's steps, and its Python API.
+
+    initial estimate -> bounds -> optimizer -> model-order selection -> filter -> metrics
+
+`decompose_batch` is the entry point: many waveforms of any lengths in one
+numba-parallel call, one waveform per thread, each with its own random
+stream, so a waveform's result does not depend on its batch or the thread
+count. `decompose_waveform` is the same for one waveform. Each step is a
+kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
+.selection, .filter); this module only wires them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from fwcore._jit import JIT, PARALLEL_JIT
+from fwcore.bounds import parameter_bounds
+from fwcore.config import DecompositionConfig
+from fwcore.filter import mark_spurious
+from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model
+from fwcore.optimizers import OPT_GA_ITERATIVE, OPT_NONE, OPTIMIZERS, MSG_CONVERGED, run_optimizer
+from fwcore.optimizers.ga_iterative import ga_iterative
+from fwcore.optimizers.local import levenberg_marquardt
+from fwcore.preprocess import initial_estimate
+from fwcore.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
+                            BatchDecomposition, Decomposition, WaveformBatch)
+from fwcore.selection import add_missing_echoes, add_shot_noise, drop_unneeded_echoes, noise_variance
+
+_LN2 = math.log(2.0)
+_FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
+
+
+@njit(**JIT)
+def _valid_arrays(samples, smoothed, valid, fit_denoised):
+    """Times, fit target and raw values of the valid samples."""
+    m = 0
+    for i in range(samples.size):
+        m += valid[i]
+    times = np.empty(m)
+    fit_target = np.empty(m)
+    raw = np.empty(m)
+    j = 0
+    for i in range(samples.size):
+        if valid[i]:
+            times[j] = i
+            fit_target[j] = smoothed[i] if fit_denoised else samples[i]
+            raw[j] = samples[i]
+            j += 1
+    return times, fit_target, raw
+
+
+@njit(**JIT)
+def _measure(best, n_echoes, samples, smoothed, valid, out):
+    """The reported metrics, exact (float64, libm), against the denoised (Eq. 9) and raw samples."""
+    n = samples.size
+    model = np.empty(n)
+    individual_model(best, n_echoes, np.arange(n).astype(np.float64), model)
+    m = 0
+    mean = 0.0
+    for i in range(n):
+        if valid[i]:
+            m += 1
+            mean += samples[i]
+    mean /= m
+    err_denoised = 0.0
+    err_raw = 0.0
+    ss_res = 0.0
+    ss_tot = 0.0
+    for i in range(n):
+        if valid[i]:
+            err_denoised += abs(model[i] - smoothed[i])
+            r = model[i] - samples[i]
+            err_raw += abs(r)
+            ss_res += r * r
+            ss_tot += (samples[i] - mean) ** 2
+    out.fit_error = err_denoised
+    out.fit_error_raw = err_raw
+    out.rmse = math.sqrt(ss_res / m)
+    out.r2 = 1.0 - ss_res / ss_tot if ss_tot > 0.0 else 0.0
+
+
+@njit(**JIT)
+def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes):
+    """The echoes sorted by position, in Chauve's parameters, each with the filter's reason."""
+    order = np.argsort(np.array([best[2 + PARAMS_PER_ECHO * k] for k in range(n_echoes)]))
+    widths = np.empty(n_echoes)
+    for j in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * order[j]
+        a, u, s, alpha = best[base], best[base + 1], best[base + 2], best[base + 3]
+        h = s * SQRT_2LN2
+        echoes[j].amplitude = a
+        echoes[j].position = u
+        echoes[j].sigma = math.sqrt(h ** (alpha * alpha) / (2.0 * _LN2))
+        echoes[j].alpha = alpha
+        widths[j] = 2.0 * h
+    reasons = np.zeros(n_echoes, dtype=np.int8)
+    mark_spurious(echoes.amplitude[:n_echoes].copy(), echoes.position[:n_echoes].copy(), widths, first, last,
+                  pulse_fwhm, noise, p.min_snr, p.min_amplitude_ratio, p.min_separation_factor,
+                  p.min_width_factor, p.max_width_factor, reasons)
+    for j in range(n_echoes):
+        echoes[j].reason = reasons[j]
+
+
+@njit(**JIT)
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local, out, echoes):
+    """One waveform end to end into its result record `out` and echo records `echoes`."""
+    n = samples.size
+    first = 0
+    while not valid[first]:
+        first += 1
+    last = n - 1
+    while not valid[last]:
+        last -= 1
+    pulse_fwhm = pulse_sigma * _FWHM_PER_SIGMA
+
+    smoothed = np.empty(n)
+    amp0 = np.zeros(p.max_echoes)
+    pos0 = np.zeros(p.max_echoes)
+    sig0 = np.zeros(p.max_echoes)
+    noise, background, n_echoes = initial_estimate(
+        samples, valid, smoothing_sigma, pulse_sigma, p.robust_noise, p.min_noise_sigma, p.shape_tolerance,
+        p.noise_threshold, p.max_echoes, smoothed, amp0, pos0, sig0)
+    n_initial = n_echoes
+    times, fit_target, raw = _valid_arrays(samples, smoothed, valid, p.fit_denoised)
+    variance = np.empty(times.size)
+    noise_variance(smoothed, valid, background, noise, p.shape_tolerance, variance)
+    weights = 1.0 / np.sqrt(variance)
+
+    peak = 0.0
+    for i in range(n):
+        if valid[i]:
+            peak = max(peak, abs(smoothed[i] - background))
+    scale = max(1e-6 * peak, 1e-12)
+    d = 1 + PARAMS_PER_ECHO * n_echoes
+    x0 = np.empty(d)
+    lower = np.empty(d)
+    upper = np.empty(d)
+    local_upper = np.empty(d)
+    parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed, first, last,
+                     p.gaussian, p.alpha_min, p.alpha_max, scale, x0, lower, upper, local_upper)
+
+    if p.method == OPT_GA_ITERATIVE:
+        best, n_echoes, n_initial, nfev = ga_iterative(
+            valid, smoothed, background, noise, p.noise_threshold, p.max_echoes, first, last, times, fit_target,
+            raw, p.ga_iterative_r2, p.population, p.ga_iterative_generations, seed)
+        nit = 0
+        message = MSG_CONVERGED
+    else:
+        eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
+        fit_samples = smoothed if p.fit_denoised else samples
+        best, nfev, nit, message = run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
+                                                 times, fit_target, weights, eps, seed)
+
+    dropped = 0
+    added = 0
+    if p.select_echoes and p.method != OPT_NONE and p.method != OPT_GA_ITERATIVE:
+        if not local:  # a population's best is not at the least-squares optimum the refits compare with
+            _, used, _ = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+                                             p.lm_iterations, 1e-8)
+            nfev += used
+        signal = np.empty(times.size)
+        for j in range(times.size):
+            signal[j] = max(smoothed[int(times[j])] - background, 0.0)
+        if p.signal_dependent_noise:
+            add_shot_noise(best, n_echoes, times, raw, signal, variance)
+            weights = 1.0 / np.sqrt(variance)
+        best, lower, local_upper, n_echoes, dropped, used = drop_unneeded_echoes(
+            p, best, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm, noise)
+        nfev += used
+        best, lower, local_upper, n_echoes, added, used = add_missing_echoes(
+            p, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,
+            pulse_sigma, noise)
+        nfev += used
+
+    out.background = best[0]
+    out.noise_sigma = noise
+    out.nfev = nfev
+    out.nit = nit
+    out.message = message
+    out.n_echoes_initial = n_initial
+    out.n_echoes_dropped = dropped
+    out.n_echoes_added = added
+    out.n_echoes = n_echoes
+    _measure(best, n_echoes, samples, smoothed, valid, out)
+    _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes)
+
+
+@njit(**PARALLEL_JIT)
+def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, local, out, echoes):
+    for w in prange(offsets.size - 1):
+        if status[w] != 0:
+            continue
+        lo, hi = offsets[w], offsets[w + 1]
+        _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], seeds[w], p, local,
+                       out[w], echoes[w])
+
+
+# ---------------------------------------------------------------- Python API
+
+def pulse_sigma_samples(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> np.ndarray:
+    """The system pulse's Gaussian sigma in samples of each waveform."""
+    return config.pulse_fwhm_ps() / _FWHM_PER_SIGMA / np.asarray(sample_spacing_ps, dtype=float)
+
+
+def smoothing_sigma_samples(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> np.ndarray:
+    """The denoising filter's sigma in samples: explicit, or tied to the system pulse."""
+    spacing = np.asarray(sample_spacing_ps, dtype=float)
+    if config.smoothing_sigma_ps is not None:
+        return np.full(spacing.shape, config.smoothing_sigma_ps) / spacing
+    return config.smoothing_factor * pulse_sigma_samples(config, spacing)
+
+
+def waveform_status(batch: WaveformBatch) -> np.ndarray:
+    """Per waveform, why it cannot be decomposed (STATUS_REASONS codes; 0: it can)."""
+    status = np.zeros(len(batch), dtype=np.int8)
+    for w in range(len(batch)):
+        lo, hi = batch.offsets[w], batch.offsets[w + 1]
+        chunk, mask = batch.samples[lo:hi], batch.valid[lo:hi]
+        if not mask.any():
+            status[w] = STATUS_NO_VALID_SAMPLES
+        elif not np.isfinite(chunk[mask]).all():
+            status[w] = STATUS_NON_FINITE
+    return status
+
+
+def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = DecompositionConfig(),
+                    threads: int | None = None) -> BatchDecomposition:
+    """Decompose every waveform of the batch in one parallel call.
+
+    A waveform with non-finite valid samples, or with no valid sample, is not
+    decomposed: its status says why and it has no echoes.
+    """
+    n = len(batch)
+    status = waveform_status(batch)
+    out = np.zeros(n, dtype=WAVEFORM_RESULT)
+    echoes = np.zeros((n, config.max_echoes), dtype=ECHO_RESULT)
+    samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
+    samples[~np.isfinite(samples)] = 0.0
+    previous_threads = numba.get_num_threads()
+    if threads is not None:
+        numba.set_num_threads(threads)
+    try:
+        _decompose_many(samples, batch.valid, batch.offsets, status,
+                        smoothing_sigma_samples(config, batch.sample_spacing_ps),
+                        pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds, config.kernel_params(),
+                        OPTIMIZERS[config.optimizer].local, out, echoes)
+    finally:
+        numba.set_num_threads(previous_threads)
+    counts = out["n_echoes"]
+    echo_offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=echo_offsets[1:])
+    flat = echoes[np.arange(config.max_echoes)[None, :] < counts[:, None]]
+    sigma, alpha = flat["sigma"], flat["alpha"]
+    return BatchDecomposition(
+        status=status, background=out["background"], noise_sigma=out["noise_sigma"], fit_error=out["fit_error"],
+        fit_error_raw=out["fit_error_raw"], rmse=out["rmse"], r2=out["r2"], nfev=out["nfev"], nit=out["nit"],
+        message=out["message"].astype(np.int8), n_echoes_initial=out["n_echoes_initial"],
+        n_echoes_dropped=out["n_echoes_dropped"], n_echoes_added=out["n_echoes_added"],
+        echo_offsets=echo_offsets, amplitude=flat["amplitude"], position=flat["position"], sigma=sigma,
+        alpha=alpha, fwhm=fwhm(sigma, alpha), energy=echo_energy(flat["amplitude"], sigma, alpha),
+        reject=flat["reason"])
+
+
+def decompose_waveform(samples, sample_spacing_ps: float = 1000.0, seed: int = 0,
+                       config: DecompositionConfig = DecompositionConfig(), valid=None) -> Decomposition:
+    """Decompose one waveform (the batch engine with a batch of one: identical results)."""
+    batch = WaveformBatch.from_waveforms([np.asarray(samples, dtype=float)], sample_spacing_ps, [seed],
+                                         None if valid is None else [valid])
+    return decompose_batch(batch, config).waveform(0)

@@ -1,0 +1,117 @@
+"""The optimizer catalogue: a registry from name to kernel, like SciPy's strategy table.
+
+Every method starts from the same initial estimate and bounds and hands back the
+same things: the best individual, model evaluations, iterations and a message.
+`run_optimizer` is the one place the kernels branch on the method's code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT
+from fwcore.config import Optimizer
+from fwcore.optimizers.evolution import evolve, init_population
+from fwcore.optimizers.ga import evolve_ga
+from fwcore.optimizers.local import lbfgs, levenberg_marquardt
+from fwcore.optimizers.objective import LANES, fit_error
+from fwcore.optimizers.pso import swarm
+
+OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE = range(9)
+# Per-waveform messages (records.MESSAGES spells them out).
+MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_OPTIMIZED = range(5)
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizerSpec:
+    """A catalogue entry: its kernel code, and what kind of search it is."""
+
+    code: int
+    population: bool  # a population of individuals on Eq. 9, or not
+    local: bool  # ends with (or is) a least-squares local optimizer on the valid samples
+    description: str
+
+
+OPTIMIZERS: dict[Optimizer, OptimizerSpec] = {
+    Optimizer.NONE: OptimizerSpec(OPT_NONE, False, False, "the initial estimate as is"),
+    Optimizer.DE: OptimizerSpec(OPT_DE, True, False, "differential evolution, DE/rand/1 (the method's Eq. 4)"),
+    Optimizer.MDE: OptimizerSpec(OPT_MDE, True, False, "modified DE with chaotic scale factors"),
+    Optimizer.GA: OptimizerSpec(OPT_GA, True, False, "real-coded genetic algorithm"),
+    Optimizer.PSO: OptimizerSpec(OPT_PSO, True, False, "global-best particle swarm"),
+    Optimizer.LM: OptimizerSpec(OPT_LM, False, True, "Levenberg-Marquardt from the initial estimate"),
+    Optimizer.LBFGS: OptimizerSpec(OPT_LBFGS, False, True, "projected L-BFGS from the initial estimate"),
+    Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, True, True, "MDE, then an LM polish of its best individual"),
+    Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, False, True,
+                                          "the patent's binary GA, adding echoes until R^2 is reached"),
+}
+
+
+@njit(**JIT)
+def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, weights,
+                  eps, seed):
+    """Optimise individual x0 of n_echoes echoes with method p.method.
+
+    Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
+    within [lower, upper]; local ones least squares over the valid samples (times, fit_target,
+    weights) within [lower, local_upper]. Returns (best, model evaluations, iterations, message)."""
+    best = x0.copy()
+    method = p.method
+    if n_echoes == 0:
+        return best, 0, 0, MSG_NO_ECHOES
+    if method == OPT_NONE:
+        return best, 0, 0, MSG_NOT_OPTIMIZED
+    nfev = 0
+    nit = 0
+    message = MSG_CONVERGED
+    if method in (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM):
+        n = fit_samples.size
+        state = np.empty(1, dtype=np.uint64)
+        state[0] = seed
+        n_pad = (n + LANES - 1) // LANES * LANES
+        tpos = np.arange(n_pad).astype(np.float32)
+        target = np.zeros(n_pad, dtype=np.float32)
+        target[:n] = fit_samples
+        weight = np.zeros(n_pad, dtype=np.float32)
+        weight[:n] = valid
+        model = np.empty(n_pad, dtype=np.float32)
+        pop = np.empty((p.population, x0.size))
+        init_population(x0, lower, upper, p.init_spread, state, pop)
+        fitness = np.empty(p.population)
+        for i in range(p.population):
+            fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, eps, model)
+        nfev = p.population
+        if method == OPT_GA:
+            nfev += evolve_ga(pop, fitness, lower, upper, p.generations, p.crossover_rate, p.ga_mutation_rate,
+                              state, n_echoes, tpos, target, weight, p.gaussian, eps)
+            nit = p.generations
+        elif method == OPT_PSO:
+            nfev += swarm(pop, fitness, lower, upper, p.generations, state, n_echoes, tpos, target, weight,
+                          p.gaussian, eps)
+            nit = p.generations
+        else:
+            used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
+                                     p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
+                                     p.de_scale_factor, p.tol, p.atol, state, n_echoes, tpos, target, weight,
+                                     p.gaussian, eps)
+            nfev += used
+            if not done:
+                message = MSG_MAX_GENERATIONS
+        best = pop[np.argmin(fitness)].copy()
+    if method == OPT_LM or method == OPT_MDE_LM:
+        _, used, done = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+                                            p.lm_iterations, 1e-8)
+        nfev += used
+        if method == OPT_LM:
+            nit = used
+        if not done and message == MSG_CONVERGED:
+            message = MSG_MAX_ITERATIONS
+    elif method == OPT_LBFGS:
+        _, used, done = lbfgs(best, n_echoes, times, fit_target, lower, local_upper, 4 * p.lm_iterations, 10, 1e-9)
+        nfev += used
+        nit = used
+        if not done:
+            message = MSG_MAX_ITERATIONS
+    return best, nfev, nit, message

@@ -1,0 +1,142 @@
+"""The engine's records: waveforms in (WaveformBatch), results out (Decomposition, BatchDecomposition).
+
+Times and widths in samples (time 0 = the first sample); amplitudes in digitizer units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+
+from fwcore.filter import REJECT_REASONS
+from fwcore.model import waveform_model
+
+STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
+STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")
+# How the optimizer ended, per waveform (codes of fwcore.optimizers: MSG_*).
+MESSAGES = ("no_echoes", "converged", "max_generations", "max_iterations", "not_optimized")
+
+# The kernel's per-waveform result, one record per waveform (named fields, not columns by position).
+WAVEFORM_RESULT = np.dtype([
+    ("background", np.float64), ("noise_sigma", np.float64), ("fit_error", np.float64),
+    ("fit_error_raw", np.float64), ("rmse", np.float64), ("r2", np.float64), ("nfev", np.int64),
+    ("nit", np.int64), ("message", np.int64), ("n_echoes_initial", np.int64), ("n_echoes_dropped", np.int64),
+    ("n_echoes_added", np.int64), ("n_echoes", np.int64),
+])
+# One echo in Chauve's parameters (fwcore.model), sorted by position within its waveform.
+ECHO_RESULT = np.dtype([("amplitude", np.float64), ("position", np.float64), ("sigma", np.float64),
+                        ("alpha", np.float64), ("reason", np.int8)])
+
+
+@dataclasses.dataclass(frozen=True)
+class WaveformBatch:
+    """Many waveforms as flat arrays: waveform i is samples[offsets[i]:offsets[i+1]]."""
+
+    samples: np.ndarray  # float64, digitizer units
+    valid: np.ndarray  # bool: False for padding and gaps
+    offsets: np.ndarray  # int64, n + 1
+    sample_spacing_ps: np.ndarray  # float64, n
+    seeds: np.ndarray  # uint64, n: from fwcore.rng.pulse_seed
+
+    def __len__(self) -> int:
+        return self.offsets.size - 1
+
+    @classmethod
+    def from_waveforms(cls, waveforms: Sequence[np.ndarray], sample_spacing_ps, seeds,
+                       valid: Sequence[np.ndarray] | None = None) -> "WaveformBatch":
+        n = len(waveforms)
+        lengths = np.array([len(w) for w in waveforms], dtype=np.int64)
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(lengths, out=offsets[1:])
+        samples = (np.concatenate([np.asarray(w, dtype=np.float64) for w in waveforms])
+                   if n else np.zeros(0))
+        mask = (np.concatenate([np.asarray(v, dtype=bool) for v in valid]) if valid is not None and n
+                else np.ones(samples.size, dtype=bool))
+        if mask.shape != samples.shape:
+            raise ValueError("valid masks must match the waveforms' lengths")
+        spacing = np.broadcast_to(np.asarray(sample_spacing_ps, dtype=np.float64), (n,)).copy()
+        seeds = np.asarray(seeds, dtype=np.uint64).reshape(n)
+        return cls(samples, mask, offsets, spacing, seeds)
+
+
+@dataclasses.dataclass(frozen=True)
+class Decomposition:
+    """One waveform's result. Times and widths in samples (time 0 = first sample)."""
+
+    status: str  # "" when decomposed, else why not
+    background: float
+    noise_sigma: float
+    fit_error: float  # Eq. 9 against the denoised samples
+    fit_error_raw: float  # the same sum against the raw samples
+    rmse: float  # against the raw samples
+    r2: float
+    nfev: int
+    nit: int  # the optimizer's generations or iterations
+    message: str  # how the optimizer ended (MESSAGES)
+    n_echoes_initial: int
+    n_echoes_dropped: int  # by the model-order selection
+    n_echoes_added: int
+    amplitude: np.ndarray
+    position: np.ndarray
+    sigma: np.ndarray  # Chauve's sigma, samples**(alpha**2 / 2)
+    alpha: np.ndarray
+    fwhm: np.ndarray
+    energy: np.ndarray  # area under each echo, digitizer units x samples
+    reject_reason: tuple[str, ...]  # "" for kept echoes
+
+    @property
+    def kept(self) -> np.ndarray:
+        return np.array([r == "" for r in self.reject_reason], dtype=bool)
+
+    def model(self, t) -> np.ndarray:
+        return waveform_model(t, self.background, self.amplitude, self.position, self.sigma, self.alpha)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchDecomposition:
+    """A batch's results, columnar: per waveform (n) and per echo (flat, echo_offsets)."""
+
+    status: np.ndarray  # int8 codes into STATUS_REASONS
+    background: np.ndarray
+    noise_sigma: np.ndarray
+    fit_error: np.ndarray
+    fit_error_raw: np.ndarray
+    rmse: np.ndarray
+    r2: np.ndarray
+    nfev: np.ndarray
+    nit: np.ndarray
+    message: np.ndarray  # int8 codes into MESSAGES
+    n_echoes_initial: np.ndarray
+    n_echoes_dropped: np.ndarray
+    n_echoes_added: np.ndarray
+    echo_offsets: np.ndarray  # n + 1
+    amplitude: np.ndarray
+    position: np.ndarray
+    sigma: np.ndarray
+    alpha: np.ndarray
+    fwhm: np.ndarray
+    energy: np.ndarray
+    reject: np.ndarray  # int8 codes into fwcore.filter.REJECT_REASONS
+
+    def __len__(self) -> int:
+        return self.status.size
+
+    @property
+    def echo_waveform(self) -> np.ndarray:
+        """For each echo, the index of its waveform in the batch."""
+        return np.repeat(np.arange(len(self)), np.diff(self.echo_offsets))
+
+    def waveform(self, i: int) -> Decomposition:
+        lo, hi = self.echo_offsets[i], self.echo_offsets[i + 1]
+        return Decomposition(
+            status=STATUS_REASONS[self.status[i]], background=float(self.background[i]),
+            noise_sigma=float(self.noise_sigma[i]), fit_error=float(self.fit_error[i]),
+            fit_error_raw=float(self.fit_error_raw[i]), rmse=float(self.rmse[i]), r2=float(self.r2[i]),
+            nfev=int(self.nfev[i]), nit=int(self.nit[i]), message=MESSAGES[self.message[i]],
+            n_echoes_initial=int(self.n_echoes_initial[i]), n_echoes_dropped=int(self.n_echoes_dropped[i]),
+            n_echoes_added=int(self.n_echoes_added[i]),
+            amplitude=self.amplitude[lo:hi], position=self.position[lo:hi], sigma=self.sigma[lo:hi],
+            alpha=self.alpha[lo:hi], fwhm=self.fwhm[lo:hi], energy=self.energy[lo:hi],
+            reject_reason=tuple(REJECT_REASONS[r] for r in self.reject[lo:hi]))

@@ -1,0 +1,183 @@
+"""Model-order selection: how many echoes the data supports, by the BIC under the noise model.
+
+The progressive estimate peels heavy tails, ringing and flanks off as extra
+echoes, and misses an echo that shows only as a shoulder. After the optimizer,
+echoes the filter flags are dropped (weakest first) when the raw samples do
+not need them, and an echo is added where the residual still holds one; both
+decided by the Bayesian information criterion on the raw samples,
+chi^2 = sum ((model - raw) / sigma_i)^2 with sigma_i from the noise model, each
+echo costing its parameters x ln(m). Every candidate is an LM refit from a warm
+start, so the step is cheap and runs only where the filter or the residual asks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT
+from fwcore.bounds import echo_bounds
+from fwcore.filter import KEPT, mark_spurious
+from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model
+from fwcore.optimizers.local import levenberg_marquardt, squared_error
+from fwcore.preprocess import _smooth
+
+_LM_TOLERANCE = 1e-8
+
+
+@njit(**JIT)
+def noise_variance(smoothed, valid, background, noise, shape_tolerance, out):
+    """Per valid sample, sigma**2 + (shape_tolerance x signal)**2, signal the smoothed height above background."""
+    m = 0
+    for i in range(smoothed.size):
+        if valid[i]:
+            s = max(smoothed[i] - background, 0.0) * shape_tolerance
+            out[m] = noise * noise + s * s
+            m += 1
+
+
+@njit(**JIT)
+def add_shot_noise(x, n_echoes, times, raw, signal, variance):
+    """Add the Poisson-like term g x signal to `variance`, g >= 0 fitted by least squares to the
+    squared residuals of x that the variance does not explain; returns g."""
+    model = np.empty(times.size)
+    individual_model(x, n_echoes, times, model)
+    num = 0.0
+    den = 0.0
+    for i in range(times.size):
+        if signal[i] > 0.0:
+            r = model[i] - raw[i]
+            num += signal[i] * (r * r - variance[i])
+            den += signal[i] * signal[i]
+    g = max(num / den, 0.0) if den > 0.0 else 0.0
+    for i in range(times.size):
+        variance[i] += g * max(signal[i], 0.0)
+    return g
+
+
+@njit(**JIT)
+def spurious_reasons(x, n_echoes, first, last, pulse_fwhm, noise, p):
+    """The filter's reason for each echo of individual x, in the individual's order."""
+    position = np.array([x[2 + PARAMS_PER_ECHO * k] for k in range(n_echoes)])
+    order = np.argsort(position)
+    amplitude = np.empty(n_echoes)
+    width = np.empty(n_echoes)
+    for j in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * order[j]
+        amplitude[j] = x[base]
+        width[j] = 2.0 * x[base + 2] * SQRT_2LN2
+    sorted_reasons = np.zeros(n_echoes, dtype=np.int8)
+    mark_spurious(amplitude, position[order], width, first, last, pulse_fwhm, noise, p.min_snr,
+                  p.min_amplitude_ratio, p.min_separation_factor, p.min_width_factor, p.max_width_factor,
+                  sorted_reasons)
+    reasons = np.empty(n_echoes, dtype=np.int8)
+    for j in range(n_echoes):
+        reasons[order[j]] = sorted_reasons[j]
+    return reasons
+
+
+@njit(**JIT)
+def _without_echo(x, k):
+    keep = np.ones(x.size, dtype=np.bool_)
+    keep[1 + PARAMS_PER_ECHO * k:1 + PARAMS_PER_ECHO * (k + 1)] = False
+    return x[keep]
+
+
+@njit(**JIT)
+def _with_room(x, extra):
+    out = np.empty(x.size + extra)
+    out[:x.size] = x
+    return out
+
+
+@njit(**JIT)
+def drop_unneeded_echoes(p, best, lower, upper, n_echoes, times, target, raw, weights, first, last, pulse_fwhm,
+                         noise):
+    """Drop flagged echoes, weakest first, while a refit without one raises chi^2 by no more than
+    the BIC's price of an echo. Returns (best, lower, upper, n_echoes, dropped, Jacobians)."""
+    penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
+    chi2 = squared_error(best, n_echoes, times, raw, weights)
+    dropped = 0
+    n_jacobians = 0
+    while n_echoes > 0:
+        reasons = spurious_reasons(best, n_echoes, first, last, pulse_fwhm, noise, p)
+        flagged = np.flatnonzero(reasons != KEPT)
+        if flagged.size == 0:
+            break
+        amplitude = np.array([best[1 + PARAMS_PER_ECHO * k] for k in flagged])
+        removed = False
+        for k in flagged[np.argsort(amplitude)]:
+            reduced = _without_echo(best, k)
+            reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
+            _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, target, weights, reduced_lower,
+                                             reduced_upper, p.lm_iterations, _LM_TOLERANCE)
+            n_jacobians += used
+            reduced_chi2 = squared_error(reduced, n_echoes - 1, times, raw, weights)
+            if reduced_chi2 - chi2 <= penalty:
+                best, lower, upper, chi2 = reduced, reduced_lower, reduced_upper, reduced_chi2
+                n_echoes -= 1
+                dropped += 1
+                removed = True
+                break
+        if not removed:
+            break
+    return best, lower, upper, n_echoes, dropped, n_jacobians
+
+
+@njit(**JIT)
+def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, target, raw, weights, first, last,
+                       pulse_sigma, noise):
+    """Where the residual, matched-filtered with the system pulse, rises above the noise threshold,
+    try one more echo there; keep it when chi^2 falls by more than its BIC price. At most
+    p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
+    penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
+    chi2 = squared_error(best, n_echoes, times, raw, weights)
+    n = samples.size
+    model = np.empty(times.size)
+    residual = np.zeros(n)
+    standard = np.zeros(n)
+    smoothed = np.empty(n)
+    smoothed_standard = np.empty(n)
+    # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
+    half = int(math.ceil(4.0 * pulse_sigma))
+    w = np.exp(-0.5 * (np.arange(-half, half + 1) / pulse_sigma) ** 2)
+    filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
+    added = 0
+    n_jacobians = 0
+    while added < p.max_added_echoes and n_echoes < p.max_echoes:
+        individual_model(best, n_echoes, times, model)
+        for j in range(times.size):
+            i = int(times[j])
+            residual[i] = raw[j] - model[j]
+            standard[i] = residual[i] * weights[j]
+        _smooth(residual, valid, pulse_sigma, smoothed)
+        _smooth(standard, valid, pulse_sigma, smoothed_standard)
+        peak = -1
+        score = p.noise_threshold * filtered_noise
+        for i in range(n):
+            if valid[i] and first <= i <= last and smoothed_standard[i] > score:
+                score = smoothed_standard[i]
+                peak = i
+        if peak < 0:
+            break
+        # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
+        amplitude = smoothed[peak] * math.sqrt(2.0)
+        d = best.size
+        trial = _with_room(best, PARAMS_PER_ECHO)
+        trial_lower = _with_room(lower, PARAMS_PER_ECHO)
+        trial_upper = _with_room(upper, PARAMS_PER_ECHO)
+        scratch = np.empty(d + PARAMS_PER_ECHO)
+        echo_bounds(amplitude, float(peak), pulse_sigma, amplitude, noise, first, last, p.gaussian, p.alpha_min,
+                    p.alpha_max, d, trial, trial_lower, scratch, trial_upper)
+        _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, target, weights, trial_lower, trial_upper,
+                                         p.lm_iterations, _LM_TOLERANCE)
+        n_jacobians += used
+        trial_chi2 = squared_error(trial, n_echoes + 1, times, raw, weights)
+        if chi2 - trial_chi2 <= penalty:
+            break
+        best, lower, upper, chi2 = trial, trial_lower, trial_upper, trial_chi2
+        n_echoes += 1
+        added += 1
+    return best, lower, upper, n_echoes, added, n_jacobians
