@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import glob
 import json
 import platform
 import shutil
@@ -11,28 +10,20 @@ from importlib import metadata
 from pathlib import Path
 
 import apache_beam as beam
+import pyarrow as pa
 import pyarrow.dataset as ds
-from apache_beam.options.pipeline_options import PipelineOptions
 
 import fwcore
 from fwcore.config import DecompositionConfig
-from pipeline.transforms import NAMESPACE, DecomposeFlight
+from pipeline.options import FORMATS, check_beam_args, is_dask
+from pipeline.plan import match_inputs, plan_inputs, planned_pulses
+from pipeline.progress import ProgressBar, watched_logs
+from pipeline.sinks import write_part
+from pipeline.tables import REJECTED_SCHEMA
+from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight
 
-FORMATS = frozenset({"parquet", "las", "mcap"})
-OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap")
-DEFAULT_RUNNER_ARGS = ["--runner=DirectRunner", "--direct_num_workers=2", "--direct_running_mode=multi_processing"]
+OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", PARTS)
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
-
-
-def beam_options(beam_args: list[str]) -> PipelineOptions:
-    """The user's Beam options; the DirectRunner with 2 worker processes unless a runner is named."""
-    args = list(beam_args)
-    if not any(a.startswith("--runner") for a in args):
-        args = DEFAULT_RUNNER_ARGS + args
-    options = PipelineOptions(args)
-    # the workers import fwcore and pipeline from the installed package
-    options.view_as(beam.options.pipeline_options.SetupOptions).save_main_session = False
-    return options
 
 
 def _rows(directory: Path, columns: list[str] | None = None):
@@ -67,43 +58,83 @@ def _metric_counts(result) -> dict[str, int]:
     return {c.key.metric.name: int(c.committed if c.committed is not None else c.attempted) for c in counters}
 
 
-def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
+def _write_file_rejections(output: Path, rejected: list) -> None:
+    for r in rejected:
+        table = pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+        write_part(table, output / "rejected", r.stem)
+
+
+def _runner_name(options) -> str:
+    runner = options.view_as(beam.options.pipeline_options.StandardOptions).runner
+    name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
+    if name == "DirectRunner":
+        workers = options.view_as(beam.options.pipeline_options.DirectOptions).direct_num_workers
+        return f"DirectRunner, {workers} workers"
+    return name
+
+
+def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=FORMATS,
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
-        beam_args: list[str] | None = None) -> dict:
-    """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary."""
+        beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True) -> dict:
+    """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
+
+    With `watch`, print a start line and draw a progress bar on the terminal; logs go to DIR/logs/.
+    """
     formats = frozenset(formats)
-    unknown = formats - FORMATS
+    unknown = formats - set(FORMATS)
     if unknown:
         raise ValueError(f"unknown output formats {sorted(unknown)}; choose from {sorted(FORMATS)}")
+    if points_per_range < 1 or (limit is not None and limit < 1):
+        raise ValueError("--points-per-range and --limit must be at least 1")
+    options = check_beam_args(beam_args or [])  # a mistyped option stops here, before anything is touched
+    paths = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     output = Path(output).resolve()
     for name in OUTPUT_DIRS:  # a previous run's parts would be counted as this run's
         shutil.rmtree(output / name, ignore_errors=True)
     output.mkdir(parents=True, exist_ok=True)
-    inputs = [str(Path(i).resolve()) if Path(i).exists() else i for i in (inputs or [str(BUNDLED_SAMPLE)])]
-    for pattern in inputs:  # local patterns are checked here, so a typo is an error and not an empty run
-        if "://" not in pattern and not glob.glob(pattern):
-            raise FileNotFoundError(f"{pattern}: no file matches this input")
-    options = beam_options(beam_args or [])
     began = time.perf_counter()
-    pipeline = beam.Pipeline(options=options)
-    (pipeline | "Inputs" >> beam.Create(inputs)
-     | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, points_per_range, limit, laz))
-    result = pipeline.run()
-    result.wait_until_finish()
+    with watched_logs(output, verbose) as (say, terminal):
+        tasks, file_rejections = plan_inputs(paths, config, points_per_range, limit)
+        _write_file_rejections(output, file_rejections)
+        total = sum(planned_pulses(t) for t in tasks)
+        dask = is_dask(options)
+        if dask:  # one bag partition per range, so the scheduler balances ranges over workers
+            from apache_beam.runners.dask.dask_runner import DaskOptions
+            bags = options.view_as(DaskOptions)
+            if bags.npartitions is None and bags.partition_size is None:
+                bags.npartitions = max(1, len(tasks))
+        if watch:
+            rejected = f", {len(file_rejections)} rejected" if file_rejections else ""
+            say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(tasks)} ranges -> {output} "
+                      f"({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
+                      f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+            say.flush()
+        result = None
+        if tasks:
+            pipeline = beam.Pipeline(options=options)
+            (pipeline | "Ranges" >> beam.Create(tasks)
+             | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask))
+            bar = ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
+                              line_every=60.0 if watch else float("inf"))
+            with bar:
+                result = pipeline.run()
+                result.wait_until_finish()
+    shutil.rmtree(output / PARTS, ignore_errors=True)
     seconds = time.perf_counter() - began
     counts = count_outputs(output)
     summary = {
-        "inputs": inputs,
+        "inputs": paths,
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
+        "ranges": len(tasks),
         "config": config.to_dict(),
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metric_counts(result),
+        "metrics": _metric_counts(result) if result is not None else {},
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
     }
