@@ -172,11 +172,11 @@ def distributions(run: Path) -> dict:
     return out
 
 
-PULSE_ORDERS = {"echoes": "n_echoes DESC", "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
+PULSE_ORDERS = {"kept": "n_echoes_kept DESC, n_echoes ASC", "echoes": "n_echoes DESC", "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
 
 
 def pulse_list(run: Path, order: str, limit: int) -> list[dict]:
-    """The pulses worth a look first: most echoes, most spurious echoes, or the worst fits (lowest R²)."""
+    """The pulses worth a look first: most kept echoes, most echoes, most spurious, or the worst fits (lowest R²)."""
     if order not in PULSE_ORDERS:
         raise ValueError(f"order must be one of {', '.join(PULSE_ORDERS)}, not {order!r}")
     pulses = _table(run, "pulses")

@@ -10,7 +10,7 @@ is fetched from the network.
     GET  /api/summary?run=     run.json, bounds, rejected pulses with reasons, distributions
     GET  /api/echoes?run=&colour=&box=xmin,xmax,ymin,ymax&limit=   a sample of the echoes in a box
     GET  /api/returns?run=&box=&limit=  a sample of the system's own returns in a box
-    GET  /api/pulses?run=&order=&limit= the pulses to look at first (most echoes, most spurious, worst fit)
+    GET  /api/pulses?run=&order=&limit= the pulses to look at first (most kept echoes, most echoes, most spurious, worst fit)
     GET  /api/pulse?run=&file=&pulse=   one pulse: samples, denoised, model, components, echo table rows
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
@@ -117,7 +117,7 @@ class Viewer:
 
     def pulses(self, params) -> dict:
         run = self.roots.run_of(_param(params, "run"))
-        return {"pulses": queries.pulse_list(run, params.get("order", ["echoes"])[0], _limit(params, 40))}
+        return {"pulses": queries.pulse_list(run, params.get("order", ["kept"])[0], _limit(params, 40))}
 
     def pulse(self, params) -> dict:
         ident = _param(params, "run")

@@ -183,18 +183,18 @@ async function loadEchoes() {
   $("scene-count").textContent = `${scene.x.length} of ${scene.total}`;
   const mapTraces = echoTraces(map, false);
   const sceneTraces = echoTraces(scene, true);
-  if (returns) {
-    mapTraces.unshift({ type: WEBGL ? "scattergl" : "scatter", mode: "markers", name: "system returns", meta: "returns",
-      x: returns.x, y: returns.y, hoverinfo: "skip", marker: { color: "rgba(230,80,40,0.5)", size: 7, symbol: "circle-open" } });
-    sceneTraces.unshift({ type: "scatter3d", mode: "markers", name: "system returns", meta: "returns", hoverinfo: "skip",
-      x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.6)", size: 2 } });
+  if (returns) {  // drawn last, over the echoes
+    mapTraces.push({ type: WEBGL ? "scattergl" : "scatter", mode: "markers", name: "system returns", meta: "returns",
+      x: returns.x, y: returns.y, hoverinfo: "skip", marker: { color: "rgba(230,80,40,0.45)", size: 6, symbol: "circle-open" } });
+    sceneTraces.push({ type: "scatter3d", mode: "markers", name: "system returns", meta: "returns", hoverinfo: "skip",
+      x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.35)", size: 1.5 } });
   }
-  const legend = { orientation: "h", y: -0.12 };
-  const mapLayout = { margin: { l: 50, r: 10, t: 10, b: 40 }, legend, uirevision: state.run,
+  const legend = { orientation: "h", x: 0, y: -0.2, yanchor: "top" };
+  const mapLayout = { margin: { l: 60, r: 10, t: 10, b: 70 }, legend, uirevision: state.run,
     xaxis: { title: { text: "x (m)" } }, yaxis: { title: { text: "y (m)" }, scaleanchor: "x" } };
   if (state.box) { mapLayout.xaxis.range = [state.box[0], state.box[1]]; mapLayout.yaxis.range = [state.box[2], state.box[3]]; }
   await Plotly.react("map", mapTraces, mapLayout, { responsive: true, displaylogo: false });
-  await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 0 }, legend, uirevision: state.run,
+  await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 30 }, legend, uirevision: state.run,
     scene: { aspectmode: "data", xaxis: { title: { text: "x" } }, yaxis: { title: { text: "y" } }, zaxis: { title: { text: "z" } } } },
     { responsive: true, displaylogo: false });
   bindPlotEvents();
@@ -274,9 +274,19 @@ function returnAnnotations(returns) {
     showarrow: false, yanchor: "bottom", font: { size: 10, color: "#c05020" } }));
 }
 
-function waveformLayout(returns, title) {
-  return { margin: { l: 50, r: 10, t: title ? 30 : 18, b: 40 }, title: title ? { text: title, font: { size: 12 } } : undefined,
-    xaxis: { title: { text: "time (ns from the first sample)" } }, yaxis: { title: { text: "counts" } },
+function signalRange(fit, returns) {
+  // open on where the echoes and returns are (a double click shows the whole waveform)
+  const times = fit.echoes.filter((e) => e.kept).map((e) => e.time_ps).concat(returns.map((r) => r.time_ps));
+  if (!times.length || !fit.time_ps.length) return undefined;
+  const end = fit.time_ps[fit.time_ps.length - 1];
+  const pad = Math.max(3 * (fit.config.system_pulse_fwhm_ps || 4000), 0.05 * end);
+  return [Math.max(0, Math.min(...times) - pad) / NS, Math.min(end, Math.max(...times) + pad) / NS];
+}
+
+function waveformLayout(returns, fit) {
+  return { margin: { l: 50, r: 10, t: 18, b: 40 },
+    xaxis: { title: { text: "time (ns from the first sample)" }, range: signalRange(fit, returns) },
+    yaxis: { title: { text: "counts" } },
     shapes: returnShapes(returns), annotations: returnAnnotations(returns), legend: { font: { size: 10 } } };
 }
 
@@ -311,7 +321,7 @@ async function showPulse(file, pulse) {
     `(${data.echo_rows.filter((e) => e.kept).length} kept), ${data.system_returns.length} system returns, ` +
     `${fit.config.optimizer} / ${fit.config.model}`;
   const plot = $("waveform");
-  await Plotly.react(plot, waveformTraces(fit), waveformLayout(data.system_returns), { responsive: true, displaylogo: false });
+  await Plotly.react(plot, waveformTraces(fit), waveformLayout(data.system_returns, fit), { responsive: true, displaylogo: false });
   plot.dataset.pulse = data.pulse_id;
   plot.dataset.file = data.file;
   plot.dataset.components = fit.echoes.length;
@@ -348,7 +358,7 @@ async function runTry() {
     const kept = fit.echoes.filter((e) => e.kept).length;
     $(`try-${side}-title`).textContent = `${side === "a" ? "the run's" : "yours"}: ${fit.config.optimizer} / ${fit.config.model}, ` +
       `${fit.echoes.length} echoes (${kept} kept), R² ${fmt(fit.r2, 4)}`;
-    await Plotly.react(`try-${side}`, waveformTraces(fit), waveformLayout(data.system_returns), { responsive: true, displaylogo: false });
+    await Plotly.react(`try-${side}`, waveformTraces(fit), waveformLayout(data.system_returns, data.a), { responsive: true, displaylogo: false });
     $(`try-${side}-metrics`).innerHTML = metricsTable(fit) + `<table>${echoTable(fit.echoes)}</table>`;
   }
 }
