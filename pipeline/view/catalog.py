@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import glob
-import json
 from pathlib import Path
+
+from pipeline.outputs import is_complete, read_run
 
 INPUT_SUFFIXES = (".las", ".laz", ".pls")
 RUN_PARTS = ("echoes", "pulses", "rejected", "las", "mcap")
@@ -22,8 +23,8 @@ class OutsideRoots(PermissionError):
 
 
 def is_complete_run(folder: Path) -> bool:
-    """A run is complete once run.json is there: `fwl run` writes it last."""
-    return (folder / "run.json").is_file() and (folder / "echoes").is_dir()
+    """A finished run (`fwl run` writes run.json last) with an echo table to show."""
+    return is_complete(folder) and (folder / "echoes").is_dir()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,13 +132,17 @@ def _has_waveforms(path: Path) -> bool:
 
 
 def run_summary(folder: Path) -> dict:
-    return json.loads((folder / "run.json").read_text())
+    return read_run(folder)
 
 
 def run_inputs(folder: Path) -> dict[str, Path]:
-    """The run's input files by name (the echo tables' source_file), from run.json's patterns."""
+    """The run's local input files by name (the echo tables' source_file), from run.json."""
     named = {}
-    for pattern in run_summary(folder).get("inputs", []):
-        for match in sorted(glob.glob(pattern)) if "://" not in pattern else []:
+    for entry in run_summary(folder).get("inputs", []):
+        if isinstance(entry, dict):  # {path, name, ...}: the name the run's tables use
+            if "://" not in entry["path"]:
+                named[entry["name"]] = Path(entry["path"])
+            continue
+        for match in sorted(glob.glob(entry)) if "://" not in entry else []:  # runs before names: patterns
             named.setdefault(Path(match).name, Path(match))
     return named

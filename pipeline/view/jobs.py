@@ -37,7 +37,7 @@ class Job:
         written = len(list((self.output / "pulses").glob("*.parquet"))) if (self.output / "pulses").is_dir() else 0
         if code is None:
             status = "running"
-        elif code == 0 and is_complete_run(self.output):
+        elif is_complete_run(self.output):  # exit code 0, or the partial run's code: some pulses rejected
             status = "done"
         else:
             status = "failed"

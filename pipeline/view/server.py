@@ -31,7 +31,7 @@ from urllib.parse import parse_qs, unquote, urlsplit
 import numpy as np
 
 from pipeline.view import queries
-from pipeline.view.catalog import OutsideRoots, Roots, run_summary
+from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from fwcore.config import PRESETS, Optimizer
 from pipeline.view.pulse import (decompose_pulse, read_raw_pulse, reproduces, run_config, system_return_points,
@@ -83,11 +83,11 @@ class Viewer:
         for folder in self.roots.runs():
             summary = run_summary(folder)
             ident = self.roots.id_of(folder)
-            names = [Path(i).name for i in summary.get("inputs", [])]
-            for i in summary.get("inputs", []):
-                by_input.setdefault(str(Path(i).resolve()), ident)
-            runs.append({"id": ident, "name": folder.name, "inputs": names, "counts": summary.get("counts", {}),
-                         "optimizer": summary.get("config", {}).get("optimizer")})
+            inputs = run_inputs(folder)
+            for path in inputs.values():
+                by_input.setdefault(str(path.resolve()), ident)
+            runs.append({"id": ident, "name": folder.name, "inputs": sorted(inputs), "counts": summary.get("counts", {}),
+                         "status": summary.get("status"), "optimizer": summary.get("config", {}).get("optimizer")})
         jobs = {str(p): s for p, s in self.jobs.states().items()}
         inputs = []
         for path in self.roots.inputs():
@@ -99,8 +99,8 @@ class Viewer:
         run = self.roots.run_of(_param(params, "run"))
         summary = run_summary(run)
         counts = summary.get("counts", {})
-        return {"run": _param(params, "run"), "name": run.name, "inputs": [Path(i).name for i in summary["inputs"]],
-                "counts": counts, "config": summary.get("config", {}), "seconds": summary.get("seconds"),
+        return {"run": _param(params, "run"), "name": run.name, "inputs": sorted(run_inputs(run)),
+                "status": summary.get("status"), "counts": counts, "config": summary.get("config", {}), "seconds": summary.get("seconds"),
                 "read_adds_up": counts.get("pulses_read") == counts.get("pulses_decomposed", 0)
                 + counts.get("pulses_rejected", 0),
                 "bounds": queries.bounds(run), "files": queries.source_files(run),

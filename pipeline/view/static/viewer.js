@@ -380,7 +380,7 @@ function histogram(div, series, title, xtitle) {
 
 function drawSummary() {
   const s = summary, c = s.counts;
-  $("counts").innerHTML = keyValueRows([["inputs", s.inputs.join(", ")], ["pulses read", c.pulses_read],
+  $("counts").innerHTML = keyValueRows([["inputs", s.inputs.join(", ")], ["status", s.status], ["pulses read", c.pulses_read],
     ["decomposed", c.pulses_decomposed], ["rejected", c.pulses_rejected], ["files rejected", c.files_rejected],
     ["echoes kept", c.echoes_kept], ["echoes spurious", c.echoes_spurious], ["seconds", s.seconds]]) +
     `<tr><td colspan="2" class="${s.read_adds_up ? "ok" : "bad"}">read ${s.read_adds_up ? "=" : "≠"} decomposed + rejected</td></tr>`;
