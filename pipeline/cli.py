@@ -66,18 +66,23 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
-    from pipeline.run import run
+    from pipeline.run import EXIT_INTERRUPTED, run
 
     config = _config_from_args(args)
-    summary = run(args.inputs, args.output, config, sorted(args.formats), args.limit, args.points_per_range, args.laz,
-                  beam_args, verbose=args.verbose)
+    try:
+        summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
+                      beam_args, verbose=args.verbose)
+    except KeyboardInterrupt:
+        print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
+              f"rerun the same command to complete it", file=sys.stderr)
+        return EXIT_INTERRUPTED
     c = summary["counts"]
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
           f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
     if c["pulses_rejected"] or c["files_rejected"]:
-        print(f"see {args.output}/rejected/ for the reasons")
-    return 0
+        print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
+    return summary["exit_code"]
 
 
 def _compare(args: argparse.Namespace) -> int:
@@ -129,6 +134,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     from pipeline.compare import markdown_table, write_csv
     from pipeline.evaluate import EVALUATION_COLUMNS, evaluate_runs
 
+    from pipeline.outputs import read_run
+    for folder in args.results:  # an interrupted run's tables would read as a poor method
+        read_run(folder)
     rows = evaluate_runs(args.results, args.truth, args.match_ps)
     table = markdown_table(rows, EVALUATION_COLUMNS)
     print(table, end="")
@@ -140,6 +148,26 @@ def _evaluate(args: argparse.Namespace) -> int:
         else:
             output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
         print(f"wrote {output}")
+    return 0
+
+
+def _view(args: argparse.Namespace) -> int:
+    import webbrowser
+
+    from pipeline.view import make_server, url_of
+
+    server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    url = url_of(server)
+    print(f"fwl view: serving {', '.join(args.paths or ['.'])} at {url} (Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.viewer.jobs.stop_all()
+        server.server_close()
     return 0
 
 
@@ -158,8 +186,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline", allow_abbrev=False,
                        epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
-                              "the default runner is the DirectRunner with 2 worker processes.")
-    r.add_argument("inputs", nargs="*", help="LAS/LAZ files or glob patterns (default: the bundled Leica sample)")
+                              "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
+                              "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
+                              "2 usage error (nothing touched), 130 interrupted.")
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ files, glob patterns or folders (their *.las, *.laz); "
+                                             "default: the bundled Leica sample")
+    r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
     FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
 
@@ -213,6 +245,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
     e.set_defaults(handler=_evaluate)
+
+    v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
+    v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",
+                   help="run folders, folders to search for runs and inputs, or .las/.laz/.pls inputs (default .)")
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--port", type=int, default=8050, help="port (default 8050; 0 picks a free one)")
+    v.add_argument("--runs-dir", dest="runs_dir", default="out/view",
+                   help="where runs of picked inputs are written (default out/view)")
+    v.add_argument("--no-browser", dest="no_browser", action="store_true", help="do not open a browser")
+    v.set_defaults(handler=_view)
     return parser
 
 

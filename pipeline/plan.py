@@ -8,42 +8,17 @@ Dask runner partitions that collection, one range per partition).
 from __future__ import annotations
 
 import dataclasses
-import glob
-import hashlib
-from pathlib import Path
 
 import laspy
 
 from fwcore.config import DecompositionConfig
 from fwcore.io import plan_point_ranges
 from fwcore.survey import file_pulse_fwhm_ps
+from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
 
 
-def match_inputs(patterns: list[str]) -> list[str]:
-    """Every file the patterns match, sorted and once; a local pattern that matches nothing is an error."""
-    paths = []
-    for pattern in patterns:
-        if "://" in pattern:
-            from apache_beam.io.filesystems import FileSystems
-            found = [m.path for r in FileSystems.match([pattern]) for m in r.metadata_list]
-        else:
-            found = [str(Path(p).resolve()) for p in glob.glob(pattern)]
-        if not found:
-            raise FileNotFoundError(f"{pattern}: no file matches this input")
-        paths.extend(found)
-    return sorted(dict.fromkeys(paths))
-
-
-def output_stems(paths: list[str]) -> dict[str, str]:
-    """A name per input for its part files and per-file outputs: the file's stem, plus a hash of its path
-    where two inputs share a stem (flightA/x.las and flightB/x.las, or x.las and x.laz)."""
-    stems = [Path(p).stem for p in paths]
-    return {p: s if stems.count(s) == 1 else f"{s}-{hashlib.sha1(p.encode()).hexdigest()[:8]}"
-            for p, s in zip(paths, stems)}
-
-
-def plan_file(path: str, stem: str, config: DecompositionConfig, points_per_range: int,
+def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
               limit: int | None) -> list[ReadTask]:
     ranges = plan_point_ranges(path, points_per_range)
     with laspy.open(path) as reader:
@@ -53,7 +28,7 @@ def plan_file(path: str, stem: str, config: DecompositionConfig, points_per_rang
     fwhm = config.system_pulse_fwhm_ps
     if fwhm is None:  # the file does not record it: measured on its single-return pulses
         fwhm = file_pulse_fwhm_ps(path, count, config.pulse_fwhm_ps())
-    source = InputFile(path, Path(path).name, stem, float(fwhm), adjusted)
+    source = InputFile(path, name, stem, float(fwhm), adjusted)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:
@@ -65,16 +40,18 @@ def plan_file(path: str, stem: str, config: DecompositionConfig, points_per_rang
     return tasks
 
 
-def plan_inputs(paths: list[str], config: DecompositionConfig, points_per_range: int,
+def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,
                 limit: int | None = None) -> tuple[list[ReadTask], list[Rejection]]:
     """The ranges of every file, and a Rejection naming the problem for each file that cannot be planned."""
     tasks, rejected = [], []
-    for path, stem in output_stems(paths).items():
+    for path in paths:
+        name = names.name(path)
+        stem = names.stem(name)
         try:
-            tasks.extend(plan_file(path, stem, config, points_per_range, limit))
+            tasks.extend(plan_file(path, name, stem, config, points_per_range, limit))
         except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
             reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
-            rejected.append(Rejection(Path(path).name, stem, -1, -1, "open", reason))
+            rejected.append(Rejection(name, stem, -1, -1, "open", reason))
     return tasks, rejected
 
 

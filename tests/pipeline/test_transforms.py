@@ -7,9 +7,14 @@ from apache_beam.testing.test_pipeline import TestPipeline
 from apache_beam.testing.util import assert_that, equal_to
 
 from fwcore.config import DecompositionConfig
-from pipeline.plan import output_stems, plan_inputs, planned_pulses
+from pipeline.outputs import InputNames
+from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import DecomposedRange, Rejection
 from pipeline.transforms import Decompose, ReadRange
+
+
+def plan_inputs(paths, config, points_per_range, limit=None):
+    return _plan_inputs(paths, InputNames.of(paths), config, points_per_range, limit)
 
 
 def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
@@ -33,12 +38,6 @@ def test_plan_rejects_an_unreadable_file_with_its_reason(tmp_path, leica_dir):
 def test_limit_caps_the_pulses_of_a_file(leica_dir):
     tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], DecompositionConfig(), 400, limit=500)
     assert [planned_pulses(t) for t in tasks] == [342, 158]
-
-
-def test_inputs_that_share_a_name_get_distinct_output_names():
-    stems = output_stems(["/a/x.las", "/b/x.las", "/a/x.laz", "/a/y.las"])
-    assert stems["/a/y.las"] == "y" and len(set(stems.values())) == 4
-    assert all(s.startswith("x-") for p, s in stems.items() if "x." in p)
 
 
 def test_read_and_decompose_count_every_pulse(tmp_path, leica_dir):
