@@ -90,6 +90,12 @@ def _metric_counts(result) -> dict[str, int]:
     return totals
 
 
+def _metrics(result, files_rejected: int) -> dict[str, int]:
+    """Beam's counters, and the files the driver rejected while planning (empty where the runner reports none)."""
+    metrics = _metric_counts(result) if result is not None else {}
+    return {**metrics, "files_rejected": files_rejected} if metrics else {}
+
+
 def status_of(counts: dict[str, int]) -> str:
     """complete: nothing rejected; partial: some inputs or pulses rejected; failed: nothing decomposed."""
     if not counts["pulses_rejected"] and not counts["files_rejected"]:
@@ -155,7 +161,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     names = InputNames.of(paths)
     take_output_folder(output, names, paths)
     began = time.perf_counter()
-    result, tasks = None, []
+    result, tasks, file_rejections = None, [], []
     try:
         with watched_logs(output, verbose) as (say, terminal):
             tasks, file_rejections = plan_inputs(paths, names, config, points_per_range, limit)
@@ -199,7 +205,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metric_counts(result) if result is not None else {},
+        "metrics": _metrics(result, len(file_rejections)),
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),
