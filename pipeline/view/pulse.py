@@ -94,12 +94,14 @@ def run_config(run: Path, source_file: str, pulse_id: int) -> DecompositionConfi
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
-    """The base configuration with a preset and changed settings on top (the pulse width stays the run's)."""
+    """Another configuration for a pulse: a preset (as `fwl run --preset` has it) or the run's own, then the
+    changed settings; the run's pulse width and seed stay, so only the method differs."""
     config = base
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = config.replace(**PRESETS[preset])
+        config = DecompositionConfig(**PRESETS[preset]).replace(system_pulse_fwhm_ps=base.system_pulse_fwhm_ps,
+                                                                seed=base.seed)
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")

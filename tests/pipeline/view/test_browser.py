@@ -105,9 +105,14 @@ def test_a_shared_url_opens_the_same_pulse_and_try_compares_fits(browser, fwl_vi
     from selenium.webdriver.common.by import By
 
     pulse_id = int(viewed.pulses().sort_values("gps_time").pulse_id.iloc[5])
-    browser.get(f"{fwl_view}?run=0/&pulse=leica_a.las:{pulse_id}&colour=amplitude&tab=try")
+    echoes = viewed.echoes()
+    x0, x1, y0, y1 = echoes.x.min(), echoes.x.median(), echoes.y.min(), echoes.y.max()
+    browser.get(f"{fwl_view}?run=0/&pulse=leica_a.las:{pulse_id}&colour=amplitude&tab=try&box={x0},{x1},{y0},{y1}")
     _wait(browser, "document.body.dataset.ready === '1'")
     assert browser.find_element(By.ID, "colour").get_attribute("value") == "amplitude"
+    shown = _wait(browser, "document.getElementById('map').data && document.getElementById('map').data"
+                           ".filter(t => t.meta !== 'returns').reduce((n, t) => n + t.x.length, 0)")
+    assert shown == int((echoes.x.between(x0, x1) & echoes.y.between(y0, y1)).sum()) < len(echoes)
     _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse_id}'")
     browser.find_element(By.CSS_SELECTOR, "#try-form select[name=optimizer] option[value=mde]").click()
     browser.find_element(By.CSS_SELECTOR, "#try-form button[type=submit]").click()

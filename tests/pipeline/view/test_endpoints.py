@@ -115,6 +115,11 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     assert t["b"]["config"]["system_pulse_fwhm_ps"] == t["a"]["config"]["system_pulse_fwhm_ps"] is not None
     weak = [e for e in t["b"]["echoes"] if e["amplitude"] < 8 * t["b"]["noise_sigma"]]
     assert all(not e["kept"] for e in weak)
+    # a preset is the preset's method (as fwl run --preset has it), on the run's pulse width and seed
+    paper = viewed.post("/api/try", {**body, "changes": {}})
+    assert paper["changed"] == {"optimizer": "mde", "lm_iterations": 50}  # fast is lm with 20 iterations
+    same = viewed.post("/api/try", {**body, "preset": "", "changes": {}})
+    assert same["changed"] == {} and same["a"]["echoes"] == same["b"]["echoes"]
 
 
 def _status(viewed, method, path, body=None):
@@ -180,3 +185,10 @@ def test_system_returns_overlay_are_the_input_points(viewed):
     r = viewed.get(f"/api/returns?run={viewed.run_id}&limit=200000")
     assert r["total"] == int(inside.sum()) == int(pulses.n_system_returns.sum())
     assert np.allclose(sorted(r["z"]), sorted(np.asarray(las.z)[inside]))
+
+
+def test_fwl_view_names_a_missing_folder(tmp_path, capsys):
+    from pipeline.cli import main
+
+    assert main(["view", str(tmp_path / "nowhere"), "--no-browser", "--port", "0"]) == 2
+    assert "nowhere: no such file or folder" in capsys.readouterr().err
