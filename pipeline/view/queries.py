@@ -27,12 +27,13 @@ def _connection() -> duckdb.DuckDBPyConnection:
     return _local.con
 
 
-def _table(run: Path, name: str) -> str | None:
+def _table(run: Path, name: str, filename: bool = False) -> str | None:
+    """The run's part files of one table as a DuckDB table expression (with each row's file, if asked)."""
     files = sorted((run / name).glob("*.parquet"))
     if not files:
         return None
     quoted = ", ".join("'" + str(f).replace("'", "''") + "'" for f in files)
-    return f"read_parquet([{quoted}], union_by_name=true)"
+    return f"read_parquet([{quoted}], union_by_name=true{', filename=true' if filename else ''})"
 
 
 def _query(sql: str, params: list | None = None) -> dict[str, np.ndarray]:
@@ -100,11 +101,10 @@ def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
 
 def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | None:
     """The pulse table's row of one pulse and the part file that holds it."""
-    pulses = _table(run, "pulses")
+    pulses = _table(run, "pulses", filename=True)
     if pulses is None:
         return None
-    sql = pulses.replace("union_by_name=true", "union_by_name=true, filename=true")
-    cur = _connection().execute(f"SELECT * FROM {sql} WHERE source_file = ? AND pulse_id = ? LIMIT 1",
+    cur = _connection().execute(f"SELECT * FROM {pulses} WHERE source_file = ? AND pulse_id = ? LIMIT 1",
                                 [source_file, int(pulse_id)])
     row = cur.fetchone()
     if row is None:

@@ -122,12 +122,12 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     assert same["changed"] == {} and same["a"]["echoes"] == same["b"]["echoes"]
 
 
-def _status(viewed, method, path, body=None):
+def _status(viewed, method, path, body=None, headers=None):
     """A raw request: the path goes out exactly as written, no client-side normalisation."""
     url = urlsplit(viewed.url)
     con = http.client.HTTPConnection(url.hostname, url.port, timeout=60)
     con.request(method, path, body=json.dumps(body) if body is not None else None,
-                headers={"Content-Type": "application/json"})
+                headers={"Content-Type": "application/json", **(headers or {})})
     response = con.getresponse()
     data = response.read()
     con.close()
@@ -156,6 +156,17 @@ def test_decompose_outside_the_folders_is_refused(viewed):
     assert status == 403
     status, _ = _status(viewed, "POST", "/api/decompose", {"input": "0/runs/leica_a/run.json"})
     assert status == 404
+
+
+def test_another_sites_requests_are_refused(viewed):
+    # a page whose name was rebound to 127.0.0.1 sends its own host name
+    status, _ = _status(viewed, "GET", f"/api/summary?run={viewed.run_id}", headers={"Host": "evil.example:80"})
+    assert status == 403
+    assert _status(viewed, "GET", f"/api/summary?run={viewed.run_id}",
+                   headers={"Host": f"localhost:{urlsplit(viewed.url).port}"})[0] == 200
+    # a cross-site form can post text/plain without asking first; the viewer takes JSON only
+    status, _ = _status(viewed, "POST", "/api/decompose", {"input": viewed.input_id}, {"Content-Type": "text/plain"})
+    assert status == 415
 
 
 def test_bad_requests_say_why(viewed):
