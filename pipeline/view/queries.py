@@ -130,8 +130,9 @@ def rejected(run: Path, limit: int = 500) -> dict:
         return {"total": 0, "reasons": [], "rows": []}
     con = _connection()
     total = con.execute(f"SELECT count(*) FROM {table}").fetchone()[0]
-    reasons = con.execute(f"SELECT stage, reason, count(*) AS n FROM {table} GROUP BY 1, 2 "
-                          f"ORDER BY n DESC, 1, 2").fetchall()
+    # reasons name byte offsets and sizes: grouped with the numbers as N, one row per kind of failure
+    reasons = con.execute(f"SELECT stage, regexp_replace(reason, '[0-9]+', 'N', 'g') AS kind, count(*) AS n "
+                          f"FROM {table} GROUP BY 1, 2 ORDER BY n DESC, 1, 2").fetchall()
     rows = con.execute(f"SELECT source_file, pulse_id, stage, reason FROM {table} "
                        f"ORDER BY source_file, pulse_id LIMIT ?", [limit]).fetchall()
     return {"total": int(total),

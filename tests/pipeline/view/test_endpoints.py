@@ -203,3 +203,45 @@ def test_fwl_view_names_a_missing_folder(tmp_path, capsys):
 
     assert main(["view", str(tmp_path / "nowhere"), "--no-browser", "--port", "0"]) == 2
     assert "nowhere: no such file or folder" in capsys.readouterr().err
+
+
+def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_dir):
+    """An input whose packet file lost its end: the run is partial (fwl run exits non-zero) and shown."""
+    import shutil
+    import time
+
+    import pyarrow.dataset as ds
+
+    from pipeline.view.jobs import Jobs
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+    from tests.pipeline.view.conftest import POINTS_PER_RANGE, RUN_ARGS, Viewed
+
+    shutil.copy(leica_dir / "leica_a.las", tmp_path / "cut.las")
+    wdp = (leica_dir / "leica_a.wdp").read_bytes()
+    (tmp_path / "cut.wdp").write_bytes(wdp[: 92 + 256 * 40])  # the header and 40 packets
+    runs = tmp_path / "runs"
+    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, RUN_ARGS, POINTS_PER_RANGE))
+    serve_in_thread(server)
+    try:
+        v = Viewed(url_of(server), tmp_path, runs / "cut", "", "", [])
+        (listed,) = v.get("/api/catalog")["inputs"]
+        v.post("/api/decompose", {"input": listed["id"]})
+        for _ in range(1200):
+            (listed,) = v.get("/api/catalog")["inputs"]
+            if listed["job"]["status"] != "running":
+                break
+            time.sleep(0.5)
+        assert listed["job"]["status"] == "done", (runs / "cut.log").read_text()
+        s = v.get(f"/api/summary?run={listed['run']}")
+        c = s["counts"]
+        assert s["status"] == "partial" and s["read_adds_up"] and c["pulses_rejected"] > 0 and c["pulses_decomposed"] > 0
+        rejected = ds.dataset(str(runs / "cut" / "rejected"), format="parquet").to_table().to_pandas()
+        assert s["rejected"]["total"] == len(rejected) == c["pulses_rejected"]
+        assert sorted(r["pulse_id"] for r in s["rejected"]["rows"]) == sorted(rejected.pulse_id)
+        (kind,) = s["rejected"]["reasons"]  # one kind of failure, the offsets and sizes as N
+        assert kind["count"] == len(rejected) and "beyond the end of cut.wdp" in kind["reason"]
+        assert "N" in kind["reason"] and not any(ch.isdigit() for ch in kind["reason"])
+        assert all(r["stage"] == "read" and "cut.wdp" in r["reason"] for r in s["rejected"]["rows"])
+    finally:
+        server.shutdown()
+        server.server_close()
