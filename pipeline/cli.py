@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -11,46 +10,21 @@ from pathlib import Path
 import numpy as np
 
 import fwcore
-from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
+from fwcore.config import DecompositionConfig, Model, Optimizer
+from pipeline.progress import quiet_imports
+
+quiet_imports()  # before Beam is imported: its import-time warnings are not the user's business
+
+from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config,  # noqa: E402
+                              unknown_option_error)
 
 
 def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
-    """Defaults <- preset <- TOML file <- explicit flags, validated once."""
-    config = DecompositionConfig(**PRESETS[args.preset]) if getattr(args, "preset", None) else DecompositionConfig()
-    if args.config:
-        config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
-    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
-                 if getattr(args, f.name, None) is not None}
-    return config.replace(**overrides)
+    return decomposition_config(args)
 
 
 def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
-    g = parser.add_argument_group("method (defaults: the built-in configuration, then --config)")
-    g.add_argument("--config", help="TOML file with a [decomposition] table")
-    g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
-    if not compare:
-        g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
-        g.add_argument("--model", choices=[m.value for m in Model])
-    g.add_argument("--population", type=int, help="NP")
-    g.add_argument("--generations", type=int, help="G")
-    g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")
-    g.add_argument("--chaos-seeds", dest="chaos_seeds", type=int, help="t")
-    g.add_argument("--chaos-iterations", dest="chaos_iterations", type=int, help="k")
-    g.add_argument("--scale-min", dest="scale_min", type=float, help="a")
-    g.add_argument("--scale-max", dest="scale_max", type=float, help="b")
-    g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float)
-    g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
-    g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
-    g.add_argument("--max-echoes", dest="max_echoes", type=int)
-    g.add_argument("--select-echoes", dest="select_echoes", action=argparse.BooleanOptionalAction,
-                   help="model-order selection: drop and add echoes by the BIC (default on)")
-    g.add_argument("--noise-estimator", dest="noise_estimator", choices=["robust", "residual"])
-    g.add_argument("--shape-tolerance", dest="shape_tolerance", type=float)
-    g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)|")
-    g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
-    g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
-    g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
-    g.add_argument("--seed", type=int)
+    add_method_arguments(parser, compare)
 
 
 def _decompose_csv(args: argparse.Namespace) -> int:
@@ -93,26 +67,23 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
-    import logging
+    from pipeline.run import EXIT_INTERRUPTED, run
 
-    from pipeline.run import run
-
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    for noisy in ("apache_beam", "distributed", "numba"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
     config = _config_from_args(args)
-    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-    what = f"{len(args.inputs)} input pattern(s)" if args.inputs else "the bundled Leica sample"
-    print(f"fwl run: {what} -> {args.output} "
-          f"({', '.join(formats)}); optimizer {config.optimizer.value}, model {config.model.value}")
-    summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args)
+    try:
+        summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
+                      beam_args, verbose=args.verbose)
+    except KeyboardInterrupt:
+        print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
+              f"rerun the same command to complete it", file=sys.stderr)
+        return EXIT_INTERRUPTED
     c = summary["counts"]
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
           f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
     if c["pulses_rejected"] or c["files_rejected"]:
-        print(f"see {args.output}/rejected/ for the reasons")
-    return 0
+        print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
+    return summary["exit_code"]
 
 
 def _compare(args: argparse.Namespace) -> int:
@@ -164,6 +135,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     from pipeline.compare import markdown_table, write_csv
     from pipeline.evaluate import EVALUATION_COLUMNS, evaluate_runs
 
+    from pipeline.outputs import read_run
+    for folder in args.results:  # an interrupted run's tables would read as a poor method
+        read_run(folder)
     rows = evaluate_runs(args.results, args.truth, args.match_ps)
     table = markdown_table(rows, EVALUATION_COLUMNS)
     print(table, end="")
@@ -175,6 +149,26 @@ def _evaluate(args: argparse.Namespace) -> int:
         else:
             output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
         print(f"wrote {output}")
+    return 0
+
+
+def _view(args: argparse.Namespace) -> int:
+    import webbrowser
+
+    from pipeline.view import make_server, url_of
+
+    server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    url = url_of(server)
+    print(f"fwl view: serving {', '.join(args.paths or ['.'])} at {url} (Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.viewer.jobs.stop_all()
+        server.server_close()
     return 0
 
 
@@ -191,17 +185,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
-    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline",
-                       epilog="Any other option is a Beam pipeline option (--runner, --dask_client_address, ...); "
-                              "the default runner is the DirectRunner with 2 worker processes.")
-    r.add_argument("inputs", nargs="*", help="LAS/LAZ files or glob patterns (default: the bundled Leica sample)")
-    r.add_argument("--output", default="out/run", help="output directory (default out/run)")
-    r.add_argument("--formats", default="parquet,las,mcap", help="comma-separated: parquet, las, mcap")
-    r.add_argument("--limit", type=int, help="at most N pulses per input file")
-    r.add_argument("--points-per-range", dest="points_per_range", type=int, default=5000,
-                   help="points per unit of work (default 5000)")
-    r.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
-    _add_method_options(r)
+    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline", allow_abbrev=False,
+                       epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
+                              "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
+                              "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
+                              "2 usage error (nothing touched), 130 interrupted.")
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ files, glob patterns or folders (their *.las, *.laz); "
+                                             "default: the bundled Leica sample")
+    r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
+    FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
 
     c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ file or a NEON CSV: tables and figures")
@@ -254,16 +246,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
     e.set_defaults(handler=_evaluate)
+
+    v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
+    v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",
+                   help="run folders, folders to search for runs and inputs, or .las/.laz/.pls inputs (default .)")
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--port", type=int, default=8050, help="port (default 8050; 0 picks a free one)")
+    v.add_argument("--runs-dir", dest="runs_dir", default="out/view",
+                   help="where runs of picked inputs are written (default out/view)")
+    v.add_argument("--no-browser", dest="no_browser", action="store_true", help="do not open a browser")
+    v.set_defaults(handler=_view)
     return parser
 
 
+def _parser_flags(parser: argparse.ArgumentParser, command: str) -> list[str]:
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    return [s for a in sub._actions for s in a.option_strings]
+
+
 def main(argv: list[str] | None = None) -> int:
-    args, rest = build_parser().parse_known_args(argv)
-    if rest and args.command != "run":
-        build_parser().error(f"unrecognized arguments: {' '.join(rest)}")
+    parser = build_parser()
+    args, rest = parser.parse_known_args(argv)
     try:
-        return args.handler(args, rest) if args.command == "run" else args.handler(args)
-    except (ValueError, FileNotFoundError) as err:
+        if args.command == "run":
+            return args.handler(args, rest)
+        if rest:
+            raise unknown_option_error(rest, _parser_flags(parser, args.command))
+        return args.handler(args)
+    except (ValueError, FileNotFoundError) as err:  # OptionError is a ValueError
         print(f"fwl: error: {err}", file=sys.stderr)
         return 2
 

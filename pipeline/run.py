@@ -1,9 +1,14 @@
-"""Build and run the pipeline; summarise what it wrote in run.json."""
+"""Build and run the pipeline; summarise what it wrote in run.json.
+
+    validate options and inputs -> take the output folder -> run -> count what was written -> run.json
+
+Exit codes of `fwl run` (see the README): 0 every pulse decomposed; 3 some inputs or pulses rejected,
+the rest written; 4 nothing decomposed (every input or pulse rejected); 2 a usage error (bad option,
+no such input, an output folder that holds what is not ours), nothing touched; 130 interrupted.
+"""
 
 from __future__ import annotations
 
-import glob
-import json
 import platform
 import shutil
 import time
@@ -11,101 +16,199 @@ from importlib import metadata
 from pathlib import Path
 
 import apache_beam as beam
+import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.dataset as ds
-from apache_beam.options.pipeline_options import PipelineOptions
 
 import fwcore
 from fwcore.config import DecompositionConfig
-from pipeline.transforms import NAMESPACE, DecomposeFlight
+from pipeline.options import check_beam_args, is_dask
+from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete,
+                              list_outputs, read_run, remove_partial_files, take_output_folder, write_run_json)
+from pipeline.plan import plan_inputs, planned_pulses
+from pipeline.progress import ProgressBar, watched_logs
+from pipeline.sinks import write_part
+from pipeline.tables import REJECTED_SCHEMA
+from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight
 
+__all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
+           "OutputFolderError", "is_complete", "read_run", "run"]
+
+EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 FORMATS = frozenset({"parquet", "las", "mcap"})
-OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap")
-DEFAULT_RUNNER_ARGS = ["--runner=DirectRunner", "--direct_num_workers=2", "--direct_running_mode=multi_processing"]
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
+COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "echoes_kept", "echoes_spurious")
 
 
-def beam_options(beam_args: list[str]) -> PipelineOptions:
-    """The user's Beam options; the DirectRunner with 2 worker processes unless a runner is named."""
-    args = list(beam_args)
-    if not any(a.startswith("--runner") for a in args):
-        args = DEFAULT_RUNNER_ARGS + args
-    options = PipelineOptions(args)
-    # the workers import fwcore and pipeline from the installed package
-    options.view_as(beam.options.pipeline_options.SetupOptions).save_main_session = False
-    return options
-
-
-def _rows(directory: Path, columns: list[str] | None = None):
+def _table(directory: Path, columns: list[str]) -> pa.Table | None:
     files = sorted(directory.glob("*.parquet"))
     return ds.dataset(files, format="parquet").to_table(columns=columns) if files else None
 
 
-def count_outputs(output: Path) -> dict[str, int]:
-    """Counts read back from what was written, so that they add up by construction of the files."""
-    pulses = _rows(output / "pulses", ["pulse_id"])
-    echoes = _rows(output / "echoes", ["kept"])
-    rejected = _rows(output / "rejected", ["pulse_id", "stage"])
-    decomposed = pulses.num_rows if pulses is not None else 0
-    stages = rejected.column("stage").to_pylist() if rejected is not None else []
-    pulse_rejects = sum(1 for s in stages if s != "open")
-    kept = sum(echoes.column("kept").to_pylist()) if echoes is not None else 0
-    return {
-        "pulses_read": decomposed + pulse_rejects,
-        "pulses_decomposed": decomposed,
-        "pulses_rejected": pulse_rejects,
-        "files_rejected": sum(1 for s in stages if s == "open"),
-        "echoes_kept": kept,
-        "echoes_spurious": (echoes.num_rows if echoes is not None else 0) - kept,
-    }
+def _counts_by_input(table: pa.Table | None, aggregations: list[tuple]) -> dict[str, dict]:
+    if table is None or not table.num_rows:
+        return {}
+    grouped = table.group_by("source_file").aggregate(aggregations).to_pylist()
+    return {row.pop("source_file"): row for row in grouped}
+
+
+def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[str, dict[str, int]]]:
+    """Totals and per-input counts read back from what was written, so that they add up by construction."""
+    pulses = _table(output / "pulses", ["source_file"])
+    echoes = _table(output / "echoes", ["source_file", "kept"])
+    rejected = _table(output / "rejected", ["source_file", "stage"])
+    if rejected is not None:
+        rejected = rejected.append_column("is_file", pc.equal(rejected.column("stage"), "open"))
+    per_pulses = _counts_by_input(pulses, [("source_file", "count")])
+    per_echoes = _counts_by_input(echoes, [("kept", "count"), ("kept", "sum")])
+    per_rejected = _counts_by_input(rejected, [("is_file", "count"), ("is_file", "sum")])
+    per_input = {}
+    for name in names:
+        decomposed = per_pulses.get(name, {}).get("source_file_count", 0)
+        rows = per_rejected.get(name, {})
+        files_rejected = int(rows.get("is_file_sum") or 0)
+        pulse_rejects = rows.get("is_file_count", 0) - files_rejected
+        echo_rows = per_echoes.get(name, {})
+        kept = int(echo_rows.get("kept_sum") or 0)
+        per_input[name] = {"pulses_read": decomposed + pulse_rejects, "pulses_decomposed": decomposed,
+                           "pulses_rejected": pulse_rejects, "files_rejected": files_rejected,
+                           "echoes_kept": kept, "echoes_spurious": echo_rows.get("kept_count", 0) - kept}
+    totals = {k: sum(c[k] for c in per_input.values()) for k in COUNTS}
+    return totals, per_input
 
 
 def _metric_counts(result) -> dict[str, int]:
+    """Beam's counters summed over the steps that increment them (several stages reject pulses)."""
     try:
         counters = result.metrics().query(beam.metrics.MetricsFilter().with_namespace(NAMESPACE))["counters"]
     except Exception:  # some runners (Dask) do not report metrics
         return {}
-    return {c.key.metric.name: int(c.committed if c.committed is not None else c.attempted) for c in counters}
+    totals: dict[str, int] = {}
+    for c in counters:
+        value = c.committed if c.committed is not None else c.attempted
+        totals[c.key.metric.name] = totals.get(c.key.metric.name, 0) + int(value or 0)
+    return totals
+
+
+def _metrics(result, files_rejected: int) -> dict[str, int]:
+    """Beam's counters, and the files the driver rejected while planning (empty where the runner reports none)."""
+    metrics = _metric_counts(result) if result is not None else {}
+    return {**metrics, "files_rejected": files_rejected} if metrics else {}
+
+
+def status_of(counts: dict[str, int]) -> str:
+    """complete: nothing rejected; partial: some inputs or pulses rejected; failed: nothing decomposed."""
+    if not counts["pulses_rejected"] and not counts["files_rejected"]:
+        return "complete"
+    return "partial" if counts["pulses_decomposed"] else "failed"
+
+
+EXIT_CODES = {"complete": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_NOTHING_DONE}
+
+
+def check_run_arguments(formats, limit: int | None, points_per_range: int) -> frozenset[str]:
+    formats = frozenset(formats)
+    unknown = formats - FORMATS
+    if unknown or not formats:
+        raise ValueError(f"unknown output formats {sorted(unknown)}; choose from {sorted(FORMATS)}" if unknown
+                         else f"no output format; choose from {sorted(FORMATS)}")
+    if not isinstance(points_per_range, int) or points_per_range < 1:
+        raise ValueError(f"--points-per-range must be a whole number >= 1, not {points_per_range}")
+    if limit is not None and (not isinstance(limit, int) or limit < 1):
+        raise ValueError(f"--limit must be a whole number >= 1, not {limit}")
+    return formats
+
+
+def _write_file_rejections(output: Path, rejected: list) -> None:
+    """rejected/<stem>.parquet for each input that could not be planned (the ranges' rows come from the pipeline)."""
+    for r in rejected:
+        table = pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+        write_part(table, output / "rejected", r.stem)
+
+
+def _runner_name(options) -> str:
+    runner = options.view_as(beam.options.pipeline_options.StandardOptions).runner
+    name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
+    if name == "DirectRunner":
+        workers = options.view_as(beam.options.pipeline_options.DirectOptions).direct_num_workers
+        return f"DirectRunner, {workers} workers"
+    return name
+
+
+def _one_partition_per_range(options, n_ranges: int) -> None:
+    """The Dask runner partitions the first collection into bags of 128 elements and treats Reshuffle as a
+    no-op, so a few dozen ranges would run in one partition on one worker: give each range its own."""
+    from apache_beam.runners.dask.dask_runner import DaskOptions
+    bags = options.view_as(DaskOptions)
+    if bags.npartitions is None and bags.partition_size is None:
+        bags.npartitions = max(1, n_ranges)
 
 
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
-        beam_args: list[str] | None = None) -> dict:
-    """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary."""
-    formats = frozenset(formats)
-    unknown = formats - FORMATS
-    if unknown:
-        raise ValueError(f"unknown output formats {sorted(unknown)}; choose from {sorted(FORMATS)}")
+        beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True) -> dict:
+    """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
+
+    Everything is checked before the output folder is touched; ValueError / FileNotFoundError
+    (OutputFolderError for a folder holding what is not ours; OptionError for a mistyped option)
+    then, and nothing is changed. With `watch`, a start line and a progress bar go to the terminal;
+    logs go to DIR/logs/ (and to the terminal too with `verbose`).
+    """
+    formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
-    for name in OUTPUT_DIRS:  # a previous run's parts would be counted as this run's
-        shutil.rmtree(output / name, ignore_errors=True)
-    output.mkdir(parents=True, exist_ok=True)
-    inputs = [str(Path(i).resolve()) if Path(i).exists() else i for i in (inputs or [str(BUNDLED_SAMPLE)])]
-    for pattern in inputs:  # local patterns are checked here, so a typo is an error and not an empty run
-        if "://" not in pattern and not glob.glob(pattern):
-            raise FileNotFoundError(f"{pattern}: no file matches this input")
-    options = beam_options(beam_args or [])
+    options = check_beam_args(beam_args or [])
+    paths = expand_inputs(inputs or [str(BUNDLED_SAMPLE)])
+    names = InputNames.of(paths)
+    take_output_folder(output, names, paths)
     began = time.perf_counter()
-    pipeline = beam.Pipeline(options=options)
-    (pipeline | "Inputs" >> beam.Create(inputs)
-     | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, points_per_range, limit, laz))
-    result = pipeline.run()
-    result.wait_until_finish()
+    result, tasks, file_rejections = None, [], []
+    try:
+        with watched_logs(output, verbose) as (say, terminal):
+            tasks, file_rejections = plan_inputs(paths, names, config, points_per_range, limit)
+            _write_file_rejections(output, file_rejections)
+            total = sum(planned_pulses(t) for t in tasks)
+            dask = is_dask(options)
+            if dask:
+                _one_partition_per_range(options, len(tasks))
+            if watch:
+                rejected = f" ({len(file_rejections)} rejected)" if file_rejections else ""
+                say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(tasks)} ranges -> "
+                          f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
+                          f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+                say.flush()
+            if tasks:
+                pipeline = beam.Pipeline(options=options)
+                (pipeline | "Ranges" >> beam.Create(tasks)
+                 | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask))
+                with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
+                                 line_every=60.0 if watch else float("inf")):
+                    result = pipeline.run()
+                    result.wait_until_finish()
+        shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
+    finally:
+        remove_partial_files(output)
     seconds = time.perf_counter() - began
-    counts = count_outputs(output)
+    counts, per_input = count_outputs(output, [names.name(p) for p in paths])
+    status = status_of(counts)
     summary = {
-        "inputs": inputs,
+        "status": status,
+        "exit_code": EXIT_CODES[status],
+        "inputs": [{"path": p, "name": names.name(p), "output_stem": names.stem(names.name(p)),
+                    "counts": per_input[names.name(p)]} for p in paths],
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
+        "ranges": len(tasks),
         "config": config.to_dict(),
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metric_counts(result),
+        "metrics": _metrics(result, len(file_rejections)),
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
+        "files": list_outputs(output),
     }
-    (output / "run.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    write_run_json(output, summary)
     return summary

@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
-from fwcore.records import STATUS_REASONS, BatchDecomposition
+from fwcore.records import MESSAGES, STATUS_REASONS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
@@ -64,9 +64,13 @@ def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: 
         "rmse": result.rmse,
         "r2": result.r2,
         "n_echoes_initial": pa.array(result.n_echoes_initial, pa.int32()),
+        "n_echoes_dropped": pa.array(result.n_echoes_dropped, pa.int32()),
+        "n_echoes_added": pa.array(result.n_echoes_added, pa.int32()),
         "n_echoes": pa.array(counts, pa.int32()),
         "n_echoes_kept": pa.array(kept, pa.int32()),
         "model_evaluations": pa.array(result.nfev, pa.int64()),
+        "nit": pa.array(result.nit, pa.int32()),
+        "message": pa.array([MESSAGES[m] for m in result.message], pa.string()),
         "optimizer": pa.array([config.optimizer.value] * len(result), pa.string()),
         "model": pa.array([config.model.value] * len(result), pa.string()),
     })
@@ -127,8 +131,13 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "rmse": result.rmse[sel],
         "r2": result.r2[sel],
         "n_echoes_initial": pa.array(result.n_echoes_initial[sel], pa.int32()),
+        "n_echoes_dropped": pa.array(result.n_echoes_dropped[sel], pa.int32()),
+        "n_echoes_added": pa.array(result.n_echoes_added[sel], pa.int32()),
         "n_echoes": pa.array(counts[sel], pa.int32()),
         "n_echoes_kept": pa.array(kept[sel], pa.int32()),
+        "model_evaluations": pa.array(result.nfev[sel], pa.int64()),
+        "nit": pa.array(result.nit[sel], pa.int32()),
+        "message": pa.array([MESSAGES[m] for m in result.message[sel]], pa.string()),
         "n_system_returns": pa.array(np.diff(pulses.return_offsets)[sel], pa.int32()),
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
         "optimizer": _strings(config.optimizer.value, sel.size),

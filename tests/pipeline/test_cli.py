@@ -80,5 +80,6 @@ def test_presets_then_toml_then_flags(tmp_path):
     args = build_parser().parse_args(["run", "--preset", "fast", "--config", str(path), "--seed", "3"])
     config = _config_from_args(args)
     assert config.optimizer is Optimizer.LM and config.lm_iterations == 7 and config.seed == 3
-    accurate = _config_from_args(build_parser().parse_args(["run", "--preset", "accurate"]))
-    assert accurate.prune_echoes and accurate.optimizer is Optimizer.MDE
+    paper = _config_from_args(build_parser().parse_args(["run", "--preset", "paper", "--no-select-echoes"]))
+    assert not paper.select_echoes and paper.optimizer is Optimizer.MDE and paper.tol == 0.0
+    assert paper.noise_estimator.value == "residual" and paper.generations == 80
