@@ -1,78 +1,191 @@
-"""Engine benchmark on the bundled real data: waveforms/s on 1 and 2 cores, fit error, peak memory.
+"""Engine benchmark: the engine issue's targets, measured side by side in one run.
 
-    python bench/bench_engine.py [--repeat N]
+    python bench/bench_engine.py [--skip-simulation] [--skip-sylva]
 
-Compilation happens in a warm-up call first and is not timed. Fit error is
-the method's Eq. 9 (against the denoised samples); "raw" is the same sum
-against the raw samples, the measure the published NEON peers are compared by.
+Per preset (the default, `fast`, `paper`), one thread, after compilation:
+- Leica sample: pulses/s, the share of the system's returns with a kept echo
+  within 0.5 m, kept echoes matching no return (per system return), spurious
+  echoes per pulse, and seed stability (kept echoes within 1 cm under another seed);
+- NEON sample: waveforms/s, raw error, and the held-out test (every 3rd valid
+  sample blanked, decomposed, the model evaluated there against the fitted
+  samples) with the outgoing pulses' width and with the width estimated from
+  the returns alone;
+- a simulated flight (`fwl simulate --pulses 10000 --seed 7`, `fwl run`,
+  `fwl evaluate`): recall, precision, range RMSE / CRLB;
+- Sylva (PyPI sylva-rs, Rust LM, RAYON_NUM_THREADS=1) on the same Leica file;
+- peak memory (RSS) of this process.
 """
 
 from __future__ import annotations
 
 import argparse
-import resource
-import time
-from pathlib import Path
+import os
 
-import numpy as np
+os.environ.setdefault("RAYON_NUM_THREADS", "1")  # Sylva's thread pool, read when it is first imported
 
-from fwcore.config import PRESETS, DecompositionConfig
-from fwcore.engine import decompose_batch
-from fwcore.records import WaveformBatch
-from fwcore.io import read_pulses
-from fwcore.neon import pulse_fwhm_ps, read_neon_csv
-from fwcore.rng import pulse_seed
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from fwcore.compare import compare_points  # noqa: E402
+from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
+from fwcore.engine import decompose_batch  # noqa: E402
+from fwcore.io import read_pulses  # noqa: E402
+from fwcore.io.geolocate import echo_positions  # noqa: E402
+from fwcore.neon import pulse_fwhm_ps, read_neon_csv  # noqa: E402
+from fwcore.preprocess import estimate_pulse_fwhm  # noqa: E402
+from fwcore.records import WaveformBatch  # noqa: E402
+from fwcore.rng import pulse_seed  # noqa: E402
+from fwcore.survey import file_system_pulse  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
-SETTINGS = {
-    "none": dict(optimizer="none"),
-    "lm (50 iterations)": dict(optimizer="lm"),
-    "fast preset (lm, 20 iterations)": PRESETS["fast"],
-    "de (NP 100, G 100)": dict(optimizer="de", population=100, generations=100),
-    "de (NP 60, G 480: MDE's evaluations)": dict(optimizer="de", population=60, generations=480),
-    "mde (NP 60, G 80, k x t = 5)": dict(),
-    "mde-lm": dict(optimizer="mde-lm"),
-    "accurate preset (mde + pruning)": PRESETS["accurate"],
-}
+LEICA = DATA / "leica_als" / "leica_a.las"
+PRESET_NAMES = ("default", "fast", "paper")
+ONE_CM_NS = 2 * 0.01 / 0.299792458  # the two-way time of 1 cm of range
 
 
-def neon_batch() -> tuple[WaveformBatch, DecompositionConfig]:
-    w = read_neon_csv(DATA / "neon_harvard" / "return_waveforms.csv")
-    fwhm = pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
-    batch = WaveformBatch.from_waveforms(w.samples, 1000.0, [pulse_seed(0, i) for i in w.waveform_id], w.valid)
-    return batch, DecompositionConfig(system_pulse_fwhm_ps=fwhm)
+def preset(name: str) -> DecompositionConfig:
+    return DecompositionConfig(**PRESETS.get(name, {}))
 
 
-def leica_batch() -> tuple[WaveformBatch, DecompositionConfig]:
-    pulses = read_pulses(DATA / "leica_als" / "leica_a.las")
-    # the pulse width as the pipeline measures it: from the file's single-return pulses
-    return pulses.waveforms(0), DecompositionConfig(system_pulse_fwhm_ps=pulses.single_return_pulse_fwhm_ps())
+def timed(batch: WaveformBatch, config: DecompositionConfig):
+    """(result, waveforms/s) on one thread, compiled outside the timed call."""
+    first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
+                          batch.sample_spacing_ps[:1], batch.seeds[:1])
+    decompose_batch(first, config, threads=1)
+    start = time.perf_counter()
+    result = decompose_batch(batch, config, threads=1)
+    return result, len(batch) / (time.perf_counter() - start)
+
+
+def stable_share(a, b, spacing_ns: float) -> float:
+    """Share of kept echoes found again (same pulse, within 1 cm) under another seed."""
+    same = total = 0
+    tolerance = ONE_CM_NS / spacing_ns
+    for i in range(len(a)):
+        pa_, pb = a.waveform(i), b.waveform(i)
+        ua, ub = pa_.position[pa_.kept], pb.position[pb.kept]
+        total += max(ua.size, ub.size)
+        if ub.size:
+            same += int(sum(np.abs(ub - u).min() <= tolerance for u in ua))
+    return same / total if total else 1.0
+
+
+def leica_rows() -> None:
+    pulses = read_pulses(LEICA)
+    system = file_system_pulse(LEICA, pulses.return_xyz.shape[0], DecompositionConfig())  # as fwl run measures it
+    print(f"\nLeica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns; from its single "
+          f"returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance {system.shape_tolerance:.3f})")
+    print(f"{'preset':28} {'pulses/s':>9} {'returns':>8} {'extra':>7} {'spur/pulse':>10} {'raw err':>8} "
+          f"{'seed-stable':>11} {'nit':>5}")
+    variants = [(name, preset(name)) for name in PRESET_NAMES]
+    variants.append(("default, shape tolerance 0", preset("default").replace(shape_tolerance=0.0)))
+    for label, base in variants:
+        config = base.replace(system_pulse_fwhm_ps=system.fwhm_ps)
+        if config.shape_tolerance is None:
+            config = config.replace(shape_tolerance=system.shape_tolerance)
+        result, rate = timed(pulses.waveforms(0), config)
+        other = decompose_batch(pulses.waveforms(1), config, threads=1)
+        kept = result.reject == 0
+        points = compare_points(pulses.return_xyz, echo_positions(pulses, result)[kept], 0.5)
+        n_system = pulses.return_xyz.shape[0]
+        print(f"{label:28} {rate:9.1f} {points.matched_system / n_system:8.3f} {points.new_points / n_system:7.3f} "
+              f"{(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
+              f"{stable_share(result, other, 2.0):11.4f} {result.nit.mean():5.1f}", flush=True)
+
+
+def held_out(samples, valid, config, seeds):
+    """(mean |model - raw| at blanked samples, same at fitted samples): every 3rd valid sample blanked."""
+    blanked = []
+    for v in valid:
+        v2 = v.copy()
+        v2[np.flatnonzero(v)[1::3]] = False
+        blanked.append(v2)
+    result = decompose_batch(WaveformBatch.from_waveforms(samples, 1000.0, seeds, blanked), config, threads=1)
+    out, fitted = [], []
+    for i, (y, v, v2) in enumerate(zip(samples, valid, blanked)):
+        d = result.waveform(i)
+        if d.status:
+            continue
+        model = d.model(np.arange(y.size))
+        out.append(np.abs(model[v & ~v2] - y[v & ~v2]).mean())
+        fitted.append(np.abs(model[v2] - y[v2]).mean())
+    return float(np.mean(out)), float(np.mean(fitted))
+
+
+def neon_rows() -> None:
+    returns = read_neon_csv(DATA / "neon_harvard" / "return_waveforms.csv")
+    outgoing = pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
+    estimated = estimate_pulse_fwhm(returns.samples, returns.valid).fwhm_samples * 1000.0
+    seeds = [pulse_seed(0, int(i)) for i in returns.waveform_id]
+    batch = WaveformBatch.from_waveforms(returns.samples, 1000.0, seeds, returns.valid)
+    print(f"\nNEON sample ({len(batch)} waveforms; pulse FWHM {outgoing / 1000:.2f} ns from the outgoing pulses, "
+          f"{estimated / 1000:.2f} ns estimated from the returns alone)")
+    print(f"{'preset':10} {'width from':10} {'wf/s':>7} {'raw err':>8} {'held-out':>9} {'fitted':>7} {'ratio':>6} "
+          f"{'echoes':>6} {'kept':>5}")
+    for name in PRESET_NAMES:
+        for source, fwhm in (("outgoing", outgoing), ("returns", estimated)):
+            config = preset(name).replace(system_pulse_fwhm_ps=fwhm)
+            result, rate = timed(batch, config)
+            ok = result.status == 0
+            out, fitted = held_out(returns.samples, returns.valid, config, seeds)
+            n = len(batch)
+            print(f"{name:10} {source:10} {rate:7.1f} {result.fit_error_raw[ok].mean():8.1f} {out:9.2f} "
+                  f"{fitted:7.2f} {out / fitted:6.3f} {result.reject.size / n:6.2f} "
+                  f"{(result.reject == 0).sum() / n:5.2f}", flush=True)
+
+
+def simulation_rows() -> None:
+    fwl = [sys.executable, "-m", "pipeline.cli"]
+    with tempfile.TemporaryDirectory() as work:
+        las = Path(work) / "flight.las"
+        subprocess.run([*fwl, "simulate", "--pulses", "10000", "--seed", "7", "--output", str(las)], check=True,
+                       capture_output=True)
+        print("\nSimulated flight (fwl simulate --pulses 10000 --seed 7; fwl run, 2 workers; fwl evaluate)")
+        for name in PRESET_NAMES:
+            out = Path(work) / name
+            extra = [] if name == "default" else ["--preset", name]
+            subprocess.run([*fwl, "run", str(las), "--output", str(out), "--formats", "parquet", *extra], check=True,
+                           capture_output=True)
+            report = subprocess.run([*fwl, "evaluate", str(out), "--truth", str(las.with_suffix(".truth.parquet"))],
+                                    check=True, capture_output=True, text=True).stdout
+            print(f"-- {name}\n{report.strip()}", flush=True)
+
+
+def sylva_row() -> None:
+    try:
+        import sylva
+    except ImportError:
+        print("\nSylva: not installed (pip install sylva-rs)")
+        return
+    waveforms = sylva.waveform.read(str(LEICA))
+    sylva.waveform.decompose(waveforms)  # warm-up
+    start = time.perf_counter()
+    echoes = sylva.waveform.decompose(waveforms)
+    seconds = time.perf_counter() - start
+    n = len(waveforms)
+    print(f"\nSylva {sylva.__version__} (Rust LM, 1 thread) on the Leica sample: {n / seconds:.1f} pulses/s, "
+          f"{len(echoes) / n:.2f} echoes per pulse")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3, help="timed runs per setting (best is reported)")
+    parser.add_argument("--skip-simulation", action="store_true")
+    parser.add_argument("--skip-sylva", action="store_true")
     args = parser.parse_args()
-    print(f"{'data':6} {'optimizer':38} {'wf/s 1 core':>11} {'wf/s 2 cores':>12} {'fit err':>8} "
-          f"{'raw err':>8} {'RMSE':>6} {'R2':>7} {'evals/wf':>9}")
-    for name, make in (("neon", neon_batch), ("leica", leica_batch)):
-        batch, base = make()
-        for label, changes in SETTINGS.items():
-            config = base.replace(**changes)
-            decompose_batch(WaveformBatch.from_waveforms([batch.samples[:batch.offsets[1]]], 1000.0, [1]), config)
-            rates = {}
-            for threads in (1, 2):
-                best = np.inf
-                for _ in range(args.repeat):
-                    start = time.perf_counter()
-                    result = decompose_batch(batch, config, threads=threads)
-                    best = min(best, time.perf_counter() - start)
-                rates[threads] = len(batch) / best
-            print(f"{name:6} {label:38} {rates[1]:11.1f} {rates[2]:12.1f} {result.fit_error.mean():8.1f} "
-                  f"{result.fit_error_raw.mean():8.1f} {result.rmse.mean():6.2f} {result.r2.mean():7.4f} "
-                  f"{result.nfev.mean():9.0f}", flush=True)
+    leica_rows()
+    if not args.skip_sylva:
+        sylva_row()
+    neon_rows()
+    if not args.skip_simulation:
+        simulation_rows()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"peak memory (RSS): {peak:.0f} MiB")
+    print(f"\npeak memory (RSS) of the benchmark process: {peak:.0f} MiB")
 
 
 if __name__ == "__main__":

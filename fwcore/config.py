@@ -86,11 +86,12 @@ class DecompositionConfig:
     # The noise model of a sample with signal s above background (digitizer units):
     # variance = sigma_noise**2 + g s + (shape_tolerance s)**2. g (Poisson-like shot noise) is
     # fitted per waveform to the residual of the optimizer's fit; shape_tolerance is how far the
-    # system's pulse may depart from a generalized Gaussian without being another echo (0: the
-    # model is exact; the Leica pulse rings and is skewed, 0.06 suits it: README).
-    # 0 and signal_dependent_noise=False give the method's constant noise.
+    # system's pulse may depart from a generalized Gaussian without being another echo. None: the
+    # caller measures it on the system's single returns (fwcore.survey; Leica 0.05), 0 where there
+    # are none (the model taken as exact). 0 and signal_dependent_noise=False give the method's
+    # constant noise.
     signal_dependent_noise: bool = True
-    shape_tolerance: float = 0.0
+    shape_tolerance: float | None = None
     max_echoes: int = 12
     alpha_min: float = 1.0
     alpha_max: float = 2.6
@@ -147,7 +148,7 @@ class DecompositionConfig:
                     "smoothing must be >= 0")
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")
         self._check(self.min_noise_sigma >= 0, "min_noise_sigma must be >= 0")
-        self._check(self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
+        self._check(self.shape_tolerance is None or self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
         self._check(self.max_added_echoes >= 0, "max_added_echoes must be >= 0")
         self._check(self.tol >= 0 and self.atol >= 0, "tol and atol must be >= 0")
         self._check(self.lm_iterations >= 1, "lm_iterations must be >= 1")
@@ -183,7 +184,7 @@ class DecompositionConfig:
             init_spread=self.init_spread,
             tol=self.tol, atol=self.atol, noise_threshold=self.noise_threshold,
             min_noise_sigma=self.min_noise_sigma, signal_dependent_noise=self.signal_dependent_noise,
-            shape_tolerance=self.shape_tolerance, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
+            shape_tolerance=self.shape_tolerance or 0.0, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
             alpha_max=self.alpha_max, min_snr=self.min_snr, min_amplitude_ratio=self.min_amplitude_ratio,
             min_separation_factor=self.min_separation_factor, min_width_factor=self.min_width_factor,
             max_width_factor=self.max_width_factor, select_echoes=self.select_echoes,

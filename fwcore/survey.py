@@ -6,27 +6,90 @@ pipeline's stages only call them.
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from pathlib import Path
 
 import numpy as np
 
-from fwcore.records import BatchDecomposition
+from fwcore.config import DecompositionConfig
+from fwcore.engine import decompose_batch
 from fwcore.io.reader import PointRange, read_pulses
 from fwcore.model import waveform_model
+from fwcore.preprocess import estimate_pulse_fwhm
+from fwcore.records import BatchDecomposition, WaveformBatch
+
+LOG = logging.getLogger("fwl")
 
 PULSE_WIDTH_POINTS = 5000  # the head of a file that measures its pulse width: fixed by the file, not the range size
 
 
-def file_pulse_fwhm_ps(path: str | Path, point_count: int, fallback_ps: float,
-                       head_points: int = PULSE_WIDTH_POINTS) -> float:
-    """The file's system pulse FWHM (ps) from the single-return pulses of its first `head_points` points;
-    `fallback_ps` for a file without any (the file does not record the width)."""
-    if point_count <= 0:
-        return fallback_ps
-    try:
-        return read_pulses(PointRange(str(path), 0, min(point_count, head_points))).single_return_pulse_fwhm_ps()
-    except ValueError:
-        return fallback_ps
+@dataclasses.dataclass(frozen=True)
+class SystemPulse:
+    """What a file does not record about its system's pulse, measured on its own waveforms, and how."""
+
+    fwhm_ps: float
+    fwhm_source: str  # configured | single returns | estimated from the waveforms | default (unmeasurable)
+    shape_tolerance: float
+    shape_source: str  # configured | single returns | none measured
+
+
+def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig) -> float:
+    """How far the system's pulse departs from a generalized Gaussian, relative to its height: one echo
+    fitted by LM to each waveform of `batch` (single returns), then eps of variance sigma^2 + (eps s)^2
+    fitted by least squares to the squared residuals, s the echo's height at each sample.
+    0 for an exact model; Leica's skewed, ringing pulse gives 0.05."""
+    single = config.replace(optimizer="lm", select_echoes=False, max_echoes=1, fit_target="raw", shape_tolerance=0.0)
+    result = decompose_batch(batch, single, threads=1)
+    num = den = 0.0
+    for i in np.flatnonzero((result.status == 0) & (np.diff(result.echo_offsets) == 1)):
+        d = result.waveform(int(i))
+        lo, hi = batch.offsets[i], batch.offsets[i + 1]
+        y, valid = batch.samples[lo:hi], batch.valid[lo:hi]
+        model = d.model(np.arange(hi - lo))
+        signal = np.maximum(model - d.background, 0.0)[valid]
+        residual = (y - model)[valid]
+        num += float(np.sum(signal ** 2 * (residual ** 2 - d.noise_sigma ** 2)))
+        den += float(np.sum(signal ** 4))
+    return float(np.sqrt(max(num / den, 0.0))) if den > 0 else 0.0
+
+
+def file_system_pulse(path: str | Path, point_count: int, config: DecompositionConfig,
+                      head_points: int = PULSE_WIDTH_POINTS) -> SystemPulse:
+    """The file's system pulse from the first `head_points` points: its FWHM from the pulses the system saw
+    as single returns (else estimated from the waveforms' isolated echoes, else the configured default,
+    with a warning), and the model's shape tolerance fitted on those single returns."""
+    fwhm, fwhm_source = config.system_pulse_fwhm_ps, "configured"
+    tolerance, shape_source = config.shape_tolerance, "configured"
+    if fwhm is not None and tolerance is not None:
+        return SystemPulse(fwhm, fwhm_source, tolerance, shape_source)
+    pulses = read_pulses(PointRange(str(path), 0, min(point_count, head_points))) if point_count > 0 else None
+    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
+    if fwhm is None:
+        if single.size:
+            fwhm, fwhm_source = pulses.single_return_pulse_fwhm_ps(), "single returns"
+        else:
+            try:
+                estimate = estimate_pulse_fwhm([pulses.pulse_samples(i) for i in range(len(pulses))])
+                fwhm = estimate.fwhm_samples * float(np.median(pulses.sample_spacing_ps))
+                fwhm_source = f"estimated from {estimate.n_waveforms} isolated echoes"
+            except (ValueError, AttributeError, TypeError):
+                fwhm, fwhm_source = config.default_pulse_fwhm_ps, "default (unmeasurable)"
+                LOG.warning("%s: no single return and no isolated echo to measure the system pulse width; "
+                            "using %.0f ps (set --system-pulse-fwhm-ps)", Path(path).name, fwhm)
+        if not fwhm_source.startswith("single") and not fwhm_source.startswith("default"):
+            LOG.warning("%s: no single-return pulse; system pulse FWHM %.0f ps %s", Path(path).name, fwhm,
+                        fwhm_source)
+    if tolerance is None:
+        if single.size:
+            batch = pulses.waveforms(0)
+            picked = WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single],
+                                                  pulses.sample_spacing_ps[single], batch.seeds[single])
+            tolerance = measure_shape_tolerance(picked, config.replace(system_pulse_fwhm_ps=fwhm))
+            shape_source = "single returns"
+        else:
+            tolerance, shape_source = 0.0, "none measured"
+    return SystemPulse(float(fwhm), fwhm_source, float(tolerance), shape_source)
 
 
 def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:

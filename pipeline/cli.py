@@ -33,14 +33,23 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     from fwcore.engine import decompose_batch
     from fwcore.records import WaveformBatch
     from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+    from fwcore.preprocess import estimate_pulse_fwhm
     from fwcore.rng import pulse_seed
     from pipeline.tables import echo_table, waveform_table
 
     config = _config_from_args(args)
     waveforms = read_neon_csv(args.input)
+    width_source = "configured"
     if config.system_pulse_fwhm_ps is None and args.outgoing:
         config = config.replace(system_pulse_fwhm_ps=pulse_fwhm_ps(read_neon_csv(args.outgoing),
                                                                    args.sample_spacing_ps))
+        width_source = f"median of the outgoing pulses of {args.outgoing}"
+    elif config.system_pulse_fwhm_ps is None:  # nothing says it: measured on the returns, and said so
+        estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)
+        config = config.replace(system_pulse_fwhm_ps=estimate.fwhm_samples * args.sample_spacing_ps)
+        width_source = (f"estimated from {estimate.n_waveforms} isolated echoes of {estimate.n_candidates} "
+                        f"waveforms (no --outgoing)")
+        print(f"{args.input}: no --outgoing: system pulse FWHM {config.pulse_fwhm_ps():.0f} ps {width_source}")
     ids = waveforms.waveform_id
     batch = WaveformBatch.from_waveforms(waveforms.samples, args.sample_spacing_ps,
                                          [pulse_seed(config.seed, i) for i in ids], waveforms.valid)
@@ -49,15 +58,19 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - start
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(echo_table(ids, result, config), output)
+    def with_width_source(table):
+        return table.replace_schema_metadata({**table.schema.metadata, b"fwlidar.system_pulse_fwhm_source":
+                                              width_source.encode()})
+
+    pq.write_table(with_width_source(echo_table(ids, result, config)), output)
     waveform_path = output.with_name(output.stem + ".waveforms.parquet")
     n_samples = np.array([v.sum() for v in waveforms.valid])
-    pq.write_table(waveform_table(ids, result, config, n_samples), waveform_path)
+    pq.write_table(with_width_source(waveform_table(ids, result, config, n_samples)), waveform_path)
     ok = result.status == 0
     print(f"{args.input}: {len(result)} waveforms ({(~ok).sum()} not decomposed), "
           f"{result.amplitude.size} echoes ({(result.reject == 0).sum()} kept); "
           f"optimizer {config.optimizer.value}, model {config.model.value}, "
-          f"system pulse FWHM {config.pulse_fwhm_ps():.0f} ps")
+          f"system pulse FWHM {config.pulse_fwhm_ps():.0f} ps ({width_source})")
     print(f"mean fit error (Eq. 9, denoised) {result.fit_error[ok].mean():.1f}, "
           f"vs raw samples {result.fit_error_raw[ok].mean():.1f}, RMSE {result.rmse[ok].mean():.2f}, "
           f"R2 {result.r2[ok].mean():.4f}")

@@ -25,7 +25,9 @@ from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
 from fwcore.io.geolocate import echo_positions
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.preprocess import estimate_pulse_fwhm
 from fwcore.rng import pulse_seed
+from fwcore.survey import file_system_pulse
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,13 +42,17 @@ class ComparisonInput:
 
 def load_input(path: str | Path, config: DecompositionConfig, limit: int | None = None,
                outgoing: str | Path | None = None) -> ComparisonInput:
-    """A LAS/LAZ file (pulse width from its single-return pulses) or a NEON CSV (from --outgoing)."""
+    """A LAS/LAZ file (pulse width and shape from its single-return pulses, as `fwl run`) or a NEON CSV
+    (pulse width from --outgoing, else estimated from the returns)."""
     path = Path(path)
     if path.suffix.lower() == ".csv":
         waveforms = read_neon_csv(path)
         n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
         if config.system_pulse_fwhm_ps is None and outgoing:
             config = config.replace(system_pulse_fwhm_ps=pulse_fwhm_ps(read_neon_csv(outgoing)))
+        elif config.system_pulse_fwhm_ps is None:
+            estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)
+            config = config.replace(system_pulse_fwhm_ps=estimate.fwhm_samples * 1000.0)
         ids = waveforms.waveform_id[:n]
         batch = WaveformBatch.from_waveforms(waveforms.samples[:n], 1000.0,
                                              [pulse_seed(config.seed, int(i)) for i in ids], waveforms.valid[:n])
@@ -54,8 +60,8 @@ def load_input(path: str | Path, config: DecompositionConfig, limit: int | None 
     pulses = read_pulses(path)
     if limit is not None and limit < len(pulses):
         pulses = _first_pulses(pulses, limit)
-    if config.system_pulse_fwhm_ps is None:
-        config = config.replace(system_pulse_fwhm_ps=pulses.single_return_pulse_fwhm_ps())
+    pulse = file_system_pulse(path, len(pulses.return_xyz), config)  # as fwl run measures it
+    config = config.replace(system_pulse_fwhm_ps=pulse.fwhm_ps, shape_tolerance=pulse.shape_tolerance)
     return ComparisonInput(pulses.waveforms(config.seed), pulses.pulse_id, config, pulses)
 
 

@@ -13,7 +13,7 @@ import laspy
 
 from fwcore.config import DecompositionConfig
 from fwcore.io import plan_point_ranges
-from fwcore.survey import file_pulse_fwhm_ps
+from fwcore.survey import file_system_pulse
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
 
@@ -25,10 +25,9 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
         header = reader.header
         adjusted = int(header.global_encoding.gps_time_type) == 1
         count = int(header.point_count)
-    fwhm = config.system_pulse_fwhm_ps
-    if fwhm is None:  # the file does not record it: measured on its single-return pulses
-        fwhm = file_pulse_fwhm_ps(path, count, config.pulse_fwhm_ps())
-    source = InputFile(path, name, stem, float(fwhm), adjusted)
+    pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
+    source = InputFile(path, name, stem, pulse.fwhm_ps, adjusted, pulse.shape_tolerance, pulse.fwhm_source,
+                       pulse.shape_source)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:

@@ -28,6 +28,9 @@ class InputFile:
     stem: str  # unique among the run's inputs: names its part files and per-file outputs
     system_pulse_fwhm_ps: float
     adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
+    shape_tolerance: float = 0.0  # the model's relative shape error on this file's pulse (fwcore.survey)
+    pulse_width_source: str = "configured"
+    shape_tolerance_source: str = "configured"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -190,11 +190,16 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     seconds = time.perf_counter() - began
     counts, per_input = count_outputs(output, [names.name(p) for p in paths])
     status = status_of(counts)
+    # what each file did not record about its pulse, and how it was measured (fwcore.survey)
+    system_pulses = {t.source.path: {"system_pulse_fwhm_ps": t.source.system_pulse_fwhm_ps,
+                                     "system_pulse_fwhm_source": t.source.pulse_width_source,
+                                     "shape_tolerance": t.source.shape_tolerance,
+                                     "shape_tolerance_source": t.source.shape_tolerance_source} for t in tasks}
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
         "inputs": [{"path": p, "name": names.name(p), "output_stem": names.stem(names.name(p)),
-                    "counts": per_input[names.name(p)]} for p in paths],
+                    "counts": per_input[names.name(p)], **system_pulses.get(p, {})} for p in paths],
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,

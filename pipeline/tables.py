@@ -140,6 +140,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "message": pa.array([MESSAGES[m] for m in result.message[sel]], pa.string()),
         "n_system_returns": pa.array(np.diff(pulses.return_offsets)[sel], pa.int32()),
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
+        "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0),
         "optimizer": _strings(config.optimizer.value, sel.size),
         "model": _strings(config.model.value, sel.size),
     })

@@ -178,7 +178,8 @@ class Decompose(_Stage):
         decompose_batch(warm, self.config.replace(generations=1), threads=1)
 
     def run(self, item: PulseRange):
-        config = self.config.replace(system_pulse_fwhm_ps=item.task.source.system_pulse_fwhm_ps)
+        config = self.config.replace(system_pulse_fwhm_ps=item.task.source.system_pulse_fwhm_ps,
+                                     shape_tolerance=item.task.source.shape_tolerance)
         began = time.perf_counter()
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
         result = decompose_batch(item.pulses.waveforms(config.seed), config, threads=1)

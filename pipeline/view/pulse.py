@@ -81,6 +81,8 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
     config = DecompositionConfig.from_dict(summary["config"])
     if row.get("system_pulse_fwhm_ps") is not None:
         config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
+    if row.get("shape_tolerance") is not None:  # measured per file, like the pulse width
+        config = config.replace(shape_tolerance=float(row["shape_tolerance"]))
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
     seed = int(pulses.waveforms(config.seed).seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
@@ -97,8 +99,9 @@ def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> 
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = DecompositionConfig(**PRESETS[preset]).replace(system_pulse_fwhm_ps=base.system_pulse_fwhm_ps,
-                                                                seed=base.seed)
+        config = DecompositionConfig(**PRESETS[preset]).replace(
+            system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed,
+            shape_tolerance=PRESETS[preset].get("shape_tolerance", base.shape_tolerance))
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")

@@ -41,7 +41,7 @@ def test_counts_add_up_and_match_the_metrics(leica_run):
     assert c["pulses_rejected"] == 0
     assert summary["metrics"]["pulses_read"] == 924 and summary["metrics"]["pulses_decomposed"] == 924
     assert summary["metrics"]["echoes_kept"] == c["echoes_kept"]
-    assert summary["config"]["optimizer"] == "mde" and summary["versions"]["apache-beam"]
+    assert summary["config"]["optimizer"] == "mde-lm" and summary["versions"]["apache-beam"]
 
 
 def test_tables_have_their_schemas_and_the_config(leica_run):
