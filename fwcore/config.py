@@ -143,7 +143,8 @@ class DecompositionConfig:
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
         self._check(self.default_pulse_fwhm_ps > 0, "default_pulse_fwhm_ps must be positive (ps)")
         self._check(self.system_pulse_fwhm_ps is None or self.system_pulse_fwhm_ps > 0,
-                    "system_pulse_fwhm_ps must be positive (ps), or unset to measure it from the data")
+                    f"system pulse FWHM must be positive (ps), not {self.system_pulse_fwhm_ps}; "
+                    "leave system_pulse_fwhm_ps unset to measure it from the data")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")

@@ -117,7 +117,12 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     assert all(not e["kept"] for e in weak)
     # a preset is the preset's method (as fwl run --preset has it), on the run's pulse width and seed
     paper = viewed.post("/api/try", {**body, "changes": {}})
-    assert paper["changed"] == {"optimizer": "mde", "lm_iterations": 50}  # fast is lm with 20 iterations
+    # the run was `fast` (LM, 20 iterations): paper is MDE at G 80 with the method's noise, filter and no selection
+    from fwcore.config import PRESETS, DecompositionConfig
+    fast, published = DecompositionConfig(**PRESETS["fast"]).to_dict(), DecompositionConfig(**PRESETS["paper"]).to_dict()
+    expected = {k: v for k, v in published.items() if fast[k] != v and k != "shape_tolerance"}
+    assert {k: v for k, v in paper["changed"].items() if k != "shape_tolerance"} == expected
+    assert expected["optimizer"] == "mde" and expected["generations"] == 80 and not expected["select_echoes"]
     same = viewed.post("/api/try", {**body, "preset": "", "changes": {}})
     assert same["changed"] == {} and same["a"]["echoes"] == same["b"]["echoes"]
 
