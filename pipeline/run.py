@@ -24,6 +24,8 @@ import fwcore
 from fwcore.config import DecompositionConfig
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete,
                               list_outputs, read_run, remove_partial_files, take_output_folder, write_run_json)
+from pipeline.sinks import write_part
+from pipeline.tables import empty_rejected_table
 from pipeline.transforms import NAMESPACE, DecomposeFlight
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
@@ -82,6 +84,13 @@ def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[
                            "echoes_kept": kept, "echoes_spurious": echo_rows.get("kept_count", 0) - kept}
     totals = {k: sum(c[k] for c in per_input.values()) for k in COUNTS}
     return totals, per_input
+
+
+def write_empty_rejected(output: Path, stems: list[str]) -> None:
+    """rejected/<stem>.parquet for every input, without rows where nothing was rejected."""
+    for stem in stems:
+        if not (output / "rejected" / f"{stem}.parquet").exists():
+            write_part(empty_rejected_table(), output / "rejected", stem)
 
 
 def _metric_counts(result) -> dict[str, int]:
@@ -143,6 +152,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         result.wait_until_finish()
     finally:
         remove_partial_files(output)
+    write_empty_rejected(output, [names.stem(names.name(p)) for p in paths])
     seconds = time.perf_counter() - began
     counts, per_input = count_outputs(output, [names.name(p) for p in paths])
     status = status_of(counts)
