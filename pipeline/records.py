@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
-from fwcore.io.reader import PointRange
+from fwcore.io.records import PointRange
 
 
 class ReadTask(NamedTuple):
@@ -36,5 +36,5 @@ class DecomposedBatch:
     range_start: int  # first point of the range: names the part files
     echoes: pa.Table  # one row per echo, kept and spurious
     pulses: pa.Table  # one row per decomposed pulse
-    cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.io.writer.decomposed_echoes)
+    cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.pulses.decomposed_echoes)
     views: dict[str, np.ndarray] | None = None  # for MCAP: per pulse raw samples, fitted model, echoes

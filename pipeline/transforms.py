@@ -25,10 +25,9 @@ from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
 from fwcore.decompose import STATUS_REASONS, BatchDecomposition, decompose_batch
-from fwcore.io import PulseBatch, plan_point_ranges, read_pulses
-from fwcore.io.geolocate import echo_positions
-from fwcore.io.reader import PointRange
-from fwcore.io.writer import decomposed_echoes, write_point_cloud
+from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
+from fwcore.io.writer import write_point_cloud
+from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms, system_pulse_fwhm_ps
 from pipeline.records import DecomposedBatch, ReadTask, RejectedPulse
 from pipeline.sinks import write_mcap, write_part
 from pipeline.tables import REJECTED_SCHEMA, pulse_tables
@@ -70,7 +69,7 @@ class _PlanFile(beam.DoFn):
             return self.config.pulse_fwhm_ps()
         head = PointRange(ranges[0].path, 0, min(ranges[-1].stop, PULSE_WIDTH_POINTS))
         try:
-            return read_pulses(head).single_return_pulse_fwhm_ps()
+            return system_pulse_fwhm_ps(read_pulses(head))
         except ValueError:
             return self.config.pulse_fwhm_ps()
 
@@ -139,7 +138,7 @@ class Decompose(beam.DoFn):
         config = self.config.replace(system_pulse_fwhm_ps=fwhm)
         began = time.perf_counter()
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
-        result = decompose_batch(pulses.waveforms(config.seed), config, threads=1)
+        result = decompose_batch(pulse_waveforms(pulses, config.seed), config, threads=1)
         seconds = time.perf_counter() - began
         name = Path(pulses.source_file).name
         ok = result.status == 0
