@@ -174,6 +174,30 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _info(args: argparse.Namespace) -> int:
+    """`fwl info FILE...`: headers and indexes of full-waveform files, never their samples."""
+    import json
+
+    from fwcore.io import describe_file
+    from fwcore.io.info import format_info
+
+    described, failed = [], 0
+    for path in args.files:
+        try:
+            described.append(describe_file(path))
+        except (ValueError, OSError) as err:
+            failed += 1
+            described.append({"file": path, "error": str(err)})
+            if not args.json:
+                print(f"fwl: error: {err}", file=sys.stderr)
+            continue
+        if not args.json:
+            print(format_info(described[-1]))
+    if args.json:
+        print(json.dumps(described if len(described) > 1 else described[0], indent=2, default=str))
+    return 2 if failed else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -190,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline",
                        epilog="Any other option is a Beam pipeline option (--runner, --dask_client_address, ...); "
                               "the default runner is the DirectRunner with 2 worker processes.")
-    r.add_argument("inputs", nargs="*", help="LAS/LAZ files or glob patterns (default: the bundled Leica sample)")
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ or PulseWaves (.pls) files or glob patterns (default: the bundled Leica sample)")
     r.add_argument("--output", default="out/run", help="output directory (default out/run)")
     r.add_argument("--formats", default="parquet,las,mcap", help="comma-separated: parquet, las, mcap")
     r.add_argument("--limit", type=int, help="at most N pulses per input file")
@@ -250,6 +274,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
     e.set_defaults(handler=_evaluate)
+
+    i = sub.add_parser("info", help="format, counts, descriptors and their use, CRS, bounds and times of "
+                                    "full-waveform files (LAS/LAZ, PulseWaves), from headers and indexes only")
+    i.add_argument("files", nargs="+", help="LAS/LAZ or PulseWaves (.pls) files")
+    i.add_argument("--json", action="store_true", help="print JSON (a list for several files)")
+    i.set_defaults(handler=_info)
     return parser
 
 

@@ -505,21 +505,19 @@ def _gather(data: np.ndarray, at: np.ndarray, count: np.ndarray, nbytes: np.ndar
     offsets = np.zeros(at.size + 1, np.int64)
     np.cumsum(count, out=offsets[1:])
     out = np.empty(offsets[-1], np.float64)
-    for width, dtype in ((1, "<u1"), (2, "<u2")):
-        mine = np.flatnonzero(nbytes == width)
-        if not mine.size:
-            continue
-        n = count[mine]
-        # sample j of segment i lies at at[i] + width * j
-        local = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-        start = np.repeat(at[mine], n) + width * local
-        if width == 1:
-            values = data[start]
-        else:
-            values = data[start].astype(np.uint16) | (data[start + 1].astype(np.uint16) << 8)
-        target = np.repeat(offsets[mine], n) + local
-        out[target] = values
+    _gather_kernel(data, np.asarray(at, np.int64), np.asarray(nbytes, np.int64), offsets, out)
     return out, offsets
+
+
+@njit(**JIT)
+def _gather_kernel(data, at, nbytes, offsets, out):
+    for i in range(at.size):
+        for j in range(offsets[i + 1] - offsets[i]):
+            b = at[i] + nbytes[i] * j
+            value = np.int64(data[b])
+            if nbytes[i] == 2:
+                value |= np.int64(data[b + 1]) << 8
+            out[offsets[i] + j] = value
 
 
 # ---------------------------------------------------------------- plan and read
@@ -697,3 +695,51 @@ def _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_coun
     padded = _ends_with(data, end.astype(np.int64), length.astype(np.int64), other.astype(np.int64),
                         other_length.astype(np.int64))
     return (overlap | padded)[:n]
+
+
+# ---------------------------------------------------------------- fwl info
+
+def describe_pulsewaves(path: str | Path) -> dict:
+    """Header, descriptors (composition and samplings) and their use, lookup tables, CRS, bounds, times."""
+    from fwcore.io.info import crs_name
+
+    pw = open_pulsewaves(path)
+    h = pw.header
+    records = pw.records()
+    used = dict(zip(*[a.tolist() for a in np.unique(np.asarray(records["descriptor"]), return_counts=True)])) \
+        if records.size else {}
+    descriptors = [{
+        "index": d.index, "pulses": int(used.get(d.index, 0)), "problem": d.problem, "description": d.description,
+        "sample_units_ns": d.sample_units_ns, "optical_center_to_anchor":
+            "varies" if d.optical_center_to_anchor == VARIES - (1 << 32) or d.optical_center_to_anchor == VARIES
+            else d.optical_center_to_anchor,
+        "scanner": d.scanner_index,
+        "samplings": [{"kind": s.kind, "channel": s.channel, "bits": s.bits_per_sample,
+                       "samples": "variable" if s.bits_for_samples else s.number_of_samples,
+                       "segments": "variable" if s.bits_for_segments else s.number_of_segments,
+                       "sample_units_ns": s.sample_units_ns, "lookup_table": s.lookup_table,
+                       "duration_bits": s.bits_for_duration} for s in d.samplings]}
+        for d in sorted(pw.descriptors.values(), key=lambda d: d.index)]
+    t = np.asarray([h.t_min, h.t_max], np.float64) * h.t_scale + h.t_offset
+    return {
+        "file": str(pw.path),
+        "format": "PulseWaves",
+        "version": h.version,
+        "system_identifier": h.system_identifier,
+        "generating_software": h.generating_software,
+        "pulses": h.n_pulses,
+        "pulses_present": pw.point_count,
+        "descriptors": descriptors,
+        "descriptors_missing": [{"index": int(i), "pulses": int(n)} for i, n in used.items()
+                                if i not in pw.descriptors],
+        "scanners": [dataclasses.asdict(s) for s in pw.scanners.values()],
+        "lookup_tables": [{"index": t_.index, "entries": int(t_.entries.size), "description": t_.description}
+                          for t_ in pw.lookup_tables.values()],
+        "packets": f"{pw.waves_path.name} ({pw.waves_path.stat().st_size} bytes, uncompressed)",
+        "crs": {"name": crs_name(pw.crs_wkt), "source": pw.crs_source},
+        "bounds": {"min": list(h.bounds_min), "max": list(h.bounds_max)},
+        "gps_time": {"min": float(t[0]), "max": float(t[1]),
+                     "type": "no time stamps (T = 0)" if h.t_min == h.t_max == 0 else
+                     ("standard GPS time" if h.t_offset >= 1e8 else "GPS week seconds")},
+        "problems": list(pw.problems),
+    }
