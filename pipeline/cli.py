@@ -91,7 +91,7 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     import logging
 
-    from pipeline.run import run
+    from pipeline.run import EXIT_INTERRUPTED, run
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     for noisy in ("apache_beam", "distributed", "numba"):
@@ -101,14 +101,20 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     what = f"{len(args.inputs)} input pattern(s)" if args.inputs else "the bundled Leica sample"
     print(f"fwl run: {what} -> {args.output} "
           f"({', '.join(formats)}); optimizer {config.optimizer.value}, model {config.model.value}")
-    summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args)
+    try:
+        summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz,
+                      beam_args)
+    except KeyboardInterrupt:
+        print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
+              f"rerun the same command to complete it", file=sys.stderr)
+        return EXIT_INTERRUPTED
     c = summary["counts"]
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
           f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
     if c["pulses_rejected"] or c["files_rejected"]:
-        print(f"see {args.output}/rejected/ for the reasons")
-    return 0
+        print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
+    return summary["exit_code"]
 
 
 def _compare(args: argparse.Namespace) -> int:
@@ -160,6 +166,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     from pipeline.compare import markdown_table, write_csv
     from pipeline.evaluate import EVALUATION_COLUMNS, evaluate_runs
 
+    from pipeline.outputs import read_run
+    for folder in args.results:  # an interrupted run's tables would read as a poor method
+        read_run(folder)
     rows = evaluate_runs(args.results, args.truth, args.match_ps)
     table = markdown_table(rows, EVALUATION_COLUMNS)
     print(table, end="")
@@ -198,6 +207,16 @@ def _info(args: argparse.Namespace) -> int:
     return 2 if failed else 0
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -213,12 +232,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline",
                        epilog="Any other option is a Beam pipeline option (--runner, --dask_client_address, ...); "
-                              "the default runner is the DirectRunner with 2 worker processes.")
-    r.add_argument("inputs", nargs="*", help="LAS/LAZ or PulseWaves (.pls) files or glob patterns (default: the bundled Leica sample)")
-    r.add_argument("--output", default="out/run", help="output directory (default out/run)")
+                              "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
+                              "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
+                              "2 usage error (nothing touched), 130 interrupted.")
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ or PulseWaves (.pls) files, glob patterns or folders "
+                                              "(their *.las, *.laz, *.pls); "
+                                             "default: the bundled Leica sample")
+    r.add_argument("--output", default="out/run",
+                   help="output folder (default out/run): new, empty, or an earlier run's, which is replaced")
     r.add_argument("--formats", default="parquet,las,mcap", help="comma-separated: parquet, las, mcap")
-    r.add_argument("--limit", type=int, help="at most N pulses per input file")
-    r.add_argument("--points-per-range", dest="points_per_range", type=int, default=5000,
+    r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
+    r.add_argument("--limit", type=_positive_int, help="at most N pulses per input file")
+    r.add_argument("--points-per-range", dest="points_per_range", type=_positive_int, default=5000,
                    help="points per unit of work (default 5000)")
     r.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
     _add_method_options(r)

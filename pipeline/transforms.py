@@ -1,6 +1,6 @@
 """The Beam transforms: each a thin adapter over a fwcore function.
 
-    MatchFiles -> PlanRanges -> Reshuffle -> ReadPulses -> Decompose -> Geolocate -> sinks -> Done
+    input paths -> PlanRanges -> Reshuffle -> ReadPulses -> Decompose -> Geolocate -> sinks -> Done
                                                                                 \\-> rejected/
 
 Rejections travel in the main stream as RejectedPulse records, which every
@@ -20,7 +20,6 @@ from pathlib import Path
 
 import apache_beam as beam
 import numpy as np
-from apache_beam.io import fileio
 from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
@@ -28,6 +27,7 @@ from fwcore.decompose import STATUS_REASONS, BatchDecomposition, decompose_batch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
 from fwcore.io.writer import write_point_cloud
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms, system_pulse_fwhm_ps
+from pipeline.outputs import InputNames
 from pipeline.records import DecomposedBatch, ReadTask, RejectedPulse
 from pipeline.sinks import write_mcap, write_part
 from pipeline.tables import REJECTED_SCHEMA, pulse_tables
@@ -40,8 +40,8 @@ PULSE_WIDTH_POINTS = 5000
 # ---------------------------------------------------------------- plan
 
 class _PlanFile(beam.DoFn):
-    def __init__(self, config: DecompositionConfig, points_per_range: int, limit: int | None):
-        self.config, self.points_per_range, self.limit = config, points_per_range, limit
+    def __init__(self, config: DecompositionConfig, points_per_range: int, limit: int | None, names: InputNames):
+        self.config, self.points_per_range, self.limit, self.names = config, points_per_range, limit, names
 
     def process(self, path: str):
         try:
@@ -51,7 +51,7 @@ class _PlanFile(beam.DoFn):
                 fwhm = self._measured_pulse_fwhm(ranges)
         except (OSError, ValueError) as err:
             Metrics.counter(NAMESPACE, "files_rejected").inc()
-            yield RejectedPulse(Path(path).name, -1, "open", str(err))
+            yield RejectedPulse(self.names.name(path), -1, "open", str(err))
             return
         remaining = self.limit
         for r in ranges:
@@ -76,17 +76,16 @@ class _PlanFile(beam.DoFn):
 
 @dataclasses.dataclass
 class PlanRanges(beam.PTransform):
-    """File patterns -> ReadTasks (a few thousand pulses each), or a RejectedPulse for an unreadable file."""
+    """Input paths (expanded by the driver) -> ReadTasks (a few thousand pulses each), or a RejectedPulse
+    for an unreadable file."""
 
     config: DecompositionConfig
     points_per_range: int = 5000
     limit: int | None = None
+    names: InputNames = InputNames({}, {})
 
-    def expand(self, patterns):
-        return (patterns
-                | "MatchFiles" >> fileio.MatchAll()
-                | "PathOfMatch" >> beam.Map(lambda match: match.path)
-                | "PlanFile" >> beam.ParDo(_PlanFile(self.config, self.points_per_range, self.limit)))
+    def expand(self, paths):
+        return paths | "PlanFile" >> beam.ParDo(_PlanFile(self.config, self.points_per_range, self.limit, self.names))
 
 
 # ---------------------------------------------------------------- read
@@ -94,7 +93,8 @@ class PlanRanges(beam.PTransform):
 class ReadPulses(beam.DoFn):
     """ReadTask -> (PulseBatch, pulse FWHM); pulses whose packet cannot be read -> rejected."""
 
-    def __init__(self):
+    def __init__(self, names: InputNames = InputNames({}, {})):
+        self.names = names
         self.read = Metrics.counter(NAMESPACE, "pulses_read")
         self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
 
@@ -103,7 +103,7 @@ class ReadPulses(beam.DoFn):
             yield task
             return
         pulses = read_pulses(task.point_range)
-        name = Path(pulses.source_file).name
+        name = self.names.name(pulses.source_file)
         self.read.inc(len(pulses) + len(pulses.rejected))
         self.rejected.inc(len(pulses.rejected))
         for pulse_id, reason in pulses.rejected:
@@ -120,8 +120,8 @@ class Decompose(beam.DoFn):
     setup() compiles the kernels once per worker (from numba's cache when warm).
     """
 
-    def __init__(self, config: DecompositionConfig):
-        self.config = config
+    def __init__(self, config: DecompositionConfig, names: InputNames = InputNames({}, {})):
+        self.config, self.names = config, names
         self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
         self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
 
@@ -140,7 +140,7 @@ class Decompose(beam.DoFn):
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
         result = decompose_batch(pulse_waveforms(pulses, config.seed), config, threads=1)
         seconds = time.perf_counter() - began
-        name = Path(pulses.source_file).name
+        name = self.names.name(pulses.source_file)
         ok = result.status == 0
         self.decomposed.inc(int(ok.sum()))
         self.rejected.inc(int((~ok).sum()))
@@ -173,8 +173,8 @@ def _waveform_views(pulses: PulseBatch, result: BatchDecomposition) -> dict[str,
 class Geolocate(beam.DoFn):
     """Place every echo along its beam and build the output tables of one range."""
 
-    def __init__(self, with_views: bool):
-        self.with_views = with_views
+    def __init__(self, with_views: bool, names: InputNames = InputNames({}, {})):
+        self.with_views, self.names = with_views, names
         self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
         self.spurious = Metrics.counter(NAMESPACE, "echoes_spurious")
 
@@ -184,7 +184,7 @@ class Geolocate(beam.DoFn):
             return
         pulses, config, start, result = element
         xyz = echo_positions(pulses, result)
-        name = Path(pulses.source_file).name
+        name = self.names.name(pulses.source_file)
         echoes, table = pulse_tables(name, pulses, result, config, xyz, result.status == 0)
         cloud = decomposed_echoes(pulses, result, xyz)
         n_kept = int((result.reject == 0).sum())
@@ -201,10 +201,11 @@ class WriteTables(beam.PTransform):
     """Echo and pulse tables as Parquet part files, one per range, under echoes/ and pulses/."""
 
     output: str
+    names: InputNames = InputNames({}, {})
 
     def expand(self, batches):
         def write(batch: DecomposedBatch):
-            name = f"{Path(batch.source_file).stem}-{batch.range_start:012d}"
+            name = f"{self.names.stem(batch.source_file)}-{batch.range_start:012d}"
             write_part(batch.echoes, Path(self.output) / "echoes", name)
             write_part(batch.pulses, Path(self.output) / "pulses", name)
             return batch.source_file, batch.echoes.num_rows
@@ -226,6 +227,7 @@ class WritePerFile(beam.PTransform):
     output: str
     formats: frozenset[str]
     laz: bool = False
+    names: InputNames = InputNames({}, {})
 
     def expand(self, batches):
         def key(batch: DecomposedBatch):
@@ -235,7 +237,7 @@ class WritePerFile(beam.PTransform):
             name, parts = item
             parts = list(parts)
             cloud = _concat_cloud([p[1] for p in parts])
-            stem = Path(name).stem
+            stem = self.names.stem(name)
             if "las" in self.formats:
                 suffix = ".laz" if self.laz else ".las"
                 write_point_cloud(Path(self.output) / "las" / f"{stem}{suffix}", parts[0][0], cloud)
@@ -251,6 +253,7 @@ class WriteRejected(beam.PTransform):
     """rejected/<name>.parquet: source_file, pulse_id, stage, reason, sorted."""
 
     output: str
+    names: InputNames = InputNames({}, {})
 
     def expand(self, rejected):
         def write(item):
@@ -258,7 +261,7 @@ class WriteRejected(beam.PTransform):
             rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
             import pyarrow as pa
             table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-            write_part(table, Path(self.output) / "rejected", Path(name).stem)
+            write_part(table, Path(self.output) / "rejected", self.names.stem(name))
             return name, len(rows)
 
         return (rejected | "KeyByFile" >> beam.Map(lambda r: (r.source_file, r))
@@ -275,20 +278,21 @@ class DecomposeFlight(beam.PTransform):
     points_per_range: int = 5000
     limit: int | None = None
     laz: bool = False
+    names: InputNames = InputNames({}, {})  # each input's name and output stem (pipeline.outputs)
 
-    def expand(self, patterns):
-        batches = (patterns
-                   | "PlanRanges" >> PlanRanges(self.config, self.points_per_range, self.limit)
+    def expand(self, paths):
+        batches = (paths
+                   | "PlanRanges" >> PlanRanges(self.config, self.points_per_range, self.limit, self.names)
                    | "Reshuffle" >> beam.Reshuffle()
-                   | "ReadPulses" >> beam.ParDo(ReadPulses())
-                   | "Decompose" >> beam.ParDo(Decompose(self.config))
-                   | "Geolocate" >> beam.ParDo(Geolocate("mcap" in self.formats)))
+                   | "ReadPulses" >> beam.ParDo(ReadPulses(self.names))
+                   | "Decompose" >> beam.ParDo(Decompose(self.config, self.names))
+                   | "Geolocate" >> beam.ParDo(Geolocate("mcap" in self.formats, self.names)))
         decomposed = batches | "Decomposed" >> beam.Filter(lambda e: isinstance(e, DecomposedBatch))
         rejected = batches | "Rejected" >> beam.Filter(lambda e: isinstance(e, RejectedPulse))
-        written = [rejected | "WriteRejected" >> WriteRejected(self.output)]
+        written = [rejected | "WriteRejected" >> WriteRejected(self.output, self.names)]
         if "parquet" in self.formats:
-            written.append(decomposed | "WriteTables" >> WriteTables(self.output))
+            written.append(decomposed | "WriteTables" >> WriteTables(self.output, self.names))
         if self.formats & {"las", "mcap"}:
-            written.append(decomposed | "WritePerFile" >> WritePerFile(self.output, self.formats, self.laz))
+            written.append(decomposed | "WritePerFile" >> WritePerFile(self.output, self.formats, self.laz, self.names))
         return (tuple(written) | "AllWritten" >> beam.Flatten()
                 | "Done" >> beam.combiners.Count.Globally())

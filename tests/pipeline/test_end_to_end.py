@@ -117,7 +117,7 @@ def test_directory_with_a_truncated_and_a_plain_file(tmp_path, leica_dir):
     (data / "cut.wdp").write_bytes(wdp[: len(wdp) // 3])  # packets of pulses ~300 on are lost
     laspy.convert(laspy.read(leica_dir / "leica_a.las"), point_format_id=1).write(data / "plain.las")
     out = tmp_path / "out"
-    assert main(["run", str(data / "*.las"), "--output", str(out), "--limit", "400", "--generations", "5"]) == 0
+    assert main(["run", str(data / "*.las"), "--output", str(out), "--limit", "400", "--generations", "5"]) == 3
     c = json.loads((out / "run.json").read_text())["counts"]
     assert c["files_rejected"] == 1
     assert c["pulses_read"] == 800 == c["pulses_decomposed"] + c["pulses_rejected"]

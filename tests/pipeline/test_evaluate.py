@@ -86,4 +86,4 @@ def test_matching_is_one_to_one_and_within_the_window():
 
 def test_a_directory_that_is_no_run_is_an_error(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path), "--truth", str(tmp_path / "x.parquet")]) == 2
-    assert "no echoes/ table" in capsys.readouterr().err
+    assert "not an fwl run output folder" in capsys.readouterr().err
