@@ -45,7 +45,7 @@ def expand_inputs(inputs: list[str]) -> list[str]:
         elif Path(item).is_dir():
             found = [str(p) for p in Path(item).iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES]
             if not found:
-                raise FileNotFoundError(f"{item}: folder holds no .las, .laz or .pls file")
+                raise FileNotFoundError(f"{item}: folder holds no .las or .laz file (nor .pls)")
         elif glob.has_magic(item):
             found = [p for p in glob.glob(item) if Path(p).is_file()]
         else:
