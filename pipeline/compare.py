@@ -64,8 +64,11 @@ def _first_pulses(pulses, n: int):
     s_end, r_end = pulses.sample_offsets[n], pulses.return_offsets[n]
     per_pulse = {f.name for f in dataclasses.fields(pulses)} - {
         "source_file", "samples", "sample_offsets", "return_xyz", "return_number", "return_intensity",
-        "return_location_ps", "return_offsets", "rejected"}
+        "return_location_ps", "return_offsets", "rejected", "outgoing", "outgoing_offsets"}
     changes = {name: getattr(pulses, name)[:n] for name in per_pulse if getattr(pulses, name) is not None}
+    if pulses.outgoing is not None:  # PulseWaves: the recorded outgoing waveforms, flat like the samples
+        changes.update(outgoing=pulses.outgoing[:pulses.outgoing_offsets[n]],
+                       outgoing_offsets=pulses.outgoing_offsets[:n + 1])
     return dataclasses.replace(
         pulses, **changes, samples=pulses.samples[:s_end], sample_offsets=pulses.sample_offsets[:n + 1],
         return_xyz=pulses.return_xyz[:r_end], return_number=pulses.return_number[:r_end],

@@ -19,7 +19,7 @@ def pulsewaves_run(tmp_path_factory, leica_dir):
     out = tmp_path_factory.mktemp("pwrun")
     inputs = [str(leica_dir.parent / "pulsewaves" / f"{name}.pls") for name in SAMPLES]
     assert main(["run", *inputs, "--output", str(out), "--formats", "parquet,las", "--limit", str(LIMIT),
-                 "--optimizer", "lm", "--points-per-range", "60"]) == 0
+                 "--optimizer", "lm", "--points-per-range", "60"]) == 3  # some pulses rejected (GeoLas)
     return out
 
 
