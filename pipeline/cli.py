@@ -207,6 +207,26 @@ def _info(args: argparse.Namespace) -> int:
     return 2 if failed else 0
 
 
+def _view(args: argparse.Namespace) -> int:
+    import webbrowser
+
+    from pipeline.view import make_server, url_of
+
+    server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    url = url_of(server)
+    print(f"fwl view: serving {', '.join(args.paths or ['.'])} at {url} (Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.viewer.jobs.stop_all()
+        server.server_close()
+    return 0
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -305,6 +325,16 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("files", nargs="+", help="LAS/LAZ or PulseWaves (.pls) files")
     i.add_argument("--json", action="store_true", help="print JSON (a list for several files)")
     i.set_defaults(handler=_info)
+
+    v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
+    v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",
+                   help="run folders, folders to search for runs and inputs, or .las/.laz/.pls inputs (default .)")
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--port", type=int, default=8050, help="port (default 8050; 0 picks a free one)")
+    v.add_argument("--runs-dir", dest="runs_dir", default="out/view",
+                   help="where runs of picked inputs are written (default out/view)")
+    v.add_argument("--no-browser", dest="no_browser", action="store_true", help="do not open a browser")
+    v.set_defaults(handler=_view)
     return parser
 
 

@@ -1,0 +1,148 @@
+"""What the viewer may read: the folders and files it was started on, the runs and inputs under them.
+
+Every path a request names is an id relative to one of these roots; it is
+resolved and checked to stay inside its root before anything is opened, so a
+request can never reach another file of the machine (`..`, absolute paths and
+symbolic links that leave the root are refused).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+from pathlib import Path
+
+from pipeline.outputs import is_complete, read_run
+
+INPUT_SUFFIXES = (".las", ".laz", ".pls")
+RUN_PARTS = ("echoes", "pulses", "rejected", "las", "mcap")
+
+
+class OutsideRoots(PermissionError):
+    """A request named a path outside the folders the viewer was started on."""
+
+
+def is_complete_run(folder: Path) -> bool:
+    """A finished run (`fwl run` writes run.json last) with an echo table to show."""
+    return is_complete(folder) and (folder / "echoes").is_dir()
+
+
+@dataclasses.dataclass(frozen=True)
+class Roots:
+    """The folders (searched for runs and inputs) and single input files the viewer serves."""
+
+    folders: tuple[Path, ...]
+    files: tuple[Path, ...] = ()
+
+    @classmethod
+    def from_paths(cls, paths: list[str | Path], runs_dir: str | Path) -> "Roots":
+        folders, files = [], []
+        for p in map(Path, paths):
+            if p.is_dir():
+                folders.append(p.resolve())
+            elif p.is_file() and p.suffix.lower() in INPUT_SUFFIXES:
+                files.append(p.resolve())
+            elif p.is_file():
+                raise ValueError(f"{p}: not a run folder nor a .las/.laz/.pls input")
+            else:
+                raise FileNotFoundError(f"{p}: no such file or folder")
+        runs = Path(runs_dir).resolve()
+        if not any(runs == f or runs.is_relative_to(f) for f in folders):
+            folders.append(runs)  # where the runs of picked inputs are written, so they can be shown
+        return cls(tuple(folders), tuple(files))
+
+    # ------------------------------------------------------------ ids <-> paths
+
+    def id_of(self, path: Path) -> str:
+        path = path.resolve()
+        for i, f in enumerate(self.files):
+            if path == f:
+                return f"f{i}"
+        for i, root in enumerate(self.folders):
+            if path == root or path.is_relative_to(root):
+                rel = path.relative_to(root).as_posix()
+                return f"{i}/{'' if rel == '.' else rel}"
+        raise OutsideRoots(f"{path} is outside the viewer's folders")
+
+    def path_of(self, ident: str) -> Path:
+        """The path an id names, refused unless it stays inside its root after resolving links and `..`."""
+        head, _, rest = str(ident).partition("/")
+        if head.startswith("f") and not rest:
+            try:
+                return self.files[int(head[1:])]
+            except (ValueError, IndexError):
+                raise OutsideRoots(f"{ident!r} names no input the viewer was started on") from None
+        try:
+            root = self.folders[int(head)]
+        except (ValueError, IndexError):
+            raise OutsideRoots(f"{ident!r} names no folder the viewer was started on") from None
+        if Path(rest).is_absolute() or "\\" in rest:
+            raise OutsideRoots(f"{ident!r}: absolute paths are refused")
+        path = (root / rest).resolve()
+        if path != root and not path.is_relative_to(root):
+            raise OutsideRoots(f"{ident!r} leaves the viewer's folders")
+        return path
+
+    def run_of(self, ident: str) -> Path:
+        path = self.path_of(ident)
+        if not is_complete_run(path):
+            raise FileNotFoundError(f"{ident!r} is not a complete run folder (no run.json)")
+        return path
+
+    def input_of(self, ident: str) -> Path:
+        path = self.path_of(ident)
+        if not (path.is_file() and path.suffix.lower() in INPUT_SUFFIXES):
+            raise FileNotFoundError(f"{ident!r} is not a .las/.laz/.pls input")
+        return path
+
+    # ------------------------------------------------------------ listing
+
+    def runs(self) -> list[Path]:
+        found = set()
+        for root in self.folders:
+            for marker in root.rglob("run.json"):
+                folder = marker.parent.resolve()
+                if folder.is_relative_to(root) and is_complete_run(folder):
+                    found.add(folder)
+        return sorted(found)
+
+    def inputs(self) -> list[Path]:
+        """Waveform inputs: the files given, and those under the folders outside any run folder
+        (a run's las/ holds decomposed point clouds, not waveforms)."""
+        runs = self.runs()
+        found = set(self.files)
+        for root in self.folders:
+            for path in root.rglob("*"):
+                if (path.suffix.lower() in INPUT_SUFFIXES and path.is_file()
+                        and not any(path.is_relative_to(r) for r in runs) and _has_waveforms(path)):
+                    found.add(path.resolve())
+        return sorted(found)
+
+
+def _has_waveforms(path: Path) -> bool:
+    """PulseWaves always; LAS/LAZ only with a waveform point format (4, 5, 9, 10)."""
+    if path.suffix.lower() == ".pls":
+        return True
+    import laspy
+    try:
+        with laspy.open(path) as f:
+            return f.header.point_format.id in (4, 5, 9, 10)
+    except Exception:  # an unreadable file is not offered; `fwl run` would say why
+        return False
+
+
+def run_summary(folder: Path) -> dict:
+    return read_run(folder)
+
+
+def run_inputs(folder: Path) -> dict[str, Path]:
+    """The run's local input files by name (the echo tables' source_file), from run.json."""
+    named = {}
+    for entry in run_summary(folder).get("inputs", []):
+        if isinstance(entry, dict):  # {path, name, ...}: the name the run's tables use
+            if "://" not in entry["path"]:
+                named[entry["name"]] = Path(entry["path"])
+            continue
+        for match in sorted(glob.glob(entry)) if "://" not in entry else []:  # runs before names: patterns
+            named.setdefault(Path(match).name, Path(match))
+    return named

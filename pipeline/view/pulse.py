@@ -1,0 +1,190 @@
+"""One pulse of a run, again: its samples re-read from the input, decomposed by the engine as the run did.
+
+The run's configuration (run.json, with the pulse width the run measured for
+its file) and the pulse's own seed make the engine reproduce the run's echoes
+exactly; the same function refits the pulse with any other configuration for
+the page's "Try".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import re
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.config import PRESETS, DecompositionConfig
+from fwcore.decompose import WaveformBatch, decompose_batch, smoothing_sigma_samples
+from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
+from fwcore.model import generalized_gaussian, sigma_to_time_unit
+from fwcore.preprocess import gaussian_smooth
+from fwcore.pulses import pulse_waveforms
+from pipeline.view import queries
+from pipeline.view.catalog import run_inputs, run_summary
+
+_PART_START = re.compile(r"-(\d+)$")  # pulses/<stem>-<first point of the range>.parquet
+_read_lock = threading.Lock()
+
+
+@dataclasses.dataclass(frozen=True)
+class RawPulse:
+    """What the input holds for one pulse."""
+
+    samples: np.ndarray
+    sample_spacing_ps: float
+    seed: int
+    return_location_ps: np.ndarray
+    return_number: np.ndarray
+    return_intensity: np.ndarray
+
+
+@functools.lru_cache(maxsize=16)
+def _ranges(path: str, points_per_range: int) -> tuple[PointRange, ...]:
+    return tuple(plan_point_ranges(path, points_per_range))
+
+
+@functools.lru_cache(maxsize=8)
+def _range_pulses(point_range: PointRange) -> PulseBatch:
+    return read_pulses(dataclasses.replace(point_range, max_pulses=None))
+
+
+def _find_in_ranges(path: Path, points_per_range: int, part_name: str, pulse_id: int) -> tuple[PulseBatch, int]:
+    """The pulse's batch and index, reading the range the run wrote it from (its part file's name)
+    first, then the others."""
+    ranges = _ranges(str(path), points_per_range)
+    m = _PART_START.search(Path(part_name).stem)
+    start = int(m.group(1)) if m else -1
+    ordered = sorted(ranges, key=lambda r: r.start != start)
+    for r in ordered:
+        with _read_lock:
+            pulses = _range_pulses(r)
+        hit = np.flatnonzero(pulses.pulse_id == pulse_id)
+        if hit.size:
+            return pulses, int(hit[0])
+    raise LookupError(f"pulse {pulse_id} is not in {path.name}")
+
+
+def read_raw_pulse(run: Path, source_file: str, pulse_id: int) -> RawPulse:
+    """Re-read one pulse of a run from its input file, with the seed the run gave it."""
+    found = queries.pulse_row(run, source_file, pulse_id)
+    if found is None:
+        raise LookupError(f"pulse {pulse_id} of {source_file} is not in this run's pulse table")
+    _, part = found
+    inputs = run_inputs(run)
+    if source_file not in inputs:
+        raise FileNotFoundError(f"{source_file}: the run's input is no longer where run.json says")
+    summary = run_summary(run)
+    pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
+    seed = int(pulse_waveforms(pulses, int(summary["config"].get("seed", 0))).seeds[i])
+    lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
+    return RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
+                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
+                    pulses.return_intensity[lo:hi].astype(int))
+
+
+def run_config(run: Path, source_file: str, pulse_id: int) -> DecompositionConfig:
+    """The configuration the run decomposed this pulse with: run.json's, and the pulse width it used."""
+    config = DecompositionConfig.from_dict(run_summary(run)["config"])
+    found = queries.pulse_row(run, source_file, pulse_id)
+    if found is not None and found[0].get("system_pulse_fwhm_ps") is not None:
+        config = config.replace(system_pulse_fwhm_ps=float(found[0]["system_pulse_fwhm_ps"]))
+    return config
+
+
+def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
+    """The base configuration with a preset and changed settings on top (the pulse width stays the run's)."""
+    config = base
+    if preset:
+        if preset not in PRESETS:
+            raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
+        config = config.replace(**PRESETS[preset])
+    unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
+    if unknown:
+        raise ValueError(f"unknown decomposition settings {unknown}")
+    return DecompositionConfig.from_dict({**config.to_dict(), **changes})
+
+
+def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
+    """The engine on one pulse, and everything the pulse view draws: times in ps, amplitudes in counts."""
+    batch = WaveformBatch.from_waveforms([raw.samples], raw.sample_spacing_ps, [raw.seed])
+    result = decompose_batch(batch, config, threads=1).waveform(0)
+    spacing = raw.sample_spacing_ps
+    t = np.arange(raw.samples.size, dtype=float)
+    fine = np.linspace(0.0, raw.samples.size - 1.0, 4 * raw.samples.size - 3)  # smooth curves between samples
+    smoothing = float(smoothing_sigma_samples(config, np.array([spacing]))[0])
+    echoes = []
+    for k in range(result.amplitude.size):
+        a, u, s, al = (float(v[k]) for v in (result.amplitude, result.position, result.sigma, result.alpha))
+        echoes.append({
+            "echo_index": k, "amplitude": a, "time_ps": u * spacing,
+            "sigma_ps": float(sigma_to_time_unit(np.array([s]), np.array([al]), np.array([spacing]))[0]),
+            "alpha": al, "fwhm_ps": float(result.fwhm[k]) * spacing, "energy": float(result.energy[k]) * spacing,
+            "kept": result.reject_reason[k] == "", "reject_reason": result.reject_reason[k],
+            "curve": result.background + generalized_gaussian(fine, a, u, s, al),
+        })
+    return {
+        "config": config.to_dict(),
+        "status": result.status,
+        "time_ps": t * spacing,
+        "raw": raw.samples,
+        "denoised": gaussian_smooth(raw.samples, smoothing) if smoothing > 0 else raw.samples,
+        "fine_time_ps": fine * spacing,
+        "model": result.model(fine) if not result.status else np.full(fine.size, np.nan),
+        "background": result.background, "noise_sigma": result.noise_sigma,
+        "fit_error": result.fit_error, "fit_error_raw": result.fit_error_raw, "rmse": result.rmse, "r2": result.r2,
+        "model_evaluations": result.nfev, "n_echoes_initial": result.n_echoes_initial,
+        "echoes": echoes,
+    }
+
+
+def system_returns(raw: RawPulse) -> list[dict]:
+    return [{"time_ps": float(t), "return_number": int(n), "intensity": int(i)}
+            for t, n, i in zip(raw.return_location_ps, raw.return_number, raw.return_intensity)]
+
+
+def reproduces(fit: dict, table_rows: list[dict], tolerance: float = 1e-6) -> bool:
+    """Whether a refit gives the run's echoes: same count, amplitudes and times."""
+    if len(fit["echoes"]) != len(table_rows):
+        return False
+    for e, row in zip(fit["echoes"], table_rows):
+        for name in ("amplitude", "time_ps"):
+            if abs(e[name] - float(row[name])) > tolerance * max(1.0, abs(float(row[name]))):
+                return False
+    return True
+
+
+@functools.lru_cache(maxsize=4)
+def _las_points(path: str) -> dict[str, np.ndarray]:
+    """x, y, z, gps_time of every point (the system's returns) of a LAS/LAZ input, read in chunks."""
+    import laspy
+
+    parts = []
+    with laspy.open(path) as reader:
+        for chunk in reader.chunk_iterator(1_000_000):
+            parts.append({"x": np.asarray(chunk.x), "y": np.asarray(chunk.y), "z": np.asarray(chunk.z),
+                          "gps_time": np.asarray(chunk.gps_time)})
+    return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in ("x", "y", "z", "gps_time")}
+
+
+def system_return_points(run: Path, box: tuple[float, float, float, float] | None, limit: int) -> dict:
+    """The system's own returns of the run's pulses (their gps times) inside the box, at most `limit`, evenly thinned."""
+    xs, ys, zs = [], [], []
+    for name, path in run_inputs(run).items():
+        times = queries.gps_time_range(run, name)
+        if times is None or path.suffix.lower() not in (".las", ".laz"):
+            continue  # PulseWaves keeps no separate return points
+        p = _las_points(str(path))
+        sel = (p["gps_time"] >= times[0]) & (p["gps_time"] <= times[1])
+        if box is not None:
+            sel &= (p["x"] >= box[0]) & (p["x"] <= box[1]) & (p["y"] >= box[2]) & (p["y"] <= box[3])
+        idx = np.flatnonzero(sel)
+        xs.append(p["x"][idx]), ys.append(p["y"][idx]), zs.append(p["z"][idx])
+    x, y, z = (np.concatenate(a) if a else np.zeros(0) for a in (xs, ys, zs))
+    total = x.size
+    if total > limit:
+        keep = np.linspace(0, total - 1, limit).astype(np.int64)
+        x, y, z = x[keep], y[keep], z[keep]
+    return {"total": int(total), "x": x, "y": y, "z": z}

@@ -1,0 +1,182 @@
+"""The JSON endpoints the page calls, against the run's own Parquet tables, without a browser."""
+
+import http.client
+import json
+from urllib.parse import urlsplit
+
+import laspy
+import numpy as np
+import pytest
+
+
+def test_picking_an_input_decomposed_it_in_the_background(viewed):
+    first, last = viewed.job_states[0], viewed.job_states[-1]
+    assert first["status"] == "running" and first["ranges"] > 1 and first["progress"] < 1
+    assert last["status"] == "done" and last["progress"] == 1.0
+    summary = json.loads((viewed.run / "run.json").read_text())
+    assert summary["config"]["optimizer"] == "lm" and summary["limit"] == 90  # fwl run's config, the fast preset
+    catalog = viewed.get("/api/catalog")
+    (run,) = catalog["runs"]
+    assert run["id"] == viewed.run_id and run["inputs"] == ["leica_a.las"]
+    assert catalog["inputs"][0]["run"] == viewed.run_id  # the input now shows its run
+
+
+def test_summary_counts_and_distributions_add_up(viewed):
+    s = viewed.get(f"/api/summary?run={viewed.run_id}")
+    echoes, pulses = viewed.echoes(), viewed.pulses()
+    c = s["counts"]
+    assert c["pulses_read"] == 90 == c["pulses_decomposed"] + c["pulses_rejected"] and s["read_adds_up"]
+    assert c["echoes_kept"] == int(echoes.kept.sum()) and c["echoes_spurious"] == int((~echoes.kept).sum())
+    d = s["distributions"]
+    assert sum(d["echoes_per_pulse"]["counts"]) == len(pulses) == sum(d["kept_echoes_per_pulse"]["counts"])
+    centres = np.array(d["echoes_per_pulse"]["edges"][:-1]) + 0.5
+    assert np.dot(centres, d["echoes_per_pulse"]["counts"]) == len(echoes)
+    assert sum(d["amplitude_kept"]["counts"]) == c["echoes_kept"]
+    assert sum(d["amplitude_spurious"]["counts"]) == c["echoes_spurious"]
+    assert s["bounds"]["echoes"] == len(echoes) and s["bounds"]["z"] == [echoes.z.min(), echoes.z.max()]
+    assert s["rejected"]["total"] == c["pulses_rejected"] + c["files_rejected"]
+    top = pulses.sort_values(["n_echoes", "gps_time"], ascending=[False, True]).iloc[0]
+    assert s["first_pulse"] == ["leica_a.las", int(top.pulse_id)]
+
+
+def test_echoes_in_a_box_are_the_tables_rows(viewed):
+    echoes = viewed.echoes()
+    everything = viewed.get(f"/api/echoes?run={viewed.run_id}&colour=amplitude&limit=200000")
+    assert everything["total"] == len(echoes) == len(everything["x"])
+    x0, x1 = np.percentile(echoes.x, [20, 70])
+    y0, y1 = np.percentile(echoes.y, [10, 90])
+    inside = echoes[echoes.x.between(x0, x1) & echoes.y.between(y0, y1)]
+    some = viewed.get(f"/api/echoes?run={viewed.run_id}&colour=amplitude&box={x0},{x1},{y0},{y1}&limit=25")
+    assert some["total"] == len(inside) > 25 and len(some["x"]) == 25
+    again = viewed.get(f"/api/echoes?run={viewed.run_id}&colour=amplitude&box={x0},{x1},{y0},{y1}&limit=25")
+    assert again["pulse_id"] == some["pulse_id"]  # the sample is deterministic
+    for i in range(25):
+        same = [np.isclose(inside[c], some[c][i], rtol=0, atol=6e-4) for c in ("x", "y", "z")]
+        row = inside[(inside.pulse_id == some["pulse_id"][i]) & same[0] & same[1] & same[2]]
+        assert len(row) == 1 and np.isclose(row.amplitude.iloc[0], some["value"][i], rtol=1e-6, atol=0)
+        assert bool(row.kept.iloc[0]) == some["kept"][i]
+    kept = viewed.get(f"/api/echoes?run={viewed.run_id}&colour=height&kept=1&limit=200000")
+    assert kept["total"] == int(echoes.kept.sum()) and all(kept["kept"])
+    assert np.allclose(sorted(kept["value"]), sorted(echoes.z[echoes.kept]))
+
+
+def test_pulse_list_orders(viewed):
+    listed = viewed.get(f"/api/pulses?run={viewed.run_id}&order=echoes&limit=10")["pulses"]
+    counts = [p["n_echoes"] for p in listed]
+    assert len(listed) == 10 and counts == sorted(counts, reverse=True)
+    assert counts[0] == viewed.pulses().n_echoes.max()
+    worst = viewed.get(f"/api/pulses?run={viewed.run_id}&order=fit_error&limit=3")["pulses"]
+    assert worst[0]["r2"] == viewed.pulses().r2.min()
+
+
+def _pulses_of_several_ranges(viewed):
+    pulses = viewed.pulses().sort_values("gps_time")
+    return [int(pulses.pulse_id.iloc[i]) for i in (0, len(pulses) // 2, len(pulses) - 1)]
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+def test_a_pulse_is_re_read_and_its_decomposition_reproduced(viewed, which):
+    pulse_id = _pulses_of_several_ranges(viewed)[which]
+    echoes, pulses = viewed.echoes(), viewed.pulses()
+    table = echoes[echoes.pulse_id == pulse_id].sort_values("echo_index")
+    p = viewed.get(f"/api/pulse?run={viewed.run_id}&file=leica_a.las&pulse={pulse_id}")
+    fit = p["fit"]
+    assert p["reproduced"] and len(fit["echoes"]) == len(table) == len(p["echo_rows"])
+    for got, want in zip(fit["echoes"], table.itertuples()):
+        for name in ("amplitude", "time_ps", "sigma_ps", "alpha", "fwhm_ps", "energy"):
+            assert got[name] == pytest.approx(getattr(want, name), rel=1e-9, abs=1e-9), name
+        assert got["kept"] == want.kept and got["reject_reason"] == want.reject_reason
+    row = pulses[pulses.pulse_id == pulse_id].iloc[0]
+    assert fit["rmse"] == pytest.approx(row.rmse, rel=1e-9) and fit["r2"] == pytest.approx(row.r2, rel=1e-9)
+    assert len(fit["raw"]) == row.n_samples == len(fit["denoised"])
+    assert len(p["system_returns"]) == row.n_system_returns
+    # the raw samples are the packet's, read independently with laspy and numpy
+    las = laspy.read(viewed.folder / "inputs" / "leica_a.las")
+    gps = np.asarray(las.gps_time)
+    (point,) = np.flatnonzero((gps == row.gps_time) & (np.asarray(las.return_number) == 1))[:1]
+    offset, size = int(las.wavepacket_offset[point]), int(las.wavepacket_size[point])
+    packets = np.fromfile(viewed.folder / "inputs" / "leica_a.wdp", dtype=np.uint8)
+    assert fit["raw"] == packets[offset:offset + size].astype(float).tolist()
+    # each component is the background plus one echo: together they are the model
+    components = np.sum([np.array(e["curve"]) - fit["background"] for e in fit["echoes"]], axis=0)
+    assert np.allclose(components + fit["background"], fit["model"], atol=1e-4)
+
+
+def test_try_refits_with_another_method_side_by_side(viewed):
+    pulse_id = _pulses_of_several_ranges(viewed)[1]
+    body = {"run": viewed.run_id, "file": "leica_a.las", "pulse": pulse_id, "preset": "paper",
+            "changes": {"optimizer": "mde", "min_snr": 8, "generations": 30}}
+    t = viewed.post("/api/try", body)
+    assert t["a"]["config"]["optimizer"] == "lm" and t["b"]["config"]["optimizer"] == "mde"
+    assert t["changed"]["min_snr"] == 8 and t["changed"]["generations"] == 30
+    echoes = viewed.echoes()
+    assert len(t["a"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
+    # the run's pulse width stays: only what was asked changes
+    assert t["b"]["config"]["system_pulse_fwhm_ps"] == t["a"]["config"]["system_pulse_fwhm_ps"] is not None
+    weak = [e for e in t["b"]["echoes"] if e["amplitude"] < 8 * t["b"]["noise_sigma"]]
+    assert all(not e["kept"] for e in weak)
+
+
+def _status(viewed, method, path, body=None):
+    """A raw request: the path goes out exactly as written, no client-side normalisation."""
+    url = urlsplit(viewed.url)
+    con = http.client.HTTPConnection(url.hostname, url.port, timeout=60)
+    con.request(method, path, body=json.dumps(body) if body is not None else None,
+                headers={"Content-Type": "application/json"})
+    response = con.getresponse()
+    data = response.read()
+    con.close()
+    return response.status, data
+
+
+@pytest.mark.parametrize("path", [
+    "/api/summary?run=0/../..", "/api/summary?run=0/%2e%2e/%2e%2e/etc", "/api/summary?run=0//etc",
+    "/api/summary?run=9/", "/api/summary?run=f0", "/api/summary?run=0/runs/leica_a/../../../..",
+    "/api/pulse?run=0/../../../&file=leica_a.las&pulse=1", "/api/echoes?run=..",
+])
+def test_a_path_outside_the_folders_is_refused(viewed, path):
+    status, data = _status(viewed, "GET", path)
+    assert status == 403 and "error" in json.loads(data)
+
+
+@pytest.mark.parametrize("path", ["/static/../../catalog.py", "/static/%2e%2e/server.py", "/static/..%2fserver.py",
+                                  "/static/%2e%2e/%2e%2e/%2e%2e/pyproject.toml", "/../pyproject.toml"])
+def test_a_static_path_outside_the_page_is_refused(viewed, path):
+    status, data = _status(viewed, "GET", path)
+    assert status in (403, 404) and b"import" not in data and b"[project]" not in data
+
+
+def test_decompose_outside_the_folders_is_refused(viewed):
+    status, _ = _status(viewed, "POST", "/api/decompose", {"input": "0/../../leica_a.las"})
+    assert status == 403
+    status, _ = _status(viewed, "POST", "/api/decompose", {"input": "0/runs/leica_a/run.json"})
+    assert status == 404
+
+
+def test_bad_requests_say_why(viewed):
+    status, data = _status(viewed, "GET", f"/api/echoes?run={viewed.run_id}&colour=rainbow")
+    assert status == 400 and b"colour must be one of" in data
+    status, data = _status(viewed, "POST", "/api/try", {"run": viewed.run_id, "file": "leica_a.las", "pulse": 0,
+                                                        "changes": {"population": 2}})
+    assert status in (400, 404)
+    pulse_id = _pulses_of_several_ranges(viewed)[0]
+    status, data = _status(viewed, "POST", "/api/try", {"run": viewed.run_id, "file": "leica_a.las",
+                                                        "pulse": pulse_id, "changes": {"population": 2}})
+    assert status == 400 and b"population" in data
+
+
+def test_the_page_and_plotly_are_served_from_the_package(viewed):
+    status, page = _status(viewed, "GET", "/")
+    assert status == 200 and b"/static/plotly.min.js" in page and b"http" not in page.split(b"<body>")[0]
+    status, js = _status(viewed, "GET", "/static/plotly.min.js")
+    assert status == 200 and len(js) > 1_000_000
+
+
+def test_system_returns_overlay_are_the_input_points(viewed):
+    las = laspy.read(viewed.folder / "inputs" / "leica_a.las")
+    pulses = viewed.pulses()
+    gps = np.asarray(las.gps_time)
+    inside = (gps >= pulses.gps_time.min()) & (gps <= pulses.gps_time.max())
+    r = viewed.get(f"/api/returns?run={viewed.run_id}&limit=200000")
+    assert r["total"] == int(inside.sum()) == int(pulses.n_system_returns.sum())
+    assert np.allclose(sorted(r["z"]), sorted(np.asarray(las.z)[inside]))
