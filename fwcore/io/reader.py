@@ -330,7 +330,7 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     reason = np.full(pulse_keys.size, None, dtype=object)
     finite = np.isfinite(direction).all(axis=1) & np.isfinite(location) & np.isfinite(gps_time)
     reason[~finite] = f"{wf.path.name}: non-finite x_t/y_t/z_t, return point location or GPS time"
-    samples = [None] * pulse_keys.size
+    got = {}  # descriptor -> (rows of its pulses that were read, their samples (k, n))
     data = wf.packets.open()
     for d in np.unique(d_index):
         mine = np.flatnonzero((d_index == d) & finite)
@@ -341,29 +341,43 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
         if descriptor.problem:
             reason[mine] = f"{wf.path.name}: {descriptor.problem}"
             continue
-        got, problems = wf.packets.read_many(data, descriptor, byte_offset[mine], sizes[mine])
-        for j, i in enumerate(mine):
-            if problems[j] is None:
-                samples[i] = got[j]
-            else:
-                reason[i] = problems[j]
+        values, problems = wf.packets.read_many(data, descriptor, byte_offset[mine], sizes[mine])
+        lost = np.array([p is not None for p in problems], dtype=bool)
+        reason[mine[lost]] = np.array([p for p in problems if p is not None], dtype=object)
+        got[int(d)] = (mine[~lost], values[~lost])
     good = np.flatnonzero(reason == None)  # noqa: E711 (object array)
     rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
+    # the samples of the good pulses, flat, in pulse order
+    n_samples = np.zeros(pulse_keys.size, np.int64)
+    for d, (rows, values) in got.items():
+        n_samples[rows] = values.shape[1]
+    sample_offsets = np.zeros(good.size + 1, dtype=np.int64)
+    np.cumsum(n_samples[good], out=sample_offsets[1:])
+    samples = np.empty(sample_offsets[-1], np.float64)
+    position = np.full(pulse_keys.size, -1, np.int64)
+    position[good] = np.arange(good.size)
+    for d, (rows, values) in got.items():
+        if rows.size:
+            samples[sample_offsets[position[rows]][:, None] + np.arange(values.shape[1])] = values
     return _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index,
-                  gps_time, direction, location, [samples[i] for i in good], tuple(rejected))
+                  gps_time, direction, location, samples, sample_offsets, tuple(rejected))
 
 
 def _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index, gps_time,
-           direction, location, samples, rejected) -> PulseBatch:
+           direction, location, samples, sample_offsets, rejected) -> PulseBatch:
     quirks = wf.quirks
     a = anchors[good]
-    members = [order[first_of[i]:first_of[i] + n_points[i]] for i in good]
-    return_points = np.concatenate(members) if members else np.zeros(0, np.int64)
+    counts = n_points[good]
     return_offsets = np.zeros(good.size + 1, dtype=np.int64)
-    np.cumsum(n_points[good], out=return_offsets[1:])
-    sample_offsets = np.zeros(good.size + 1, dtype=np.int64)
-    np.cumsum([s.size for s in samples], out=sample_offsets[1:])
-    descriptors = [wf.descriptors[int(d)] for d in d_index[good]]
+    np.cumsum(counts, out=return_offsets[1:])
+    # the points of each good pulse: order[first_of[i] : first_of[i] + n_points[i]]
+    return_points = order[np.repeat(first_of[good], counts) + np.arange(return_offsets[-1])
+                          - np.repeat(return_offsets[:-1], counts)]
+    table = {name: np.zeros(256) for name in ("spacing", "gain", "offset", "bits")}
+    for d in wf.descriptors.values():
+        table["spacing"][d.index], table["gain"][d.index] = d.sample_spacing_ps, d.gain
+        table["offset"][d.index], table["bits"][d.index] = d.offset, d.bits_per_sample
+    dg = d_index[good]
     rgb = nir = None
     if quirks.rgb:
         rgb = np.stack([_field(points, c, np.uint16)[a] for c in ("red", "green", "blue")], axis=1)
@@ -384,11 +398,11 @@ def _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, 
         scan_direction_flag=_field(points, "scan_direction_flag", np.uint8)[a],
         edge_of_flight_line=_field(points, "edge_of_flight_line", np.uint8)[a],
         user_data=_field(points, "user_data", np.uint8)[a],
-        sample_spacing_ps=np.array([d.sample_spacing_ps for d in descriptors], dtype=np.float64),
-        digitizer_gain=np.array([d.gain for d in descriptors], dtype=np.float64),
-        digitizer_offset=np.array([d.offset for d in descriptors], dtype=np.float64),
-        bits_per_sample=np.array([d.bits_per_sample for d in descriptors], dtype=np.int16),
-        samples=np.concatenate(samples) if samples else np.zeros(0),
+        sample_spacing_ps=table["spacing"][dg],
+        digitizer_gain=table["gain"][dg],
+        digitizer_offset=table["offset"][dg],
+        bits_per_sample=table["bits"][dg].astype(np.int16),
+        samples=samples,
         sample_offsets=sample_offsets,
         return_xyz=xyz[return_points],
         return_number=_field(points, "return_number", np.uint8)[return_points],

@@ -88,7 +88,7 @@ class PulseBatch:
 
 def pulse_identity(gps_time: np.ndarray, anchor: np.ndarray, target: np.ndarray | None = None,
                    quantum: float = IDENTITY_QUANTUM_M) -> np.ndarray:
-    """A 63-bit id per pulse from what the pulse is: its GPS time and anchor (and target, where given),
+    """A 53-bit id per pulse from what the pulse is: its GPS time and anchor (and target, where given),
     coordinates compared in steps of `quantum` (1 for a format's stored integers).
 
     Pulses equal in all of these (files without time stamps, T = 0) are told
@@ -112,7 +112,8 @@ def pulse_identity(gps_time: np.ndarray, anchor: np.ndarray, target: np.ndarray 
     h = np.full(n, 0x9E3779B97F4A7C15, dtype=np.uint64)
     for column in (*key.T, repeat):
         h = _mix64(h ^ _mix64(column.astype(np.uint64)))
-    return (h >> np.uint64(1)).astype(np.int64)
+    # 53 bits: exact as a JavaScript/JSON number (the viewer), still unlikely to collide within a file
+    return (h >> np.uint64(11)).astype(np.int64)
 
 
 def _mix64(z: np.ndarray) -> np.ndarray:
