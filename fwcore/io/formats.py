@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from fwcore.io.records import PointRange, PulseBatch
@@ -33,6 +34,25 @@ def open_input(path: str | Path):
         return open_pulsewaves(path)
     from fwcore.io.reader import open_waveform_file
     return open_waveform_file(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class InputSummary:
+    """What a run needs to know of a file before reading it."""
+
+    records: int  # point records (LAS) or pulse records (PulseWaves) present
+    adjusted_standard_gps_time: bool  # LAS global encoding bit: GPS time - 1e9 s; otherwise week seconds or absolute
+
+
+def input_summary(path: str | Path) -> InputSummary:
+    """Record count and GPS time type of either format, from its header."""
+    opened = open_input(path)
+    if is_pulsewaves(path):
+        return InputSummary(opened.point_count, False)
+    import laspy
+    with laspy.open(path) as reader:
+        adjusted = int(reader.header.global_encoding.gps_time_type) == 1
+    return InputSummary(opened.point_count, adjusted)
 
 
 def plan_point_ranges(path: str | Path, points_per_range: int = 10_000) -> list[PointRange]:

@@ -9,6 +9,7 @@ symbolic links that leave the root are refused).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import glob
 from pathlib import Path
 
@@ -114,12 +115,14 @@ class Roots:
         for root in self.folders:
             for path in root.rglob("*"):
                 if (path.suffix.lower() in INPUT_SUFFIXES and path.is_file()
-                        and not any(path.is_relative_to(r) for r in runs) and _has_waveforms(path)):
+                        and not any(path.is_relative_to(r) for r in runs)
+                        and _has_waveforms(path, path.stat().st_mtime_ns)):
                     found.add(path.resolve())
         return sorted(found)
 
 
-def _has_waveforms(path: Path) -> bool:
+@functools.lru_cache(maxsize=4096)
+def _has_waveforms(path: Path, mtime_ns: int) -> bool:
     """PulseWaves always; LAS/LAZ only with a waveform point format (4, 5, 9, 10)."""
     if path.suffix.lower() == ".pls":
         return True

@@ -67,40 +67,38 @@ def _find_in_ranges(path: Path, points_per_range: int, part_name: str, pulse_id:
     raise LookupError(f"pulse {pulse_id} is not in {path.name}")
 
 
-def read_raw_pulse(run: Path, source_file: str, pulse_id: int) -> RawPulse:
-    """Re-read one pulse of a run from its input file, with the seed the run gave it."""
+def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, DecompositionConfig, dict]:
+    """One pulse of a run: its samples re-read from the input with the seed the run gave it, the
+    configuration the run decomposed it with (run.json's, and the pulse width the run used), its pulse row."""
     found = queries.pulse_row(run, source_file, pulse_id)
     if found is None:
         raise LookupError(f"pulse {pulse_id} of {source_file} is not in this run's pulse table")
-    _, part = found
+    row, part = found
     inputs = run_inputs(run)
     if source_file not in inputs:
         raise FileNotFoundError(f"{source_file}: the run's input is no longer where run.json says")
     summary = run_summary(run)
+    config = DecompositionConfig.from_dict(summary["config"])
+    if row.get("system_pulse_fwhm_ps") is not None:
+        config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
-    seed = int(pulse_waveforms(pulses, int(summary["config"].get("seed", 0))).seeds[i])
+    seed = int(pulse_waveforms(pulses, config.seed).seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
-    return RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
-                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
-                    pulses.return_intensity[lo:hi].astype(int))
-
-
-def run_config(run: Path, source_file: str, pulse_id: int) -> DecompositionConfig:
-    """The configuration the run decomposed this pulse with: run.json's, and the pulse width it used."""
-    config = DecompositionConfig.from_dict(run_summary(run)["config"])
-    found = queries.pulse_row(run, source_file, pulse_id)
-    if found is not None and found[0].get("system_pulse_fwhm_ps") is not None:
-        config = config.replace(system_pulse_fwhm_ps=float(found[0]["system_pulse_fwhm_ps"]))
-    return config
+    raw = RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
+                   pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
+                   pulses.return_intensity[lo:hi].astype(int))
+    return raw, config, row
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
-    """The base configuration with a preset and changed settings on top (the pulse width stays the run's)."""
+    """Another configuration for a pulse: a preset (as `fwl run --preset` has it) or the run's own, then the
+    changed settings; the run's pulse width and seed stay, so only the method differs."""
     config = base
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = config.replace(**PRESETS[preset])
+        config = DecompositionConfig(**PRESETS[preset]).replace(system_pulse_fwhm_ps=base.system_pulse_fwhm_ps,
+                                                                seed=base.seed)
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")

@@ -27,12 +27,13 @@ def _connection() -> duckdb.DuckDBPyConnection:
     return _local.con
 
 
-def _table(run: Path, name: str) -> str | None:
+def _table(run: Path, name: str, filename: bool = False) -> str | None:
+    """The run's part files of one table as a DuckDB table expression (with each row's file, if asked)."""
     files = sorted((run / name).glob("*.parquet"))
     if not files:
         return None
     quoted = ", ".join("'" + str(f).replace("'", "''") + "'" for f in files)
-    return f"read_parquet([{quoted}], union_by_name=true)"
+    return f"read_parquet([{quoted}], union_by_name=true{', filename=true' if filename else ''})"
 
 
 def _query(sql: str, params: list | None = None) -> dict[str, np.ndarray]:
@@ -100,11 +101,10 @@ def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
 
 def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | None:
     """The pulse table's row of one pulse and the part file that holds it."""
-    pulses = _table(run, "pulses")
+    pulses = _table(run, "pulses", filename=True)
     if pulses is None:
         return None
-    sql = pulses.replace("union_by_name=true", "union_by_name=true, filename=true")
-    cur = _connection().execute(f"SELECT * FROM {sql} WHERE source_file = ? AND pulse_id = ? LIMIT 1",
+    cur = _connection().execute(f"SELECT * FROM {pulses} WHERE source_file = ? AND pulse_id = ? LIMIT 1",
                                 [source_file, int(pulse_id)])
     row = cur.fetchone()
     if row is None:
@@ -130,8 +130,9 @@ def rejected(run: Path, limit: int = 500) -> dict:
         return {"total": 0, "reasons": [], "rows": []}
     con = _connection()
     total = con.execute(f"SELECT count(*) FROM {table}").fetchone()[0]
-    reasons = con.execute(f"SELECT stage, reason, count(*) AS n FROM {table} GROUP BY 1, 2 "
-                          f"ORDER BY n DESC, 1, 2").fetchall()
+    # reasons name byte offsets and sizes: grouped with the numbers as N, one row per kind of failure
+    reasons = con.execute(f"SELECT stage, regexp_replace(reason, '[0-9]+', 'N', 'g') AS kind, count(*) AS n "
+                          f"FROM {table} GROUP BY 1, 2 ORDER BY n DESC, 1, 2").fetchall()
     rows = con.execute(f"SELECT source_file, pulse_id, stage, reason FROM {table} "
                        f"ORDER BY source_file, pulse_id LIMIT ?", [limit]).fetchall()
     return {"total": int(total),

@@ -34,12 +34,12 @@ from pipeline.view import queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from fwcore.config import PRESETS, Optimizer
-from pipeline.view.pulse import (decompose_pulse, read_raw_pulse, reproduces, run_config, system_return_points,
-                                 system_returns, try_config)
+from pipeline.view.pulse import decompose_pulse, load_pulse, reproduces, system_return_points, system_returns, try_config
 
 STATIC = Path(__file__).resolve().parent / "static"
 MAX_ECHOES = 200_000  # the most one request returns, whatever the page asks
 MAX_BODY = 64 * 1024
+LOOPBACK = {"127.0.0.1", "::1"}
 
 
 def _plotly_js() -> Path:
@@ -123,25 +123,21 @@ class Viewer:
         ident = _param(params, "run")
         run = self.roots.run_of(ident)
         source_file, pulse_id = _param(params, "file"), _int(_param(params, "pulse"), "pulse")
+        raw, config, row = load_pulse(run, source_file, pulse_id)
         rows = queries.pulse_echoes(run, source_file, pulse_id)
-        found = queries.pulse_row(run, source_file, pulse_id)
-        if found is None:
-            raise LookupError(f"pulse {pulse_id} of {source_file} is not in this run")
-        raw = read_raw_pulse(run, source_file, pulse_id)
-        fit = decompose_pulse(raw, run_config(run, source_file, pulse_id))
-        return {"run": ident, "file": source_file, "pulse_id": pulse_id, "pulse": found[0], "echo_rows": rows,
+        fit = decompose_pulse(raw, config)
+        return {"run": ident, "file": source_file, "pulse_id": pulse_id, "pulse": row, "echo_rows": rows,
                 "fit": fit, "system_returns": system_returns(raw), "reproduced": reproduces(fit, rows)}
 
     def try_fit(self, body) -> dict:
         ident = body.get("run")
         run = self.roots.run_of(ident)
         source_file, pulse_id = str(body.get("file")), _int(body.get("pulse"), "pulse")
-        base = run_config(run, source_file, pulse_id)
         changes = body.get("changes") or {}
         if not isinstance(changes, dict):
             raise BadRequest("changes must be an object of decomposition settings")
+        raw, base, _ = load_pulse(run, source_file, pulse_id)
         other = try_config(base, body.get("preset") or None, changes)
-        raw = read_raw_pulse(run, source_file, pulse_id)
         return {"run": ident, "file": source_file, "pulse_id": pulse_id, "system_returns": system_returns(raw),
                 "a": decompose_pulse(raw, base), "b": decompose_pulse(raw, other),
                 "changed": {k: v for k, v in other.to_dict().items() if base.to_dict()[k] != v}}
@@ -193,7 +189,15 @@ class Handler(BaseHTTPRequestHandler):
     def log_message(self, format, *args):  # quiet: the terminal shows the URL, not every request
         pass
 
+    def _foreign(self) -> bool:
+        """A request for another host name (a web page that rebound its name to this machine), refused."""
+        host = urlsplit("//" + (self.headers.get("Host") or "")).hostname or ""
+        bound = self.server.server_address[0]
+        return bound in LOOPBACK and host not in LOOPBACK | {"localhost"}
+
     def do_GET(self):
+        if self._foreign():
+            return self._error(403, "this viewer answers requests for 127.0.0.1 and localhost only")
         url = urlsplit(self.path)
         if url.path in ("/", "/index.html"):
             return self._file(STATIC / "index.html")
@@ -204,9 +208,14 @@ class Handler(BaseHTTPRequestHandler):
         self._error(404, f"no such page {url.path}")
 
     def do_POST(self):
+        if self._foreign():
+            return self._error(403, "this viewer answers requests for 127.0.0.1 and localhost only")
         url = urlsplit(self.path)
         if url.path not in self.POST_ROUTES:
             return self._error(404, f"no such endpoint {url.path}")
+        # JSON only: another site's page cannot send it without the browser asking this server first
+        if (self.headers.get("Content-Type") or "").split(";")[0].strip() != "application/json":
+            return self._error(415, "send the body as application/json")
         length = int(self.headers.get("Content-Length") or 0)
         if length > MAX_BODY:
             return self._error(413, "request too large")

@@ -33,6 +33,8 @@ function readUrl() {
   state.run = q.get("run");
   state.colour = q.get("colour") || "height";
   state.tab = q.get("tab") || "explore";
+  const box = (q.get("box") || "").split(",").map(Number);
+  state.box = box.length === 4 && box.every(isFinite) ? box : null;
   const pulse = q.get("pulse");
   if (pulse && pulse.includes(":")) {
     const at = pulse.lastIndexOf(":");
@@ -46,6 +48,7 @@ function writeUrl() {
   if (state.run !== null) q.set("run", state.run);
   if (state.pulse !== null) q.set("pulse", `${state.file}:${state.pulse}`);
   q.set("colour", state.colour);
+  if (state.box) q.set("box", state.box.map((v) => v.toFixed(2)).join(","));
   q.set("tab", state.tab);
   history.replaceState(null, "", "?" + q.toString());
 }
@@ -218,6 +221,7 @@ function bindPlotEvents() {
       state.box = [e["xaxis.range[0]"], e["xaxis.range[1]"], e["yaxis.range[0]"], e["yaxis.range[1]"]];
     else return;
     clearTimeout(timer);
+    writeUrl();
     timer = setTimeout(loadEchoes, 250);
   });
 }

@@ -105,9 +105,14 @@ def test_a_shared_url_opens_the_same_pulse_and_try_compares_fits(browser, fwl_vi
     from selenium.webdriver.common.by import By
 
     pulse_id = int(viewed.pulses().sort_values("gps_time").pulse_id.iloc[5])
-    browser.get(f"{fwl_view}?run=0/&pulse=leica_a.las:{pulse_id}&colour=amplitude&tab=try")
+    echoes = viewed.echoes()
+    x0, x1, y0, y1 = echoes.x.min(), echoes.x.median(), echoes.y.min(), echoes.y.max()
+    browser.get(f"{fwl_view}?run=0/&pulse=leica_a.las:{pulse_id}&colour=amplitude&tab=try&box={x0},{x1},{y0},{y1}")
     _wait(browser, "document.body.dataset.ready === '1'")
     assert browser.find_element(By.ID, "colour").get_attribute("value") == "amplitude"
+    shown = _wait(browser, "document.getElementById('map').data && document.getElementById('map').data"
+                           ".filter(t => t.meta !== 'returns').reduce((n, t) => n + t.x.length, 0)")
+    assert shown == int((echoes.x.between(x0, x1) & echoes.y.between(y0, y1)).sum()) < len(echoes)
     _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse_id}'")
     browser.find_element(By.CSS_SELECTOR, "#try-form select[name=optimizer] option[value=mde]").click()
     browser.find_element(By.CSS_SELECTOR, "#try-form button[type=submit]").click()
@@ -116,3 +121,37 @@ def test_a_shared_url_opens_the_same_pulse_and_try_compares_fits(browser, fwl_vi
     assert "echoes" in title and browser.find_element(By.ID, "try-a-title").text.startswith("the run's: lm")
     assert browser.execute_script("return document.getElementById('try-b').data.length") >= 3
     browser.save_screenshot(str(tmp_path / "fwl-view-try.png"))
+
+
+def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fwl_view, viewed):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    browser.get(f"{fwl_view}?run=0/&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    echoes = viewed.echoes()
+    first_shown = viewed.get(f"/api/summary?run={viewed.run_id}")["first_pulse"][1]
+    kept = echoes[echoes.kept & (echoes.pulse_id != first_shown)]
+    target = kept.iloc[len(kept) // 2]
+    # where Plotly drew that echo, in pixels from the map's centre
+    dx, dy, first = browser.execute_script("""
+        const div = document.getElementById('map'), L = div._fullLayout, r = div.getBoundingClientRect();
+        const px = L.xaxis._offset + L.xaxis.l2p(arguments[0]), py = L.yaxis._offset + L.yaxis.l2p(arguments[1]);
+        return [px - r.width / 2, py - r.height / 2, div.querySelector('.nsewdrag') !== null];
+    """, float(target.x), float(target.y))
+    assert first
+    before = browser.execute_script("return document.getElementById('waveform').dataset.pulse")
+    ActionChains(browser).move_to_element_with_offset(browser.find_element(By.ID, "map"), dx, dy).pause(0.5).click().perform()
+    clicked = int(_wait(browser, f"document.getElementById('waveform').dataset.pulse !== '{before}' && "
+                                 "document.getElementById('waveform').dataset.pulse"))
+    near = echoes[(echoes.pulse_id == clicked)]
+    assert ((near.x - target.x) ** 2 + (near.y - target.y) ** 2).min() ** 0.5 < 2.0  # an echo under the pointer
+
+    other = int(viewed.pulses().sort_values("gps_time").pulse_id.iloc[-1])
+    box = browser.find_element(By.ID, "pulse-id")
+    box.clear()
+    box.send_keys(str(other))
+    browser.find_element(By.CSS_SELECTOR, "#pulse-form button").click()
+    _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{other}'")
+    assert browser.execute_script("return document.getElementById('waveform').dataset.components") == \
+        str(int((echoes.pulse_id == other).sum()))

@@ -115,14 +115,19 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     assert t["b"]["config"]["system_pulse_fwhm_ps"] == t["a"]["config"]["system_pulse_fwhm_ps"] is not None
     weak = [e for e in t["b"]["echoes"] if e["amplitude"] < 8 * t["b"]["noise_sigma"]]
     assert all(not e["kept"] for e in weak)
+    # a preset is the preset's method (as fwl run --preset has it), on the run's pulse width and seed
+    paper = viewed.post("/api/try", {**body, "changes": {}})
+    assert paper["changed"] == {"optimizer": "mde", "lm_iterations": 50}  # fast is lm with 20 iterations
+    same = viewed.post("/api/try", {**body, "preset": "", "changes": {}})
+    assert same["changed"] == {} and same["a"]["echoes"] == same["b"]["echoes"]
 
 
-def _status(viewed, method, path, body=None):
+def _status(viewed, method, path, body=None, headers=None):
     """A raw request: the path goes out exactly as written, no client-side normalisation."""
     url = urlsplit(viewed.url)
     con = http.client.HTTPConnection(url.hostname, url.port, timeout=60)
     con.request(method, path, body=json.dumps(body) if body is not None else None,
-                headers={"Content-Type": "application/json"})
+                headers={"Content-Type": "application/json", **(headers or {})})
     response = con.getresponse()
     data = response.read()
     con.close()
@@ -153,6 +158,17 @@ def test_decompose_outside_the_folders_is_refused(viewed):
     assert status == 404
 
 
+def test_another_sites_requests_are_refused(viewed):
+    # a page whose name was rebound to 127.0.0.1 sends its own host name
+    status, _ = _status(viewed, "GET", f"/api/summary?run={viewed.run_id}", headers={"Host": "evil.example:80"})
+    assert status == 403
+    assert _status(viewed, "GET", f"/api/summary?run={viewed.run_id}",
+                   headers={"Host": f"localhost:{urlsplit(viewed.url).port}"})[0] == 200
+    # a cross-site form can post text/plain without asking first; the viewer takes JSON only
+    status, _ = _status(viewed, "POST", "/api/decompose", {"input": viewed.input_id}, {"Content-Type": "text/plain"})
+    assert status == 415
+
+
 def test_bad_requests_say_why(viewed):
     status, data = _status(viewed, "GET", f"/api/echoes?run={viewed.run_id}&colour=rainbow")
     assert status == 400 and b"colour must be one of" in data
@@ -180,3 +196,52 @@ def test_system_returns_overlay_are_the_input_points(viewed):
     r = viewed.get(f"/api/returns?run={viewed.run_id}&limit=200000")
     assert r["total"] == int(inside.sum()) == int(pulses.n_system_returns.sum())
     assert np.allclose(sorted(r["z"]), sorted(np.asarray(las.z)[inside]))
+
+
+def test_fwl_view_names_a_missing_folder(tmp_path, capsys):
+    from pipeline.cli import main
+
+    assert main(["view", str(tmp_path / "nowhere"), "--no-browser", "--port", "0"]) == 2
+    assert "nowhere: no such file or folder" in capsys.readouterr().err
+
+
+def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_dir):
+    """An input whose packet file lost its end: the run is partial (fwl run exits non-zero) and shown."""
+    import shutil
+    import time
+
+    import pyarrow.dataset as ds
+
+    from pipeline.view.jobs import Jobs
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+    from tests.pipeline.view.conftest import POINTS_PER_RANGE, RUN_ARGS, Viewed
+
+    shutil.copy(leica_dir / "leica_a.las", tmp_path / "cut.las")
+    wdp = (leica_dir / "leica_a.wdp").read_bytes()
+    (tmp_path / "cut.wdp").write_bytes(wdp[: 92 + 256 * 40])  # the header and 40 packets
+    runs = tmp_path / "runs"
+    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, RUN_ARGS, POINTS_PER_RANGE))
+    serve_in_thread(server)
+    try:
+        v = Viewed(url_of(server), tmp_path, runs / "cut", "", "", [])
+        (listed,) = v.get("/api/catalog")["inputs"]
+        v.post("/api/decompose", {"input": listed["id"]})
+        for _ in range(1200):
+            (listed,) = v.get("/api/catalog")["inputs"]
+            if listed["job"]["status"] != "running":
+                break
+            time.sleep(0.5)
+        assert listed["job"]["status"] == "done", (runs / "cut.log").read_text()
+        s = v.get(f"/api/summary?run={listed['run']}")
+        c = s["counts"]
+        assert s["status"] == "partial" and s["read_adds_up"] and c["pulses_rejected"] > 0 and c["pulses_decomposed"] > 0
+        rejected = ds.dataset(str(runs / "cut" / "rejected"), format="parquet").to_table().to_pandas()
+        assert s["rejected"]["total"] == len(rejected) == c["pulses_rejected"]
+        assert sorted(r["pulse_id"] for r in s["rejected"]["rows"]) == sorted(rejected.pulse_id)
+        (kind,) = s["rejected"]["reasons"]  # one kind of failure, the offsets and sizes as N
+        assert kind["count"] == len(rejected) and "beyond the end of cut.wdp" in kind["reason"]
+        assert "N" in kind["reason"] and not any(ch.isdigit() for ch in kind["reason"])
+        assert all(r["stage"] == "read" and "cut.wdp" in r["reason"] for r in s["rejected"]["rows"])
+    finally:
+        server.shutdown()
+        server.server_close()
