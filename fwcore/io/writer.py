@@ -38,12 +38,14 @@ def point_cloud_template(template: str | Path) -> dict:
 
         pw = open_pulsewaves(template)
         return {"scales": pw.header.scales, "offsets": pw.header.offsets, "wkt": pw.crs_wkt,
-                "system_identifier": pw.header.system_identifier}
+                "system_identifier": pw.header.system_identifier, "geokeys": []}
     with laspy.open(template) as reader:
         source = reader.header
     wkt, _ = las_crs_wkt(source)
+    geokeys = [v for v in source.vlrs if v.user_id.rstrip("\0") == "LASF_Projection"
+               and v.record_id in (34735, 34736, 34737)]
     return {"scales": source.scales, "offsets": source.offsets, "wkt": wkt,
-            "system_identifier": source.system_identifier}
+            "system_identifier": source.system_identifier, "geokeys": geokeys}
 
 
 def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, np.ndarray]) -> Path:
@@ -64,6 +66,10 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     if source["wkt"]:
         header.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT", source["wkt"].encode() + b"\0"))
         header.global_encoding.wkt = True
+    elif source["geokeys"]:  # keys that name no EPSG code: keep them as they are rather than lose them
+        header.vlrs.extend(source["geokeys"])
+        LOG.warning("%s: the input %s's GeoTIFF keys name no EPSG code, so no WKT can be written; "
+                    "its keys are copied as they are", path.name, Path(template).name)
     else:
         LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",
                     path.name, Path(template).name, path.name)

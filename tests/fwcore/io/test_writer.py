@@ -58,8 +58,10 @@ def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
     # return numbers run 1..n in time order within each pulse
     returns, totals = np.asarray(las.return_number), np.asarray(las.number_of_returns)
     assert (returns >= 1).all() and (returns <= totals).all()
-    # the sample's GeoTIFF keys name a user-defined projection: no WKT can be derived, none is invented
+    # the sample's GeoTIFF keys name a user-defined projection: no WKT can be derived, none is invented;
+    # the keys are kept as they are
     assert not las.header.global_encoding.wkt
+    assert any(isinstance(v, laspy.vlrs.known.GeoKeyDirectoryVlr) for v in las.header.vlrs)
     assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
 
 
