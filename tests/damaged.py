@@ -30,7 +30,7 @@ class Variant:
     name: str  # the input's stem
     suffix: str  # .las or .laz
     damage: str  # what was done, in a line
-    points_intact: bool  # every point record is there, as the header says (so every pulse must be accounted for)
+    pulses_intact: bool  # point records and their packet fields intact: each of the 924 pulses must be accounted for
 
     @property
     def file_name(self) -> str:
@@ -78,37 +78,37 @@ def write_variants(sample: Path, folder: Path, seed: int = 0) -> list[Variant]:
     variants: list[Variant] = []
 
     def add(name: str, damage: str, las_bytes: bytes | None, wdp_bytes: bytes | None = wdp,
-            points_intact: bool = True, laz_bytes: bytes | None = None) -> None:
+            pulses_intact: bool = True, laz_bytes: bytes | None = None) -> None:
         if laz_bytes is not None:
             (folder / f"{name}.laz").write_bytes(laz_bytes)
             (folder / f"{name}.wdp").write_bytes(wdp)
-            variants.append(Variant(name, ".laz", damage, points_intact))
+            variants.append(Variant(name, ".laz", damage, pulses_intact))
             return
         (folder / f"{name}.las").write_bytes(las_bytes)
         if wdp_bytes is not None:
             (folder / f"{name}.wdp").write_bytes(wdp_bytes)
-        variants.append(Variant(name, ".las", damage, points_intact))
+        variants.append(Variant(name, ".las", damage, pulses_intact))
 
     add("good", "none", las)
     # truncations: inside the header, inside the VLRs, inside the point records (mid-record)
-    add("cut_header", "cut at byte 100 of the 235-byte header", las[:100], points_intact=False)
+    add("cut_header", "cut at byte 100 of the 235-byte header", las[:100], pulses_intact=False)
     add("cut_vlrs", "cut inside the VLRs", las[:int(rng.integers(HEADER_SIZE + 10, points - 10))],
-        points_intact=False)
+        pulses_intact=False)
     cut = points + 1000 * POINT_SIZE + int(rng.integers(1, POINT_SIZE))
-    add("cut_points", "cut inside point record 1000 of 1125", las[:cut], points_intact=False)
+    add("cut_points", "cut inside point record 1000 of 1125", las[:cut], pulses_intact=False)
     # header fields
     huge = bytearray(las)
     struct.pack_into("<I", huge, LEGACY_POINT_COUNT, 10**9)
-    add("huge_count", "header point count 1e9 (file: 1125)", bytes(huge), points_intact=False)
+    add("huge_count", "header point count 1e9 (file: 1125)", bytes(huge), pulses_intact=False)
     low = bytearray(las)
     struct.pack_into("<I", low, LEGACY_POINT_COUNT, 1000)
-    add("low_count", "header point count 1000 (file: 1125)", bytes(low), points_intact=False)
+    add("low_count", "header point count 1000 (file: 1125)", bytes(low))
     zero = bytearray(las)
     struct.pack_into("<d", zero, X_SCALE, 0.0)
     add("x_scale_zero", "x scale 0", bytes(zero))
     flipped = bytearray(las)
     _flip(flipped, 0, HEADER_SIZE, 8, rng)
-    add("flip_header", "8 random bytes of the header", bytes(flipped), points_intact=False)
+    add("flip_header", "8 random bytes of the header", bytes(flipped), pulses_intact=False)
     # the waveform packet descriptor: random bytes, and a non-finite gain
     flipped = bytearray(las)
     _flip(flipped, descriptor, descriptor + DESCRIPTOR_PAYLOAD, 4, rng)
@@ -128,10 +128,10 @@ def write_variants(sample: Path, folder: Path, seed: int = 0) -> list[Variant]:
         for p in rng.choice(SAMPLE_POINTS, size=10, replace=False):
             at = points + int(p) * POINT_SIZE + offset + int(rng.integers(0, struct.calcsize(fmt)))
             flipped[at] ^= int(rng.integers(1, 256))
-    add("flip_packet_fields", "random bytes of 40 points' packet fields", bytes(flipped))
+    add("flip_packet_fields", "random bytes of 40 points' packet fields", bytes(flipped), pulses_intact=False)
     flipped = bytearray(las)
     _flip(flipped, points, len(las), 200, rng)
-    add("flip_points", "200 random bytes anywhere in the point records", bytes(flipped))
+    add("flip_points", "200 random bytes anywhere in the point records", bytes(flipped), pulses_intact=False)
     # the packets: random samples (still readable), empty, missing
     flipped = bytearray(wdp)
     _flip(flipped, 60, len(wdp), 500, rng)
@@ -139,14 +139,14 @@ def write_variants(sample: Path, folder: Path, seed: int = 0) -> list[Variant]:
     add("empty_wdp", "empty .wdp", las, b"")
     add("missing_wdp", "no .wdp", las, None)
     # empty and foreign files, a damaged LAZ
-    add("empty", "empty .las", b"", None, points_intact=False)
+    add("empty", "empty .las", b"", None, pulses_intact=False)
     add("foreign_text", "a text file named .las", b"flight notes: nothing to see here\n" * 20, None,
-        points_intact=False)
+        pulses_intact=False)
     add("foreign_binary", "random bytes named .las", rng.integers(0, 256, 5000, dtype=np.uint8).tobytes(), None,
-        points_intact=False)
-    add("cut_laz", "a LAZ cut at half", None, points_intact=False, laz_bytes=laz[:len(laz) // 2])
+        pulses_intact=False)
+    add("cut_laz", "a LAZ cut at half", None, pulses_intact=False, laz_bytes=laz[:len(laz) // 2])
     flipped = bytearray(laz)
     _flip(flipped, _point_data_offset(laz) + 64, len(laz), 50, rng)
-    add("flip_laz", "50 random bytes of a LAZ's compressed points", None, points_intact=False,
+    add("flip_laz", "50 random bytes of a LAZ's compressed points", None, pulses_intact=False,
         laz_bytes=bytes(flipped))
     return variants
