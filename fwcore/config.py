@@ -111,8 +111,9 @@ class DecompositionConfig:
         self._check(self.max_echoes >= 1, "max_echoes must be >= 1")
         self._check(0.5 <= self.alpha_min <= math.sqrt(2) <= self.alpha_max <= 4.0,
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
-        self._check(self.default_pulse_fwhm_ps > 0 and (self.system_pulse_fwhm_ps or 1) > 0,
-                    "system pulse FWHM must be positive (ps)")
+        self._check(self.default_pulse_fwhm_ps > 0 and (self.system_pulse_fwhm_ps is None
+                                                         or self.system_pulse_fwhm_ps > 0),
+                    f"system pulse FWHM must be positive (ps), not {self.system_pulse_fwhm_ps}")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")
@@ -134,7 +135,7 @@ class DecompositionConfig:
         return self.chaos_seeds * self.chaos_iterations
 
     def pulse_fwhm_ps(self) -> float:
-        return self.system_pulse_fwhm_ps or self.default_pulse_fwhm_ps
+        return self.default_pulse_fwhm_ps if self.system_pulse_fwhm_ps is None else self.system_pulse_fwhm_ps
 
     def replace(self, **changes: Any) -> "DecompositionConfig":
         return dataclasses.replace(self, **changes)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -11,43 +10,21 @@ from pathlib import Path
 import numpy as np
 
 import fwcore
-from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
+from fwcore.config import DecompositionConfig, Model, Optimizer
+from pipeline.progress import quiet_imports
+
+quiet_imports()  # before Beam is imported: its import-time warnings are not the user's business
+
+from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config,  # noqa: E402
+                              unknown_option_error)
 
 
 def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
-    """Defaults <- preset <- TOML file <- explicit flags, validated once."""
-    config = DecompositionConfig(**PRESETS[args.preset]) if getattr(args, "preset", None) else DecompositionConfig()
-    if args.config:
-        config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
-    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
-                 if getattr(args, f.name, None) is not None}
-    return config.replace(**overrides)
+    return decomposition_config(args)
 
 
 def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
-    g = parser.add_argument_group("method (defaults: the built-in configuration, then --config)")
-    g.add_argument("--config", help="TOML file with a [decomposition] table")
-    g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
-    if not compare:
-        g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
-        g.add_argument("--model", choices=[m.value for m in Model])
-    g.add_argument("--population", type=int, help="NP")
-    g.add_argument("--generations", type=int, help="G")
-    g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")
-    g.add_argument("--chaos-seeds", dest="chaos_seeds", type=int, help="t")
-    g.add_argument("--chaos-iterations", dest="chaos_iterations", type=int, help="k")
-    g.add_argument("--scale-min", dest="scale_min", type=float, help="a")
-    g.add_argument("--scale-max", dest="scale_max", type=float, help="b")
-    g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float)
-    g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
-    g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
-    g.add_argument("--max-echoes", dest="max_echoes", type=int)
-    g.add_argument("--prune-echoes", dest="prune_echoes", action="store_const", const=True,
-                   help="drop spurious echoes the data does not need (BIC with LM refits)")
-    g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
-    g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
-    g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
-    g.add_argument("--seed", type=int)
+    add_method_arguments(parser, compare)
 
 
 def _decompose_csv(args: argparse.Namespace) -> int:
@@ -89,21 +66,12 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
-    import logging
-
     from pipeline.run import EXIT_INTERRUPTED, run
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    for noisy in ("apache_beam", "distributed", "numba"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
     config = _config_from_args(args)
-    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-    what = f"{len(args.inputs)} input pattern(s)" if args.inputs else "the bundled Leica sample"
-    print(f"fwl run: {what} -> {args.output} "
-          f"({', '.join(formats)}); optimizer {config.optimizer.value}, model {config.model.value}")
     try:
-        summary = run(args.inputs, args.output, config, formats, args.limit, args.points_per_range, args.laz,
-                      beam_args)
+        summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
+                      beam_args, verbose=args.verbose)
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
               f"rerun the same command to complete it", file=sys.stderr)
@@ -203,16 +171,6 @@ def _view(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
@@ -226,22 +184,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
-    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline",
-                       epilog="Any other option is a Beam pipeline option (--runner, --dask_client_address, ...); "
+    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline", allow_abbrev=False,
+                       epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
                               "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
                               "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
                               "2 usage error (nothing touched), 130 interrupted.")
     r.add_argument("inputs", nargs="*", help="LAS/LAZ files, glob patterns or folders (their *.las, *.laz); "
                                              "default: the bundled Leica sample")
-    r.add_argument("--output", default="out/run",
-                   help="output folder (default out/run): new, empty, or an earlier run's, which is replaced")
-    r.add_argument("--formats", default="parquet,las,mcap", help="comma-separated: parquet, las, mcap")
     r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
-    r.add_argument("--limit", type=_positive_int, help="at most N pulses per input file")
-    r.add_argument("--points-per-range", dest="points_per_range", type=_positive_int, default=5000,
-                   help="points per unit of work (default 5000)")
-    r.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
-    _add_method_options(r)
+    FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
 
     c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ file or a NEON CSV: tables and figures")
@@ -307,13 +258,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _parser_flags(parser: argparse.ArgumentParser, command: str) -> list[str]:
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    return [s for a in sub._actions for s in a.option_strings]
+
+
 def main(argv: list[str] | None = None) -> int:
-    args, rest = build_parser().parse_known_args(argv)
-    if rest and args.command != "run":
-        build_parser().error(f"unrecognized arguments: {' '.join(rest)}")
+    parser = build_parser()
+    args, rest = parser.parse_known_args(argv)
     try:
-        return args.handler(args, rest) if args.command == "run" else args.handler(args)
-    except (ValueError, FileNotFoundError) as err:
+        if args.command == "run":
+            return args.handler(args, rest)
+        if rest:
+            raise unknown_option_error(rest, _parser_flags(parser, args.command))
+        return args.handler(args)
+    except (ValueError, FileNotFoundError) as err:  # OptionError is a ValueError
         print(f"fwl: error: {err}", file=sys.stderr)
         return 2
 

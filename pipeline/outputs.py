@@ -18,7 +18,7 @@ from pathlib import Path, PurePosixPath
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
 # the folders a run writes into; nothing else under the output folder is ours
-OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "logs")
+OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "logs", "parts")  # parts: per-range LAS/MCAP
 INPUT_SUFFIXES = (".las", ".laz")  # what a folder given as input is expanded to
 
 

@@ -1,4 +1,9 @@
-"""The records that cross the pipeline's stage boundaries, defined once."""
+"""The records that cross the pipeline's stage boundaries, defined once.
+
+    plan (driver) -> ReadTask -> read -> PulseRange -> decompose -> DecomposedRange -> geolocate
+    -> GeolocatedRange -> write range -> RangePart -> assemble per file
+    any stage -> Rejection -> rejected/
+"""
 
 from __future__ import annotations
 
@@ -8,33 +13,85 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
+from fwcore.config import DecompositionConfig
+from fwcore.decompose import BatchDecomposition
+from fwcore.io import PulseBatch
 from fwcore.io.reader import PointRange
 
 
-class ReadTask(NamedTuple):
-    """plan -> read: a range of a file, and the system pulse FWHM measured for that file."""
+@dataclasses.dataclass(frozen=True)
+class InputFile:
+    """One input as planned on the driver: where it is, the name its outputs carry, what its time stamps mean."""
 
-    point_range: PointRange
+    path: str
+    name: str  # the input's file name, as the tables' source_file
+    stem: str  # unique among the run's inputs: names its part files and per-file outputs
     system_pulse_fwhm_ps: float
+    adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
 
 
-class RejectedPulse(NamedTuple):
-    """Anything that leaves the dataflow unprocessed: a pulse (or a whole file, pulse_id -1) and why."""
+@dataclasses.dataclass(frozen=True)
+class ReadTask:
+    """plan -> read: a range of a file."""
+
+    source: InputFile
+    point_range: PointRange
+
+    @property
+    def start(self) -> int:
+        return self.point_range.start
+
+
+class Rejection(NamedTuple):
+    """The dead letter: a pulse (or a whole range or file, pulse_id -1) that leaves unprocessed, and why."""
 
     source_file: str
+    stem: str  # the input's unique output name
+    range_start: int  # -1 for a whole file
     pulse_id: int
-    stage: str  # open | read | decompose
+    stage: str  # open | read | decompose | geolocate | write
     reason: str
 
 
 @dataclasses.dataclass(frozen=True)
-class DecomposedBatch:
-    """decompose + geolocate -> sinks: one range's results as tables, plus what the per-file sinks need."""
+class PulseRange:
+    """read -> decompose: a range's pulses (those whose packet could not be read are Rejections)."""
 
-    source_file: str  # the input's name
-    source_path: str  # where the input is, for the LAS sink's header template
-    range_start: int  # first point of the range: names the part files
+    task: ReadTask
+    pulses: PulseBatch
+    n_rejected: int  # pulses of the range rejected so far
+
+
+@dataclasses.dataclass(frozen=True)
+class DecomposedRange:
+    """decompose -> geolocate: the engine's result for a range's pulses."""
+
+    task: ReadTask
+    pulses: PulseBatch
+    config: DecompositionConfig  # with the file's pulse width
+    result: BatchDecomposition
+    n_rejected: int
+
+
+@dataclasses.dataclass(frozen=True)
+class GeolocatedRange:
+    """geolocate -> write: one range's outputs as tables and arrays."""
+
+    task: ReadTask
     echoes: pa.Table  # one row per echo, kept and spurious
     pulses: pa.Table  # one row per decomposed pulse
     cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.io.writer.decomposed_echoes)
-    views: dict[str, np.ndarray] | None = None  # for MCAP: per pulse raw samples, fitted model, echoes
+    views: dict[str, np.ndarray] | None  # for MCAP: per pulse raw samples, fitted model, echoes
+    n_pulses: int  # pulses of the range, decomposed or rejected
+    n_rejected: int
+
+
+class RangePart(NamedTuple):
+    """write -> assemble: where one range's point cloud and MCAP parts are (empty when not written)."""
+
+    stem: str
+    source_path: str
+    range_start: int
+    las: str
+    mcap: str
+    adjusted_standard_gps_time: bool

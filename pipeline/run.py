@@ -10,6 +10,7 @@ no such input, an output folder that holds what is not ours), nothing touched; 1
 from __future__ import annotations
 
 import platform
+import shutil
 import time
 from importlib import metadata
 from pathlib import Path
@@ -18,33 +19,25 @@ import apache_beam as beam
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
-from apache_beam.options.pipeline_options import PipelineOptions
 
 import fwcore
 from fwcore.config import DecompositionConfig
+from pipeline.options import check_beam_args, is_dask
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete,
                               list_outputs, read_run, remove_partial_files, take_output_folder, write_run_json)
-from pipeline.transforms import NAMESPACE, DecomposeFlight
+from pipeline.plan import plan_inputs, planned_pulses
+from pipeline.progress import ProgressBar, watched_logs
+from pipeline.sinks import write_part
+from pipeline.tables import REJECTED_SCHEMA
+from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
            "OutputFolderError", "is_complete", "read_run", "run"]
 
 EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 FORMATS = frozenset({"parquet", "las", "mcap"})
-DEFAULT_RUNNER_ARGS = ["--runner=DirectRunner", "--direct_num_workers=2", "--direct_running_mode=multi_processing"]
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "echoes_kept", "echoes_spurious")
-
-
-def beam_options(beam_args: list[str]) -> PipelineOptions:
-    """The user's Beam options; the DirectRunner with 2 worker processes unless a runner is named."""
-    args = list(beam_args)
-    if not any(a.startswith("--runner") for a in args):
-        args = DEFAULT_RUNNER_ARGS + args
-    options = PipelineOptions(args)
-    # the workers import fwcore and pipeline from the installed package
-    options.view_as(beam.options.pipeline_options.SetupOptions).save_main_session = False
-    return options
 
 
 def _table(directory: Path, columns: list[str]) -> pa.Table | None:
@@ -97,6 +90,12 @@ def _metric_counts(result) -> dict[str, int]:
     return totals
 
 
+def _metrics(result, files_rejected: int) -> dict[str, int]:
+    """Beam's counters, and the files the driver rejected while planning (empty where the runner reports none)."""
+    metrics = _metric_counts(result) if result is not None else {}
+    return {**metrics, "files_rejected": files_rejected} if metrics else {}
+
+
 def status_of(counts: dict[str, int]) -> str:
     """complete: nothing rejected; partial: some inputs or pulses rejected; failed: nothing decomposed."""
     if not counts["pulses_rejected"] and not counts["files_rejected"]:
@@ -120,27 +119,72 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
     return formats
 
 
+def _write_file_rejections(output: Path, rejected: list) -> None:
+    """rejected/<stem>.parquet for each input that could not be planned (the ranges' rows come from the pipeline)."""
+    for r in rejected:
+        table = pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+        write_part(table, output / "rejected", r.stem)
+
+
+def _runner_name(options) -> str:
+    runner = options.view_as(beam.options.pipeline_options.StandardOptions).runner
+    name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
+    if name == "DirectRunner":
+        workers = options.view_as(beam.options.pipeline_options.DirectOptions).direct_num_workers
+        return f"DirectRunner, {workers} workers"
+    return name
+
+
+def _one_partition_per_range(options, n_ranges: int) -> None:
+    """The Dask runner partitions the first collection into bags of 128 elements and treats Reshuffle as a
+    no-op, so a few dozen ranges would run in one partition on one worker: give each range its own."""
+    from apache_beam.runners.dask.dask_runner import DaskOptions
+    bags = options.view_as(DaskOptions)
+    if bags.npartitions is None and bags.partition_size is None:
+        bags.npartitions = max(1, n_ranges)
+
+
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
-        beam_args: list[str] | None = None) -> dict:
+        beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
-    (OutputFolderError for a folder holding what is not ours) then, and nothing is changed.
+    (OutputFolderError for a folder holding what is not ours; OptionError for a mistyped option)
+    then, and nothing is changed. With `watch`, a start line and a progress bar go to the terminal;
+    logs go to DIR/logs/ (and to the terminal too with `verbose`).
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
+    options = check_beam_args(beam_args or [])
     paths = expand_inputs(inputs or [str(BUNDLED_SAMPLE)])
     names = InputNames.of(paths)
-    options = beam_options(beam_args or [])
     take_output_folder(output, names, paths)
     began = time.perf_counter()
-    pipeline = beam.Pipeline(options=options)
+    result, tasks, file_rejections = None, [], []
     try:
-        (pipeline | "Inputs" >> beam.Create(paths)
-         | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, points_per_range, limit, laz, names))
-        result = pipeline.run()
-        result.wait_until_finish()
+        with watched_logs(output, verbose) as (say, terminal):
+            tasks, file_rejections = plan_inputs(paths, names, config, points_per_range, limit)
+            _write_file_rejections(output, file_rejections)
+            total = sum(planned_pulses(t) for t in tasks)
+            dask = is_dask(options)
+            if dask:
+                _one_partition_per_range(options, len(tasks))
+            if watch:
+                rejected = f" ({len(file_rejections)} rejected)" if file_rejections else ""
+                say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(tasks)} ranges -> "
+                          f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
+                          f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+                say.flush()
+            if tasks:
+                pipeline = beam.Pipeline(options=options)
+                (pipeline | "Ranges" >> beam.Create(tasks)
+                 | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask))
+                with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
+                                 line_every=60.0 if watch else float("inf")):
+                    result = pipeline.run()
+                    result.wait_until_finish()
+        shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)
     seconds = time.perf_counter() - began
@@ -155,12 +199,13 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
+        "ranges": len(tasks),
         "config": config.to_dict(),
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metric_counts(result),
+        "metrics": _metrics(result, len(file_rejections)),
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),

@@ -1,299 +1,335 @@
-"""The Beam transforms: each a thin adapter over a fwcore function.
+"""The Beam transforms: each stage a few lines over a fwcore function.
 
-    input paths -> PlanRanges -> Reshuffle -> ReadPulses -> Decompose -> Geolocate -> sinks -> Done
-                                                                                \\-> rejected/
+    ReadTasks (planned on the driver) -> Spread -> ReadRange -> Decompose -> Geolocate -> WriteRange
+        -> RangeParts -> GroupByFile -> AssembleFile -> Done
+    any stage -> Rejection -> DeadLetter -> rejected/<stem>-<range>.parquet -> Done
 
-Rejections travel in the main stream as RejectedPulse records, which every
-stage passes through untouched, and are split off by type at the sinks; all
-sinks join in one last step. Tagged outputs would read better, but Beam
-2.77's Dask runner hands a tagged output's consumer every output of the
-ParDo, and computes only the graph's last step: this shape runs unchanged on
-every runner.
+One dead-letter path: a stage hands on its record or Rejections, and an
+exception in a stage turns its range into Rejections with the reason. Beam
+2.77's Dask runner hands the consumer of a tagged output every output of the
+ParDo (its ParDo collects all tags into one bag, and a tagged PCollection maps
+to its producer's bag), so Rejections travel in the main stream: `_Stage`,
+the base of every stage, passes them on, and `DeadLetter` splits them off
+once, by type. All sinks join in one last step because that runner computes
+only the graph's last step.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import os
+import socket
 import time
 from pathlib import Path
+from typing import Iterable, Iterator
 
 import apache_beam as beam
 import numpy as np
+import pyarrow as pa
 from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
-from fwcore.decompose import STATUS_REASONS, BatchDecomposition, decompose_batch
-from fwcore.io import PulseBatch, plan_point_ranges, read_pulses
+from fwcore.decompose import STATUS_REASONS, decompose_batch
+from fwcore.io import read_pulses
 from fwcore.io.geolocate import echo_positions
-from fwcore.io.reader import PointRange
 from fwcore.io.writer import decomposed_echoes, write_point_cloud
-from pipeline.outputs import InputNames
-from pipeline.records import DecomposedBatch, ReadTask, RejectedPulse
-from pipeline.sinks import write_mcap, write_part
+from fwcore.survey import model_samples
+from pipeline.records import (DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection)
+from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_mcap, write_part
 from pipeline.tables import REJECTED_SCHEMA, pulse_tables
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
-PULSE_WIDTH_POINTS = 5000
+PARTS = "parts"  # under the output folder: range parts and progress marks, removed once the files are assembled
 
 
-# ---------------------------------------------------------------- plan
+def part_name(stem: str, range_start: int) -> str:
+    return f"{stem}-{range_start:012d}"
 
-class _PlanFile(beam.DoFn):
-    def __init__(self, config: DecompositionConfig, points_per_range: int, limit: int | None, names: InputNames):
-        self.config, self.points_per_range, self.limit, self.names = config, points_per_range, limit, names
 
-    def process(self, path: str):
-        try:
-            ranges = plan_point_ranges(path, self.points_per_range)
-            fwhm = self.config.system_pulse_fwhm_ps
-            if fwhm is None:
-                fwhm = self._measured_pulse_fwhm(ranges)
-        except (OSError, ValueError) as err:
-            Metrics.counter(NAMESPACE, "files_rejected").inc()
-            yield RejectedPulse(self.names.name(path), -1, "open", str(err))
+def progress_mark(output: str | Path, stem: str, range_start: int) -> Path:
+    """Where a range's end is recorded: the driver's progress bar counts these."""
+    return Path(output) / PARTS / f"{part_name(stem, range_start)}.json"
+
+
+def _log_to_file(output: str) -> None:
+    """A worker's own log lines go to logs/ under the output folder (once per process)."""
+    logger = logging.getLogger("fwl")
+    if any(getattr(h, "fwl_worker", False) for h in logger.handlers):
+        return
+    logs = Path(output) / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(logs / f"worker-{socket.gethostname()}-{os.getpid()}.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s"))
+    handler.fwl_worker = True
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False  # not to the runner's logging, which a terminal may show
+
+
+# ---------------------------------------------------------------- the stage base
+
+def _pulse_rejections(task: ReadTask, pulse_ids: Iterable[int], stage: str, reason: str) -> list[Rejection]:
+    s = task.source
+    return [Rejection(s.name, s.stem, task.start, int(p), stage, reason) for p in pulse_ids]
+
+
+def _range_pulses(item: PulseRange | DecomposedRange) -> int:
+    """All pulses of the range: those read, and those whose packet could not be."""
+    if isinstance(item, PulseRange):
+        return len(item.pulses) + item.n_rejected
+    return len(item.pulses) + item.n_rejected - int((item.result.status != 0).sum())
+
+
+class _Stage(beam.DoFn):
+    """A stage of a range: Rejections pass through untouched; an exception rejects the range with its reason."""
+
+    stage = ""
+
+    def __init__(self, output: str):
+        self.output = output
+        self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
+
+    def setup(self):
+        _log_to_file(self.output)
+
+    def process(self, element):
+        if isinstance(element, Rejection):  # the one place where the dead letter is told from work
+            yield element
             return
-        remaining = self.limit
-        for r in ranges:
-            if remaining is not None:
-                if remaining <= 0:
-                    break
-                r = dataclasses.replace(r, max_pulses=min(remaining, r.n_pulses))
-                remaining -= r.max_pulses
-            yield ReadTask(r, fwhm)
-
-    def _measured_pulse_fwhm(self, ranges: list[PointRange]) -> float:
-        """The file's pulse width from the single-return pulses of its first PULSE_WIDTH_POINTS points
-        (fixed by the file, not by the range size); the configured default without any."""
-        if not ranges:
-            return self.config.pulse_fwhm_ps()
-        head = PointRange(ranges[0].path, 0, min(ranges[-1].stop, PULSE_WIDTH_POINTS))
         try:
-            return read_pulses(head).single_return_pulse_fwhm_ps()
-        except ValueError:
-            return self.config.pulse_fwhm_ps()
+            outputs = list(self.run(element))
+        except Exception as err:  # noqa: BLE001  any failure of one range must not stop the others
+            LOG.exception("%s: %s failed", self.stage, element.task if hasattr(element, "task") else element)
+            outputs = self.reject_range(element, f"{type(err).__name__}: {err}")
+        self.rejected.inc(sum(1 for o in outputs if isinstance(o, Rejection)))
+        yield from outputs
 
+    def run(self, element) -> Iterator:
+        raise NotImplementedError
 
-@dataclasses.dataclass
-class PlanRanges(beam.PTransform):
-    """Input paths (expanded by the driver) -> ReadTasks (a few thousand pulses each), or a RejectedPulse
-    for an unreadable file."""
-
-    config: DecompositionConfig
-    points_per_range: int = 5000
-    limit: int | None = None
-    names: InputNames = InputNames({}, {})
-
-    def expand(self, paths):
-        return paths | "PlanFile" >> beam.ParDo(_PlanFile(self.config, self.points_per_range, self.limit, self.names))
+    def reject_range(self, element, reason: str) -> list[Rejection]:
+        """Every pulse of a failed range as a Rejection (one for the range when its pulses are unknown),
+        and the range's end marked for the progress bar."""
+        task = element if isinstance(element, ReadTask) else element.task
+        ids = None
+        if isinstance(element, PulseRange):
+            ids, n = element.pulses.pulse_id, _range_pulses(element)
+        elif isinstance(element, DecomposedRange):  # those the engine rejected are Rejections already
+            ids, n = element.pulses.pulse_id[element.result.status == 0], _range_pulses(element)
+        elif isinstance(element, GeolocatedRange):
+            ids, n = element.pulses.column("pulse_id").to_numpy(), element.n_pulses
+        where = f"points {task.point_range.start}-{task.point_range.stop}"
+        if ids is None:
+            planned = task.point_range.max_pulses or task.point_range.n_pulses
+            out = [Rejection(task.source.name, task.source.stem, task.start, -1, self.stage,
+                             f"{where} ({planned} pulses): {reason}")]
+            n = max(planned, 0)
+        else:
+            out = _pulse_rejections(task, ids, self.stage, f"{where}: {reason}")
+        write_json(progress_mark(self.output, task.source.stem, task.start), {"pulses": n, "rejected": n})
+        return out
 
 
 # ---------------------------------------------------------------- read
 
-class ReadPulses(beam.DoFn):
-    """ReadTask -> (PulseBatch, pulse FWHM); pulses whose packet cannot be read -> rejected."""
+class ReadRange(_Stage):
+    """ReadTask -> PulseRange; a pulse whose packet cannot be read -> Rejection."""
 
-    def __init__(self, names: InputNames = InputNames({}, {})):
-        self.names = names
+    stage = "read"
+
+    def __init__(self, output: str):
+        super().__init__(output)
         self.read = Metrics.counter(NAMESPACE, "pulses_read")
-        self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
 
-    def process(self, task: ReadTask | RejectedPulse):
-        if isinstance(task, RejectedPulse):
-            yield task
-            return
+    def run(self, task: ReadTask):
         pulses = read_pulses(task.point_range)
-        name = self.names.name(pulses.source_file)
         self.read.inc(len(pulses) + len(pulses.rejected))
-        self.rejected.inc(len(pulses.rejected))
         for pulse_id, reason in pulses.rejected:
-            yield RejectedPulse(name, int(pulse_id), "read", reason)
+            yield Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), self.stage, reason)
         if len(pulses):
-            yield pulses, task.system_pulse_fwhm_ps, task.point_range.start
+            yield PulseRange(task, pulses, len(pulses.rejected))
+        else:  # nothing left to decompose: the range ends here
+            n = len(pulses.rejected)
+            write_json(progress_mark(self.output, task.source.stem, task.start), {"pulses": n, "rejected": n})
 
 
 # ---------------------------------------------------------------- decompose
 
-class Decompose(beam.DoFn):
-    """(PulseBatch, FWHM, range start) -> (..., BatchDecomposition): the batched numba engine, one call per range.
+class Decompose(_Stage):
+    """PulseRange -> DecomposedRange: the batched numba engine, one call per range.
 
     setup() compiles the kernels once per worker (from numba's cache when warm).
     """
 
-    def __init__(self, config: DecompositionConfig, names: InputNames = InputNames({}, {})):
-        self.config, self.names = config, names
+    stage = "decompose"
+
+    def __init__(self, output: str, config: DecompositionConfig):
+        super().__init__(output)
+        self.config = config
         self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
-        self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
 
     def setup(self):
+        super().setup()
         from fwcore.decompose import WaveformBatch
         warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
         decompose_batch(warm, self.config.replace(generations=1), threads=1)
 
-    def process(self, element):
-        if isinstance(element, RejectedPulse):
-            yield element
-            return
-        pulses, fwhm, start = element
-        config = self.config.replace(system_pulse_fwhm_ps=fwhm)
+    def run(self, item: PulseRange):
+        config = self.config.replace(system_pulse_fwhm_ps=item.task.source.system_pulse_fwhm_ps)
         began = time.perf_counter()
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
-        result = decompose_batch(pulses.waveforms(config.seed), config, threads=1)
-        seconds = time.perf_counter() - began
-        name = self.names.name(pulses.source_file)
+        result = decompose_batch(item.pulses.waveforms(config.seed), config, threads=1)
         ok = result.status == 0
         self.decomposed.inc(int(ok.sum()))
-        self.rejected.inc(int((~ok).sum()))
         for i in np.flatnonzero(~ok):
-            yield RejectedPulse(name, int(pulses.pulse_id[i]), "decompose", STATUS_REASONS[result.status[i]])
-        LOG.info("%s points %d+: %d pulses decomposed, %d rejected, %.1f pulses/s", name, start, ok.sum(),
-                 (~ok).sum(), len(pulses) / max(seconds, 1e-9))
-        yield pulses, config, start, result
+            yield Rejection(item.task.source.name, item.task.source.stem, item.task.start,
+                            int(item.pulses.pulse_id[i]), self.stage, STATUS_REASONS[result.status[i]])
+        LOG.info("%s points %d+: %d pulses decomposed, %d rejected, %.1f pulses/s", item.task.source.name,
+                 item.task.start, ok.sum(), (~ok).sum(), len(item.pulses) / max(time.perf_counter() - began, 1e-9))
+        yield DecomposedRange(item.task, item.pulses, config, result, item.n_rejected + int((~ok).sum()))
 
 
 # ---------------------------------------------------------------- geolocate
 
-def _waveform_views(pulses: PulseBatch, result: BatchDecomposition) -> dict[str, np.ndarray]:
+def _waveform_views(pulses, result) -> dict[str, np.ndarray]:
     """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing)."""
-    model = np.zeros(pulses.samples.size, dtype=np.float32)
-    for i in range(len(pulses)):
-        w = result.waveform(i)
-        lo, hi = pulses.sample_offsets[i], pulses.sample_offsets[i + 1]
-        if not w.status:
-            model[lo:hi] = w.model(np.arange(hi - lo))
     owner = result.echo_waveform
     spacing = pulses.sample_spacing_ps
     return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
-            "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32), "model": model,
+            "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32),
+            "model": model_samples(result, pulses.sample_offsets),
             "echo_offsets": result.echo_offsets, "echo_time_ps": result.position * spacing[owner],
             "echo_amplitude": result.amplitude, "echo_fwhm_ps": result.fwhm * spacing[owner],
             "echo_reject": result.reject}
 
 
-class Geolocate(beam.DoFn):
-    """Place every echo along its beam and build the output tables of one range."""
+class Geolocate(_Stage):
+    """DecomposedRange -> GeolocatedRange: every echo placed along its beam, the range's tables built."""
 
-    def __init__(self, with_views: bool, names: InputNames = InputNames({}, {})):
-        self.with_views, self.names = with_views, names
+    stage = "geolocate"
+
+    def __init__(self, output: str, with_views: bool):
+        super().__init__(output)
+        self.with_views = with_views
         self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
         self.spurious = Metrics.counter(NAMESPACE, "echoes_spurious")
 
-    def process(self, element):
-        if isinstance(element, RejectedPulse):
-            yield element
-            return
-        pulses, config, start, result = element
+    def run(self, item: DecomposedRange):
+        pulses, result = item.pulses, item.result
         xyz = echo_positions(pulses, result)
-        name = self.names.name(pulses.source_file)
-        echoes, table = pulse_tables(name, pulses, result, config, xyz, result.status == 0)
-        cloud = decomposed_echoes(pulses, result, xyz)
+        echoes, table = pulse_tables(item.task.source.name, pulses, result, item.config, xyz, result.status == 0)
         n_kept = int((result.reject == 0).sum())
         self.kept.inc(n_kept)
         self.spurious.inc(int(result.reject.size - n_kept))
-        yield DecomposedBatch(name, pulses.source_file, start, echoes, table, cloud,
-                              _waveform_views(pulses, result) if self.with_views else None)
+        yield GeolocatedRange(item.task, echoes, table, decomposed_echoes(pulses, result, xyz),
+                              _waveform_views(pulses, result) if self.with_views else None,
+                              _range_pulses(item), item.n_rejected)
 
 
-# ---------------------------------------------------------------- sinks
+# ---------------------------------------------------------------- write a range
 
-@dataclasses.dataclass
-class WriteTables(beam.PTransform):
-    """Echo and pulse tables as Parquet part files, one per range, under echoes/ and pulses/."""
+class WriteRange(_Stage):
+    """GeolocatedRange -> RangePart: the range's Parquet parts, and its LAS and MCAP parts under parts/."""
 
-    output: str
-    names: InputNames = InputNames({}, {})
+    stage = "write"
 
-    def expand(self, batches):
-        def write(batch: DecomposedBatch):
-            name = f"{self.names.stem(batch.source_file)}-{batch.range_start:012d}"
-            write_part(batch.echoes, Path(self.output) / "echoes", name)
-            write_part(batch.pulses, Path(self.output) / "pulses", name)
-            return batch.source_file, batch.echoes.num_rows
+    def __init__(self, output: str, formats: frozenset[str]):
+        super().__init__(output)
+        self.formats = formats
 
-        return batches | "WriteParts" >> beam.Map(write)
+    def _paths(self, task: ReadTask) -> dict[str, Path]:
+        name, out = part_name(task.source.stem, task.start), Path(self.output)
+        return {"echoes": out / "echoes" / f"{name}.parquet", "pulses": out / "pulses" / f"{name}.parquet",
+                "las": out / PARTS / f"{name}.las", "mcap": out / PARTS / f"{name}.mcap"}
 
-
-def _concat_cloud(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    cloud = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    # a deterministic order whatever the order ranges arrived in: time, then pulse, then return
-    order = np.lexsort((cloud["return_number"], cloud["pulse_id"], cloud["gps_time"]))
-    return {k: v[order] for k, v in cloud.items()}
-
-
-@dataclasses.dataclass
-class WritePerFile(beam.PTransform):
-    """Per input file: las/<name>.las (or .laz) and mcap/<name>.mcap. Holds one file's kept echoes at a time."""
-
-    output: str
-    formats: frozenset[str]
-    laz: bool = False
-    names: InputNames = InputNames({}, {})
-
-    def expand(self, batches):
-        def key(batch: DecomposedBatch):
-            return batch.source_file, (batch.source_path, batch.cloud, batch.views)
-
-        def write(item):
-            name, parts = item
-            parts = list(parts)
-            cloud = _concat_cloud([p[1] for p in parts])
-            stem = self.names.stem(name)
+    def run(self, item: GeolocatedRange):
+        task, paths = item.task, self._paths(item.task)
+        try:
+            if "parquet" in self.formats:
+                write_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
+                write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
             if "las" in self.formats:
-                suffix = ".laz" if self.laz else ".las"
-                write_point_cloud(Path(self.output) / "las" / f"{stem}{suffix}", parts[0][0], cloud)
+                write_point_cloud(paths["las"], task.source.path, item.cloud)
             if "mcap" in self.formats:
-                write_mcap(Path(self.output) / "mcap" / f"{stem}.mcap", cloud, [p[2] for p in parts])
-            return name
+                write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time)
+        except Exception:
+            remove_parts(list(paths.values()))  # a range is written whole or not at all
+            raise
+        write_json(progress_mark(self.output, task.source.stem, task.start),
+                   {"pulses": item.n_pulses, "rejected": item.n_rejected})
+        yield RangePart(task.source.stem, task.source.path, task.start,
+                        str(paths["las"]) if "las" in self.formats else "",
+                        str(paths["mcap"]) if "mcap" in self.formats else "", task.source.adjusted_standard_gps_time)
 
-        return batches | "KeyByFile" >> beam.Map(key) | "GroupByFile" >> beam.GroupByKey() | "Write" >> beam.Map(write)
+
+# ---------------------------------------------------------------- per file
+
+@dataclasses.dataclass
+class AssembleFiles(beam.PTransform):
+    """RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in range order."""
+
+    output: str
+    laz: bool = False
+
+    def expand(self, parts):
+        def assemble(item):
+            stem, ranges = item
+            ranges = sorted(ranges, key=lambda r: r.range_start)
+            las = [Path(r.las) for r in ranges if r.las]
+            mcap = [Path(r.mcap) for r in ranges if r.mcap]
+            if las:
+                assemble_las(las, Path(self.output) / "las" / f"{stem}{'.laz' if self.laz else '.las'}", self.laz)
+            if mcap:
+                assemble_mcap(mcap, Path(self.output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
+            remove_parts(las + mcap)
+            return stem
+
+        return (parts | "KeyByFile" >> beam.Map(lambda p: (p.stem, p))
+                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble))
 
 
 @dataclasses.dataclass
-class WriteRejected(beam.PTransform):
-    """rejected/<name>.parquet: source_file, pulse_id, stage, reason, sorted."""
+class DeadLetter(beam.PTransform):
+    """Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
 
     output: str
-    names: InputNames = InputNames({}, {})
 
     def expand(self, rejected):
         def write(item):
-            name, rows = item
+            (stem, start), rows = item
             rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
-            import pyarrow as pa
             table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-            write_part(table, Path(self.output) / "rejected", self.names.stem(name))
-            return name, len(rows)
+            write_part(table, Path(self.output) / "rejected", part_name(stem, start))
+            return stem, len(rows)
 
-        return (rejected | "KeyByFile" >> beam.Map(lambda r: (r.source_file, r))
-                | "GroupByFile" >> beam.GroupByKey() | "Write" >> beam.Map(write))
+        return (rejected | "KeyByRange" >> beam.Map(lambda r: ((r.stem, r.range_start), r))
+                | "GroupByRange" >> beam.GroupByKey() | "Write" >> beam.Map(write))
 
 
 @dataclasses.dataclass
 class DecomposeFlight(beam.PTransform):
-    """The whole dataflow, from file patterns to written outputs."""
+    """The whole dataflow, from planned ranges to written outputs."""
 
     config: DecompositionConfig
     output: str
     formats: frozenset[str]
-    points_per_range: int = 5000
-    limit: int | None = None
     laz: bool = False
-    names: InputNames = InputNames({}, {})  # each input's name and output stem (pipeline.outputs)
+    spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
 
-    def expand(self, paths):
-        batches = (paths
-                   | "PlanRanges" >> PlanRanges(self.config, self.points_per_range, self.limit, self.names)
-                   | "Reshuffle" >> beam.Reshuffle()
-                   | "ReadPulses" >> beam.ParDo(ReadPulses(self.names))
-                   | "Decompose" >> beam.ParDo(Decompose(self.config, self.names))
-                   | "Geolocate" >> beam.ParDo(Geolocate("mcap" in self.formats, self.names)))
-        decomposed = batches | "Decomposed" >> beam.Filter(lambda e: isinstance(e, DecomposedBatch))
-        rejected = batches | "Rejected" >> beam.Filter(lambda e: isinstance(e, RejectedPulse))
-        written = [rejected | "WriteRejected" >> WriteRejected(self.output, self.names)]
-        if "parquet" in self.formats:
-            written.append(decomposed | "WriteTables" >> WriteTables(self.output, self.names))
+    def expand(self, tasks):
+        if self.spread:
+            tasks = tasks | "Spread" >> beam.Reshuffle()
+        out = (tasks
+               | "ReadRange" >> beam.ParDo(ReadRange(self.output))
+               | "Decompose" >> beam.ParDo(Decompose(self.output, self.config))
+               | "Geolocate" >> beam.ParDo(Geolocate(self.output, "mcap" in self.formats))
+               | "WriteRange" >> beam.ParDo(WriteRange(self.output, self.formats)))
+        written = [out | "Rejected" >> beam.Filter(lambda e: isinstance(e, Rejection))
+                   | "DeadLetter" >> DeadLetter(self.output)]
         if self.formats & {"las", "mcap"}:
-            written.append(decomposed | "WritePerFile" >> WritePerFile(self.output, self.formats, self.laz, self.names))
+            written.append(out | "Parts" >> beam.Filter(lambda e: isinstance(e, RangePart))
+                           | "AssembleFiles" >> AssembleFiles(self.output, self.laz))
         return (tuple(written) | "AllWritten" >> beam.Flatten()
                 | "Done" >> beam.combiners.Count.Globally())

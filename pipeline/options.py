@@ -1,0 +1,168 @@
+"""The options of `fwl run`, defined once and checked before anything runs.
+
+Our flags are a PipelineOptions subclass (`FwlOptions`): typed by argparse,
+validated into one DecompositionConfig. Every other flag must be a Beam
+option: an unknown or mistyped one is an error that names it and suggests the
+closest known flag, where Beam alone would only warn and discard it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import difflib
+from typing import Any, Iterable
+
+from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
+
+from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
+
+FORMATS = ("parquet", "las", "mcap")
+# The runner when the command line names none: the DirectRunner with a worker process per core of a
+# small machine. Any of these can be given on the command line; deploy/README.md shows the others.
+RUNNER_DEFAULTS = {"runner": "DirectRunner", "direct_num_workers": 2, "direct_running_mode": "multi_processing"}
+DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+
+
+class OptionError(ValueError):
+    """A command-line option that is unknown, mistyped or out of range; the message says how to fix it."""
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def output_formats(text: str) -> list[str]:
+    """A comma-separated list of formats, checked and sorted (a list: Beam sends its options to workers as JSON)."""
+    formats = set(f.strip() for f in text.split(",") if f.strip())
+    unknown = sorted(formats - set(FORMATS))
+    if unknown or not formats:
+        raise argparse.ArgumentTypeError(f"unknown output format(s) {', '.join(unknown) or '(none)'}; "
+                                         f"choose from {', '.join(FORMATS)}")
+    return sorted(formats)
+
+
+def add_method_arguments(parser, compare: bool = False) -> None:
+    """The decomposition's flags (shared by run, decompose-csv and compare); None means "not given"."""
+    g = parser.add_argument_group("method (defaults: the built-in configuration, then --preset, then --config)")
+    g.add_argument("--config", help="TOML file with a [decomposition] table")
+    g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
+    if not compare:
+        g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
+        g.add_argument("--model", choices=[m.value for m in Model])
+    g.add_argument("--population", type=int, help="NP")
+    g.add_argument("--generations", type=int, help="G")
+    g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")
+    g.add_argument("--chaos-seeds", dest="chaos_seeds", type=int, help="t")
+    g.add_argument("--chaos-iterations", dest="chaos_iterations", type=int, help="k")
+    g.add_argument("--scale-min", dest="scale_min", type=float, help="a")
+    g.add_argument("--scale-max", dest="scale_max", type=float, help="b")
+    g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float,
+                   help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
+    g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
+    g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
+    g.add_argument("--max-echoes", dest="max_echoes", type=int)
+    g.add_argument("--prune-echoes", dest="prune_echoes", action="store_const", const=True,
+                   help="drop spurious echoes the data does not need (BIC with LM refits)")
+    g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
+    g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
+    g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
+    g.add_argument("--seed", type=int)
+
+
+def decomposition_config(args: Any) -> DecompositionConfig:
+    """Defaults <- preset <- TOML file <- explicit flags; DecompositionConfig validates the result once."""
+    config = DecompositionConfig(**PRESETS[args.preset]) if getattr(args, "preset", None) else DecompositionConfig()
+    if getattr(args, "config", None):
+        config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
+    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
+                 if getattr(args, f.name, None) is not None}
+    return config.replace(**overrides)
+
+
+class FwlOptions(PipelineOptions):
+    """The flags of `fwl run` (besides the input patterns), as Beam options."""
+
+    @classmethod
+    def _add_argparse_args(cls, parser) -> None:
+        g = parser.add_argument_group("run")
+        g.add_argument("--output", default="out/run",
+                       help="output folder (default out/run): new, empty, or an earlier run's, which is replaced")
+        g.add_argument("--formats", type=output_formats, default=",".join(FORMATS),
+                       help="comma-separated: parquet, las, mcap (default all)")
+        g.add_argument("--limit", type=positive_int, help="at most N pulses per input file")
+        g.add_argument("--points-per-range", dest="points_per_range", type=positive_int, default=5000,
+                       help="points per unit of work (default 5000)")
+        g.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
+        g.add_argument("--verbose", action="store_true",
+                       help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
+        add_method_arguments(parser)
+
+
+def _subclasses(cls: type) -> Iterable[type]:
+    for sub in cls.__subclasses__():
+        yield sub
+        yield from _subclasses(sub)
+
+
+def _beam_parser() -> argparse.ArgumentParser:
+    """A parser of every Beam option (and ours), as Beam itself builds one to read its flags."""
+    import apache_beam.runners.dask.dask_runner  # noqa: F401  registers the Dask runner's options
+    parser = argparse.ArgumentParser(allow_abbrev=False, add_help=False, exit_on_error=False)
+    for cls in dict.fromkeys(_subclasses(PipelineOptions)):
+        cls._add_argparse_args(parser)
+    return parser
+
+
+def _closest(flag: str, known: Iterable[str]) -> str:
+    name = flag.split("=", 1)[0]
+    # our flags use dashes and Beam's underscores: compare without either
+    plain = {k.replace("_", "-"): k for k in known}
+    match = difflib.get_close_matches(name.replace("_", "-"), list(plain), n=1, cutoff=0.6)
+    return f" (did you mean {plain[match[0]]}?)" if match else ""
+
+
+def unknown_option_error(flags: list[str], known: Iterable[str]) -> OptionError:
+    known = sorted(set(known))
+    names = [f for f in flags if f.startswith("-")] or flags
+    return OptionError("; ".join(f"unknown option {f.split('=', 1)[0]}{_closest(f, known)}" for f in names))
+
+
+def check_beam_args(beam_args: list[str], ours: Iterable[str] = ()) -> PipelineOptions:
+    """The Beam options of these flags, with the runner defaults where none is given.
+
+    Raises OptionError for a flag no Beam option knows (naming the closest of Beam's and `ours`)
+    and for a value of the wrong type.
+    """
+    parser = _beam_parser()
+    try:
+        _, unknown = parser.parse_known_args(beam_args)
+    except (argparse.ArgumentError, SystemExit) as err:  # a known flag with a bad value
+        raise OptionError(str(err)) from None
+    if unknown:
+        known = [s for a in parser._actions for s in a.option_strings] + list(ours)
+        raise unknown_option_error(unknown, known)
+    options = PipelineOptions(beam_args)
+    standard = options.view_as(StandardOptions)
+    if standard.runner is None:
+        standard.runner = RUNNER_DEFAULTS["runner"]
+        direct = options.view_as(DirectOptions)
+        given = {a.split("=", 1)[0].lstrip("-") for a in beam_args}
+        if "direct_num_workers" not in given:
+            direct.direct_num_workers = RUNNER_DEFAULTS["direct_num_workers"]
+        if "direct_running_mode" not in given:
+            direct.direct_running_mode = RUNNER_DEFAULTS["direct_running_mode"]
+    # the workers import fwcore and pipeline from the installed package, not from a pickled session
+    options.view_as(SetupOptions).save_main_session = False
+    return options
+
+
+def is_dask(options: PipelineOptions) -> bool:
+    runner = options.view_as(StandardOptions).runner
+    return isinstance(runner, str) and runner.endswith("DaskRunner")

@@ -1,0 +1,60 @@
+"""Planning on the driver: input patterns -> files -> ranges of a few thousand pulses each.
+
+The driver plans before the pipeline starts, so that the progress bar knows
+the total and every runner receives the ranges as its first collection (the
+Dask runner partitions that collection, one range per partition).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import laspy
+
+from fwcore.config import DecompositionConfig
+from fwcore.io import plan_point_ranges
+from fwcore.survey import file_pulse_fwhm_ps
+from pipeline.outputs import InputNames
+from pipeline.records import InputFile, ReadTask, Rejection
+
+
+def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
+              limit: int | None) -> list[ReadTask]:
+    ranges = plan_point_ranges(path, points_per_range)
+    with laspy.open(path) as reader:
+        header = reader.header
+        adjusted = int(header.global_encoding.gps_time_type) == 1
+        count = int(header.point_count)
+    fwhm = config.system_pulse_fwhm_ps
+    if fwhm is None:  # the file does not record it: measured on its single-return pulses
+        fwhm = file_pulse_fwhm_ps(path, count, config.pulse_fwhm_ps())
+    source = InputFile(path, name, stem, float(fwhm), adjusted)
+    tasks, remaining = [], limit
+    for r in ranges:
+        if remaining is not None:
+            if remaining <= 0:
+                break
+            r = dataclasses.replace(r, max_pulses=min(remaining, r.n_pulses))
+            remaining -= r.max_pulses
+        tasks.append(ReadTask(source, r))
+    return tasks
+
+
+def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,
+                limit: int | None = None) -> tuple[list[ReadTask], list[Rejection]]:
+    """The ranges of every file, and a Rejection naming the problem for each file that cannot be planned."""
+    tasks, rejected = [], []
+    for path in paths:
+        name = names.name(path)
+        stem = names.stem(name)
+        try:
+            tasks.extend(plan_file(path, name, stem, config, points_per_range, limit))
+        except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
+            reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
+            rejected.append(Rejection(name, stem, -1, -1, "open", reason))
+    return tasks, rejected
+
+
+def planned_pulses(task: ReadTask) -> int:
+    r = task.point_range
+    return r.max_pulses if r.max_pulses is not None else r.n_pulses

@@ -1,0 +1,111 @@
+"""Sinks: assembled point clouds independent of the range size, MCAP time stamps and schema, the run's options
+and its terminal output."""
+
+import json
+import subprocess
+import sys
+
+import laspy
+import numpy as np
+import pytest
+
+from fwcore.config import DecompositionConfig
+from pipeline.cli import main
+from pipeline.run import run
+from pipeline.sinks import WAVEFORM_SCHEMA, stamp_ns
+
+FAST = DecompositionConfig(optimizer="lm", lm_iterations=5)
+
+
+@pytest.fixture(scope="module")
+def two_range_sizes(tmp_path_factory, leica_dir):
+    out = tmp_path_factory.mktemp("ranges")
+    source = [str(leica_dir / "leica_a.las")]
+    for name, points in (("one", 5000), ("many", 250)):
+        run(source, out / name, FAST, ("las", "mcap"), points_per_range=points, watch=False)
+    run(source, out / "laz-one", FAST, ("las",), points_per_range=5000, laz=True, watch=False)
+    run(source, out / "laz-many", FAST, ("las",), points_per_range=250, laz=True, watch=False)
+    return out
+
+
+def test_the_assembled_las_does_not_depend_on_the_range_size(two_range_sizes):
+    one = (two_range_sizes / "one" / "las" / "leica_a.las").read_bytes()
+    many = (two_range_sizes / "many" / "las" / "leica_a.las").read_bytes()
+    assert len(one) > 50_000 and one == many
+    assert json.loads((two_range_sizes / "many" / "run.json").read_text())["ranges"] == 5
+
+
+def test_the_assembled_laz_does_not_depend_on_the_range_size(two_range_sizes):
+    one = (two_range_sizes / "laz-one" / "las" / "leica_a.laz").read_bytes()
+    assert one == (two_range_sizes / "laz-many" / "las" / "leica_a.laz").read_bytes()
+    las = laspy.read(two_range_sizes / "laz-one" / "las" / "leica_a.laz")
+    plain = laspy.read(two_range_sizes / "one" / "las" / "leica_a.las")
+    np.testing.assert_array_equal(las.points.array, plain.points.array)
+
+
+def test_the_assembled_las_keeps_header_crs_and_extra_bytes(two_range_sizes, leica_dir):
+    las = laspy.read(two_range_sizes / "many" / "las" / "leica_a.las")
+    source = laspy.read(leica_dir / "leica_a.las")
+    assert np.allclose(las.header.scales, source.header.scales) and np.allclose(las.header.offsets,
+                                                                                  source.header.offsets)
+    projection = [v for v in las.header.vlrs if v.user_id.rstrip("\0") == "LASF_Projection"]
+    assert projection and any(v.user_id.rstrip("\0") == "LASF_Projection" for v in source.header.vlrs)
+    assert {"amplitude", "echo_width", "alpha"} <= set(las.point_format.extra_dimension_names)
+    # the header's counts and bounds are those of the points, whatever the parts were
+    assert las.header.point_count == len(las.points)
+    np.testing.assert_allclose(las.header.mins, [las.x.min(), las.y.min(), las.z.min()])
+    counts = np.bincount(las.return_number, minlength=16)[1:]
+    np.testing.assert_array_equal(las.header.number_of_points_by_return, counts[:15])
+    # points in file order: pulse by pulse, returns in order within each
+    gps = np.asarray(las.gps_time)
+    assert (np.diff(las.return_number)[np.diff(gps) == 0] == 1).all()
+
+
+def test_mcap_of_many_ranges_has_every_pulse_once_in_order(two_range_sizes):
+    from mcap.reader import make_reader
+    ids = {}
+    for name in ("one", "many"):
+        with open(two_range_sizes / name / "mcap" / "leica_a.mcap", "rb") as f:
+            reader = make_reader(f)
+            channels = reader.get_summary().channels
+            ids[name] = [json.loads(m.data)["pulse_id"] for _, c, m in reader.iter_messages(topics=["/waveform"])]
+        assert "week" in next(c for c in channels.values() if c.topic == "/waveform").metadata["log_time"]
+    assert len(ids["one"]) == 924 and ids["one"] == ids["many"]
+
+
+def test_gps_time_stamps():
+    # 2020-01-01T00:00:00Z is GPS second 1,261,872,018 (18 leap seconds since 1980): adjusted 261,872,018
+    assert stamp_ns(261_872_018.0, adjusted_standard=True) == 1_577_836_800 * 10**9
+    # 2010-01-01T00:00:00Z: 15 leap seconds
+    assert stamp_ns(1_262_304_000 - 315_964_800 + 15 - 1e9, adjusted_standard=True) == 1_262_304_000 * 10**9
+    assert stamp_ns(345_600.25, adjusted_standard=False) == 345_600_250_000_000
+
+
+def test_waveform_schema_arrays_say_what_they_hold():
+    props = WAVEFORM_SCHEMA["properties"]
+    for name in ("time_ps", "raw", "model"):
+        assert props[name]["items"] == {"type": "number"}
+    assert props["echoes"]["items"]["properties"]["kept"] == {"type": "boolean"}
+
+
+def test_a_mistyped_option_fails_with_its_name(tmp_path, capsys):
+    assert main(["run", "--generatoins", "5", "--output", str(tmp_path / "out")]) == 2
+    assert "unknown option --generatoins (did you mean --generations?)" in capsys.readouterr().err
+    assert main(["run", "--direct_num_wrkers=2", "--output", str(tmp_path / "out")]) == 2
+    assert "did you mean --direct_num_workers?" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_impossible_value_is_refused_not_replaced(tmp_path, capsys):
+    assert main(["run", "--system-pulse-fwhm-ps", "0", "--output", str(tmp_path / "out")]) == 2
+    assert "system pulse FWHM must be positive" in capsys.readouterr().err
+
+
+def test_the_default_output_of_a_run_is_a_handful_of_lines(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "--output", str(tmp_path / "out"),
+                          "--limit", "100", "--optimizer", "none"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    lines = (out.stdout + out.stderr).splitlines()
+    assert lines[0].startswith("fwl run: 1 file(s), 100 pulses in 1 ranges")
+    assert len(lines) <= 4, lines
+    assert any(p.name == "driver.log" for p in (tmp_path / "out" / "logs").iterdir())
