@@ -89,7 +89,8 @@ class Viewer:
             for path in inputs.values():
                 by_input.setdefault(str(path.resolve()), ident)
             runs.append({"id": ident, "name": folder.name, "inputs": sorted(inputs),
-                         "counts": summary.get("counts", {}), "status": summary.get("status"), "optimizer": summary.get("config", {}).get("optimizer")})
+                         "counts": summary.get("counts", {}), "status": summary.get("status"),
+                         "optimizer": summary.get("config", {}).get("optimizer")})
         jobs = {str(p): s for p, s in self.jobs.states().items()}
         inputs = []
         for path in self.roots.inputs():

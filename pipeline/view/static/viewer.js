@@ -85,7 +85,7 @@ async function loadCatalog() {
     const job = input.job;
     if (job && job.status === "running") {
       running = true;
-      li.querySelector("small").textContent = `decomposing: ${job.ranges_done}/${job.ranges} ranges, ${job.seconds} s`;
+      li.querySelector("small").textContent = `decomposing: ${job.pulses_done} of ${job.pulses} pulses, ${job.seconds} s`;
       li.insertAdjacentHTML("beforeend", `<div class="progress"><div style="width:${Math.round(100 * job.progress)}%"></div></div>`);
     } else if (input.run) {
       li.querySelector("small").textContent = "has a run: click to show it";
