@@ -28,7 +28,7 @@ from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError,
 from pipeline.plan import plan_inputs, planned_pulses
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
-from pipeline.tables import REJECTED_SCHEMA
+from pipeline.tables import REJECTED_SCHEMA, empty_rejected_table
 from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
@@ -75,6 +75,15 @@ def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[
                            "echoes_kept": kept, "echoes_spurious": echo_rows.get("kept_count", 0) - kept}
     totals = {k: sum(c[k] for c in per_input.values()) for k in COUNTS}
     return totals, per_input
+
+
+def write_empty_rejected(output: Path, stems: list[str]) -> None:
+    """rejected/<stem>.parquet without rows for every input of which nothing was rejected."""
+    for stem in stems:
+        written = [output / "rejected" / f"{stem}.parquet"] + list((output / "rejected").glob(f"{stem}-" + "[0-9]" * 12
+                                                                                               + ".parquet"))
+        if not any(p.exists() for p in written):
+            write_part(empty_rejected_table(), output / "rejected", stem)
 
 
 def _metric_counts(result) -> dict[str, int]:
@@ -187,6 +196,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)
+    write_empty_rejected(output, [names.stem(names.name(p)) for p in paths])
     seconds = time.perf_counter() - began
     counts, per_input = count_outputs(output, [names.name(p) for p in paths])
     status = status_of(counts)
