@@ -132,6 +132,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     echoes = pa.table({
         "source_file": _strings(source_file, owner.size),
         "pulse_id": pa.array(pulses.pulse_id[owner], pa.int64()),
+        "channel": pa.array(pulses.channels()[owner], pa.int16()),
+        "segment": pa.array(pulses.segments()[owner], pa.int16()),
         "gps_time": pulses.gps_time[owner],
         "echo_index": pa.array(echo_index, pa.int32()),
         "echo_count": pa.array(counts[owner], pa.int32()),
@@ -159,6 +161,9 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     table = pa.table({
         "source_file": _strings(source_file, sel.size),
         "pulse_id": pa.array(pulses.pulse_id[sel], pa.int64()),
+        "channel": pa.array(pulses.channels()[sel], pa.int16()),
+        "segment": pa.array(pulses.segments()[sel], pa.int16()),
+        "packet_offset": pa.array(pulses.packet_offset[sel], pa.int64()),
         "gps_time": pulses.gps_time[sel],
         "n_samples": pa.array(np.diff(pulses.sample_offsets)[sel], pa.int32()),
         "sample_spacing_ps": pulses.sample_spacing_ps[sel],

@@ -32,8 +32,8 @@ from apache_beam.metrics import Metrics
 from fwcore.config import DecompositionConfig
 from fwcore.decompose import STATUS_REASONS, decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.geolocate import echo_positions
-from fwcore.io.writer import decomposed_echoes, write_point_cloud
+from fwcore.io.writer import write_point_cloud
+from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.survey import model_samples
 from pipeline.records import (DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection)
 from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_mcap, write_part
@@ -180,7 +180,7 @@ class Decompose(_Stage):
         config = self.config.replace(system_pulse_fwhm_ps=item.task.source.system_pulse_fwhm_ps)
         began = time.perf_counter()
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
-        result = decompose_batch(item.pulses.waveforms(config.seed), config, threads=1)
+        result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
         ok = result.status == 0
         self.decomposed.inc(int(ok.sum()))
         for i in np.flatnonzero(~ok):
