@@ -36,9 +36,9 @@ from fwcore.compare import compare_points  # noqa: E402
 from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
 from fwcore.engine import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
-from fwcore.io.geolocate import echo_positions  # noqa: E402
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv  # noqa: E402
 from fwcore.preprocess import estimate_pulse_fwhm  # noqa: E402
+from fwcore.pulses import echo_positions, pulse_waveforms  # noqa: E402
 from fwcore.records import WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
 from fwcore.survey import file_system_pulse  # noqa: E402
@@ -89,8 +89,8 @@ def leica_rows() -> None:
         config = base.replace(system_pulse_fwhm_ps=system.fwhm_ps)
         if config.shape_tolerance is None:
             config = config.replace(shape_tolerance=system.shape_tolerance)
-        result, rate = timed(pulses.waveforms(0), config)
-        other = decompose_batch(pulses.waveforms(1), config, threads=1)
+        result, rate = timed(pulse_waveforms(pulses, 0), config)
+        other = decompose_batch(pulse_waveforms(pulses, 1), config, threads=1)
         kept = result.reject == 0
         points = compare_points(pulses.return_xyz, echo_positions(pulses, result)[kept], 0.5)
         n_system = pulses.return_xyz.shape[0]

@@ -14,9 +14,10 @@ import numpy as np
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
-from fwcore.io.reader import PointRange, read_pulses
+from fwcore.io import PointRange, read_pulses
 from fwcore.model import waveform_model
 from fwcore.preprocess import estimate_pulse_fwhm
+from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
 from fwcore.records import BatchDecomposition, WaveformBatch
 
 LOG = logging.getLogger("fwl")
@@ -56,9 +57,10 @@ def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig) -
 
 def file_system_pulse(path: str | Path, point_count: int, config: DecompositionConfig,
                       head_points: int = PULSE_WIDTH_POINTS) -> SystemPulse:
-    """The file's system pulse from the first `head_points` points: its FWHM from the pulses the system saw
-    as single returns (else estimated from the waveforms' isolated echoes, else the configured default,
-    with a warning), and the model's shape tolerance fitted on those single returns."""
+    """The file's system pulse from the first `head_points` records: its FWHM from the recorded outgoing
+    waveforms (PulseWaves) or the pulses the system saw as single returns (LAS), else estimated from the
+    waveforms' isolated echoes, else the configured default, with a warning; and the model's shape
+    tolerance fitted on the single returns (0 where there are none)."""
     fwhm, fwhm_source = config.system_pulse_fwhm_ps, "configured"
     tolerance, shape_source = config.shape_tolerance, "configured"
     if fwhm is not None and tolerance is not None:
@@ -66,9 +68,11 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
     pulses = read_pulses(PointRange(str(path), 0, min(point_count, head_points))) if point_count > 0 else None
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
     if fwhm is None:
-        if single.size:
-            fwhm, fwhm_source = pulses.single_return_pulse_fwhm_ps(), "single returns"
-        else:
+        try:
+            fwhm = system_pulse_fwhm_ps(pulses)
+            outgoing = pulses.outgoing is not None and pulses.outgoing.size > 0
+            fwhm_source = "outgoing waveforms" if outgoing else "single returns"
+        except (ValueError, AttributeError):
             try:
                 estimate = estimate_pulse_fwhm([pulses.pulse_samples(i) for i in range(len(pulses))])
                 fwhm = estimate.fwhm_samples * float(np.median(pulses.sample_spacing_ps))
@@ -77,12 +81,12 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
                 fwhm, fwhm_source = config.default_pulse_fwhm_ps, "default (unmeasurable)"
                 LOG.warning("%s: no single return and no isolated echo to measure the system pulse width; "
                             "using %.0f ps (set --system-pulse-fwhm-ps)", Path(path).name, fwhm)
-        if not fwhm_source.startswith("single") and not fwhm_source.startswith("default"):
+        if fwhm_source.startswith("estimated"):
             LOG.warning("%s: no single-return pulse; system pulse FWHM %.0f ps %s", Path(path).name, fwhm,
                         fwhm_source)
     if tolerance is None:
         if single.size:
-            batch = pulses.waveforms(0)
+            batch = pulse_waveforms(pulses, 0)
             picked = WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single],
                                                   pulses.sample_spacing_ps[single], batch.seeds[single])
             tolerance = measure_shape_tolerance(picked, config.replace(system_pulse_fwhm_ps=fwhm))

@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
-import laspy
-
 from fwcore.config import DecompositionConfig
-from fwcore.io import plan_point_ranges
+from fwcore.io import input_summary, plan_point_ranges
 from fwcore.survey import file_system_pulse
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
@@ -21,10 +19,8 @@ from pipeline.records import InputFile, ReadTask, Rejection
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
               limit: int | None) -> list[ReadTask]:
     ranges = plan_point_ranges(path, points_per_range)
-    with laspy.open(path) as reader:
-        header = reader.header
-        adjusted = int(header.global_encoding.gps_time_type) == 1
-        count = int(header.point_count)
+    summary = input_summary(path)  # LAS or PulseWaves
+    adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
     source = InputFile(path, name, stem, pulse.fwhm_ps, adjusted, pulse.shape_tolerance, pulse.fwhm_source,
                        pulse.shape_source)
