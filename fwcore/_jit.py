@@ -13,9 +13,11 @@ from numba.extending import intrinsic
 
 # fastmath lets LLVM reassociate and vectorize (results stay deterministic for a given compiled
 # kernel), but without nnan/ninf (stumpy's set): with them LLVM may assume no inf or NaN exists,
-# and np.isfinite(np.inf) is True inside a kernel, which breaks every inf sentinel.
+# and np.isfinite(np.inf) is True inside a kernel, which breaks every inf sentinel. Nor "contract":
+# whether LLVM fuses a multiply-add depends on what it inlined, so a kernel compiled fresh and one
+# loaded from numba's cache by a worker process differed in the last bits.
 # error_model="numpy": no zero-division checks, whose exception branch blocks SIMD.
-FASTMATH = frozenset({"nsz", "arcp", "contract", "afn", "reassoc"})
+FASTMATH = frozenset({"nsz", "arcp", "afn", "reassoc"})
 JIT = dict(cache=True, fastmath=set(FASTMATH), nogil=True, error_model="numpy")
 JIT_INLINE = dict(JIT, inline="always")
 PARALLEL_JIT = dict(JIT, parallel=True)

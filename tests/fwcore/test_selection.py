@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch, decompose_waveform
+from fwcore.engine import decompose_batch
 from fwcore.model import model_of_individual, waveform_model
 from fwcore.records import WaveformBatch
 from fwcore.selection import drop_unneeded_echoes
