@@ -24,15 +24,27 @@ def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes
 
 @functools.lru_cache(maxsize=64)
 def file_crs_projjson(path: str) -> str | None:
-    """The input's coordinate reference system as PROJJSON (its LAS CRS records read with pyproj), or None."""
-    import laspy
+    """The input's coordinate reference system as PROJJSON, or None when the file names none.
+
+    The same CRS the point cloud gets as WKT (fwcore.io.crs: a WKT record, or GeoTIFF keys' EPSG code).
+    """
+    import pyproj
+
+    from fwcore.io.formats import is_pulsewaves
 
     try:
-        with laspy.open(path) as reader:
-            crs = reader.header.parse_crs()
-    except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
+        if is_pulsewaves(path):
+            from fwcore.io.pulsewaves import open_pulsewaves
+            wkt = open_pulsewaves(path).crs_wkt
+        else:
+            import laspy
+
+            from fwcore.io.crs import las_crs_wkt
+            with laspy.open(path) as reader:
+                wkt, _ = las_crs_wkt(reader.header)
+        return pyproj.CRS.from_wkt(wkt).to_json() if wkt else None
+    except Exception:  # noqa: BLE001  unreadable CRS records: the CRS is unknown, not invented
         return None
-    return crs.to_json() if crs is not None else None
 
 
 def wkb_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:
