@@ -168,7 +168,8 @@ def _las_points(path: str) -> dict[str, np.ndarray]:
 
 
 def system_return_points(run: Path, box: tuple[float, float, float, float] | None, limit: int) -> dict:
-    """The system's own returns of the run's pulses (their gps times) inside the box, at most `limit`, evenly thinned."""
+    """The system's own returns of the run's pulses (by their gps times) inside the box, at most `limit`,
+    evenly thinned."""
     xs, ys, zs = [], [], []
     for name, path in run_inputs(run).items():
         times = queries.gps_time_range(run, name)

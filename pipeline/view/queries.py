@@ -174,7 +174,8 @@ def distributions(run: Path) -> dict:
     return out
 
 
-PULSE_ORDERS = {"kept": "n_echoes_kept DESC, n_echoes ASC", "echoes": "n_echoes DESC", "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
+PULSE_ORDERS = {"kept": "n_echoes_kept DESC, n_echoes ASC", "echoes": "n_echoes DESC",
+                "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
 
 
 def pulse_list(run: Path, order: str, limit: int) -> list[dict]:
