@@ -20,6 +20,7 @@ from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.decompose import WaveformBatch, decompose_batch
 from fwcore.io import read_pulses
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
 from fwcore.rng import pulse_seed
 
 DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
@@ -45,7 +46,7 @@ def neon_batch() -> tuple[WaveformBatch, DecompositionConfig]:
 def leica_batch() -> tuple[WaveformBatch, DecompositionConfig]:
     pulses = read_pulses(DATA / "leica_als" / "leica_a.las")
     # the pulse width as the pipeline measures it: from the file's single-return pulses
-    return pulses.waveforms(0), DecompositionConfig(system_pulse_fwhm_ps=pulses.single_return_pulse_fwhm_ps())
+    return pulse_waveforms(pulses, 0), DecompositionConfig(system_pulse_fwhm_ps=system_pulse_fwhm_ps(pulses))
 
 
 def main() -> None:

@@ -25,6 +25,7 @@ from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.decompose import decompose_batch
 from fwcore.io import PulseBatch, read_pulses
 from fwcore.io.writer import write_waveform_las
+from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
 
 SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 
@@ -46,7 +47,9 @@ def repeated(pulses: PulseBatch, copies: int) -> PulseBatch:
         return np.concatenate([[0], np.cumsum(np.tile(np.diff(o), copies))])
 
     return dataclasses.replace(
-        pulses, pulse_id=np.arange(n * copies), descriptor_index=tile(pulses.descriptor_index),
+        pulses, pulse_id=np.arange(n * copies), packet_offset=tile(pulses.packet_offset),
+        descriptor_index=tile(pulses.descriptor_index), classification=tile(pulses.classification),
+        channel=tile(pulses.channel), segment=tile(pulses.segment),
         gps_time=tile(pulses.gps_time) + shift_pulse * span, anchor=anchor,
         anchor_location_ps=tile(pulses.anchor_location_ps), direction=tile(pulses.direction),
         scan_angle=tile(pulses.scan_angle), point_source_id=tile(pulses.point_source_id),
@@ -99,7 +102,7 @@ def main() -> None:
     sample = read_pulses(SAMPLE)
     big = repeated(sample, args.copies)
     path = write_waveform_las(work / "flight.las", big, "las13-wdp", 8)
-    fwhm = sample.single_return_pulse_fwhm_ps()
+    fwhm = system_pulse_fwhm_ps(sample)
     if args.preset:
         config, method = DecompositionConfig(**PRESETS[args.preset], system_pulse_fwhm_ps=fwhm), f"preset {args.preset}"
     else:
@@ -109,10 +112,10 @@ def main() -> None:
           f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}")
 
     pulses = read_pulses(path)
-    decompose_batch(pulses.waveforms(0), config.replace(generations=1), threads=2)  # compile
+    decompose_batch(pulse_waveforms(pulses, 0), config.replace(generations=1), threads=2)  # compile
     with PeakMemory() as engine_memory:
         start = time.perf_counter()
-        decompose_batch(pulses.waveforms(0), config, threads=2)
+        decompose_batch(pulse_waveforms(pulses, 0), config, threads=2)
         engine = len(pulses) / (time.perf_counter() - start)
     del pulses
 

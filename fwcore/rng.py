@@ -7,8 +7,6 @@ SplitMix64 state, seeded from a stable pulse identity.
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 from numba import njit
 
@@ -64,10 +62,30 @@ class SplitMix64:
         return self.next_u64() % n
 
 
-def pulse_seed(seed: int, *identity: object) -> int:
-    """A 64-bit seed from the run seed and a stable pulse identity (file, packet offset...).
+def pulse_seeds(seed: int, pulse_id: np.ndarray, segment: np.ndarray | int = 0) -> np.ndarray:
+    """64-bit seeds (uint64) from the run seed and each waveform's identity: its pulse id
+    (fwcore.io.records.pulse_identity, the same in every encoding of the data) and its
+    returning segment within the pulse. No file name enters: a renamed or re-encoded file
+    gives the same random streams."""
+    pulse_id = np.asarray(pulse_id, dtype=np.int64).astype(np.uint64)
+    segment = np.broadcast_to(np.asarray(segment, dtype=np.int64), pulse_id.shape).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        h = _mix64(np.full(pulse_id.shape, np.uint64(int(seed) & _MASK64), dtype=np.uint64))
+        h = _mix64(h ^ pulse_id)
+        return _mix64(h ^ segment)
 
-    blake2b, not hash(): Python's string hash changes from process to process.
-    """
-    text = "\x1f".join([str(int(seed)), *map(str, identity)])
-    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=8).digest(), "little")
+
+def pulse_seed(seed: int, pulse_id: int, segment: int = 0) -> int:
+    """One waveform's seed: pulse_seeds for a single pulse."""
+    return int(pulse_seeds(seed, np.array([int(pulse_id) & _MASK63]), segment)[0])
+
+
+_MASK63 = (1 << 63) - 1
+
+
+def _mix64(z: np.ndarray) -> np.ndarray:
+    """SplitMix64's step and finaliser on uint64 arrays (arithmetic wraps)."""
+    z = z + _GOLDEN
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    return z ^ (z >> _S31)

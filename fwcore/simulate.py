@@ -24,7 +24,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.io.records import PulseBatch
-from fwcore.io.writer import packet_byte_offsets
+from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
 from fwcore.model import LN2
 
 LIGHT_M_PER_PS = 299792458.0e-12
@@ -262,9 +262,10 @@ def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene:
     first_return = return_offsets[:-1]
 
     lengths = np.full(n_pulses, n_samples)
-    pulse_id = packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits))
+    pulse_id = pulse_ids_as_written(gps, r_xyz[first_return])  # what the reader will say of the written file
     pulses = PulseBatch(
-        source_file=source_file, pulse_id=pulse_id, descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
+        source_file=source_file, pulse_id=pulse_id,
+        packet_offset=packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits)), descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
         anchor=r_xyz[first_return], anchor_location_ps=r_time[first_return], direction=direction,
         scan_angle=np.degrees(angle), point_source_id=np.ones(n_pulses, np.uint16),
         scan_direction_flag=((np.arange(n_pulses) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
@@ -293,7 +294,10 @@ def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene:
 
 def render_truth(truth: dict[str, np.ndarray], n_samples: int, spacing_ps: float, background: float) -> np.ndarray:
     """The noiseless waveform of each pulse in the truth (pulse order of first appearance), (pulses, samples)."""
-    ids, owner = np.unique(truth["pulse_id"], return_inverse=True)
+    ids, first, owner = np.unique(truth["pulse_id"], return_index=True, return_inverse=True)
+    rank = np.empty(ids.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(ids.size)  # pulse ids are hashes: keep pulse order
+    owner = rank[owner]
     t = np.arange(n_samples) * spacing_ps
     out = np.full((ids.size, n_samples), background, dtype=float)
     for k in range(owner.size):

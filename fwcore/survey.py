@@ -11,20 +11,21 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.decompose import BatchDecomposition
-from fwcore.io.reader import PointRange, read_pulses
+from fwcore.io import PointRange, read_pulses
 from fwcore.model import waveform_model
+from fwcore.pulses import system_pulse_fwhm_ps
 
 PULSE_WIDTH_POINTS = 5000  # the head of a file that measures its pulse width: fixed by the file, not the range size
 
 
 def file_pulse_fwhm_ps(path: str | Path, point_count: int, fallback_ps: float,
                        head_points: int = PULSE_WIDTH_POINTS) -> float:
-    """The file's system pulse FWHM (ps) from the single-return pulses of its first `head_points` points;
-    `fallback_ps` for a file without any (the file does not record the width)."""
+    """The file's system pulse FWHM (ps) from the first `head_points` records: their recorded outgoing
+    waveforms (PulseWaves) or single-return pulses (LAS); `fallback_ps` for a file without any."""
     if point_count <= 0:
         return fallback_ps
     try:
-        return read_pulses(PointRange(str(path), 0, min(point_count, head_points))).single_return_pulse_fwhm_ps()
+        return system_pulse_fwhm_ps(read_pulses(PointRange(str(path), 0, min(point_count, head_points))))
     except ValueError:
         return fallback_ps
 

@@ -77,10 +77,12 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
               f"rerun the same command to complete it", file=sys.stderr)
         return EXIT_INTERRUPTED
     c = summary["counts"]
+    problems = f", problems {c['problems']}" if c.get("problems") else ""  # ranges lost whole, missing records
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
-          f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
+          f"files rejected {c['files_rejected']}{problems}; echoes kept {c['echoes_kept']}, "
+          f"spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
-    if c["pulses_rejected"] or c["files_rejected"]:
+    if c["pulses_rejected"] or c["files_rejected"] or c.get("problems"):
         print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
     return summary["exit_code"]
 
@@ -151,6 +153,30 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _info(args: argparse.Namespace) -> int:
+    """`fwl info FILE...`: headers and indexes of full-waveform files, never their samples."""
+    import json
+
+    from fwcore.io import describe_file
+    from fwcore.io.info import format_info
+
+    described, failed = [], 0
+    for path in args.files:
+        try:
+            described.append(describe_file(path))
+        except (ValueError, OSError) as err:
+            failed += 1
+            described.append({"file": path, "error": str(err)})
+            if not args.json:
+                print(f"fwl: error: {err}", file=sys.stderr)
+            continue
+        if not args.json:
+            print(format_info(described[-1]))
+    if args.json:
+        print(json.dumps(described if len(described) > 1 else described[0], indent=2, default=str))
+    return 2 if failed else 0
+
+
 def _view(args: argparse.Namespace) -> int:
     import webbrowser
 
@@ -189,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
                               "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
                               "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
                               "2 usage error (nothing touched), 130 interrupted.")
-    r.add_argument("inputs", nargs="*", help="LAS/LAZ files, glob patterns or folders (their *.las, *.laz); "
+    r.add_argument("inputs", nargs="*", help="LAS/LAZ or PulseWaves (.pls) files, glob patterns or folders "
+                                              "(their *.las, *.laz, *.pls); "
                                              "default: the bundled Leica sample")
     r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
     FwlOptions._add_argparse_args(r)
@@ -245,6 +272,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
     e.set_defaults(handler=_evaluate)
+
+    i = sub.add_parser("info", help="format, counts, descriptors and their use, CRS, bounds and times of "
+                                    "full-waveform files (LAS/LAZ, PulseWaves), from headers and indexes only")
+    i.add_argument("files", nargs="+", help="LAS/LAZ or PulseWaves (.pls) files")
+    i.add_argument("--json", action="store_true", help="print JSON (a list for several files)")
+    i.set_defaults(handler=_info)
 
     v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
     v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",

@@ -19,7 +19,7 @@ MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
 # the folders a run writes into; nothing else under the output folder is ours
 OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "logs", "parts")  # parts: per-range LAS/MCAP
-INPUT_SUFFIXES = (".las", ".laz")  # what a folder given as input is expanded to
+INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
 
 
 class OutputFolderError(ValueError):
@@ -33,7 +33,7 @@ class IncompleteRunError(ValueError):
 # ---------------------------------------------------------------- inputs
 
 def expand_inputs(inputs: list[str]) -> list[str]:
-    """Files, glob patterns and folders (their *.las and *.laz, not recursive) -> sorted distinct paths.
+    """Files, glob patterns and folders (their *.las, *.laz and *.pls, not recursive) -> sorted distinct paths.
 
     Local paths are resolved; anything that matches nothing is an error naming it.
     """
@@ -45,7 +45,7 @@ def expand_inputs(inputs: list[str]) -> list[str]:
         elif Path(item).is_dir():
             found = [str(p) for p in Path(item).iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES]
             if not found:
-                raise FileNotFoundError(f"{item}: folder holds no .las or .laz file")
+                raise FileNotFoundError(f"{item}: folder holds no .las or .laz file (nor .pls)")
         elif glob.has_magic(item):
             found = [p for p in glob.glob(item) if Path(p).is_file()]
         else:

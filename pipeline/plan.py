@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
-import laspy
-
 from fwcore.config import DecompositionConfig
-from fwcore.io import plan_point_ranges
+from fwcore.io import input_summary, plan_point_ranges
 from fwcore.survey import file_pulse_fwhm_ps
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
@@ -21,12 +19,10 @@ from pipeline.records import InputFile, ReadTask, Rejection
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
               limit: int | None) -> list[ReadTask]:
     ranges = plan_point_ranges(path, points_per_range)
-    with laspy.open(path) as reader:
-        header = reader.header
-        adjusted = int(header.global_encoding.gps_time_type) == 1
-        count = int(header.point_count)
+    summary = input_summary(path)  # LAS or PulseWaves
+    adjusted, count = summary.adjusted_standard_gps_time, summary.records
     fwhm = config.system_pulse_fwhm_ps
-    if fwhm is None:  # the file does not record it: measured on its single-return pulses
+    if fwhm is None:  # measured on the file's outgoing waveforms or single-return pulses
         fwhm = file_pulse_fwhm_ps(path, count, config.pulse_fwhm_ps())
     source = InputFile(path, name, stem, float(fwhm), adjusted)
     tasks, remaining = [], limit

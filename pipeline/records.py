@@ -16,7 +16,7 @@ import pyarrow as pa
 from fwcore.config import DecompositionConfig
 from fwcore.decompose import BatchDecomposition
 from fwcore.io import PulseBatch
-from fwcore.io.reader import PointRange
+from fwcore.io.records import PointRange
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +80,7 @@ class GeolocatedRange:
     task: ReadTask
     echoes: pa.Table  # one row per echo, kept and spurious
     pulses: pa.Table  # one row per decomposed pulse
-    cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.io.writer.decomposed_echoes)
+    cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.pulses.decomposed_echoes)
     views: dict[str, np.ndarray] | None  # for MCAP: per pulse raw samples, fitted model, echoes
     n_pulses: int  # pulses of the range, decomposed or rejected
     n_rejected: int

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -12,10 +13,51 @@ from fwcore.decompose import STATUS_REASONS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
+GEO_METADATA_KEY = b"geo"  # GeoParquet 1.1: https://geoparquet.org/releases/v1.1.0/
+GEOMETRY_COLUMN = "geometry"
+_WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
 
 
-def _with_config(table: pa.Table, config: DecompositionConfig) -> pa.Table:
-    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(config.to_dict()).encode()})
+def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes, bytes] | None = None) -> pa.Table:
+    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(config.to_dict()).encode(), **(extra or {})})
+
+
+@functools.lru_cache(maxsize=64)
+def file_crs_projjson(path: str) -> str | None:
+    """The input's coordinate reference system as PROJJSON (its LAS CRS records read with pyproj), or None."""
+    import laspy
+
+    try:
+        with laspy.open(path) as reader:
+            crs = reader.header.parse_crs()
+    except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
+        return None
+    return crs.to_json() if crs is not None else None
+
+
+def wkb_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:
+    """ISO WKB Point Z per row (little-endian, type 1001); null where a coordinate is not finite."""
+    n = len(x)
+    records = np.empty(n, dtype=_WKB_POINT_Z)
+    records["order"], records["type"] = 1, 1001
+    records["x"], records["y"], records["z"] = x, y, z
+    offsets = np.arange(n + 1, dtype=np.int32) * _WKB_POINT_Z.itemsize
+    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    validity = None if finite.all() else pa.py_buffer(np.packbits(finite, bitorder="little"))
+    return pa.Array.from_buffers(pa.binary(), n, [validity, pa.py_buffer(offsets), pa.py_buffer(records.tobytes())],
+                                 null_count=int(n - finite.sum()))
+
+
+def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str | None) -> dict[bytes, bytes]:
+    """GeoParquet 1.1 file metadata for the point geometry column; crs null means unknown (not CRS84)."""
+    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    column = {"encoding": "WKB", "geometry_types": ["Point Z"],
+              "crs": json.loads(crs_projjson) if crs_projjson else None}
+    if finite.any():
+        column["bbox"] = [float(v) for v in (x[finite].min(), y[finite].min(), z[finite].min(),
+                                             x[finite].max(), y[finite].max(), z[finite].max())]
+    meta = {"version": "1.1.0", "primary_column": GEOMETRY_COLUMN, "columns": {GEOMETRY_COLUMN: column}}
+    return {GEO_METADATA_KEY: json.dumps(meta).encode()}
 
 
 def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig) -> pa.Table:
@@ -90,6 +132,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     echoes = pa.table({
         "source_file": _strings(source_file, owner.size),
         "pulse_id": pa.array(pulses.pulse_id[owner], pa.int64()),
+        "channel": pa.array(pulses.channels()[owner], pa.int16()),
+        "segment": pa.array(pulses.segments()[owner], pa.int16()),
         "gps_time": pulses.gps_time[owner],
         "echo_index": pa.array(echo_index, pa.int32()),
         "echo_count": pa.array(counts[owner], pa.int32()),
@@ -102,6 +146,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "energy": result.energy * spacing,
         "background": result.background[owner],
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+        GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         "kept": pa.array(result.reject == 0),
         "reject_reason": pa.array(np.array(REJECT_REASONS, dtype=object)[result.reject].tolist(), pa.string()),
         "fit_error": result.fit_error[owner],
@@ -116,6 +161,9 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     table = pa.table({
         "source_file": _strings(source_file, sel.size),
         "pulse_id": pa.array(pulses.pulse_id[sel], pa.int64()),
+        "channel": pa.array(pulses.channels()[sel], pa.int16()),
+        "segment": pa.array(pulses.segments()[sel], pa.int16()),
+        "packet_offset": pa.array(pulses.packet_offset[sel], pa.int64()),
         "gps_time": pulses.gps_time[sel],
         "n_samples": pa.array(np.diff(pulses.sample_offsets)[sel], pa.int32()),
         "sample_spacing_ps": pulses.sample_spacing_ps[sel],
@@ -134,8 +182,14 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "optimizer": _strings(config.optimizer.value, sel.size),
         "model": _strings(config.model.value, sel.size),
     })
-    return _with_config(echoes, config), _with_config(table, config)
+    geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], file_crs_projjson(str(pulses.source_file)))
+    return _with_config(echoes, config, geo), _with_config(table, config)
 
 
 REJECTED_SCHEMA = pa.schema([("source_file", pa.string()), ("pulse_id", pa.int64()), ("stage", pa.string()),
                              ("reason", pa.string())])
+
+
+def empty_rejected_table() -> pa.Table:
+    """rejected/ of an input without rejections: the schema and no rows, so that queries over rejected/ work."""
+    return REJECTED_SCHEMA.empty_table()

@@ -14,10 +14,3 @@ def geolocate(anchor: np.ndarray, anchor_location_ps: np.ndarray, direction: np.
     """
     dt = np.asarray(anchor_location_ps, dtype=float) - np.asarray(time_ps, dtype=float)
     return np.asarray(anchor, dtype=float) + dt[:, None] * np.asarray(direction, dtype=float)
-
-
-def echo_positions(pulses, result) -> np.ndarray:
-    """Positions (m, 3) of every echo of a decomposed PulseBatch, in the result's echo order."""
-    owner = result.echo_waveform
-    time_ps = result.position * pulses.sample_spacing_ps[owner]
-    return geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)

@@ -36,25 +36,46 @@ class PacketStore:
 
     def read(self, data: np.ndarray, descriptor: WaveformDescriptor, offset: int, size: int) -> np.ndarray:
         """Samples of the packet at `offset` (from the record start) as float64 digitizer values."""
-        start = self.record_start + offset
+        samples, problems = self.read_many(data, descriptor, np.array([offset]), np.array([size]))
+        if problems[0] is not None:
+            raise PacketError(problems[0])
+        return samples[0]
+
+    def read_many(self, data: np.ndarray, descriptor: WaveformDescriptor, offsets: np.ndarray,
+                  sizes: np.ndarray) -> tuple[np.ndarray, list[str | None]]:
+        """Samples (k, n) of the packets at `offsets` of one descriptor, and per packet None or why it is lost.
+
+        Uncompressed packets are gathered in one fancy index; compressed ones decoded one by one.
+        """
+        offsets, sizes = np.asarray(offsets, np.int64), np.asarray(sizes, np.int64)
+        n, need = descriptor.n_samples, descriptor.packet_bytes
+        out = np.zeros((offsets.size, n))
+        problems: list[str | None] = [None] * offsets.size
+        start = self.record_start + offsets
         if self.compressed:
-            try:
-                return wdz.decode_packet(data, start, descriptor.n_samples, descriptor.bits_per_sample).astype(float)
-            except wdz.WdzError as err:
-                raise PacketError(str(err)) from None
-        need = descriptor.packet_bytes
-        if size and size < need:
-            raise PacketError(f"packet size {size} bytes is less than descriptor {descriptor.index}'s "
-                              f"{descriptor.n_samples} samples x {descriptor.container_bytes} bytes")
-        if offset < 0 or start + need > data.size:
-            raise PacketError(f"packet at byte {offset} ({need} bytes) lies beyond the end of {self.path.name} "
-                              f"({data.size - self.record_start} bytes of packets)")
-        raw = np.asarray(data[start:start + need])
-        dtype = {1: "<u1", 2: "<u2", 4: "<u4"}[descriptor.container_bytes]
-        samples = raw.view(dtype).astype(np.float64)
-        if descriptor.bits_per_sample not in (8, 16, 32):
-            samples = np.mod(samples, float(1 << descriptor.bits_per_sample))  # padding bits are not signal
-        return samples
+            for j, at in enumerate(start.tolist()):
+                try:
+                    out[j] = wdz.decode_packet(data, at, n, descriptor.bits_per_sample)
+                except wdz.WdzError as err:
+                    problems[j] = f"{self.path.name}: {err}"
+            return out, problems
+        short = (sizes > 0) & (sizes < need)
+        beyond = (offsets < 0) | (start + need > data.size)
+        for j in np.flatnonzero(short):
+            problems[j] = (f"{self.path.name}: packet size {sizes[j]} bytes is less than descriptor "
+                           f"{descriptor.index}'s {n} samples x {descriptor.container_bytes} bytes")
+        for j in np.flatnonzero(beyond & ~short):
+            problems[j] = (f"packet at byte {offsets[j]} ({need} bytes) lies beyond the end of {self.path.name} "
+                           f"({data.size - self.record_start} bytes of packets)")
+        ok = np.flatnonzero(~short & ~beyond)
+        if ok.size:
+            raw = np.asarray(data)[start[ok, None] + np.arange(need)]
+            dtype = {1: "<u1", 2: "<u2", 4: "<u4"}[descriptor.container_bytes]
+            samples = np.ascontiguousarray(raw).view(dtype).astype(np.float64)
+            if descriptor.bits_per_sample not in (8, 16, 32):
+                samples = np.mod(samples, float(1 << descriptor.bits_per_sample))  # padding bits are not signal
+            out[ok] = samples
+        return out, problems
 
 
 def lastools_compression(path: Path) -> bool | None:

@@ -6,23 +6,50 @@ returns. A file is read in ranges of points; `plan_point_ranges` makes every
 pulse belong to exactly one range (the range of its first point), also when
 its points lie far apart, and tells each range which outside points to add
 and which of its points to leave to another range.
+
+Uncompressed point records are memory-mapped and read as laspy packed
+records; LAZ goes through laspy's decompressor. Every point record the header
+promises is read or reported missing (`WaveformFile.problems`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
+import math
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 from fwcore.io.descriptors import WaveformDescriptor, read_descriptors
-from fwcore.io.packets import (PacketError, PacketStore, external_packet_file,
-                               lastools_compression)
-from fwcore.io.records import PulseBatch
+from fwcore.io.packets import PacketStore, external_packet_file, lastools_compression
+from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
-WAVEFORM_POINT_FORMATS = (4, 5, 9, 10)
+LOG = logging.getLogger("fwl")
 _KEY_SHIFT = np.int64(48)  # key = descriptor index << 48 | byte offset
+MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
+MAX_GPS_TIME_S = 2e9  # adjusted standard GPS time spans 1980-2043 within +-1e9 s; week time < 604800 s
+_OFFSET_MASK = np.int64((1 << 48) - 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class PointFormat:
+    """What differs between the full-waveform point formats, in one place."""
+
+    scan_angle_field: str
+    scan_angle_degrees: float  # degrees per stored unit
+    rgb: bool
+    nir: bool
+
+
+POINT_FORMATS = {
+    4: PointFormat("scan_angle_rank", 1.0, rgb=False, nir=False),
+    5: PointFormat("scan_angle_rank", 1.0, rgb=True, nir=False),
+    9: PointFormat("scan_angle", 0.006, rgb=False, nir=False),
+    10: PointFormat("scan_angle", 0.006, rgb=True, nir=True),
+}
+WAVEFORM_POINT_FORMATS = tuple(POINT_FORMATS)
 
 
 class WaveformFileError(ValueError):
@@ -34,22 +61,27 @@ class WaveformFile:
     path: Path
     version: str
     point_format: int
-    point_count: int
+    point_count: int  # point records we read: those present, whatever the header says
     descriptors: dict[int, WaveformDescriptor]
     packets: PacketStore
+    header_point_count: int = -1  # what the header promises
+    compressed: bool = False  # LAZ
+    problems: tuple[str, ...] = ()  # file-level findings that lose points, each naming the file
+
+    @property
+    def quirks(self) -> PointFormat:
+        return POINT_FORMATS[self.point_format]
 
 
-@dataclasses.dataclass(frozen=True)
-class PointRange:
-    """Points [start, stop) of a file, plus outside points of pulses it owns, minus points of pulses it does not."""
-
-    path: str
-    start: int
-    stop: int
-    extra_points: tuple[int, ...] = ()
-    foreign_points: tuple[int, ...] = ()
-    n_pulses: int = -1  # pulses this range owns (-1: not planned)
-    max_pulses: int | None = None  # read only the first max_pulses of them (a run's --limit)
+def _point_region_end(header, size: int) -> int:
+    """The byte where point records must end: the packet record, the first EVLR or the end of the file."""
+    ends = [size]
+    start_wdp = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)
+    if header.global_encoding.waveform_data_packets_internal and header.offset_to_point_data < start_wdp < size:
+        ends.append(start_wdp)
+    if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < header.start_of_first_evlr < size:
+        ends.append(int(header.start_of_first_evlr))
+    return min(ends)
 
 
 def open_waveform_file(path: str | Path) -> WaveformFile:
@@ -57,7 +89,8 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    if path.stat().st_size == 0:
+    size = path.stat().st_size
+    if size == 0:
         raise WaveformFileError(f"{path}: empty file")
     try:
         with laspy.open(path) as reader:
@@ -68,53 +101,135 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
     if fmt not in WAVEFORM_POINT_FORMATS:
         raise WaveformFileError(f"{path}: point format {fmt} has no waveform packets "
                                 f"(full-waveform formats are {', '.join(map(str, WAVEFORM_POINT_FORMATS))})")
+    for axis, scale, offset in zip("xyz", header.scales, header.offsets):
+        # bounds far beyond any survey's (1e-9 degrees to km; the Earth's size): a damaged header, not data
+        if not (1e-12 <= abs(scale) <= 1e4 and abs(offset) <= 1e10):
+            raise WaveformFileError(f"{path}: the header's {axis} scale {scale} / offset {offset} cannot give "
+                                    "coordinates (a scale must be finite and non-zero, within 1e-12..1e4, "
+                                    "an offset finite, within +-1e10)")
     encoding = header.global_encoding
     if encoding.waveform_data_packets_external:
         packet_file = external_packet_file(path)
+        if packet_file.stat().st_size == 0:
+            raise WaveformFileError(f"{path}: its waveform packet file {packet_file.name} is empty")
         store = PacketStore(packet_file, 0, bool(lastools_compression(packet_file)))
     elif encoding.waveform_data_packets_internal or header.start_of_waveform_data_packet_record:
         # LAS 1.3's field, or LAS 1.4's pointing at the EVLR 65535 header: offsets count from there
         start = int(header.start_of_waveform_data_packet_record)
-        if start <= 0 or start >= path.stat().st_size:
+        if start <= 0 or start >= size:
             raise WaveformFileError(f"{path}: internal waveform packets announced at byte {start}, "
-                                    f"outside the file ({path.stat().st_size} bytes)")
+                                    f"outside the file ({size} bytes)")
         store = PacketStore(path, start, False)
     else:
         raise WaveformFileError(f"{path}: the header says neither internal nor external waveform packets")
-    try:
-        descriptors = read_descriptors(header.vlrs, str(path), store.compressed)
-    except ValueError as err:
-        raise WaveformFileError(str(err)) from None
+    descriptors = read_descriptors(header.vlrs, store.compressed)
     if not descriptors:
         raise WaveformFileError(f"{path}: no waveform packet descriptor (VLR record ids 100-354)")
-    return WaveformFile(path, f"{header.version.major}.{header.version.minor}", fmt,
-                        int(header.point_count), descriptors, store)
+    promised = int(header.point_count)
+    present, problems = promised, []
+    laz = header.are_points_compressed if hasattr(header, "are_points_compressed") else path.suffix.lower() == ".laz"
+    if not laz:
+        record = header.point_format.size
+        present = max(0, (_point_region_end(header, size) - header.offset_to_point_data) // record)
+        if present < promised:
+            problems.append(f"{path}: truncated: {present} of {promised} point records present")
+        elif present > promised:
+            LOG.warning("%s: the header promises %d point records but the file holds %d; reading all %d",
+                        path, promised, present, present)
+    return WaveformFile(path, f"{header.version.major}.{header.version.minor}", fmt, present, descriptors, store,
+                        promised, laz, tuple(problems))
+
+
+def unusable_descriptors(wf: WaveformFile) -> dict[int, str]:
+    """index -> reason of the descriptors whose packets we cannot read."""
+    return {i: f"{wf.path.name}: {d.problem}" for i, d in wf.descriptors.items() if d.problem}
+
+
+# ---------------------------------------------------------------- points
+
+def _point_records(data: np.ndarray | None, reader, start: int, stop: int, extra: tuple[int, ...] = ()):
+    """laspy packed records of points [start, stop) plus `extra`, in that order."""
+    point_format = reader.header.point_format
+    if data is not None:  # uncompressed: straight from the memory map
+        rows = data[start:stop] if not extra else np.concatenate([data[start:stop], data[np.asarray(extra)]])
+        return laspy.PackedPointRecord(np.array(rows), point_format)
+    reader.seek(start)
+    parts = [np.asarray(reader.read_points(stop - start).array)]
+    for p in extra:
+        reader.seek(p)
+        parts.append(np.asarray(reader.read_points(1).array))
+    return laspy.PackedPointRecord(np.concatenate(parts), point_format)
+
+
+class _Points:
+    """An open file's point records: a memory map for LAS, laspy's reader for LAZ."""
+
+    def __init__(self, wf: WaveformFile):
+        self.wf = wf
+        try:
+            self.reader = laspy.open(wf.path)
+        except Exception as err:
+            raise WaveformFileError(f"{wf.path}: not a readable LAS/LAZ file ({err})") from None
+        self.data = None
+        if not wf.compressed and wf.point_count:
+            header = self.reader.header
+            self.data = np.memmap(wf.path, dtype=header.point_format.dtype(), mode="r",
+                                  offset=header.offset_to_point_data, shape=(wf.point_count,))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.reader.close()
+
+    def read(self, start: int, stop: int, extra: tuple[int, ...] = ()):
+        try:
+            return _point_records(self.data, self.reader, start, stop, extra)
+        except WaveformFileError:
+            raise
+        except Exception as err:  # lazrs on a truncated or corrupt chunk
+            raise WaveformFileError(f"{self.wf.path}: point records {start}..{stop} cannot be read "
+                                    f"({type(err).__name__}: {err})") from None
+
+    def packet_keys(self, chunk_points: int = 1_000_000) -> np.ndarray:
+        n = self.wf.point_count
+        keys = np.empty(n, dtype=np.int64)
+        for at in range(0, n, chunk_points):
+            stop = min(n, at + chunk_points)
+            if self.data is not None:
+                keys[at:stop] = _packet_keys(self.data[at:stop])
+            else:
+                keys[at:stop] = _packet_keys(self.read(at, stop).array)
+        return keys
 
 
 def _packet_keys(points) -> np.ndarray:
-    index = np.asarray(points.wavepacket_index).astype(np.int64)
-    offset = np.asarray(points.wavepacket_offset).astype(np.int64)
-    return np.where(index > 0, (index << _KEY_SHIFT) | offset, -1)
+    index = np.asarray(points["wavepacket_index"]).astype(np.int64)
+    offset = np.asarray(points["wavepacket_offset"]).astype(np.int64)
+    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << _KEY_SHIFT) | offset, -1)
 
+
+# ---------------------------------------------------------------- plan
 
 def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
                       chunk_points: int = 1_000_000) -> list[PointRange]:
     """Split a file into point ranges so that every pulse belongs to exactly one.
 
     One streaming pass reads the packet keys (8 bytes per point); memory grows
-    with the point count only here, never in the readers of the ranges.
+    with the point count only here, never in the readers of the ranges. The
+    file's problems (points the header promises but the file lacks) travel
+    with the first range, which reports them.
     """
     path = Path(path)
     wf = open_waveform_file(path)
+    if points_per_range < 1:
+        raise ValueError(f"points per range must be at least 1, not {points_per_range}")
     n = wf.point_count
     if n == 0:
-        return []
-    keys = np.empty(n, dtype=np.int64)
-    with laspy.open(path) as reader:
-        at = 0
-        for chunk in reader.chunk_iterator(chunk_points):
-            keys[at:at + len(chunk)] = _packet_keys(chunk)
-            at += len(chunk)
+        return [PointRange(str(path), 0, 0, n_pulses=0, problems=wf.problems)] if wf.problems else []
+    with _Points(wf) as points:
+        keys = points.packet_keys(chunk_points)
+    _warn_unusable(wf, keys)
     starts = np.arange(0, n, points_per_range)
     range_of_point = np.repeat(np.arange(starts.size), np.diff(np.append(starts, n)))
     has = keys >= 0
@@ -129,112 +244,203 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
         stop = min(n, start + points_per_range)
         extra = tuple(int(p) for p in straying[stray_owner == r])
         foreign = tuple(int(p) for p in straying[(straying >= start) & (straying < stop)])
-        ranges.append(PointRange(str(path), int(start), int(stop), extra, foreign, int(pulses_per_range[r])))
+        ranges.append(PointRange(str(path), int(start), int(stop), extra, foreign, int(pulses_per_range[r]),
+                                 problems=wf.problems if r == 0 else ()))
     return ranges
 
 
-def _read_points(reader, start: int, stop: int, extra: tuple[int, ...]):
-    reader.seek(start)
-    parts = [reader.read_points(stop - start)]
-    for p in extra:
-        reader.seek(p)
-        parts.append(reader.read_points(1))
-    return parts, np.concatenate([np.arange(start, stop), np.asarray(extra, dtype=np.int64)])
+def _warn_unusable(wf: WaveformFile, keys: np.ndarray) -> None:
+    """One warning per unusable descriptor that pulses use, one line for all the unused ones."""
+    bad = unusable_descriptors(wf)
+    if not bad:
+        return
+    index, points = np.unique(keys[keys >= 0] >> _KEY_SHIFT, return_counts=True)
+    used = dict(zip(index.tolist(), points.tolist()))
+    for d, reason in bad.items():
+        if d in used:
+            LOG.warning("%s: its %d points' pulses are rejected", reason, used[d])
+    unused = [d for d in bad if d not in used]
+    if unused:
+        LOG.warning("%s: %d unusable waveform descriptors are not used by any point (%s)", wf.path.name,
+                    len(unused), _ranges_text(unused))
 
 
-def _column(parts, name, dtype=np.float64) -> np.ndarray:
-    return np.concatenate([np.asarray(getattr(p, name)) for p in parts]).astype(dtype)
+def _ranges_text(values: list[int]) -> str:
+    """1, 2, 3, 5 -> '1-3, 5'."""
+    out, start = [], None
+    for i, v in enumerate(values):
+        if start is None:
+            start = v
+        if i + 1 == len(values) or values[i + 1] != v + 1:
+            out.append(f"{start}" if start == v else f"{start}-{v}")
+            start = None
+    return ", ".join(out)
+
+
+# ---------------------------------------------------------------- read
+
+def _field(points, name: str, dtype=np.float64) -> np.ndarray:
+    return np.asarray(points[name]).astype(dtype)
 
 
 def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = None) -> PulseBatch:
     """The pulses a range owns, with their samples and system returns.
 
-    A pulse whose packet cannot be read is listed in `rejected` with the reason.
+    A pulse that cannot be read (its descriptor unusable, its packet lost,
+    a non-finite field) is listed in `rejected` with the reason; so are the
+    point records the file lacks, once, in the first range.
     """
     if not isinstance(point_range, PointRange):
         path = Path(point_range)
         wf = wf or open_waveform_file(path)
-        point_range = PointRange(str(path), 0, wf.point_count)
+        point_range = PointRange(str(path), 0, wf.point_count, problems=wf.problems)
     wf = wf or open_waveform_file(point_range.path)
-    with laspy.open(wf.path) as reader:
-        parts, index = _read_points(reader, point_range.start, point_range.stop, point_range.extra_points)
-        scale = reader.header.scales
-        offset = reader.header.offsets
-    keys = np.concatenate([_packet_keys(p) for p in parts])
+    stop = min(point_range.stop, wf.point_count)
+    extra = tuple(p for p in point_range.extra_points if p < wf.point_count)
+    with _Points(wf) as source:
+        points = source.read(point_range.start, stop, extra) if stop > point_range.start or extra else None
+        scale, offset = source.reader.header.scales, source.reader.header.offsets
+    rejected = [(-1, reason) for reason in point_range.problems]
+    if points is None or len(points) == 0:
+        return _empty_batch(str(wf.path), tuple(rejected))
+    index = np.concatenate([np.arange(point_range.start, stop), np.asarray(extra, dtype=np.int64)])
+    keys = _packet_keys(points)
     keep = keys >= 0
     if point_range.foreign_points:
         keep &= ~np.isin(index, np.asarray(point_range.foreign_points))
-    xyz = np.stack([_column(parts, "X") * scale[0] + offset[0], _column(parts, "Y") * scale[1] + offset[1],
-                    _column(parts, "Z") * scale[2] + offset[2]], axis=1)
-    cols = {name: _column(parts, name) for name in (
-        "gps_time", "return_point_wave_location", "x_t", "y_t", "z_t", "return_number", "intensity",
-        "point_source_id", "scan_direction_flag", "edge_of_flight_line", "user_data", "wavepacket_size")}
-    angle_name = "scan_angle_rank" if wf.point_format in (4, 5) else "scan_angle"
-    cols["scan_angle"] = _column(parts, angle_name) * (1.0 if angle_name == "scan_angle_rank" else 0.006)
-    has_rgb = wf.point_format in (5, 10)
+    no_packet = int((keys < 0).sum())
+    if no_packet and point_range.max_pulses is None:  # no pulse to put them in: reported, not dropped silently
+        rejected.append((-1, f"{wf.path}: {no_packet} point records of points {point_range.start}..{stop - 1} "
+                             "point at no waveform packet (descriptor index 0, or an impossible offset)"))
+    xyz = np.stack([_field(points, "X") * scale[0] + offset[0], _field(points, "Y") * scale[1] + offset[1],
+                    _field(points, "Z") * scale[2] + offset[2]], axis=1)
+    return_number = _field(points, "return_number", np.int64)
     sel = np.flatnonzero(keep)
     # group points by packet; within a pulse, order by return number so the first is the anchor
-    order = sel[np.lexsort((cols["return_number"][sel], index[sel], keys[sel]))]
+    order = sel[np.lexsort((return_number[sel], index[sel], keys[sel]))]
     pulse_keys, starts = np.unique(keys[order], return_index=True)
     bounds = np.append(starts, order.size)
     # pulses in file order of their first point, as a reader would meet them
     first_point = np.minimum.reduceat(index[order], starts) if order.size else np.zeros(0, np.int64)
     pulse_order = np.argsort(first_point, kind="stable")[:point_range.max_pulses]
+    pulse_keys, first_of = pulse_keys[pulse_order], bounds[pulse_order]
+    n_points = (bounds[1:] - bounds[:-1])[pulse_order]
+    anchors = order[first_of]
 
+    gps_time = _field(points, "gps_time")[anchors]
+    direction = np.stack([_field(points, c)[anchors] for c in ("x_t", "y_t", "z_t")], axis=1)
+    location = _field(points, "return_point_wave_location")[anchors]
+    pulse_id = pulse_identity(gps_time, xyz[anchors])
+    d_index = (pulse_keys >> _KEY_SHIFT).astype(np.int64)
+    byte_offset = pulse_keys & _OFFSET_MASK
+    sizes = _field(points, "wavepacket_size", np.int64)[anchors]
+
+    reason = np.full(pulse_keys.size, None, dtype=object)
+    finite = np.isfinite(direction).all(axis=1) & np.isfinite(location) & np.isfinite(gps_time)
+    reason[~finite] = f"{wf.path.name}: non-finite x_t/y_t/z_t, return point location or GPS time"
+    timeless = finite & ~(np.abs(gps_time) <= MAX_GPS_TIME_S)
+    reason[timeless] = [f"{wf.path.name}: implausible GPS time {t:.6g} s" for t in gps_time[timeless]]
+    finite &= ~timeless
+    got = {}  # descriptor -> (rows of its pulses that were read, their samples (k, n))
     data = wf.packets.open()
-    good, samples, rejected = [], [], []
-    for i in pulse_order:
-        key = int(pulse_keys[i])
-        d_index, byte_offset = key >> 48, key & ((1 << 48) - 1)
-        anchor = order[bounds[i]]
-        descriptor = wf.descriptors.get(d_index)
+    for d in np.unique(d_index):
+        mine = np.flatnonzero((d_index == d) & finite)
+        descriptor = wf.descriptors.get(int(d))
         if descriptor is None:
-            rejected.append((byte_offset, f"descriptor index {d_index} has no waveform packet descriptor"))
+            reason[mine] = f"{wf.path.name}: descriptor index {d} has no waveform packet descriptor"
             continue
-        try:
-            samples.append(wf.packets.read(data, descriptor, byte_offset, int(cols["wavepacket_size"][anchor])))
-        except PacketError as err:
-            rejected.append((byte_offset, str(err)))
+        if descriptor.problem:
+            reason[mine] = f"{wf.path.name}: {descriptor.problem}"
             continue
-        good.append(i)
-    good = np.asarray(good, dtype=np.int64)
-    anchors = order[bounds[good]] if good.size else np.zeros(0, np.int64)
-    members = [order[bounds[i]:bounds[i + 1]] for i in good]
-    return_points = np.concatenate(members) if members else np.zeros(0, np.int64)
-    return_offsets = np.zeros(good.size + 1, dtype=np.int64)
-    np.cumsum([m.size for m in members], out=return_offsets[1:])
+        # echoes lie L0 - t along the beam, t within the packet: a reach beyond any flight is a damaged record
+        window_ps = descriptor.n_samples * descriptor.sample_spacing_ps
+        reach = np.maximum(np.abs(location[mine]), np.abs(location[mine] - window_ps)) \
+            * np.linalg.norm(direction[mine], axis=1)
+        far = reach > MAX_BEAM_REACH_M
+        reason[mine[far]] = [f"{wf.path.name}: implausible beam: its echoes would lie up to {r:.3g} m from the "
+                             f"pulse's return (return point location, x_t/y_t/z_t)" for r in reach[far]]
+        mine = mine[~far]
+        values, problems = wf.packets.read_many(data, descriptor, byte_offset[mine], sizes[mine])
+        lost = np.array([p is not None for p in problems], dtype=bool)
+        reason[mine[lost]] = np.array([p for p in problems if p is not None], dtype=object)
+        got[int(d)] = (mine[~lost], values[~lost])
+    good = np.flatnonzero(reason == None)  # noqa: E711 (object array)
+    rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
+    # the samples of the good pulses, flat, in pulse order
+    n_samples = np.zeros(pulse_keys.size, np.int64)
+    for d, (rows, values) in got.items():
+        n_samples[rows] = values.shape[1]
     sample_offsets = np.zeros(good.size + 1, dtype=np.int64)
-    np.cumsum([s.size for s in samples], out=sample_offsets[1:])
-    descriptors = [wf.descriptors[int(pulse_keys[i]) >> 48] for i in good]
+    np.cumsum(n_samples[good], out=sample_offsets[1:])
+    samples = np.empty(sample_offsets[-1], np.float64)
+    position = np.full(pulse_keys.size, -1, np.int64)
+    position[good] = np.arange(good.size)
+    for d, (rows, values) in got.items():
+        if rows.size:
+            samples[sample_offsets[position[rows]][:, None] + np.arange(values.shape[1])] = values
+    return _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index,
+                  gps_time, direction, location, samples, sample_offsets, tuple(rejected))
+
+
+def _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index, gps_time,
+           direction, location, samples, sample_offsets, rejected) -> PulseBatch:
+    quirks = wf.quirks
+    a = anchors[good]
+    counts = n_points[good]
+    return_offsets = np.zeros(good.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=return_offsets[1:])
+    # the points of each good pulse: order[first_of[i] : first_of[i] + n_points[i]]
+    return_points = order[np.repeat(first_of[good], counts) + np.arange(return_offsets[-1])
+                          - np.repeat(return_offsets[:-1], counts)]
+    table = {name: np.zeros(256) for name in ("spacing", "gain", "offset", "bits")}
+    for d in wf.descriptors.values():
+        table["spacing"][d.index], table["gain"][d.index] = d.sample_spacing_ps, d.gain
+        table["offset"][d.index], table["bits"][d.index] = d.offset, d.bits_per_sample
+    dg = d_index[good]
     rgb = nir = None
-    if has_rgb:
-        rgb = np.stack([_column(parts, c, np.uint16)[anchors] for c in ("red", "green", "blue")], axis=1)
-        if wf.point_format == 10:
-            nir = _column(parts, "nir", np.uint16)[anchors]
+    if quirks.rgb:
+        rgb = np.stack([_field(points, c, np.uint16)[a] for c in ("red", "green", "blue")], axis=1)
+    if quirks.nir:
+        nir = _field(points, "nir", np.uint16)[a]
+    location_all = _field(points, "return_point_wave_location")
     return PulseBatch(
         source_file=str(wf.path),
-        pulse_id=(pulse_keys[good] & ((1 << 48) - 1)).astype(np.int64),
-        descriptor_index=(pulse_keys[good] >> 48).astype(np.int16),
-        gps_time=cols["gps_time"][anchors],
-        anchor=xyz[anchors],
-        anchor_location_ps=cols["return_point_wave_location"][anchors],
-        direction=np.stack([cols["x_t"][anchors], cols["y_t"][anchors], cols["z_t"][anchors]], axis=1),
-        scan_angle=cols["scan_angle"][anchors],
-        point_source_id=cols["point_source_id"][anchors].astype(np.uint16),
-        scan_direction_flag=cols["scan_direction_flag"][anchors].astype(np.uint8),
-        edge_of_flight_line=cols["edge_of_flight_line"][anchors].astype(np.uint8),
-        user_data=cols["user_data"][anchors].astype(np.uint8),
-        sample_spacing_ps=np.array([d.sample_spacing_ps for d in descriptors], dtype=np.float64),
-        digitizer_gain=np.array([d.gain for d in descriptors], dtype=np.float64),
-        digitizer_offset=np.array([d.offset for d in descriptors], dtype=np.float64),
-        bits_per_sample=np.array([d.bits_per_sample for d in descriptors], dtype=np.int16),
-        samples=np.concatenate(samples) if samples else np.zeros(0),
+        pulse_id=pulse_id[good],
+        packet_offset=byte_offset[good].astype(np.int64),
+        descriptor_index=d_index[good].astype(np.int16),
+        gps_time=gps_time[good],
+        anchor=xyz[a],
+        anchor_location_ps=location[good],
+        direction=direction[good],
+        scan_angle=_field(points, quirks.scan_angle_field)[a] * quirks.scan_angle_degrees,
+        point_source_id=_field(points, "point_source_id", np.uint16)[a],
+        scan_direction_flag=_field(points, "scan_direction_flag", np.uint8)[a],
+        edge_of_flight_line=_field(points, "edge_of_flight_line", np.uint8)[a],
+        user_data=_field(points, "user_data", np.uint8)[a],
+        sample_spacing_ps=table["spacing"][dg],
+        digitizer_gain=table["gain"][dg],
+        digitizer_offset=table["offset"][dg],
+        bits_per_sample=table["bits"][dg].astype(np.int16),
+        samples=samples,
         sample_offsets=sample_offsets,
         return_xyz=xyz[return_points],
-        return_number=cols["return_number"][return_points].astype(np.uint8),
-        return_intensity=cols["intensity"][return_points].astype(np.uint16),
-        return_location_ps=cols["return_point_wave_location"][return_points],
+        return_number=_field(points, "return_number", np.uint8)[return_points],
+        return_intensity=_field(points, "intensity", np.uint16)[return_points],
+        return_location_ps=location_all[return_points],
         return_offsets=return_offsets,
+        classification=_field(points, "classification", np.uint8)[a],
+        channel=np.zeros(good.size, np.int16),
+        segment=np.zeros(good.size, np.int16),
         rgb=rgb, nir=nir,
-        rejected=tuple(rejected),
+        rejected=rejected,
     )
+
+
+def _empty_batch(source_file: str, rejected: tuple = ()) -> PulseBatch:
+    empty, none = np.zeros(0), np.zeros(0, np.int64)
+    return PulseBatch(source_file, none, none, none.astype(np.int16), empty, np.zeros((0, 3)), empty,
+                      np.zeros((0, 3)), empty, none.astype(np.uint16), none.astype(np.uint8), none.astype(np.uint8),
+                      none.astype(np.uint8), empty, empty, empty, none.astype(np.int16), empty, np.zeros(1, np.int64),
+                      np.zeros((0, 3)), none.astype(np.uint8), none.astype(np.uint16), empty, np.zeros(1, np.int64),
+                      classification=none.astype(np.uint8), channel=none.astype(np.int16),
+                      segment=none.astype(np.int16), rejected=rejected)

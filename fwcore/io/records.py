@@ -1,28 +1,47 @@
-"""The pulse record: what the reader hands on, one batch of pulses of one file, columnar."""
+"""The pulse record: what the readers hand on, one batch of waveforms of one file, columnar.
+
+A row is one returning waveform: a LAS pulse has one, a PulseWaves pulse one
+per returning segment (RIEGL records a second, high- or low-power one for
+some pulses); the rows of one pulse share its `pulse_id`.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
-
 import numpy as np
 
-from fwcore.decompose import WaveformBatch
-from fwcore.preprocess import median_pulse_fwhm
-from fwcore.rng import pulse_seed
+IDENTITY_QUANTUM_M = 1e-4  # anchors are compared at 0.1 mm: finer than any file's coordinate scale
+
+
+@dataclasses.dataclass(frozen=True)
+class PointRange:
+    """Records [start, stop) of a file, plus outside points of pulses it owns, minus points of pulses it does not.
+
+    For LAS the records are point records; for PulseWaves, pulse records.
+    """
+
+    path: str
+    start: int
+    stop: int
+    extra_points: tuple[int, ...] = ()
+    foreign_points: tuple[int, ...] = ()
+    n_pulses: int = -1  # pulses this range owns (-1: not planned)
+    max_pulses: int | None = None  # read only the first max_pulses of them (a run's --limit)
+    problems: tuple[str, ...] = ()  # the file's losses (e.g. truncated records), reported by its first range
 
 
 @dataclasses.dataclass(frozen=True)
 class PulseBatch:
-    """Pulses of one file: per pulse (n), their samples (flat) and their system returns (flat)."""
+    """Waveforms of one file: per row (n), their samples (flat) and the system's returns (flat, LAS only)."""
 
     source_file: str
-    pulse_id: np.ndarray  # int64: the packet's byte offset, stable for a pulse of a file
+    pulse_id: np.ndarray  # int64: the pulse's identity (pulse_identity), the same in every encoding of the data
+    packet_offset: np.ndarray  # int64: where the samples are (LAS packet offset; PulseWaves offset to waves)
     descriptor_index: np.ndarray  # int16
     gps_time: np.ndarray
-    anchor: np.ndarray  # (n, 3) X0, Y0, Z0 of the anchor point (the pulse's lowest return number)
-    anchor_location_ps: np.ndarray  # L0: the anchor's return_point_wave_location
-    direction: np.ndarray  # (n, 3) x_t, y_t, z_t: metres per ps along the beam
+    anchor: np.ndarray  # (n, 3) X0, Y0, Z0 of the anchor point
+    anchor_location_ps: np.ndarray  # L0: the anchor's time after the first sample (LAS return_point_wave_location)
+    direction: np.ndarray  # (n, 3) x_t, y_t, z_t: position = anchor + (L0 - t) * direction, t in ps
     scan_angle: np.ndarray  # degrees
     point_source_id: np.ndarray
     scan_direction_flag: np.ndarray
@@ -34,14 +53,20 @@ class PulseBatch:
     bits_per_sample: np.ndarray
     samples: np.ndarray  # float64, flat
     sample_offsets: np.ndarray  # n + 1
-    return_xyz: np.ndarray  # (m, 3) the system's own returns
+    return_xyz: np.ndarray  # (m, 3) the system's own returns (none in PulseWaves)
     return_number: np.ndarray
     return_intensity: np.ndarray
     return_location_ps: np.ndarray
     return_offsets: np.ndarray  # n + 1
+    classification: np.ndarray | None = None  # per row, when the input classifies its pulses or points
+    channel: np.ndarray | None = None  # int16 per row: PulseWaves sampling channel (LAS: 0)
+    segment: np.ndarray | None = None  # int16 per row: returning segment within the pulse (LAS: 0)
     rgb: np.ndarray | None = None  # (n, 3) when the points carry colour
     nir: np.ndarray | None = None
-    rejected: tuple[tuple[int, str], ...] = ()  # (pulse_id, reason) of pulses that could not be read
+    outgoing: np.ndarray | None = None  # float64 flat: the recorded outgoing waveform per row, where recorded
+    outgoing_offsets: np.ndarray | None = None  # n + 1
+    outgoing_spacing_ps: np.ndarray | None = None
+    rejected: tuple[tuple[int, str], ...] = ()  # (pulse_id, reason) of pulses that could not be read; -1: no pulse
 
     def __len__(self) -> int:
         return self.pulse_id.size
@@ -49,19 +74,52 @@ class PulseBatch:
     def pulse_samples(self, i: int) -> np.ndarray:
         return self.samples[self.sample_offsets[i]:self.sample_offsets[i + 1]]
 
-    def single_return_pulse_fwhm_ps(self) -> float:
-        """The system pulse FWHM (ps) measured on pulses the system saw as single returns:
-        the file does not record it, and the filter and smoothing need it."""
-        single = np.flatnonzero(np.diff(self.return_offsets) == 1)
-        if single.size == 0:
-            raise ValueError(f"{self.source_file}: no single-return pulse to measure the system pulse width")
-        width = median_pulse_fwhm([self.pulse_samples(i) for i in single])
-        return width * float(np.median(self.sample_spacing_ps[single]))
+    def outgoing_samples(self, i: int) -> np.ndarray:
+        if self.outgoing is None:
+            return np.zeros(0)
+        return self.outgoing[self.outgoing_offsets[i]:self.outgoing_offsets[i + 1]]
 
-    def waveforms(self, seed: int) -> WaveformBatch:
-        """The engine's input; each pulse's seed comes from the run seed, file name and pulse id."""
-        name = Path(self.source_file).name
-        return WaveformBatch(
-            samples=self.samples, valid=np.ones(self.samples.size, dtype=bool), offsets=self.sample_offsets,
-            sample_spacing_ps=self.sample_spacing_ps.astype(np.float64),
-            seeds=np.array([pulse_seed(seed, name, int(p)) for p in self.pulse_id], dtype=np.uint64))
+    def channels(self) -> np.ndarray:
+        return self.channel if self.channel is not None else np.zeros(len(self), np.int16)
+
+    def segments(self) -> np.ndarray:
+        return self.segment if self.segment is not None else np.zeros(len(self), np.int16)
+
+
+def pulse_identity(gps_time: np.ndarray, anchor: np.ndarray, target: np.ndarray | None = None,
+                   quantum: float = IDENTITY_QUANTUM_M) -> np.ndarray:
+    """A 53-bit id per pulse from what the pulse is: its GPS time and anchor (and target, where given),
+    coordinates compared in steps of `quantum` (1 for a format's stored integers).
+
+    Pulses equal in all of these (files without time stamps, T = 0) are told
+    apart by the order of their records: the k-th repeat hashes k in. Nothing
+    of the encoding (packet offsets, descriptor numbering, file name) enters,
+    so .las+.wdp, .laz+.wdz and a rewrite give the same ids.
+    """
+    n = len(gps_time)
+    parts = [np.ascontiguousarray(np.asarray(gps_time, dtype=np.float64)).view(np.int64)[:, None],
+             np.round(np.asarray(anchor, dtype=np.float64) / quantum).astype(np.int64)]
+    if target is not None:
+        parts.append(np.round(np.asarray(target, dtype=np.float64) / quantum).astype(np.int64))
+    key = np.ascontiguousarray(np.concatenate(parts, axis=1))
+    rows = key.view(np.dtype((np.void, key.shape[1] * 8))).ravel()
+    _, inverse, counts = np.unique(rows, return_inverse=True, return_counts=True)
+    repeat = np.zeros(n, dtype=np.int64)
+    if n and counts.max() > 1:  # the k-th record of a repeated key, in record order
+        order = np.argsort(inverse, kind="stable")
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        repeat[order] = np.arange(n) - first[inverse[order]]
+    h = np.full(n, 0x9E3779B97F4A7C15, dtype=np.uint64)
+    for column in (*key.T, repeat):
+        h = _mix64(h ^ _mix64(column.astype(np.uint64)))
+    # 53 bits: exact as a JavaScript/JSON number (the viewer), still unlikely to collide within a file
+    return (h >> np.uint64(11)).astype(np.int64)
+
+
+def _mix64(z: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser, vectorised (uint64 arithmetic wraps)."""
+    with np.errstate(over="ignore"):
+        z = z + np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))

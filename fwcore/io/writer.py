@@ -2,91 +2,77 @@
 
 from __future__ import annotations
 
+import logging
 import struct
 from pathlib import Path
+from typing import Iterable
 
 import laspy
 from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 
-from fwcore.decompose import BatchDecomposition
+from fwcore.io.crs import las_crs_wkt
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.geolocate import echo_positions
 from fwcore.io.packets import EVLR_HEADER_BYTES
-from fwcore.io.records import PulseBatch
-from fwcore.model import sigma_to_time_unit
+from fwcore.io.records import PulseBatch, pulse_identity
 
-# Per-echo attributes stored as ASPRS Extra Bytes in the decomposed point cloud.
+LOG = logging.getLogger("fwl")
+
+# Per-echo attributes stored as ASPRS Extra Bytes in the decomposed point cloud: (name, description with unit).
+# Descriptions hold at most 32 characters (LAS 1.4 Extra Bytes record).
 EXTRA_DIMENSIONS = (
-    ("amplitude", "echo amplitude above background"),
-    ("echo_width", "echo FWHM (ps)"),
-    ("sigma", "generalized Gaussian sigma (ps)"),
-    ("alpha", "generalized Gaussian shape"),
-    ("echo_energy", "area under the echo (DN ps)"),
-    ("fit_error", "pulse fit error (Eq. 9)"),
+    ("amplitude", "peak above background [DN]"),
+    ("echo_width", "echo FWHM [ps]"),
+    ("alpha", "gen. Gaussian shape [1], 2=Gauss"),
+    ("echo_energy", "area under echo [DN x ps]"),
+    ("fit_error", "pulse fit error, Eq. 9 [1]"),
+    ("channel", "waveform channel (PulseWaves)"),
 )
-_CRS_RECORDS = {("LASF_Projection", 34735), ("LASF_Projection", 34736), ("LASF_Projection", 34737),
-                ("LASF_Projection", 2112)}
 
 
-def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,
-                      positions: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Columns of the kept echoes, geolocated, with return numbers recomputed in time order.
+def point_cloud_template(template: str | Path) -> dict:
+    """Scales, offsets, CRS (WKT) and system identifier of the input the cloud is made from (LAS or PulseWaves)."""
+    template = Path(template)
+    if template.suffix.lower() == ".pls":
+        from fwcore.io.pulsewaves import open_pulsewaves
 
-    `positions` are those of every echo (fwcore.io.geolocate.echo_positions), when the caller has them.
-    """
-    kept = result.reject == 0
-    owner = result.echo_waveform[kept]
-    spacing = pulses.sample_spacing_ps[owner]
-    xyz = (echo_positions(pulses, result) if positions is None else positions)[kept]
-    # echoes are sorted by position within a pulse, so a running count is the return number
-    n_kept = np.bincount(owner, minlength=len(result))
-    first = np.concatenate([[0], np.cumsum(n_kept)[:-1]])
-    return_number = np.arange(owner.size) - first[owner] + 1
-    amplitude = result.amplitude[kept]
-    columns = {
-        "pulse_id": pulses.pulse_id[owner],
-        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
-        "gps_time": pulses.gps_time[owner],
-        "return_number": return_number,
-        "number_of_returns": n_kept[owner],
-        # 8-bit digitizers scaled to the 16-bit intensity range
-        "intensity": np.clip(np.round(amplitude * 2.0 ** (16 - pulses.bits_per_sample[owner])), 0, 65535),
-        "scan_angle": pulses.scan_angle[owner],
-        "scan_direction_flag": pulses.scan_direction_flag[owner],
-        "edge_of_flight_line": pulses.edge_of_flight_line[owner],
-        "point_source_id": pulses.point_source_id[owner],
-        "user_data": pulses.user_data[owner],
-        "amplitude": amplitude,
-        "echo_width": result.fwhm[kept] * spacing,
-        "sigma": sigma_to_time_unit(result.sigma[kept], result.alpha[kept], spacing),
-        "alpha": result.alpha[kept],
-        "echo_energy": result.energy[kept] * spacing,
-        "fit_error": result.fit_error[owner],
-    }
-    if pulses.rgb is not None:
-        columns["rgb"] = pulses.rgb[owner]
-    if pulses.nir is not None:
-        columns["nir"] = pulses.nir[owner]
-    return columns
+        pw = open_pulsewaves(template)
+        return {"scales": pw.header.scales, "offsets": pw.header.offsets, "wkt": pw.crs_wkt,
+                "system_identifier": pw.header.system_identifier, "geokeys": []}
+    with laspy.open(template) as reader:
+        source = reader.header
+    wkt, _ = las_crs_wkt(source)
+    geokeys = [v for v in source.vlrs if v.user_id.rstrip("\0") == "LASF_Projection"
+               and v.record_id in (34735, 34736, 34737)]
+    return {"scales": source.scales, "offsets": source.offsets, "wkt": wkt,
+            "system_identifier": source.system_identifier, "geokeys": geokeys}
 
 
 def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, np.ndarray]) -> Path:
     """LAS 1.4 point format 6 (7 with colour, 8 with NIR), one point per kept echo; .laz compresses.
 
-    Scale, offset and the coordinate reference system VLRs come from `template` (the input file).
+    Scale, offset, the system identifier and the coordinate reference system come from `template` (the
+    input file); the CRS is written as OGC WKT with the global encoding's WKT bit, as formats 6-10 require
+    (converted from GeoTIFF keys where the input has those). Columns: fwcore.pulses.decomposed_echoes.
     """
     path = Path(path)
-    with laspy.open(template) as reader:
-        source = reader.header
+    source = point_cloud_template(template)
     point_format = 8 if "nir" in echoes else 7 if "rgb" in echoes else 6
     header = laspy.LasHeader(point_format=point_format, version="1.4")
-    header.scales = source.scales
-    header.offsets = source.offsets
-    for vlr in source.vlrs:
-        if (vlr.user_id.rstrip("\0"), vlr.record_id) in _CRS_RECORDS:
-            header.vlrs.append(vlr)
-    header.global_encoding.wkt = any(v.record_id == 2112 for v in header.vlrs)
+    header.scales = np.asarray(source["scales"], dtype=float)
+    header.offsets = np.asarray(source["offsets"], dtype=float)
+    header.system_identifier = (source["system_identifier"] or "")[:32]
+    header.generating_software = "fwlidar"
+    if source["wkt"]:
+        header.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT", source["wkt"].encode() + b"\0"))
+        header.global_encoding.wkt = True
+    elif source["geokeys"]:  # keys that name no EPSG code: keep them as they are rather than lose them
+        header.vlrs.extend(source["geokeys"])
+        LOG.warning("%s: the input %s's GeoTIFF keys name no EPSG code, so no WKT can be written; "
+                    "its keys are copied as they are", path.name, Path(template).name)
+    else:
+        LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",
+                    path.name, Path(template).name, path.name)
     header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc) for name, desc in EXTRA_DIMENSIONS])
     las = laspy.LasData(header)
     las.x, las.y, las.z = echoes["x"], echoes["y"], echoes["z"]
@@ -94,13 +80,16 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     las.return_number = np.minimum(echoes["return_number"], 15).astype(np.uint8)
     las.number_of_returns = np.minimum(echoes["number_of_returns"], 15).astype(np.uint8)
     las.intensity = echoes["intensity"].astype(np.uint16)
+    if "classification" in echoes:
+        las.classification = np.asarray(echoes["classification"]).astype(np.uint8)
     las.scan_angle = np.round(np.asarray(echoes["scan_angle"]) / 0.006).astype(np.int16)
     las.scan_direction_flag = echoes["scan_direction_flag"].astype(np.uint8)
     las.edge_of_flight_line = echoes["edge_of_flight_line"].astype(np.uint8)
     las.point_source_id = echoes["point_source_id"].astype(np.uint16)
     las.user_data = echoes["user_data"].astype(np.uint8)
     for name, _ in EXTRA_DIMENSIONS:
-        las[name] = np.asarray(echoes[name], dtype=np.float32)
+        values = echoes[name] if name in echoes else np.zeros(len(echoes["x"]))
+        las[name] = np.asarray(values, dtype=np.float32)
     if "rgb" in echoes:
         las.red, las.green, las.blue = echoes["rgb"].T
     if "nir" in echoes:
@@ -114,24 +103,38 @@ def _evlr_header(record_length: int, description: str) -> bytes:
     return struct.pack("<H16sHQ32s", 0, b"LASF_Spec", 65535, record_length, description.encode()[:32])
 
 
+DEFAULT_SCALES, DEFAULT_OFFSETS = (0.001, 0.001, 0.001), (0.0, 0.0, 0.0)
+
+
 def packet_byte_offsets(lengths: np.ndarray, bits: np.ndarray) -> np.ndarray:
     """Where write_waveform_las puts each pulse's packet (after the record header), in pulse order:
-    the byte offsets the reader reports as pulse ids."""
+    the packet offsets the reader reports."""
     sizes = np.asarray(lengths, dtype=np.int64) * (np.asarray(bits, dtype=np.int64) // 8)
     return EVLR_HEADER_BYTES + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
 
 
+def pulse_ids_as_written(gps_time: np.ndarray, anchor: np.ndarray, scales=DEFAULT_SCALES,
+                         offsets=DEFAULT_OFFSETS) -> np.ndarray:
+    """The pulse ids the reader will give pulses written with these scales and offsets (anchors quantised as
+    the file stores them)."""
+    scales, offsets = np.asarray(scales, float), np.asarray(offsets, float)
+    stored = np.round((np.asarray(anchor, float) - offsets) / scales)
+    return pulse_identity(gps_time, stored * scales + offsets)
+
+
 def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las13-wdp",
-                       bits: int | np.ndarray = 8, scales=(0.001, 0.001, 0.001), offsets=(0.0, 0.0, 0.0)) -> Path:
+                       bits: int | np.ndarray = 8, scales=DEFAULT_SCALES, offsets=DEFAULT_OFFSETS,
+                       empty_descriptors: Iterable[int] = ()) -> Path:
     """A full-waveform file of these pulses: their system returns as points, their samples as packets.
 
     layout "las13-wdp": LAS 1.3, point format 4, packets in a .wdp beside it;
-    "las14-internal": LAS 1.4, point format 9, packets in the EVLR 65535.
-    `bits` (8 or 16, per file or per pulse) picks each pulse's descriptor:
-    one descriptor per distinct (bits, samples, spacing, gain, offset).
+    "las14-wdp": LAS 1.4, point format 9, .wdp beside it; "las14-internal": LAS 1.4, point format 9,
+    packets in the EVLR 65535. `bits` (8 or 16, per file or per pulse) picks each pulse's descriptor:
+    one descriptor per distinct (bits, samples, spacing, gain, offset), numbered from 1 around the
+    indices in `empty_descriptors`, which get descriptors of 0 samples (as RIEGL writes a hundred).
     """
-    if layout not in ("las13-wdp", "las14-internal"):
-        raise ValueError(f"layout must be las13-wdp or las14-internal, not {layout!r}")
+    if layout not in ("las13-wdp", "las14-wdp", "las14-internal"):
+        raise ValueError(f"layout must be las13-wdp, las14-wdp or las14-internal, not {layout!r}")
     path = Path(path)
     n = len(pulses)
     bits = np.broadcast_to(np.asarray(bits), (n,))
@@ -142,8 +145,12 @@ def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las1
     lengths = np.diff(pulses.sample_offsets)
     kinds = list(zip(bits.tolist(), lengths.tolist(), pulses.sample_spacing_ps.tolist(),
                      pulses.digitizer_gain.tolist(), pulses.digitizer_offset.tolist()))
-    table = {kind: i + 1 for i, kind in enumerate(dict.fromkeys(kinds))}
+    empty = sorted(set(int(i) for i in empty_descriptors))
+    free = (i for i in range(1, 256) if i not in empty)
+    table = {kind: next(free) for kind in dict.fromkeys(kinds)}
     descriptors = [WaveformDescriptor(i, k[0], 0, k[1], k[2], k[3], k[4]) for k, i in table.items()]
+    descriptors += [WaveformDescriptor(i, 16, 0, 0, 0.0, 0.0, 0.0) for i in empty]
+    descriptors.sort(key=lambda d: d.index)
     # packets, in pulse order, after the record header
     blobs, packet_offset = [], packet_byte_offsets(lengths, bits)
     for i in range(n):
@@ -165,6 +172,8 @@ def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las1
     las.return_number = pulses.return_number
     las.number_of_returns = np.diff(pulses.return_offsets)[owner].astype(np.uint8)
     las.intensity = pulses.return_intensity
+    if pulses.classification is not None:
+        las.classification = pulses.classification[owner]
     if point_format == 4:
         las.scan_angle_rank = np.round(pulses.scan_angle[owner]).astype(np.int8)
     else:
@@ -179,7 +188,7 @@ def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las1
     las.return_point_wave_location = pulses.return_location_ps.astype(np.float32)
     las.x_t, las.y_t, las.z_t = pulses.direction[owner].astype(np.float32).T
     path.parent.mkdir(parents=True, exist_ok=True)
-    if layout == "las13-wdp":
+    if layout != "las14-internal":
         las.header.global_encoding.waveform_data_packets_external = True
         las.write(path)
         path.with_suffix(".wdp").write_bytes(record)

@@ -23,7 +23,7 @@ from fwcore.compare import (MethodRun, budget_settings, budget_study, choose_fas
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.decompose import WaveformBatch
 from fwcore.io import read_pulses
-from fwcore.io.geolocate import echo_positions
+from fwcore.pulses import echo_positions, pulse_waveforms, system_pulse_fwhm_ps
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
 from fwcore.rng import pulse_seed
 
@@ -55,8 +55,8 @@ def load_input(path: str | Path, config: DecompositionConfig, limit: int | None 
     if limit is not None and limit < len(pulses):
         pulses = _first_pulses(pulses, limit)
     if config.system_pulse_fwhm_ps is None:
-        config = config.replace(system_pulse_fwhm_ps=pulses.single_return_pulse_fwhm_ps())
-    return ComparisonInput(pulses.waveforms(config.seed), pulses.pulse_id, config, pulses)
+        config = config.replace(system_pulse_fwhm_ps=system_pulse_fwhm_ps(pulses))
+    return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, config, pulses)
 
 
 def _first_pulses(pulses, n: int):
@@ -64,8 +64,11 @@ def _first_pulses(pulses, n: int):
     s_end, r_end = pulses.sample_offsets[n], pulses.return_offsets[n]
     per_pulse = {f.name for f in dataclasses.fields(pulses)} - {
         "source_file", "samples", "sample_offsets", "return_xyz", "return_number", "return_intensity",
-        "return_location_ps", "return_offsets", "rejected"}
+        "return_location_ps", "return_offsets", "rejected", "outgoing", "outgoing_offsets"}
     changes = {name: getattr(pulses, name)[:n] for name in per_pulse if getattr(pulses, name) is not None}
+    if pulses.outgoing is not None:  # PulseWaves: the recorded outgoing waveforms, flat like the samples
+        changes.update(outgoing=pulses.outgoing[:pulses.outgoing_offsets[n]],
+                       outgoing_offsets=pulses.outgoing_offsets[:n + 1])
     return dataclasses.replace(
         pulses, **changes, samples=pulses.samples[:s_end], sample_offsets=pulses.sample_offsets[:n + 1],
         return_xyz=pulses.return_xyz[:r_end], return_number=pulses.return_number[:r_end],

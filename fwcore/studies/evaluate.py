@@ -36,8 +36,11 @@ def _sensor_of(truth: pa.Table) -> SensorConfig:
 
 def match_echoes(true_pulse, true_time, found_pulse, found_time, match_ps: float) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs (true, found) of mutual nearest echoes of the same pulse within match_ps."""
-    tk = np.asarray(true_pulse, float) * _KEY_STRIDE + np.asarray(true_time, float)
-    fk = np.asarray(found_pulse, float) * _KEY_STRIDE + np.asarray(found_time, float)
+    # pulse ids are 63-bit hashes: rank them first so that rank * stride + time stays exact in float64
+    ids, rank = np.unique(np.concatenate([np.asarray(true_pulse), np.asarray(found_pulse)]), return_inverse=True)
+    n_true = np.asarray(true_pulse).size
+    tk = rank[:n_true].astype(float) * _KEY_STRIDE + np.asarray(true_time, float)
+    fk = rank[n_true:].astype(float) * _KEY_STRIDE + np.asarray(found_time, float)
     if tk.size == 0 or fk.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     t_order, f_order = np.argsort(tk, kind="stable"), np.argsort(fk, kind="stable")

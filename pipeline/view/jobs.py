@@ -2,19 +2,23 @@
 
 A child process, not a thread: the run is exactly what `fwl run INPUT
 --output DIR` does (same engine, configuration and Beam runner with its own
-worker processes), and the server stays responsive meanwhile. Progress is the
-share of the file's point ranges whose pulse tables are written.
+worker processes), and the server stays responsive meanwhile. Progress is
+what `fwl run`'s own progress bar counts: the pulses of the ranges that ended
+(their marks in the output folder), of the file's pulses.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+from pipeline.progress import ProgressBar
+from pipeline.transforms import PARTS
 from pipeline.view.catalog import is_complete_run
 
 POINTS_PER_RANGE = 5000  # fwl run's default unit of work
@@ -24,9 +28,13 @@ POINTS_PER_RANGE = 5000  # fwl run's default unit of work
 class Job:
     input: Path
     output: Path
-    ranges: int
+    pulses: int  # in the file (a run with --limit ends before)
     process: subprocess.Popen | None
     started: float = dataclasses.field(default_factory=time.time)
+
+    def __post_init__(self):
+        # never started: only its poll(), which reads the marks of ranges that ended
+        self.marks = ProgressBar(self.output / PARTS, self.pulses, io.StringIO(), interactive=False)
 
     @property
     def log(self) -> Path:
@@ -34,7 +42,7 @@ class Job:
 
     def state(self) -> dict:
         code = self.process.poll()
-        written = len(list((self.output / "pulses").glob("*.parquet"))) if (self.output / "pulses").is_dir() else 0
+        self.marks.poll()
         if code is None:
             status = "running"
         elif is_complete_run(self.output):  # exit code 0, or the partial run's code: some pulses rejected
@@ -43,10 +51,10 @@ class Job:
             status = "failed"
         log = self.log
         tail = log.read_text(errors="replace").strip().splitlines()[-3:] if status == "failed" and log.exists() else []
-        done = self.ranges if status == "done" else min(written, self.ranges)
-        return {"input": self.input.name, "status": status, "ranges_done": done, "ranges": self.ranges,
-                "progress": done / self.ranges if self.ranges else 1.0, "seconds": round(time.time() - self.started, 1),
-                "message": " ".join(tail)}
+        done = self.pulses if status == "done" else min(self.marks.done, self.pulses)
+        return {"input": self.input.name, "status": status, "pulses_done": done, "pulses": self.pulses,
+                "progress": done / self.pulses if self.pulses else 1.0,
+                "seconds": round(time.time() - self.started, 1), "message": " ".join(tail)}
 
 
 class Jobs:
@@ -71,10 +79,10 @@ class Jobs:
                 return job
             output = self.output_for(path)
             output.parent.mkdir(parents=True, exist_ok=True)
-            ranges = len(plan_point_ranges(path, self.points_per_range))
+            pulses = sum(r.n_pulses for r in plan_point_ranges(path, self.points_per_range))
             command = [sys.executable, "-m", "pipeline.cli", "run", str(path), "--output", str(output),
                        "--points-per-range", str(self.points_per_range), *self.run_args]
-            job = Job(path, output, ranges, None)
+            job = Job(path, output, pulses, None)
             with open(job.log, "w") as log:
                 job.process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
             self._jobs[path] = job

@@ -21,6 +21,7 @@ from fwcore.decompose import WaveformBatch, decompose_batch, smoothing_sigma_sam
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
 from fwcore.model import generalized_gaussian, sigma_to_time_unit
 from fwcore.preprocess import gaussian_smooth
+from fwcore.pulses import pulse_waveforms
 from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary
 
@@ -81,7 +82,7 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
     if row.get("system_pulse_fwhm_ps") is not None:
         config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
-    seed = int(pulses.waveforms(config.seed).seeds[i])
+    seed = int(pulse_waveforms(pulses, config.seed).seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
     raw = RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
@@ -167,7 +168,8 @@ def _las_points(path: str) -> dict[str, np.ndarray]:
 
 
 def system_return_points(run: Path, box: tuple[float, float, float, float] | None, limit: int) -> dict:
-    """The system's own returns of the run's pulses (their gps times) inside the box, at most `limit`, evenly thinned."""
+    """The system's own returns of the run's pulses (by their gps times) inside the box, at most `limit`,
+    evenly thinned."""
     xs, ys, zs = [], [], []
     for name, path in run_inputs(run).items():
         times = queries.gps_time_range(run, name)

@@ -96,7 +96,8 @@ def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
     cur = _connection().execute(f"SELECT * FROM {echoes} WHERE source_file = ? AND pulse_id = ? "
                                 f"ORDER BY echo_index", [source_file, int(pulse_id)])
     names = [d[0] for d in cur.description]
-    return [dict(zip(names, row)) for row in cur.fetchall()]
+    # the GeoParquet geometry (WKB bytes) repeats x, y, z and is no JSON
+    return [{k: v for k, v in zip(names, row) if k != "geometry"} for row in cur.fetchall()]
 
 
 def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | None:
@@ -173,7 +174,8 @@ def distributions(run: Path) -> dict:
     return out
 
 
-PULSE_ORDERS = {"kept": "n_echoes_kept DESC, n_echoes ASC", "echoes": "n_echoes DESC", "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
+PULSE_ORDERS = {"kept": "n_echoes_kept DESC, n_echoes ASC", "echoes": "n_echoes DESC",
+                "spurious": "n_echoes - n_echoes_kept DESC", "fit_error": "r2 ASC NULLS LAST"}
 
 
 def pulse_list(run: Path, order: str, limit: int) -> list[dict]:

@@ -10,7 +10,8 @@ is fetched from the network.
     GET  /api/summary?run=     run.json, bounds, rejected pulses with reasons, distributions
     GET  /api/echoes?run=&colour=&box=xmin,xmax,ymin,ymax&limit=   a sample of the echoes in a box
     GET  /api/returns?run=&box=&limit=  a sample of the system's own returns in a box
-    GET  /api/pulses?run=&order=&limit= the pulses to look at first (most kept echoes, most echoes, most spurious, worst fit)
+    GET  /api/pulses?run=&order=&limit= the pulses to look at first (most kept echoes, most echoes,
+                                        most spurious, worst fit)
     GET  /api/pulse?run=&file=&pulse=   one pulse: samples, denoised, model, components, echo table rows
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
@@ -34,7 +35,8 @@ from pipeline.view import queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from fwcore.config import PRESETS, Optimizer
-from pipeline.view.pulse import decompose_pulse, load_pulse, reproduces, system_return_points, system_returns, try_config
+from pipeline.view.pulse import (decompose_pulse, load_pulse, reproduces, system_return_points, system_returns,
+                                 try_config)
 
 STATIC = Path(__file__).resolve().parent / "static"
 MAX_ECHOES = 200_000  # the most one request returns, whatever the page asks
@@ -86,8 +88,9 @@ class Viewer:
             inputs = run_inputs(folder)
             for path in inputs.values():
                 by_input.setdefault(str(path.resolve()), ident)
-            runs.append({"id": ident, "name": folder.name, "inputs": sorted(inputs), "counts": summary.get("counts", {}),
-                         "status": summary.get("status"), "optimizer": summary.get("config", {}).get("optimizer")})
+            runs.append({"id": ident, "name": folder.name, "inputs": sorted(inputs),
+                         "counts": summary.get("counts", {}), "status": summary.get("status"),
+                         "optimizer": summary.get("config", {}).get("optimizer")})
         jobs = {str(p): s for p, s in self.jobs.states().items()}
         inputs = []
         for path in self.roots.inputs():
@@ -100,7 +103,8 @@ class Viewer:
         summary = run_summary(run)
         counts = summary.get("counts", {})
         return {"run": _param(params, "run"), "name": run.name, "inputs": sorted(run_inputs(run)),
-                "status": summary.get("status"), "counts": counts, "config": summary.get("config", {}), "seconds": summary.get("seconds"),
+                "status": summary.get("status"), "counts": counts, "config": summary.get("config", {}),
+                "seconds": summary.get("seconds"),
                 "read_adds_up": counts.get("pulses_read") == counts.get("pulses_decomposed", 0)
                 + counts.get("pulses_rejected", 0),
                 "bounds": queries.bounds(run), "files": queries.source_files(run),

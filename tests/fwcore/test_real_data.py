@@ -55,7 +55,7 @@ def test_neon_beats_the_published_decompositions(neon_results):
 
 def test_leica_mde_and_de_lower_the_initial_fit_error(leica_waveforms):
     waves = leica_waveforms[:200]
-    batch = WaveformBatch.from_waveforms(list(waves), 2000.0, [pulse_seed(0, "leica_a", i) for i in range(len(waves))])
+    batch = WaveformBatch.from_waveforms(list(waves), 2000.0, [pulse_seed(0, i) for i in range(len(waves))])
     config = DecompositionConfig()
     initial = decompose_batch(batch, config.replace(optimizer="none"))
     mde = decompose_batch(batch, config)

@@ -85,7 +85,7 @@ async function loadCatalog() {
     const job = input.job;
     if (job && job.status === "running") {
       running = true;
-      li.querySelector("small").textContent = `decomposing: ${job.ranges_done}/${job.ranges} ranges, ${job.seconds} s`;
+      li.querySelector("small").textContent = `decomposing: ${job.pulses_done} of ${job.pulses} pulses, ${job.seconds} s`;
       li.insertAdjacentHTML("beforeend", `<div class="progress"><div style="width:${Math.round(100 * job.progress)}%"></div></div>`);
     } else if (input.run) {
       li.querySelector("small").textContent = "has a run: click to show it";
@@ -173,14 +173,17 @@ function finiteRange(values) {
   return lo <= hi ? [lo, hi] : [0, 1];
 }
 
+let echoRequests = 0;
 async function loadEchoes() {
   if (!state.run) return;
+  const mine = ++echoRequests;
   const kept = $("kept-only").checked ? 1 : 0;
   const box = state.box ? `&box=${state.box.join(",")}` : "";
   const base = `/api/echoes?run=${encodeURIComponent(state.run)}&colour=${state.colour}&kept=${kept}`;
   const [map, scene] = await Promise.all([api(`${base}${box}&limit=${MAP_LIMIT}`), api(`${base}${box}&limit=${SCENE_LIMIT}`)]);
   const returns = $("show-returns").checked
     ? await api(`/api/returns?run=${encodeURIComponent(state.run)}${box}&limit=${MAP_LIMIT}`) : null;
+  if (mine !== echoRequests) return;  // the view moved on meanwhile
   for (const data of [map, scene]) [data.cmin, data.cmax] = finiteRange(data.value);
   $("map-count").textContent = `${map.x.length} of ${map.total} echoes in view`;
   $("scene-count").textContent = `${scene.x.length} of ${scene.total}`;
@@ -352,11 +355,14 @@ function tryBody() {
   return { run: state.run, file: state.file, pulse: state.pulse, preset: form.elements.preset.value, changes };
 }
 
+let tries = 0;
 async function runTry() {
   if (state.pulse === null) { $("try-status").textContent = "pick a pulse first"; return; }
   $("try-status").textContent = `refitting pulse ${state.pulse}…`;
+  const mine = ++tries;
   let data;
-  try { data = await api("/api/try", tryBody()); } catch (e) { $("try-status").textContent = e.message; return; }
+  try { data = await api("/api/try", tryBody()); } catch (e) { if (mine === tries) $("try-status").textContent = e.message; return; }
+  if (mine !== tries) return;  // a later refit was asked for: its answer is the one to show
   $("try-status").textContent = `pulse ${data.pulse_id}: changed ${Object.keys(data.changed).map((k) => `${k}=${data.changed[k]}`).join(", ") || "nothing"}`;
   for (const [side, fit] of [["a", data.a], ["b", data.b]]) {
     const kept = fit.echoes.filter((e) => e.kept).length;

@@ -62,8 +62,11 @@ def test_unknown_compression_type(leica_copy):
     las.header.vlrs.remove(vlr)
     las.header.vlrs.append(laspy.VLR("LASF_Spec", 100, "Waveform Packet Descriptor", bytes(data)))
     las.write(leica_copy)
-    with pytest.raises(WaveformFileError, match=r"leica_a\.las: waveform descriptor 1 has unknown compression type 3"):
-        open_waveform_file(leica_copy)
+    # an unusable descriptor does not stop the file: each pulse pointing at it is rejected with the reason
+    pulses = read_pulses(leica_copy)
+    assert len(pulses) == 0 and len(pulses.rejected) == 924
+    assert {r for _, r in pulses.rejected} == {"leica_a.las: waveform descriptor 1 has unknown compression type 3 "
+                                               "(only 0, uncompressed, is defined)"}
 
 
 def test_point_format_without_waveforms(tmp_path, leica_dir):

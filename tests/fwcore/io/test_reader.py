@@ -12,7 +12,8 @@ def test_leica_facts(leica_dir):
     assert d.gain == pytest.approx(0.0172906, rel=1e-5) and d.offset == 0.0
     pulses = read_pulses(leica_dir / "leica_a.las")
     assert len(pulses) == 924 and pulses.return_offsets[-1] == 1125
-    assert pulses.pulse_id[0] == 92  # after the header LAStools writes
+    assert pulses.packet_offset[0] == 92  # after the header LAStools writes
+    assert np.unique(pulses.pulse_id).size == 924
     assert (np.diff(pulses.sample_offsets) == 256).all()
 
 
@@ -77,8 +78,8 @@ def test_pulse_whose_points_lie_far_apart_is_read_once(tmp_path, leica_dir):
     parts = [read_pulses(r) for r in ranges]
     ids = np.concatenate([p.pulse_id for p in parts])
     assert ids.size == 924 and np.unique(ids).size == 924
-    owner = next(p for p in parts if offsets[multi] in p.pulse_id)
-    j = int(np.flatnonzero(owner.pulse_id == offsets[multi])[0])
+    owner = next(p for p in parts if offsets[multi] in p.packet_offset)
+    j = int(np.flatnonzero(owner.packet_offset == offsets[multi])[0])
     assert owner.return_offsets[j + 1] - owner.return_offsets[j] == las.number_of_returns[-1]
 
 

@@ -5,7 +5,8 @@ import pytest
 from fwcore.config import DecompositionConfig
 from fwcore.decompose import decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.writer import decomposed_echoes, write_point_cloud, write_waveform_las
+from fwcore.io.writer import write_point_cloud, write_waveform_las
+from fwcore.pulses import decomposed_echoes, pulse_waveforms
 
 
 @pytest.fixture(scope="module")
@@ -40,18 +41,44 @@ def test_las14_internal_packets_with_several_descriptors_round_trip(tmp_path, le
 
 def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
     pulses = leica
-    result = decompose_batch(pulses.waveforms(0), DecompositionConfig(generations=10))
+    result = decompose_batch(pulse_waveforms(pulses, 0), DecompositionConfig(generations=10))
     echoes = decomposed_echoes(pulses, result)
     path = write_point_cloud(tmp_path / "cloud.laz", leica_dir / "leica_a.las", echoes)
     las = laspy.read(path)
     assert las.header.version.minor == 4 and las.header.point_format.id == 6
     assert len(las.points) == (result.reject == 0).sum()
-    assert {"amplitude", "echo_width", "sigma", "alpha", "echo_energy", "fit_error"} <= set(
+    assert {"amplitude", "echo_width", "alpha", "echo_energy", "fit_error"} <= set(
         las.point_format.extra_dimension_names)
+    assert "sigma" not in las.point_format.extra_dimension_names
+    np.testing.assert_allclose(np.asarray(las.echo_width), result.fwhm[result.reject == 0] * 2000.0, rtol=1e-6)  # 2 ns sampling
+    np.testing.assert_array_equal(np.asarray(las.classification), 1)  # the Leica points' class, kept
+    assert las.header.system_identifier.rstrip("\0") == "ALSXX"
     np.testing.assert_allclose(las.x, echoes["x"], atol=5e-4)
     np.testing.assert_allclose(np.asarray(las.amplitude), echoes["amplitude"], rtol=1e-6)
     # return numbers run 1..n in time order within each pulse
     returns, totals = np.asarray(las.return_number), np.asarray(las.number_of_returns)
     assert (returns >= 1).all() and (returns <= totals).all()
+    # the sample's GeoTIFF keys name a user-defined projection: no WKT can be derived, none is invented;
+    # the keys are kept as they are
+    assert not las.header.global_encoding.wkt
     assert any(isinstance(v, laspy.vlrs.known.GeoKeyDirectoryVlr) for v in las.header.vlrs)
     assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
+
+
+def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica, leica_dir):
+    import struct
+
+    las = laspy.read(leica_dir / "leica_a.las")
+    keys = struct.pack("<16H", 1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32632)
+    las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 34735]
+    las.header.vlrs.append(laspy.VLR("LASF_Projection", 34735, "GeoKeyDirectoryTag", keys))
+    template = tmp_path / "utm32.las"
+    las.write(template)
+    result = decompose_batch(pulse_waveforms(leica, 0), DecompositionConfig(generations=2))
+    path = write_point_cloud(tmp_path / "cloud.las", template, decomposed_echoes(leica, result))
+    back = laspy.read(path)
+    assert back.header.global_encoding.wkt
+    wkt = [v for v in back.header.vlrs if v.record_id == 2112]
+    assert len(wkt) == 1 and "WGS 84 / UTM zone 32N" in wkt[0].string
+    assert back.header.parse_crs().to_epsg() == 32632
+    assert not any(v.record_id == 34735 for v in back.header.vlrs)  # formats 6-10 carry WKT, not GeoTIFF keys

@@ -15,8 +15,12 @@ from pipeline.view.server import make_server, serve_in_thread, url_of
 
 # a few ranges of a few pulses, the fast preset, Beam in-process: the run stays within seconds
 POINTS_PER_RANGE = 40
-RUN_ARGS = ["--limit", "90", "--preset", "fast", "--formats", "parquet",
+def run_args(limit: int) -> list[str]:
+    return ["--limit", str(limit), "--preset", "fast", "--formats", "parquet",
             "--direct_num_workers=1", "--direct_running_mode=in_memory"]
+
+
+RUN_ARGS = run_args(90)
 
 
 @dataclasses.dataclass

@@ -141,7 +141,8 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
     """, float(target.x), float(target.y))
     assert first
     before = browser.execute_script("return document.getElementById('waveform').dataset.pulse")
-    ActionChains(browser).move_to_element_with_offset(browser.find_element(By.ID, "map"), dx, dy).pause(0.5).click().perform()
+    chain = ActionChains(browser).move_to_element_with_offset(browser.find_element(By.ID, "map"), dx, dy)
+    chain.pause(0.5).click().perform()
     clicked = int(_wait(browser, f"document.getElementById('waveform').dataset.pulse !== '{before}' && "
                                  "document.getElementById('waveform').dataset.pulse"))
     near = echoes[(echoes.pulse_id == clicked)]

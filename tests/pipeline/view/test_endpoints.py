@@ -11,7 +11,9 @@ import pytest
 
 def test_picking_an_input_decomposed_it_in_the_background(viewed):
     first, last = viewed.job_states[0], viewed.job_states[-1]
-    assert first["status"] == "running" and first["ranges"] > 1 and first["progress"] < 1
+    assert first["status"] == "running" and first["pulses"] == 924 and first["progress"] < 1
+    during = [s["pulses_done"] for s in viewed.job_states if s["status"] == "running"]
+    assert during == sorted(during) and all(0 <= d <= 90 for d in during)  # --limit 90
     assert last["status"] == "done" and last["progress"] == 1.0
     summary = json.loads((viewed.run / "run.json").read_text())
     assert summary["config"]["optimizer"] == "lm" and summary["limit"] == 90  # fwl run's config, the fast preset
@@ -234,7 +236,8 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
         assert listed["job"]["status"] == "done", (runs / "cut.log").read_text()
         s = v.get(f"/api/summary?run={listed['run']}")
         c = s["counts"]
-        assert s["status"] == "partial" and s["read_adds_up"] and c["pulses_rejected"] > 0 and c["pulses_decomposed"] > 0
+        assert s["status"] == "partial" and s["read_adds_up"]
+        assert c["pulses_rejected"] > 0 and c["pulses_decomposed"] > 0
         rejected = ds.dataset(str(runs / "cut" / "rejected"), format="parquet").to_table().to_pandas()
         assert s["rejected"]["total"] == len(rejected) == c["pulses_rejected"]
         assert sorted(r["pulse_id"] for r in s["rejected"]["rows"]) == sorted(rejected.pulse_id)
@@ -243,5 +246,43 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
         assert "N" in kind["reason"] and not any(ch.isdigit() for ch in kind["reason"])
         assert all(r["stage"] == "read" and "cut.wdp" in r["reason"] for r in s["rejected"]["rows"])
     finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
+    """A .pls+.wvs input, picked in the viewer: its pulses come back from the PulseWaves reader."""
+    import shutil
+    import time
+    from pathlib import Path
+
+    from pipeline.view.jobs import Jobs
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+    from tests.pipeline.view.conftest import Viewed, run_args
+
+    samples = Path(__file__).resolve().parents[3] / "examples" / "data" / "pulsewaves"
+    for suffix in (".pls", ".wvs"):
+        shutil.copy(samples / f"las13fwf_example1{suffix}", tmp_path / f"las13fwf_example1{suffix}")
+    runs = tmp_path / "runs"
+    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, run_args(20), 10))
+    serve_in_thread(server)
+    try:
+        v = Viewed(url_of(server), tmp_path, runs / "las13fwf_example1", "", "", [])
+        (listed,) = v.get("/api/catalog")["inputs"]
+        assert listed["name"] == "las13fwf_example1.pls" and listed["run"] is None
+        v.post("/api/decompose", {"input": listed["id"]})
+        for _ in range(1200):
+            (listed,) = v.get("/api/catalog")["inputs"]
+            if listed["job"]["status"] != "running":
+                break
+            time.sleep(0.5)
+        assert listed["job"]["status"] == "done", (runs / "las13fwf_example1.log").read_text()
+        echoes, pulses = v.echoes(), v.pulses()
+        assert len(pulses) == 20
+        for pulse_id in pulses.sort_values("gps_time").pulse_id.iloc[[0, -1]]:
+            p = v.get(f"/api/pulse?run={listed['run']}&file=las13fwf_example1.pls&pulse={int(pulse_id)}")
+            assert p["reproduced"] and len(p["fit"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
+    finally:
+        server.viewer.jobs.stop_all()
         server.shutdown()
         server.server_close()

@@ -1,0 +1,83 @@
+"""The reading entry points, dispatching on the file's format: LAS/LAZ or PulseWaves.
+
+    plan_point_ranges(path)  -> [PointRange]   every pulse in exactly one range
+    read_pulses(range)       -> PulseBatch     the same record whatever the format
+    describe_file(path)      -> dict           `fwl info`: headers and indexes only
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from fwcore.io.records import PointRange, PulseBatch
+
+PULSEWAVES_SIGNATURE = b"PulseWavesPulse"
+
+
+def is_pulsewaves(path: str | Path) -> bool:
+    """A .pls file, or any file that starts with the PulseWaves signature."""
+    path = Path(path)
+    if path.suffix.lower() == ".pls":
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(PULSEWAVES_SIGNATURE)) == PULSEWAVES_SIGNATURE
+    except OSError:
+        return False
+
+
+def open_input(path: str | Path):
+    """The opened header of either format (WaveformFile or PulseWavesFile); errors name the file."""
+    if is_pulsewaves(path):
+        from fwcore.io.pulsewaves import open_pulsewaves
+        return open_pulsewaves(path)
+    from fwcore.io.reader import open_waveform_file
+    return open_waveform_file(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class InputSummary:
+    """What a run needs to know of a file before reading it."""
+
+    records: int  # point records (LAS) or pulse records (PulseWaves) present
+    adjusted_standard_gps_time: bool  # LAS global encoding bit: GPS time - 1e9 s; otherwise week seconds or absolute
+
+
+def input_summary(path: str | Path) -> InputSummary:
+    """Record count and GPS time type of either format, from its header."""
+    opened = open_input(path)
+    if is_pulsewaves(path):
+        return InputSummary(opened.point_count, False)
+    import laspy
+    with laspy.open(path) as reader:
+        adjusted = int(reader.header.global_encoding.gps_time_type) == 1
+    return InputSummary(opened.point_count, adjusted)
+
+
+def plan_point_ranges(path: str | Path, points_per_range: int = 10_000) -> list[PointRange]:
+    """Ranges of a file's records (LAS points, PulseWaves pulses), each pulse in exactly one."""
+    if is_pulsewaves(path):
+        from fwcore.io.pulsewaves import plan_pulse_ranges
+        return plan_pulse_ranges(path, points_per_range)
+    from fwcore.io.reader import plan_point_ranges as plan_las
+    return plan_las(path, points_per_range)
+
+
+def read_pulses(point_range: PointRange | str | Path, wf=None) -> PulseBatch:
+    """The pulses of a range (or of a whole file, given its path)."""
+    path = point_range.path if isinstance(point_range, PointRange) else point_range
+    if is_pulsewaves(path):
+        from fwcore.io.pulsewaves import read_pulsewaves
+        return read_pulsewaves(point_range, wf)
+    from fwcore.io.reader import read_pulses as read_las
+    return read_las(point_range, wf)
+
+
+def describe_file(path: str | Path) -> dict:
+    """What `fwl info` prints: format, counts, descriptors and their use, packets, CRS, bounds, times."""
+    if is_pulsewaves(path):
+        from fwcore.io.pulsewaves import describe_pulsewaves
+        return describe_pulsewaves(path)
+    from fwcore.io.info import describe_las
+    return describe_las(path)

@@ -1,0 +1,133 @@
+"""`fwl info`: what a user asks of a file first (like lasinfo / pulseinfo), from headers and indexes only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from fwcore.io.crs import las_crs_wkt
+from fwcore.io.reader import _KEY_SHIFT, _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
+
+
+def crs_name(wkt: str | None) -> str | None:
+    if not wkt:
+        return None
+    import pyproj
+
+    try:
+        return pyproj.CRS.from_wkt(wkt).name
+    except pyproj.exceptions.CRSError:
+        return "(unparsed WKT)"
+
+
+def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
+    """Header, descriptors and their use, packet storage, CRS, bounds and GPS time range of a LAS/LAZ file.
+
+    Reads the header, then one pass over two point fields (packet key, GPS time); never a sample.
+    """
+    path = Path(path)
+    wf = open_waveform_file(path)
+    with laspy.open(path) as reader:
+        header = reader.header
+    keys = np.zeros(0, np.int64)
+    t_min = t_max = None
+    if wf.point_count:
+        with _Points(wf) as points:
+            parts, times = [], []
+            for at in range(0, wf.point_count, chunk_points):
+                stop = min(wf.point_count, at + chunk_points)
+                chunk = points.data[at:stop] if points.data is not None else points.read(at, stop).array
+                parts.append(_packet_keys(chunk))
+                times.append(np.asarray(chunk["gps_time"]))
+            keys = np.concatenate(parts)
+            gps = np.concatenate(times)
+            finite = gps[np.isfinite(gps)]
+            if finite.size:
+                t_min, t_max = float(finite.min()), float(finite.max())
+    pulses = np.unique(keys[keys >= 0])
+    per_descriptor = dict(zip(*[a.tolist() for a in np.unique(pulses >> _KEY_SHIFT, return_counts=True)]))
+    descriptors = [{"index": d.index, "bits": d.bits_per_sample, "samples": d.n_samples,
+                    "spacing_ps": d.sample_spacing_ps, "gain": d.gain, "offset": d.offset,
+                    "compression": d.compression, "pulses": int(per_descriptor.get(d.index, 0)),
+                    "problem": d.problem} for d in sorted(wf.descriptors.values(), key=lambda d: d.index)]
+    missing = sorted(set(per_descriptor) - set(wf.descriptors))
+    wkt, source = las_crs_wkt(header)
+    store = wf.packets
+    if store.path == path:
+        storage = f"internal, from byte {store.record_start}"
+    else:
+        storage = f"external {store.path.name} ({store.path.stat().st_size} bytes" + \
+            (", LAStools-compressed)" if store.compressed else ", uncompressed)")
+    return {
+        "file": str(path),
+        "format": "LAZ" if wf.compressed else "LAS",
+        "version": wf.version,
+        "point_format": wf.point_format,
+        "system_identifier": header.system_identifier,
+        "generating_software": header.generating_software,
+        "points": wf.header_point_count,
+        "points_present": wf.point_count,
+        "pulses": int(pulses.size),
+        "points_without_packet": int((keys < 0).sum()),
+        "descriptors": descriptors,
+        "descriptors_missing": [{"index": int(i), "pulses": int(per_descriptor[i])} for i in missing],
+        "packets": storage,
+        "crs": {"name": crs_name(wkt), "source": source},
+        "bounds": {"min": [float(v) for v in header.mins], "max": [float(v) for v in header.maxs]},
+        "gps_time": {"min": t_min, "max": t_max,
+                     "type": "adjusted standard GPS time" if header.global_encoding.gps_time_type
+                     else "GPS week seconds"},
+        "problems": list(wf.problems),
+        "largest_packet_offset": int((keys[keys >= 0] & _OFFSET_MASK).max()) if (keys >= 0).any() else None,
+    }
+
+
+def format_info(info: dict) -> str:
+    """The human-readable form of describe_file's dictionary."""
+    lines = [f"{info['file']}: {info['format']} {info['version']}"
+             + (f", point format {info['point_format']}" if "point_format" in info else "")]
+    for key in ("system_identifier", "generating_software"):
+        if info.get(key):
+            lines.append(f"  {key.replace('_', ' ')}: {info[key]}")
+    if "points" in info:
+        lines.append(f"  points: {info['points']} in the header, {info['points_present']} present; "
+                     f"pulses (distinct packets): {info['pulses']}")
+    else:
+        lines.append(f"  pulses: {info['pulses']} in the header, {info['pulses_present']} present")
+    lines.append(f"  packets: {info['packets']}")
+    for d in info["descriptors"]:
+        if "samplings" in d and not d["pulses"]:
+            continue  # listed below among the unused
+        if "samplings" in d:
+            lines.append(f"  descriptor {d['index']}: {d['pulses']} pulses; sample units {d['sample_units_ns']} ns, "
+                         f"optical centre to anchor {d['optical_center_to_anchor']}"
+                         + (f"; UNUSABLE: {d['problem']}" if d["problem"] else "")
+                         + (f"; {d['description']}" if d.get("description") else ""))
+            for s in d["samplings"]:
+                lines.append(f"    {s['kind']} channel {s['channel']}: {s['bits']} bits, "
+                             f"{s['samples']} samples, {s['segments']} segments, {s['sample_units_ns']} ns"
+                             + (f", lookup table {s['lookup_table']}" if s["lookup_table"] else ""))
+        elif d["pulses"] or d["problem"] is None:
+            lines.append(f"  descriptor {d['index']}: {d['pulses']} pulses; {d['bits']} bits, {d['samples']} samples "
+                         f"at {d['spacing_ps']:g} ps, gain {d['gain']:g}, offset {d['offset']:g}, "
+                         f"compression {d['compression']}" + (f"; UNUSABLE: {d['problem']}" if d["problem"] else ""))
+    unused = [d["index"] for d in info["descriptors"] if not d["pulses"] and ("samplings" in d or d["problem"])]
+    if unused:
+        lines.append(f"  {len(unused)} more descriptors, used by no pulse: {unused[:12]}"
+                     + (" ..." if len(unused) > 12 else ""))
+    for d in info.get("descriptors_missing", []):
+        lines.append(f"  descriptor {d['index']}: used by {d['pulses']} pulses but not defined")
+    for t in info.get("lookup_tables", []):
+        lines.append(f"  lookup table {t['index']}: {t['entries']} entries, {t['description']}")
+    crs = info["crs"]
+    lines.append(f"  CRS: {crs['name'] or 'none'} ({crs['source']})")
+    b = info["bounds"]
+    lines.append("  bounds: " + ", ".join(f"{a} {lo:.3f}..{hi:.3f}" for a, lo, hi in zip("xyz", b["min"], b["max"])))
+    t = info["gps_time"]
+    if t["min"] is not None:
+        lines.append(f"  GPS time: {t['min']:.6f}..{t['max']:.6f} ({t['type']})")
+    for p in info.get("problems", []):
+        lines.append(f"  PROBLEM: {p}")
+    return "\n".join(lines)

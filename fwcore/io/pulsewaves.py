@@ -1,0 +1,745 @@
+"""PulseWaves (.pls pulses + .wvs waves), read natively into the same PulseBatch as LAS.
+
+The format: PulseWaves/Specification `specification.rst` (draft 0.3); where the
+draft and the files disagree, the files and the reference library's headers
+(PulseWaves/PulseWaves `inc/`) win:
+
+- composition record on disk: ..., sample units (f32), compression (u32), scanner index (u32), description;
+- direction = (target - anchor) / 1000, the target 1000 sampling units from the anchor;
+- the waves header is 60 bytes; durations are signed, counts and samples unsigned;
+- lookup tables are records 300001..300255; pulse descriptors 200001..200255;
+- the header's AVLR count is not trusted: AVLRs are found walking back from the end of the file.
+
+A row of the batch is one returning segment (RIEGL records a second, high- or
+low-power one for some pulses): sample k of a segment lies at
+P = anchor + (d + k * s) * direction, d = scale * D + offset its duration from
+the anchor and s the sampling's sample units over the composition's. In the
+batch's LAS terms: direction x_t = -direction / unit_ps and L0 = -d * unit_ps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import struct
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from fwcore._jit import JIT
+from fwcore.io.crs import epsg_from_geokeys, geokeys_from_bytes, looks_earth_centred, wkt_from_epsg
+from fwcore.io.reader import WaveformFileError
+from fwcore.io.records import PointRange, PulseBatch, pulse_identity
+
+LOG = logging.getLogger("fwl")
+PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"
+WAVES_HEADER_BYTES = 60
+VLR_HEADER_BYTES = 96
+OUTGOING, RETURNING = 1, 2
+SCANNER_IDS = range(100001, 100256)
+DESCRIPTOR_IDS = range(200001, 200256)
+TABLE_IDS = range(300001, 300256)
+AVLR_TERMINATOR = 0xFFFFFFFF
+VARIES = 0x8FFFFFFF  # optical centre to anchor: "no constant offset"
+_HEADER = struct.Struct("<16sII I HH 8s 64s 64s HH BB H qq IIII q Ii dd qq 3d 3d 6d")
+PULSE_RECORD = np.dtype([("T", "<i8"), ("offset", "<i8"), ("anchor", "<i4", 3), ("target", "<i4", 3),
+                         ("first_returning", "<i2"), ("last_returning", "<i2"), ("descriptor", "u1"),
+                         ("flags", "u1"), ("intensity", "u1"), ("classification", "u1")])
+
+
+@dataclasses.dataclass(frozen=True)
+class PulseHeader:
+    system_identifier: str
+    generating_software: str
+    version: str
+    header_size: int
+    offset_to_pulses: int
+    n_pulses: int
+    pulse_format: int
+    pulse_attributes: int
+    pulse_size: int
+    pulse_compression: int
+    n_vlrs: int
+    n_avlrs: int
+    t_scale: float
+    t_offset: float
+    t_min: int
+    t_max: int
+    scales: tuple[float, float, float]
+    offsets: tuple[float, float, float]
+    bounds_min: tuple[float, float, float]
+    bounds_max: tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class Sampling:
+    type: int  # 1 outgoing, 2 returning
+    channel: int
+    bits_for_duration: int  # 0, 8, 16, 32 (signed durations)
+    duration_scale: float
+    duration_offset: float
+    bits_for_segments: int  # 0: fixed number_of_segments
+    bits_for_samples: int  # 0: fixed number_of_samples
+    number_of_segments: int
+    number_of_samples: int
+    bits_per_sample: int
+    lookup_table: int  # 0: none
+    sample_units_ns: float
+    compression: int
+    description: str
+
+    @property
+    def kind(self) -> str:
+        return {OUTGOING: "outgoing", RETURNING: "returning"}.get(self.type, f"type {self.type}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PulseDescriptor:
+    index: int
+    optical_center_to_anchor: int  # sampling units; VARIES when not constant
+    extra_wave_bytes: int
+    sample_units_ns: float
+    compression: int
+    scanner_index: int
+    description: str
+    samplings: tuple[Sampling, ...]
+    problem: str | None = None  # why its pulses cannot be read; None: usable
+
+
+@dataclasses.dataclass(frozen=True)
+class LookupTable:
+    index: int
+    unit: int
+    data_type: int
+    description: str
+    entries: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Scanner:
+    index: int
+    instrument: str
+    serial: str
+    wavelength_nm: float
+    outgoing_pulse_width_ns: float  # FWHM, in ns (the draft says nanometres)
+
+
+@dataclasses.dataclass(frozen=True)
+class PulseWavesFile:
+    path: Path
+    waves_path: Path
+    header: PulseHeader
+    descriptors: dict[int, PulseDescriptor]
+    scanners: dict[int, Scanner]
+    lookup_tables: dict[int, LookupTable]
+    crs_wkt: str | None
+    crs_source: str
+    point_count: int  # pulse records present
+    problems: tuple[str, ...] = ()
+
+    @property
+    def pulse_dtype(self) -> np.dtype:
+        extra = self.header.pulse_size - PULSE_RECORD.itemsize
+        return np.dtype({"names": list(PULSE_RECORD.names), "formats": [PULSE_RECORD[n] for n in PULSE_RECORD.names],
+                         "offsets": [PULSE_RECORD.fields[n][1] for n in PULSE_RECORD.names],
+                         "itemsize": PULSE_RECORD.itemsize + max(extra, 0)})
+
+    def records(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Pulse records [start, stop), memory-mapped."""
+        stop = self.point_count if stop is None else min(stop, self.point_count)
+        if stop <= start:
+            return np.zeros(0, self.pulse_dtype)
+        return np.memmap(self.path, dtype=self.pulse_dtype, mode="r", offset=self.header.offset_to_pulses,
+                         shape=(self.point_count,))[start:stop]
+
+
+def _text(raw: bytes) -> str:
+    return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip()
+
+
+# ---------------------------------------------------------------- header and records
+
+def _parse_header(path: Path, data: bytes) -> PulseHeader:
+    if len(data) < _HEADER.size:
+        raise WaveformFileError(f"{path}: {len(data)} bytes, shorter than a PulseWaves header ({_HEADER.size})")
+    f = _HEADER.unpack_from(data)
+    if f[0] != PULSE_SIGNATURE:
+        raise WaveformFileError(f"{path}: not a PulseWaves pulse file (signature {f[0][:15]!r})")
+    (_, _, _, _, _, _, _, system, software, _, _, major, minor, header_size, offset_to_pulses, n_pulses,
+     pulse_format, attributes, pulse_size, compression, _, n_vlrs, n_avlrs, t_scale, t_offset, t_min, t_max) = f[:27]
+    scales, offsets, bounds = f[27:30], f[30:33], f[33:39]
+    header = PulseHeader(_text(system), _text(software), f"{major}.{minor}", header_size, offset_to_pulses,
+                         n_pulses, pulse_format, attributes, pulse_size, compression, n_vlrs, n_avlrs, t_scale,
+                         t_offset, t_min, t_max, tuple(scales), tuple(offsets), tuple(bounds[0::2]),
+                         tuple(bounds[1::2]))
+    if pulse_format != 0 or compression != 0:
+        raise WaveformFileError(f"{path}: pulse format {pulse_format} / compression {compression}: only format 0 "
+                                "uncompressed is defined")
+    if pulse_size < PULSE_RECORD.itemsize:
+        raise WaveformFileError(f"{path}: pulse records of {pulse_size} bytes, less than format 0's "
+                                f"{PULSE_RECORD.itemsize}")
+    if not all(np.isfinite(scales)) or not all(s != 0 for s in scales) or not all(np.isfinite(offsets)):
+        raise WaveformFileError(f"{path}: the header's scales {scales} / offsets {offsets} cannot give coordinates")
+    if n_pulses < 0 or offset_to_pulses < header_size:
+        raise WaveformFileError(f"{path}: {n_pulses} pulses at byte {offset_to_pulses}: not a consistent header")
+    return header
+
+
+def _records_of(data: bytes, start: int, count: int, end: int) -> list[tuple[str, int, str, bytes]]:
+    """(user id, record id, description, payload) of `count` VLRs from `start`, stopping at `end`."""
+    out, at = [], start
+    for _ in range(count):
+        if at + VLR_HEADER_BYTES > end:
+            break
+        user, record_id, _, length = struct.unpack_from("<16sIIq", data, at)
+        payload = data[at + VLR_HEADER_BYTES:at + VLR_HEADER_BYTES + max(length, 0)]
+        out.append((_text(user), record_id, _text(data[at + 32:at + 96]), payload))
+        at += VLR_HEADER_BYTES + max(length, 0)
+    return out
+
+
+def _appended_records(data: bytes, pulses_end: int) -> list[tuple[str, int, str, bytes]]:
+    """AVLRs, walking back from the end of the file to the terminator (or to the pulses' end)."""
+    out, at = [], len(data)
+    while at - VLR_HEADER_BYTES >= pulses_end:
+        footer = at - VLR_HEADER_BYTES
+        user, record_id, _, length = struct.unpack_from("<16sIIq", data, footer)
+        if not _text(user).startswith("PulseWaves") and record_id != AVLR_TERMINATOR:
+            break  # older conversions end without a terminator: whatever is here is no AVLR
+        if record_id == AVLR_TERMINATOR or length < 0 or footer - length < pulses_end:
+            break
+        out.append((_text(user), record_id, _text(data[footer + 32:footer + 96]), data[footer - length:footer]))
+        at = footer - length
+    return out
+
+
+def _parse_descriptor(index: int, payload: bytes) -> PulseDescriptor:
+    name = f"pulse descriptor {index}"
+    if len(payload) < 28:
+        return PulseDescriptor(index, 0, 0, 0.0, 0, 0, "", (), f"{name} is {len(payload)} bytes, too short")
+    size, _, optical, extra, n_samplings, units, compression, scanner = struct.unpack_from("<IIiHHfII", payload)
+    description = _text(payload[28:min(size, len(payload))][-64:]) if size >= 92 else ""
+    samplings, at = [], size
+    for _ in range(n_samplings):
+        if at + 40 > len(payload):
+            return PulseDescriptor(index, optical, extra, units, compression, scanner, description, tuple(samplings),
+                                   f"{name} declares {n_samplings} samplings but holds {len(samplings)}")
+        s_size, _, kind, channel, _, bits_d, scale_d, offset_d, bits_seg, bits_smp, n_seg, n_smp, bits, table, \
+            s_units, s_comp = struct.unpack_from("<IIBBBBffBBHIHHfI", payload, at)
+        s_description = _text(payload[at + 40:at + 104]) if s_size >= 104 else ""
+        samplings.append(Sampling(kind, channel, bits_d, scale_d, offset_d, bits_seg, bits_smp, n_seg, n_smp, bits,
+                                  table, s_units, s_comp, s_description))
+        at += max(s_size, 40)
+    d = PulseDescriptor(index, optical, extra, units, compression, scanner, description, tuple(samplings))
+    return dataclasses.replace(d, problem=_descriptor_problem(d))
+
+
+def _descriptor_problem(d: PulseDescriptor) -> str | None:
+    name = f"pulse descriptor {d.index}"
+    if d.compression != 0:
+        return f"{name} has compression {d.compression} (only 0, none, is defined)"
+    if not (np.isfinite(d.sample_units_ns) and d.sample_units_ns > 0):
+        return f"{name} has sample units {d.sample_units_ns} ns"
+    if not any(s.type == RETURNING for s in d.samplings):
+        return f"{name} has no returning sampling"
+    for m, s in enumerate(d.samplings):
+        what = f"{name} sampling {m} ({s.kind})"
+        if s.bits_per_sample not in (8, 16):
+            return f"{what} has {s.bits_per_sample} bits per sample (8 and 16 are readable)"
+        if s.compression != 0:
+            return f"{what} has compression {s.compression} (only 0, none, is defined)"
+        if s.bits_for_duration not in (0, 8, 16, 32) or s.bits_for_segments not in (0, 8, 16) \
+                or s.bits_for_samples not in (0, 8, 16):
+            return (f"{what} stores durations, segment counts or sample counts in {s.bits_for_duration}/"
+                    f"{s.bits_for_segments}/{s.bits_for_samples} bits (0, 8, 16 or 32 are defined)")
+        if not (np.isfinite(s.sample_units_ns) and s.sample_units_ns > 0 and np.isfinite(s.duration_scale)
+                and np.isfinite(s.duration_offset)):
+            return f"{what} has sample units {s.sample_units_ns} ns or a non-finite duration scale/offset"
+    return None
+
+
+def _parse_table(index: int, payload: bytes) -> LookupTable | None:
+    """A lookup table record: header (size, reserved, number of tables, description), then the first table."""
+    try:
+        size, _, n_tables = struct.unpack_from("<III", payload)
+        at = size
+        t_size, _, n_entries, unit, data_type, _, _ = struct.unpack_from("<IIIHBBI", payload, at)
+        description = _text(payload[at + 20:at + 84])
+        entries = np.frombuffer(payload, dtype="<f4", count=n_entries, offset=at + t_size) if data_type == 8 \
+            else np.zeros(0, np.float32)
+        return LookupTable(index, unit, data_type, description, entries.astype(np.float64))
+    except (struct.error, ValueError):
+        return None
+
+
+def _parse_scanner(index: int, payload: bytes) -> Scanner | None:
+    if len(payload) < 144:
+        return None
+    _, _ = struct.unpack_from("<II", payload)
+    wavelength, width = struct.unpack_from("<ff", payload, 136)
+    return Scanner(index, _text(payload[8:72]), _text(payload[72:136]), wavelength, width)
+
+
+def waves_file(path: Path) -> Path:
+    for suffix in (".wvs", ".WVS"):
+        candidate = path.with_suffix(suffix)
+        if candidate.exists():
+            return candidate
+    raise FileNotFoundError(f"{path}: its waves file {path.with_suffix('.wvs').name} is missing beside it")
+
+
+def open_pulsewaves(path: str | Path) -> PulseWavesFile:
+    """Header, VLRs and AVLRs of a .pls and the check of its .wvs; errors name the file and the problem."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    data = path.read_bytes() if path.stat().st_size < (1 << 20) else _head_and_tail(path)
+    if not data:
+        raise WaveformFileError(f"{path}: empty file")
+    header = _parse_header(path, data)
+    size = path.stat().st_size
+    vlrs = _records_of(data, header.header_size, header.n_vlrs, header.offset_to_pulses)
+    present = max(0, min(header.n_pulses, (size - header.offset_to_pulses) // header.pulse_size))
+    problems = []
+    if present < header.n_pulses:
+        problems.append(f"{path}: truncated: {present} of {header.n_pulses} pulse records present")
+    if len(data) == size:
+        vlrs += _appended_records(data, header.offset_to_pulses + present * header.pulse_size)
+    descriptors, scanners, tables, geokeys = {}, {}, {}, None
+    for user, record_id, _, payload in vlrs:
+        if user == "PulseWaves_Spec" and record_id in DESCRIPTOR_IDS:
+            descriptors[record_id - 200000] = _parse_descriptor(record_id - 200000, payload)
+        elif user == "PulseWaves_Spec" and record_id in SCANNER_IDS:
+            scanner = _parse_scanner(record_id - 100000, payload)
+            if scanner:
+                scanners[scanner.index] = scanner
+        elif user == "PulseWaves_Spec" and record_id in TABLE_IDS:
+            table = _parse_table(record_id - 300000, payload)
+            if table:
+                tables[table.index] = table
+        elif user == "PulseWaves_Proj" and record_id == 34735:
+            geokeys = geokeys_from_bytes(payload)
+    if not descriptors:
+        raise WaveformFileError(f"{path}: no pulse descriptor (records 200001-200255)")
+    waves = waves_file(path)
+    with open(waves, "rb") as f:
+        head = f.read(WAVES_HEADER_BYTES)
+    if len(head) < 20 or head[:16] != WAVES_SIGNATURE:
+        raise WaveformFileError(f"{waves}: not a PulseWaves waves file (signature {head[:15]!r})")
+    compression = struct.unpack_from("<I", head, 16)[0]
+    if compression != 0:
+        raise WaveformFileError(f"{waves}: compressed waves (scheme {compression}) are not readable; "
+                                "only uncompressed waves are defined")
+    if geokeys:
+        code = epsg_from_geokeys(geokeys)
+        wkt = wkt_from_epsg(code)
+        source = f"GeoTIFF keys (EPSG:{code})" if wkt else "GeoTIFF keys without an EPSG code"
+    elif looks_earth_centred(header.bounds_min, header.bounds_max):
+        wkt, source = wkt_from_epsg(4978), "none in the file; Earth-centred by its coordinates' magnitude (EPSG:4978)"
+    else:
+        wkt, source = None, "none"
+    return PulseWavesFile(path, waves, header, descriptors, scanners, tables, wkt, source, present, tuple(problems))
+
+
+def _head_and_tail(path: Path) -> bytes:
+    """Large files: the header and VLRs only (AVLRs of large files are read from the tail separately)."""
+    with open(path, "rb") as f:
+        head = f.read(_HEADER.size)
+        if len(head) < _HEADER.size:
+            return head
+        offset_to_pulses = struct.unpack_from("<q", head, 176)[0]
+        f.seek(0)
+        return f.read(max(offset_to_pulses, _HEADER.size))
+
+
+# ---------------------------------------------------------------- waves
+
+@dataclasses.dataclass(frozen=True)
+class _Layout:
+    """The descriptors as flat arrays for the waves kernel."""
+
+    first: np.ndarray  # per descriptor index (0..255): first sampling row; -1: unusable
+    count: np.ndarray
+    extra: np.ndarray
+    bits_duration: np.ndarray  # per sampling row
+    bits_segments: np.ndarray
+    bits_samples: np.ndarray
+    n_segments: np.ndarray
+    n_samples: np.ndarray
+    sample_bytes: np.ndarray
+    kind: np.ndarray  # per sampling row: 1 outgoing, 2 returning
+    channel: np.ndarray
+    bits: np.ndarray
+    spacing_ps: np.ndarray  # the sampling's sample spacing
+    unit_ps: np.ndarray  # its composition's sampling unit
+    duration_scale: np.ndarray
+    duration_offset: np.ndarray
+    optical_center: np.ndarray  # its composition's optical centre to anchor (sampling units)
+
+
+def _layout(descriptors: dict[int, PulseDescriptor]) -> _Layout:
+    first, count, extra = np.full(256, -1, np.int64), np.zeros(256, np.int64), np.zeros(256, np.int64)
+    rows, owners = [], []
+    for index, d in descriptors.items():
+        if d.problem is None and 0 <= index < 256:
+            first[index], count[index], extra[index] = len(rows), len(d.samplings), d.extra_wave_bytes
+            rows += d.samplings
+            owners += [d] * len(d.samplings)
+
+    def col(f, dtype=np.int64):
+        return np.array([f(s) for s in rows], dtype=dtype)
+
+    return _Layout(first, count, extra, col(lambda s: s.bits_for_duration), col(lambda s: s.bits_for_segments),
+                   col(lambda s: s.bits_for_samples), col(lambda s: s.number_of_segments),
+                   col(lambda s: s.number_of_samples), col(lambda s: s.bits_per_sample // 8),
+                   col(lambda s: s.type), col(lambda s: s.channel), col(lambda s: s.bits_per_sample),
+                   col(lambda s: s.sample_units_ns * 1000.0, np.float64),
+                   np.array([d.sample_units_ns * 1000.0 for d in owners], np.float64),
+                   col(lambda s: s.duration_scale, np.float64), col(lambda s: s.duration_offset, np.float64),
+                   np.array([d.optical_center_to_anchor for d in owners], np.int64))
+
+
+@njit(**JIT)
+def _unsigned(data, at, bits):
+    value = np.int64(0)
+    for b in range(bits // 8):
+        value |= np.int64(data[at + b]) << (8 * b)
+    return value
+
+
+@njit(**JIT)
+def _signed(data, at, bits):
+    value = _unsigned(data, at, bits)
+    if bits > 0 and value >= (np.int64(1) << (bits - 1)):
+        value -= np.int64(1) << bits
+    return value
+
+
+@njit(**JIT)
+def _walk_waves(data, offsets, descriptor, first, count, extra, bits_duration, bits_segments, bits_samples,
+                n_segments, n_samples, sample_bytes, fill, seg_pulse, seg_sampling, seg_index, seg_duration,
+                seg_count, seg_at):
+    """Walk each pulse's waves: per sampling its segments (duration, count, samples).
+
+    Returns per pulse the number of segments (or -1: descriptor unusable, -2: runs past the file's end)
+    and the byte after its waves; with `fill`, writes each segment's pulse, sampling, index, stored
+    duration D, sample count and first byte.
+    """
+    n = offsets.size
+    segments = np.zeros(n, np.int64)
+    ends = np.zeros(n, np.int64)
+    size = data.size
+    k = 0
+    for p in range(n):
+        d = descriptor[p]
+        if first[d] < 0:
+            segments[p] = -1
+            continue
+        at = offsets[p] + extra[d]
+        bad = at < 0 or at > size
+        found = 0
+        for m in range(first[d], first[d] + count[d]):
+            if bad:
+                break
+            nseg = n_segments[m]
+            if bits_segments[m] > 0:
+                if at + bits_segments[m] // 8 > size:
+                    bad = True
+                    break
+                nseg = _unsigned(data, at, bits_segments[m])
+                at += bits_segments[m] // 8
+            for s in range(nseg):
+                head = (bits_duration[m] + bits_samples[m]) // 8
+                if at + head > size:
+                    bad = True
+                    break
+                duration = _signed(data, at, bits_duration[m])
+                at += bits_duration[m] // 8
+                count_s = n_samples[m]
+                if bits_samples[m] > 0:
+                    count_s = _unsigned(data, at, bits_samples[m])
+                    at += bits_samples[m] // 8
+                if at + count_s * sample_bytes[m] > size:
+                    bad = True
+                    break
+                if fill:
+                    seg_pulse[k] = p
+                    seg_sampling[k] = m - first[d]
+                    seg_index[k] = s
+                    seg_duration[k] = duration
+                    seg_count[k] = count_s
+                    seg_at[k] = at
+                k += 1
+                found += 1
+                at += count_s * sample_bytes[m]
+        if bad:
+            k -= found
+            segments[p] = -2
+        else:
+            segments[p] = found
+        ends[p] = at
+    return segments, ends
+
+
+@njit(**JIT)
+def _ends_with(data, end, length, other, other_length):
+    """Per pulse: whether the `length` bytes before `end` equal the `other_length` bytes at `other`
+    (compared when both are at least 16 bytes and fit the data)."""
+    out = np.zeros(end.size, np.bool_)
+    for p in range(end.size):
+        n = other_length[p]
+        if n < 16 or length[p] < n or other[p] < 0 or end[p] - n < 0 or other[p] + n > data.size:
+            continue
+        same = True
+        for b in range(n):
+            if data[end[p] - n + b] != data[other[p] + b]:
+                same = False
+                break
+        out[p] = same
+    return out
+
+
+def _gather(data: np.ndarray, at: np.ndarray, count: np.ndarray, nbytes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Samples of segments (first byte, count, bytes per sample) as one float64 array and its offsets."""
+    offsets = np.zeros(at.size + 1, np.int64)
+    np.cumsum(count, out=offsets[1:])
+    out = np.empty(offsets[-1], np.float64)
+    _gather_kernel(data, np.asarray(at, np.int64), np.asarray(nbytes, np.int64), offsets, out)
+    return out, offsets
+
+
+@njit(**JIT)
+def _gather_kernel(data, at, nbytes, offsets, out):
+    for i in range(at.size):
+        for j in range(offsets[i + 1] - offsets[i]):
+            b = at[i] + nbytes[i] * j
+            value = np.int64(data[b])
+            if nbytes[i] == 2:
+                value |= np.int64(data[b + 1]) << 8
+            out[offsets[i] + j] = value
+
+
+# ---------------------------------------------------------------- plan and read
+
+def plan_pulse_ranges(path: str | Path, pulses_per_range: int = 10_000) -> list[PointRange]:
+    """Ranges of pulse records; a pulse's waves are all in its own record, so ranges never share pulses."""
+    pw = open_pulsewaves(path)
+    if pulses_per_range < 1:
+        raise ValueError(f"pulses per range must be at least 1, not {pulses_per_range}")
+    _warn_unusable(pw)
+    n = pw.point_count
+    if n == 0:
+        return [PointRange(str(path), 0, 0, n_pulses=0, problems=pw.problems)] if pw.problems else []
+    return [PointRange(str(path), start, min(n, start + pulses_per_range), n_pulses=min(n, start + pulses_per_range)
+                       - start, problems=pw.problems if start == 0 else ())
+            for start in range(0, n, pulses_per_range)]
+
+
+def _warn_unusable(pw: PulseWavesFile) -> None:
+    descriptor = np.asarray(pw.records()["descriptor"]) if pw.point_count else np.zeros(0, np.uint8)
+    index, n = np.unique(descriptor, return_counts=True)
+    used = dict(zip(index.tolist(), n.tolist()))
+    for d in sorted(pw.descriptors.values(), key=lambda d: d.index):
+        if d.problem and d.index in used:
+            LOG.warning("%s: %s: its %d pulses are rejected", pw.path.name, d.problem, used[d.index])
+
+
+def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | None = None) -> PulseBatch:
+    """The returning segments of a range of pulses, one row each; pulses that cannot be read are rejected."""
+    if not isinstance(point_range, PointRange):
+        pw = pw or open_pulsewaves(point_range)
+        point_range = PointRange(str(point_range), 0, pw.point_count, problems=pw.problems)
+    pw = pw or open_pulsewaves(point_range.path)
+    header, name = pw.header, pw.path.name
+    stop = min(point_range.stop, pw.point_count)
+    if point_range.max_pulses is not None:
+        stop = min(stop, point_range.start + point_range.max_pulses)
+    walked = np.array(pw.records(point_range.start, stop + 1))  # one more: the next pulse's waves bound these
+    n = max(0, stop - point_range.start)
+    records = walked[:n]
+    rejected = [(-1, reason) for reason in point_range.problems]
+    scales, offsets = np.asarray(header.scales), np.asarray(header.offsets)
+    anchor_raw = records["anchor"].astype(np.float64)
+    target_raw = records["target"].astype(np.float64)
+    anchor = anchor_raw * scales + offsets
+    direction = ((target_raw - anchor_raw) * scales) / 1000.0  # world units per sampling unit
+    gps_time = records["T"].astype(np.float64) * header.t_scale + header.t_offset
+    pulse_id = pulse_identity(records["T"].astype(np.float64), anchor_raw, target_raw, quantum=1.0)
+
+    data = np.memmap(pw.waves_path, dtype=np.uint8, mode="r")
+    layout = _layout(pw.descriptors)
+    wave_offsets = walked["offset"].astype(np.int64)
+    descriptor = walked["descriptor"].astype(np.int64)
+    args = (layout.first, layout.count, layout.extra, layout.bits_duration, layout.bits_segments,
+            layout.bits_samples, layout.n_segments, layout.n_samples, layout.sample_bytes)
+    empty = np.zeros(0, np.int64)
+    counts, ends = _walk_waves(data, wave_offsets, descriptor, *args, False, empty, empty, empty, empty, empty, empty)
+    total = int(counts[counts > 0].sum())
+    seg = [np.zeros(total, np.int64) for _ in range(6)]
+    _walk_waves(data, wave_offsets, descriptor, *args, True, *seg)
+    seg_pulse, seg_sampling, seg_index, seg_duration, seg_count, seg_at = seg
+    row = layout.first[descriptor[seg_pulse]] + seg_sampling  # each segment's sampling row in the layout
+    kind = layout.kind[row]
+    seg_end = seg_at + seg_count * layout.sample_bytes[row]
+    misfit = _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_count, seg_end, kind,
+                         layout.sample_bytes[row])
+    counts, ends, wave_offsets, descriptor = counts[:n], ends[:n], wave_offsets[:n], descriptor[:n]
+    keep = seg_pulse < n
+    seg_pulse, seg_index, seg_duration, seg_count, seg_at, row, kind = (
+        a[keep] for a in (seg_pulse, seg_index, seg_duration, seg_count, seg_at, row, kind))
+
+    reason = np.full(n, None, dtype=object)
+    for i in np.flatnonzero(counts == -1):
+        d = pw.descriptors.get(int(descriptor[i]))
+        reason[i] = f"{name}: " + (d.problem if d else f"pulse descriptor index {descriptor[i]} has no descriptor")
+    for i in np.flatnonzero(counts == -2):
+        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} run past the end of {pw.waves_path.name} "
+                     f"({data.size} bytes) as pulse descriptor {descriptor[i]} lays them out")
+    for i in np.flatnonzero(misfit & (reason == None)):  # noqa: E711
+        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} do not match pulse descriptor {descriptor[i]} "
+                     "(mis-encoded: they overlap the next pulse's waves or end with its outgoing samples); "
+                     "not decomposed")
+    zero_beam = ~np.any(target_raw != anchor_raw, axis=1)
+    for i in np.flatnonzero(zero_beam & (reason == None)):  # noqa: E711
+        reason[i] = f"{name}: target equals anchor: the pulse has no direction"
+    ok_segment = reason[seg_pulse] == None  # noqa: E711
+    returning = ok_segment & (kind == RETURNING) & (seg_count > 0)
+    has_return = np.zeros(n, bool)
+    has_return[seg_pulse[returning]] = True
+    for i in np.flatnonzero(~has_return & (reason == None)):  # noqa: E711
+        reason[i] = f"{name}: the pulse has no returning samples"
+    rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
+
+    rows = np.flatnonzero(returning)  # segments are walked in pulse, sampling, segment order already
+    owner, r = seg_pulse[rows], row[rows]
+    unit_ps = layout.unit_ps[r]
+    duration = layout.duration_scale[r] * seg_duration[rows] + layout.duration_offset[r]
+    bits = layout.bits[r].astype(np.int16)
+    samples, sample_offsets = _gather(data, seg_at[rows], seg_count[rows], layout.sample_bytes[r])
+    # segment number within the pulse (0, 1, ...)
+    segment = np.zeros(rows.size, np.int16)
+    if rows.size:
+        first_row = np.r_[True, owner[1:] != owner[:-1]]
+        start = np.maximum.accumulate(np.where(first_row, np.arange(rows.size), 0))
+        segment = (np.arange(rows.size) - start).astype(np.int16)
+    # the first outgoing segment of each row's pulse, where recorded
+    out_seg = np.flatnonzero(ok_segment & (kind == OUTGOING) & (seg_count > 0))
+    pulse_out = np.full(n, -1, np.int64)
+    pulse_out[seg_pulse[out_seg[::-1]]] = out_seg[::-1]
+    pick = pulse_out[owner]
+    has = pick >= 0
+    safe = np.maximum(pick, 0)
+    out_count = np.where(has, seg_count[safe], 0) if seg_count.size else np.zeros(owner.size, np.int64)
+    out_at = np.where(has, seg_at[safe], 0) if seg_at.size else np.zeros(owner.size, np.int64)
+    out_bytes = layout.sample_bytes[row[safe]] if row.size else np.ones(owner.size, np.int64)
+    outgoing, outgoing_offsets = _gather(data, out_at, out_count, out_bytes)
+    outgoing_spacing = np.where(has, layout.spacing_ps[row[safe]] if row.size else 0.0, 0.0)
+    flags = records["flags"][owner]
+    zeros = np.zeros(rows.size)
+    return PulseBatch(
+        source_file=str(pw.path),
+        pulse_id=pulse_id[owner],
+        packet_offset=wave_offsets[owner],
+        descriptor_index=descriptor[owner].astype(np.int16),
+        gps_time=gps_time[owner],
+        anchor=anchor[owner],
+        anchor_location_ps=-duration * unit_ps,
+        direction=-direction[owner] / unit_ps[:, None],
+        scan_angle=zeros,
+        point_source_id=np.zeros(rows.size, np.uint16),
+        scan_direction_flag=((flags >> 5) & 1).astype(np.uint8),
+        edge_of_flight_line=((flags >> 4) & 1).astype(np.uint8),
+        user_data=np.zeros(rows.size, np.uint8),
+        sample_spacing_ps=layout.spacing_ps[r],
+        digitizer_gain=np.ones(rows.size),
+        digitizer_offset=zeros,
+        bits_per_sample=bits,
+        samples=samples,
+        sample_offsets=sample_offsets,
+        return_xyz=np.zeros((0, 3)),
+        return_number=np.zeros(0, np.uint8),
+        return_intensity=np.zeros(0, np.uint16),
+        return_location_ps=np.zeros(0),
+        return_offsets=np.zeros(rows.size + 1, np.int64),
+        classification=records["classification"][owner].astype(np.uint8),
+        channel=layout.channel[r].astype(np.int16),
+        segment=segment,
+        outgoing=outgoing, outgoing_offsets=outgoing_offsets, outgoing_spacing_ps=outgoing_spacing,
+        rejected=tuple(rejected),
+    )
+
+
+def _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_count, seg_end, kind, sample_bytes):
+    """Pulses (of the first n walked) whose waves cannot be what their descriptor says: they run into the
+    next pulse's waves, or their last returning segment ends with the next pulse's outgoing samples
+    (GeoLas's converter wrote 8-bit outgoing samples under a 16-bit descriptor and padded with those)."""
+    m = wave_offsets.size
+    next_start = np.append(wave_offsets[1:], [data.size]) if m else wave_offsets
+    increasing = np.append(wave_offsets[1:] > wave_offsets[:-1], [True]) if m else np.zeros(0, bool)
+    overlap = (counts >= 0) & increasing & (ends > next_start)
+    last_return = np.full(m, -1, np.int64)
+    ret = np.flatnonzero(kind == RETURNING)
+    last_return[seg_pulse[ret]] = ret
+    first_out = np.full(m, -1, np.int64)
+    out = np.flatnonzero(kind == OUTGOING)
+    first_out[seg_pulse[out[::-1]]] = out[::-1]
+    nxt = np.append(first_out[1:], [-1]) if m else first_out
+    lr, no = np.maximum(last_return, 0), np.maximum(nxt, 0)
+    valid = (last_return >= 0) & (nxt >= 0) & (counts >= 0) & np.append(counts[1:] >= 0, [False])
+    end = np.where(valid, seg_end[lr] if seg_end.size else 0, 0)
+    length = np.where(valid, (seg_count * sample_bytes)[lr] if seg_end.size else 0, 0)
+    other = np.where(valid, seg_at[no] if seg_at.size else -1, -1)
+    # as many bytes as the next pulse has outgoing samples: mis-encoded 16-bit ones are 8-bit on disk
+    other_length = np.where(valid, seg_count[no] if seg_at.size else 0, 0)
+    padded = _ends_with(data, end.astype(np.int64), length.astype(np.int64), other.astype(np.int64),
+                        other_length.astype(np.int64))
+    return (overlap | padded)[:n]
+
+
+# ---------------------------------------------------------------- fwl info
+
+def describe_pulsewaves(path: str | Path) -> dict:
+    """Header, descriptors (composition and samplings) and their use, lookup tables, CRS, bounds, times."""
+    from fwcore.io.info import crs_name
+
+    pw = open_pulsewaves(path)
+    h = pw.header
+    records = pw.records()
+    used = dict(zip(*[a.tolist() for a in np.unique(np.asarray(records["descriptor"]), return_counts=True)])) \
+        if records.size else {}
+    descriptors = [{
+        "index": d.index, "pulses": int(used.get(d.index, 0)), "problem": d.problem, "description": d.description,
+        "sample_units_ns": d.sample_units_ns, "optical_center_to_anchor":
+            "varies" if d.optical_center_to_anchor == VARIES - (1 << 32) or d.optical_center_to_anchor == VARIES
+            else d.optical_center_to_anchor,
+        "scanner": d.scanner_index,
+        "samplings": [{"kind": s.kind, "channel": s.channel, "bits": s.bits_per_sample,
+                       "samples": "variable" if s.bits_for_samples else s.number_of_samples,
+                       "segments": "variable" if s.bits_for_segments else s.number_of_segments,
+                       "sample_units_ns": s.sample_units_ns, "lookup_table": s.lookup_table,
+                       "duration_bits": s.bits_for_duration} for s in d.samplings]}
+        for d in sorted(pw.descriptors.values(), key=lambda d: d.index)]
+    t = np.asarray([h.t_min, h.t_max], np.float64) * h.t_scale + h.t_offset
+    return {
+        "file": str(pw.path),
+        "format": "PulseWaves",
+        "version": h.version,
+        "system_identifier": h.system_identifier,
+        "generating_software": h.generating_software,
+        "pulses": h.n_pulses,
+        "pulses_present": pw.point_count,
+        "descriptors": descriptors,
+        "descriptors_missing": [{"index": int(i), "pulses": int(n)} for i, n in used.items()
+                                if i not in pw.descriptors],
+        "scanners": [dataclasses.asdict(s) for s in pw.scanners.values()],
+        "lookup_tables": [{"index": t_.index, "entries": int(t_.entries.size), "description": t_.description}
+                          for t_ in pw.lookup_tables.values()],
+        "packets": f"{pw.waves_path.name} ({pw.waves_path.stat().st_size} bytes, uncompressed)",
+        "crs": {"name": crs_name(pw.crs_wkt), "source": pw.crs_source},
+        "bounds": {"min": list(h.bounds_min), "max": list(h.bounds_max)},
+        "gps_time": {"min": float(t[0]), "max": float(t[1]),
+                     "type": "no time stamps (T = 0)" if h.t_min == h.t_max == 0 else
+                     ("standard GPS time" if h.t_offset >= 1e8 else "GPS week seconds")},
+        "problems": list(pw.problems),
+    }

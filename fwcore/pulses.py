@@ -1,0 +1,92 @@
+"""The one bridge between the formats (fwcore.io) and the engine: pulses -> waveforms, echoes -> points.
+
+    file -> io (PulseBatch) -> pulse_waveforms -> engine -> echo_positions / decomposed_echoes -> sinks
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fwcore.decompose import BatchDecomposition, WaveformBatch
+from fwcore.io.geolocate import geolocate
+from fwcore.io.records import PulseBatch
+from fwcore.preprocess import median_pulse_fwhm
+from fwcore.rng import pulse_seeds
+
+
+def pulse_waveforms(pulses: PulseBatch, seed: int) -> WaveformBatch:
+    """The engine's input: one waveform per row, seeded from the run seed, the pulse's identity and
+    its returning segment (never the file name or the packet offset: every encoding of the data
+    draws the same random streams)."""
+    return WaveformBatch(
+        samples=pulses.samples, valid=np.ones(pulses.samples.size, dtype=bool), offsets=pulses.sample_offsets,
+        sample_spacing_ps=pulses.sample_spacing_ps.astype(np.float64),
+        seeds=pulse_seeds(seed, pulses.pulse_id, pulses.segments() + 256 * pulses.channels()))
+
+
+def system_pulse_fwhm_ps(pulses: PulseBatch) -> float:
+    """The system pulse FWHM (ps) of a file: the median width of the recorded outgoing waveforms where the
+    file has them (PulseWaves), otherwise measured on pulses the system saw as single returns (LAS does
+    not record it; the filter and smoothing need it)."""
+    if pulses.outgoing is not None and pulses.outgoing.size:
+        rows = [i for i in range(len(pulses)) if pulses.outgoing_offsets[i + 1] - pulses.outgoing_offsets[i] > 4]
+        if rows:
+            width = median_pulse_fwhm([pulses.outgoing_samples(i) for i in rows])
+            spacing = float(np.median(pulses.outgoing_spacing_ps[rows]))
+            if np.isfinite(width) and width > 0:
+                return width * spacing
+    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
+    if single.size == 0:
+        raise ValueError(f"{pulses.source_file}: no outgoing waveform and no single-return pulse "
+                         "to measure the system pulse width")
+    width = median_pulse_fwhm([pulses.pulse_samples(i) for i in single])
+    return width * float(np.median(pulses.sample_spacing_ps[single]))
+
+
+def echo_positions(pulses: PulseBatch, result: BatchDecomposition) -> np.ndarray:
+    """Positions (m, 3) of every echo of decomposed pulses, in the result's echo order."""
+    owner = result.echo_waveform
+    time_ps = result.position * pulses.sample_spacing_ps[owner]
+    return geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
+
+
+def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,
+                      positions: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Columns of the kept echoes, geolocated, with return numbers recomputed in time order: what
+    fwcore.io.writer.write_point_cloud writes. `positions` are those of every echo, when the caller has them."""
+    kept = result.reject == 0
+    owner = result.echo_waveform[kept]
+    spacing = pulses.sample_spacing_ps[owner]
+    xyz = (echo_positions(pulses, result) if positions is None else positions)[kept]
+    # echoes are sorted by position within a waveform, so a running count is the return number
+    n_kept = np.bincount(owner, minlength=len(result))
+    first = np.concatenate([[0], np.cumsum(n_kept)[:-1]])
+    return_number = np.arange(owner.size) - first[owner] + 1
+    amplitude = result.amplitude[kept]
+    classification = pulses.classification if pulses.classification is not None else np.zeros(len(pulses), np.uint8)
+    columns = {
+        "pulse_id": pulses.pulse_id[owner],
+        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+        "gps_time": pulses.gps_time[owner],
+        "return_number": return_number,
+        "number_of_returns": n_kept[owner],
+        # 8-bit digitizers scaled to the 16-bit intensity range
+        "intensity": np.clip(np.round(amplitude * 2.0 ** (16 - pulses.bits_per_sample[owner])), 0, 65535),
+        "classification": classification[owner],
+        "scan_angle": pulses.scan_angle[owner],
+        "scan_direction_flag": pulses.scan_direction_flag[owner],
+        "edge_of_flight_line": pulses.edge_of_flight_line[owner],
+        "point_source_id": pulses.point_source_id[owner],
+        "user_data": pulses.user_data[owner],
+        "channel": pulses.channels()[owner],
+        "amplitude": amplitude,
+        "echo_width": result.fwhm[kept] * spacing,
+        "alpha": result.alpha[kept],
+        "echo_energy": result.energy[kept] * spacing,
+        "fit_error": result.fit_error[owner],
+    }
+    if pulses.rgb is not None:
+        columns["rgb"] = pulses.rgb[owner]
+    if pulses.nir is not None:
+        columns["nir"] = pulses.nir[owner]
+    return columns

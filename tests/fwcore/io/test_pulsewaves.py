@@ -1,0 +1,133 @@
+"""PulseWaves samples from five sensors: the facts of examples/data/pulsewaves/README.md."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from fwcore.io import describe_file, plan_point_ranges, read_pulses
+from fwcore.io.geolocate import geolocate
+from fwcore.io.pulsewaves import WAVES_HEADER_BYTES, _layout, _walk_waves, open_pulsewaves
+from fwcore.pulses import system_pulse_fwhm_ps
+
+SAMPLES = {  # name: pulses, returning rows, heights of the returning samples (README)
+    "las13fwf_example1": (1000, 1000, (231.6, 277.0)),
+    "geolas_example1": (1000, 790, (409.7, 455.7)),
+    "lvis_example1": (1000, 1000, (-13.1, 119.1)),
+    "optech_example1": (998, 998, (130.9, 152.6)),
+    "riegl_example3": (16486, 16487, (334.9, 359.9)),
+}
+EARTH_CENTRED = {"optech_example1", "riegl_example3"}
+
+
+@pytest.fixture(scope="session")
+def pulsewaves_dir(leica_dir):
+    return leica_dir.parent / "pulsewaves"
+
+
+def _positions(batch):
+    n = np.diff(batch.sample_offsets)
+    owner = np.repeat(np.arange(len(batch)), n)
+    k = np.arange(n.sum()) - np.repeat(batch.sample_offsets[:-1], n)
+    return geolocate(batch.anchor[owner], batch.anchor_location_ps[owner], batch.direction[owner],
+                     k * batch.sample_spacing_ps[owner])
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLES))
+def test_header_counts_times_and_tiling(pulsewaves_dir, name):
+    pw = open_pulsewaves(pulsewaves_dir / f"{name}.pls")
+    records = np.array(pw.records())
+    assert pw.header.n_pulses == pw.point_count == records.size == SAMPLES[name][0]
+    assert (records["T"].min(), records["T"].max()) == (pw.header.t_min, pw.header.t_max)
+    # the waves of consecutive pulses tile the .wvs exactly from byte 60 to its end
+    data = np.fromfile(pw.waves_path, np.uint8)
+    layout = _layout(pw.descriptors)
+    empty = np.zeros(0, np.int64)
+    counts, ends = _walk_waves(data, records["offset"].astype(np.int64), records["descriptor"].astype(np.int64),
+                               layout.first, layout.count, layout.extra, layout.bits_duration, layout.bits_segments,
+                               layout.bits_samples, layout.n_segments, layout.n_samples, layout.sample_bytes, False,
+                               empty, empty, empty, empty, empty, empty)
+    assert (counts > 0).all()
+    assert records["offset"][0] == WAVES_HEADER_BYTES and ends[-1] == data.size
+    np.testing.assert_array_equal(ends[:-1], records["offset"][1:])
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLES))
+def test_samples_lie_inside_the_header_bounds_at_the_known_heights(pulsewaves_dir, name):
+    path = pulsewaves_dir / f"{name}.pls"
+    pw = open_pulsewaves(path)
+    batch = read_pulses(path)
+    assert len(batch) == SAMPLES[name][1]
+    assert len(batch) == np.unique(batch.pulse_id).size + (1 if name == "riegl_example3" else 0)
+    xyz = _positions(batch)
+    assert np.isfinite(xyz).all()
+    # within the coordinate quantisation and half a sampling unit along the beam
+    half_unit = np.abs(batch.direction * batch.sample_spacing_ps[:, None]).max(axis=0) / 2
+    slack = np.asarray(pw.header.scales) + half_unit
+    assert (xyz.min(axis=0) >= np.asarray(pw.header.bounds_min) - slack).all()
+    assert (xyz.max(axis=0) <= np.asarray(pw.header.bounds_max) + slack).all()
+    if name in EARTH_CENTRED:
+        import pyproj
+        to_height = pyproj.Transformer.from_crs(4978, 4979, always_xy=True)
+        height = to_height.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])[2]
+        assert "EPSG:4978" in pw.crs_source
+    else:
+        height = xyz[:, 2]
+    lo, hi = SAMPLES[name][2]
+    assert height.min() == pytest.approx(lo, abs=0.1) and height.max() == pytest.approx(hi, abs=0.1)
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLES))
+def test_first_pulse_matches_its_record(pulsewaves_dir, name):
+    """An independent parse of the first record (struct, by the draft's table) against the batch."""
+    pls = (pulsewaves_dir / f"{name}.pls").read_bytes()
+    offset_to_pulses = struct.unpack_from("<q", pls, 176)[0]
+    t_scale, t_offset = struct.unpack_from("<dd", pls, 224)
+    scale, offset = np.array(struct.unpack_from("<3d", pls, 256)), np.array(struct.unpack_from("<3d", pls, 280))
+    t, wave_offset, *xyz = struct.unpack_from("<qq6i2h", pls, offset_to_pulses)[:8]
+    first_returning = struct.unpack_from("<h", pls, offset_to_pulses + 40)[0]
+    anchor = np.array(xyz[:3]) * scale + offset
+    batch = read_pulses(plan_point_ranges(pulsewaves_dir / f"{name}.pls", 50)[0])
+    assert batch.packet_offset[0] == wave_offset
+    assert batch.gps_time[0] == t * t_scale + t_offset
+    np.testing.assert_allclose(batch.anchor[0], anchor)
+    # first_returning_sample is the duration of the first returning segment (sampling units)
+    unit_ps = 1000.0 * open_pulsewaves(pulsewaves_dir / f"{name}.pls").descriptors[
+        int(batch.descriptor_index[0])].sample_units_ns
+    assert -batch.anchor_location_ps[0] / unit_ps == pytest.approx(first_returning, abs=0.5)  # stored as a short
+
+
+def test_geolas_mis_encoded_descriptor_is_rejected_not_decomposed(pulsewaves_dir):
+    batch = read_pulses(pulsewaves_dir / "geolas_example1.pls")
+    assert len(batch) == 790 and set(batch.descriptor_index.tolist()) == {1}
+    assert len(batch.rejected) == 210
+    assert all("do not match pulse descriptor 2 (mis-encoded" in reason for _, reason in batch.rejected)
+    assert batch.samples.max() <= 255
+
+
+def test_riegl_pulse_with_two_returning_segments_is_one_pulse(pulsewaves_dir):
+    batch = read_pulses(pulsewaves_dir / "riegl_example3.pls")
+    ids, count = np.unique(batch.pulse_id, return_counts=True)
+    (twice,) = ids[count == 2]
+    rows = np.flatnonzero(batch.pulse_id == twice)
+    assert batch.segment[rows].tolist() == [0, 1] and sorted(batch.channel[rows].tolist()) == [0, 1]
+    assert (batch.descriptor_index[rows] == 3).all()
+    assert set(np.diff(batch.sample_offsets).tolist()) <= {80, 160}
+
+
+@pytest.mark.parametrize("name,scanner_ns", [("riegl_example3", 4.0), ("lvis_example1", 10.0),
+                                             ("optech_example1", 10.0), ("geolas_example1", 10.0)])
+def test_outgoing_waveform_gives_the_system_pulse_width(pulsewaves_dir, name, scanner_ns):
+    batch = read_pulses(pulsewaves_dir / f"{name}.pls")
+    assert batch.outgoing is not None and np.diff(batch.outgoing_offsets).min() > 0
+    fwhm = system_pulse_fwhm_ps(batch)
+    # measured on the recorded outgoing pulses; the scanner record's nominal width bounds it loosely
+    assert 0.3 * scanner_ns * 1000 < fwhm < 3 * scanner_ns * 1000
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLES))
+def test_describe_reads_headers_only(pulsewaves_dir, name):
+    info = describe_file(pulsewaves_dir / f"{name}.pls")
+    assert info["format"] == "PulseWaves" and info["pulses"] == SAMPLES[name][0]
+    used = {d["index"]: d["pulses"] for d in info["descriptors"] if d["pulses"]}
+    assert sum(used.values()) == SAMPLES[name][0]

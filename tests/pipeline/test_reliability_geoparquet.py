@@ -1,0 +1,75 @@
+"""The echo table is GeoParquet 1.1 (points, WKB, the input's CRS as PROJJSON); rejected/ is always there."""
+
+import json
+import shutil
+
+import duckdb
+import geopandas
+import laspy
+import numpy as np
+import pyarrow.parquet as pq
+import pyproj
+import pytest
+
+from pipeline.cli import main
+from pipeline.tables import wkb_points
+
+QUICK = ["--preset", "fast", "--limit", "30", "--points-per-range", "300", "--direct_num_workers=1",
+         "--direct_running_mode=in_memory", "--formats", "parquet"]
+
+
+@pytest.fixture(scope="module")
+def utm_run(tmp_path_factory, leica_dir):
+    """The Leica sample with its CRS said to be WGS 84 / UTM 32N (EPSG:32632), and its run."""
+    data = tmp_path_factory.mktemp("utm")
+    las = laspy.read(leica_dir / "leica_a.las")
+    las.header.add_crs(pyproj.CRS.from_epsg(32632))
+    las.write(data / "utm.las")
+    shutil.copy(leica_dir / "leica_a.wdp", data / "utm.wdp")
+    out = data / "out"
+    assert main(["run", str(data / "utm.las"), "--output", str(out)] + QUICK) == 0
+    return out
+
+
+def test_echo_parts_carry_geoparquet_metadata_with_the_inputs_crs(utm_run):
+    for part in sorted((utm_run / "echoes").glob("*.parquet")):
+        geo = json.loads(pq.read_schema(part).metadata[b"geo"])
+        assert geo["version"] == "1.1.0" and geo["primary_column"] == "geometry"
+        column = geo["columns"]["geometry"]
+        assert column["encoding"] == "WKB" and column["geometry_types"] == ["Point Z"]
+        assert pyproj.CRS.from_json_dict(column["crs"]).to_epsg() == 32632
+        table = pq.read_table(part, columns=["x", "y", "z"]).to_pandas()
+        assert column["bbox"] == [table.x.min(), table.y.min(), table.z.min(),
+                                  table.x.max(), table.y.max(), table.z.max()]
+
+
+def test_geopandas_opens_the_echo_table_as_points(utm_run):
+    frame = geopandas.read_parquet(utm_run / "echoes")
+    assert len(frame) > 30 and frame.crs.to_epsg() == 32632
+    assert (frame.geometry.geom_type == "Point").all() and frame.geometry.has_z.all()
+    np.testing.assert_array_equal(frame.geometry.x, frame.x)
+    np.testing.assert_array_equal(frame.geometry.y, frame.y)
+    np.testing.assert_array_equal(frame.geometry.z, frame.z)
+    assert {"x", "y", "z", "kept", "fwhm_ps"} <= set(frame.columns)
+
+
+def test_an_input_without_a_known_crs_says_unknown_not_crs84(tmp_path, leica_dir):
+    out = tmp_path / "out"
+    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out)] + QUICK) == 0
+    part = sorted((out / "echoes").glob("*.parquet"))[0]
+    assert json.loads(pq.read_schema(part).metadata[b"geo"])["columns"]["geometry"]["crs"] is None
+    assert geopandas.read_parquet(part).crs is None
+
+
+def test_rejected_is_written_without_rows_when_nothing_is_rejected(utm_run):
+    assert [p.name for p in (utm_run / "rejected").iterdir()] == ["utm.parquet"]
+    (count,), = duckdb.sql(f"SELECT count(*) FROM read_parquet('{utm_run}/rejected/*.parquet')").fetchall()
+    assert count == 0
+    assert pq.read_schema(utm_run / "rejected" / "utm.parquet").names == ["source_file", "pulse_id", "stage", "reason"]
+
+
+def test_wkb_points_are_iso_point_z_and_null_where_not_finite():
+    from shapely import wkb
+    points = wkb_points(np.array([1.5, np.nan]), np.array([2.0, 0.0]), np.array([3.25, 0.0]))
+    first = wkb.loads(points[0].as_py())
+    assert (first.x, first.y, first.z) == (1.5, 2.0, 3.25) and points[1].as_py() is None
