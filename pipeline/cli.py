@@ -77,10 +77,12 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
               f"rerun the same command to complete it", file=sys.stderr)
         return EXIT_INTERRUPTED
     c = summary["counts"]
+    problems = f", problems {c['problems']}" if c.get("problems") else ""  # ranges lost whole, missing records
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
-          f"files rejected {c['files_rejected']}; echoes kept {c['echoes_kept']}, spurious {c['echoes_spurious']}")
+          f"files rejected {c['files_rejected']}{problems}; echoes kept {c['echoes_kept']}, "
+          f"spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
-    if c["pulses_rejected"] or c["files_rejected"]:
+    if c["pulses_rejected"] or c["files_rejected"] or c.get("problems"):
         print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
     return summary["exit_code"]
 

@@ -37,7 +37,8 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "
 EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 FORMATS = frozenset({"parquet", "las", "mcap"})
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
-COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "echoes_kept", "echoes_spurious")
+COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "problems", "echoes_kept",
+          "echoes_spurious")
 
 
 def _table(directory: Path, columns: list[str]) -> pa.Table | None:
@@ -53,25 +54,32 @@ def _counts_by_input(table: pa.Table | None, aggregations: list[tuple]) -> dict[
 
 
 def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[str, dict[str, int]]]:
-    """Totals and per-input counts read back from what was written, so that they add up by construction."""
+    """Totals and per-input counts read back from what was written, so that they add up by construction.
+
+    A rejected row is a file (stage open), a pulse (pulse_id >= 0), or a problem: a range that failed
+    as a whole, or point records the header promises and the file lacks (pulse_id -1).
+    """
     pulses = _table(output / "pulses", ["source_file"])
     echoes = _table(output / "echoes", ["source_file", "kept"])
-    rejected = _table(output / "rejected", ["source_file", "stage"])
+    rejected = _table(output / "rejected", ["source_file", "stage", "pulse_id"])
     if rejected is not None:
-        rejected = rejected.append_column("is_file", pc.equal(rejected.column("stage"), "open"))
+        is_file = pc.equal(rejected.column("stage"), "open")
+        is_pulse = pc.and_(pc.invert(is_file), pc.greater_equal(rejected.column("pulse_id"), 0))
+        rejected = rejected.append_column("is_file", is_file).append_column("is_pulse", is_pulse)
     per_pulses = _counts_by_input(pulses, [("source_file", "count")])
     per_echoes = _counts_by_input(echoes, [("kept", "count"), ("kept", "sum")])
-    per_rejected = _counts_by_input(rejected, [("is_file", "count"), ("is_file", "sum")])
+    per_rejected = _counts_by_input(rejected, [("is_file", "count"), ("is_file", "sum"), ("is_pulse", "sum")])
     per_input = {}
     for name in names:
         decomposed = per_pulses.get(name, {}).get("source_file_count", 0)
         rows = per_rejected.get(name, {})
         files_rejected = int(rows.get("is_file_sum") or 0)
-        pulse_rejects = rows.get("is_file_count", 0) - files_rejected
+        pulse_rejects = int(rows.get("is_pulse_sum") or 0)
+        problems = rows.get("is_file_count", 0) - files_rejected - pulse_rejects
         echo_rows = per_echoes.get(name, {})
         kept = int(echo_rows.get("kept_sum") or 0)
         per_input[name] = {"pulses_read": decomposed + pulse_rejects, "pulses_decomposed": decomposed,
-                           "pulses_rejected": pulse_rejects, "files_rejected": files_rejected,
+                           "pulses_rejected": pulse_rejects, "files_rejected": files_rejected, "problems": problems,
                            "echoes_kept": kept, "echoes_spurious": echo_rows.get("kept_count", 0) - kept}
     totals = {k: sum(c[k] for c in per_input.values()) for k in COUNTS}
     return totals, per_input
@@ -107,7 +115,7 @@ def _metrics(result, files_rejected: int) -> dict[str, int]:
 
 def status_of(counts: dict[str, int]) -> str:
     """complete: nothing rejected; partial: some inputs or pulses rejected; failed: nothing decomposed."""
-    if not counts["pulses_rejected"] and not counts["files_rejected"]:
+    if not counts["pulses_rejected"] and not counts["files_rejected"] and not counts["problems"]:
         return "complete"
     return "partial" if counts["pulses_decomposed"] else "failed"
 

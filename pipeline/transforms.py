@@ -90,6 +90,7 @@ class _Stage(beam.DoFn):
     def __init__(self, output: str):
         self.output = output
         self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
+        self.problems = Metrics.counter(NAMESPACE, "problems")  # a whole range, or missing point records
 
     def setup(self):
         _log_to_file(self.output)
@@ -103,7 +104,8 @@ class _Stage(beam.DoFn):
         except Exception as err:  # noqa: BLE001  any failure of one range must not stop the others
             LOG.exception("%s: %s failed", self.stage, element.task if hasattr(element, "task") else element)
             outputs = self.reject_range(element, f"{type(err).__name__}: {err}")
-        self.rejected.inc(sum(1 for o in outputs if isinstance(o, Rejection)))
+        self.rejected.inc(sum(1 for o in outputs if isinstance(o, Rejection) and o.pulse_id >= 0))
+        self.problems.inc(sum(1 for o in outputs if isinstance(o, Rejection) and o.pulse_id < 0))
         yield from outputs
 
     def run(self, element) -> Iterator:
@@ -145,7 +147,7 @@ class ReadRange(_Stage):
 
     def run(self, task: ReadTask):
         pulses = read_pulses(task.point_range)
-        self.read.inc(len(pulses) + len(pulses.rejected))
+        self.read.inc(len(pulses) + sum(1 for pulse_id, _ in pulses.rejected if pulse_id >= 0))
         for pulse_id, reason in pulses.rejected:
             yield Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), self.stage, reason)
         if len(pulses):
@@ -168,7 +170,6 @@ class Decompose(_Stage):
     def __init__(self, output: str, config: DecompositionConfig):
         super().__init__(output)
         self.config = config
-        self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
 
     def setup(self):
         super().setup()
@@ -182,7 +183,6 @@ class Decompose(_Stage):
         # one thread per worker: Beam's workers are the parallelism; results do not depend on it
         result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
         ok = result.status == 0
-        self.decomposed.inc(int(ok.sum()))
         for i in np.flatnonzero(~ok):
             yield Rejection(item.task.source.name, item.task.source.stem, item.task.start,
                             int(item.pulses.pulse_id[i]), self.stage, STATUS_REASONS[result.status[i]])
@@ -213,16 +213,11 @@ class Geolocate(_Stage):
     def __init__(self, output: str, with_views: bool):
         super().__init__(output)
         self.with_views = with_views
-        self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
-        self.spurious = Metrics.counter(NAMESPACE, "echoes_spurious")
 
     def run(self, item: DecomposedRange):
         pulses, result = item.pulses, item.result
         xyz = echo_positions(pulses, result)
         echoes, table = pulse_tables(item.task.source.name, pulses, result, item.config, xyz, result.status == 0)
-        n_kept = int((result.reject == 0).sum())
-        self.kept.inc(n_kept)
-        self.spurious.inc(int(result.reject.size - n_kept))
         yield GeolocatedRange(item.task, echoes, table, decomposed_echoes(pulses, result, xyz),
                               _waveform_views(pulses, result) if self.with_views else None,
                               _range_pulses(item), item.n_rejected)
@@ -238,6 +233,10 @@ class WriteRange(_Stage):
     def __init__(self, output: str, formats: frozenset[str]):
         super().__init__(output)
         self.formats = formats
+        # counted once written, so that a range rejected on the way is not also counted as decomposed
+        self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
+        self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
+        self.spurious = Metrics.counter(NAMESPACE, "echoes_spurious")
 
     def _paths(self, task: ReadTask) -> dict[str, Path]:
         name, out = part_name(task.source.stem, task.start), Path(self.output)
@@ -257,6 +256,10 @@ class WriteRange(_Stage):
         except Exception:
             remove_parts(list(paths.values()))  # a range is written whole or not at all
             raise
+        n_kept = int(np.count_nonzero(item.echoes.column("kept").to_numpy(zero_copy_only=False)))
+        self.decomposed.inc(item.pulses.num_rows)
+        self.kept.inc(n_kept)
+        self.spurious.inc(item.echoes.num_rows - n_kept)
         write_json(progress_mark(self.output, task.source.stem, task.start),
                    {"pulses": item.n_pulses, "rejected": item.n_rejected})
         yield RangePart(task.source.stem, task.source.path, task.start,

@@ -28,6 +28,8 @@ from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 LOG = logging.getLogger("fwl")
 _KEY_SHIFT = np.int64(48)  # key = descriptor index << 48 | byte offset
+MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
+MAX_GPS_TIME_S = 2e9  # adjusted standard GPS time spans 1980-2043 within +-1e9 s; week time < 604800 s
 _OFFSET_MASK = np.int64((1 << 48) - 1)
 
 
@@ -100,9 +102,11 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
         raise WaveformFileError(f"{path}: point format {fmt} has no waveform packets "
                                 f"(full-waveform formats are {', '.join(map(str, WAVEFORM_POINT_FORMATS))})")
     for axis, scale, offset in zip("xyz", header.scales, header.offsets):
-        if not (math.isfinite(scale) and scale != 0 and math.isfinite(offset)):
+        # bounds far beyond any survey's (1e-9 degrees to km; the Earth's size): a damaged header, not data
+        if not (1e-12 <= abs(scale) <= 1e4 and abs(offset) <= 1e10):
             raise WaveformFileError(f"{path}: the header's {axis} scale {scale} / offset {offset} cannot give "
-                                    "coordinates (a scale must be finite and non-zero, an offset finite)")
+                                    "coordinates (a scale must be finite and non-zero, within 1e-12..1e4, "
+                                    "an offset finite, within +-1e10)")
     encoding = header.global_encoding
     if encoding.waveform_data_packets_external:
         packet_file = external_packet_file(path)
@@ -304,6 +308,10 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     keep = keys >= 0
     if point_range.foreign_points:
         keep &= ~np.isin(index, np.asarray(point_range.foreign_points))
+    no_packet = int((keys < 0).sum())
+    if no_packet and point_range.max_pulses is None:  # no pulse to put them in: reported, not dropped silently
+        rejected.append((-1, f"{wf.path}: {no_packet} point records of points {point_range.start}..{stop - 1} "
+                             "point at no waveform packet (descriptor index 0, or an impossible offset)"))
     xyz = np.stack([_field(points, "X") * scale[0] + offset[0], _field(points, "Y") * scale[1] + offset[1],
                     _field(points, "Z") * scale[2] + offset[2]], axis=1)
     return_number = _field(points, "return_number", np.int64)
@@ -330,6 +338,9 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     reason = np.full(pulse_keys.size, None, dtype=object)
     finite = np.isfinite(direction).all(axis=1) & np.isfinite(location) & np.isfinite(gps_time)
     reason[~finite] = f"{wf.path.name}: non-finite x_t/y_t/z_t, return point location or GPS time"
+    timeless = finite & ~(np.abs(gps_time) <= MAX_GPS_TIME_S)
+    reason[timeless] = [f"{wf.path.name}: implausible GPS time {t:.6g} s" for t in gps_time[timeless]]
+    finite &= ~timeless
     got = {}  # descriptor -> (rows of its pulses that were read, their samples (k, n))
     data = wf.packets.open()
     for d in np.unique(d_index):
@@ -341,6 +352,14 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
         if descriptor.problem:
             reason[mine] = f"{wf.path.name}: {descriptor.problem}"
             continue
+        # echoes lie L0 - t along the beam, t within the packet: a reach beyond any flight is a damaged record
+        window_ps = descriptor.n_samples * descriptor.sample_spacing_ps
+        reach = np.maximum(np.abs(location[mine]), np.abs(location[mine] - window_ps)) \
+            * np.linalg.norm(direction[mine], axis=1)
+        far = reach > MAX_BEAM_REACH_M
+        reason[mine[far]] = [f"{wf.path.name}: implausible beam: its echoes would lie up to {r:.3g} m from the "
+                             f"pulse's return (return point location, x_t/y_t/z_t)" for r in reach[far]]
+        mine = mine[~far]
         values, problems = wf.packets.read_many(data, descriptor, byte_offset[mine], sizes[mine])
         lost = np.array([p is not None for p in problems], dtype=bool)
         reason[mine[lost]] = np.array([p for p in problems if p is not None], dtype=object)

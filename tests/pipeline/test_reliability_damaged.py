@@ -1,0 +1,138 @@
+"""Damaged inputs (tests/damaged.py) in one folder and alone: the run finishes, nothing is lost or invented.
+
+The decomposition method does not matter here, so the runs use `--optimizer none` (initial estimates
+only); the folder run uses the DirectRunner's 2 worker processes, the runs alone the in-memory runner.
+"""
+
+import json
+
+import laspy
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pytest
+
+from pipeline.cli import main
+from pipeline.outputs import read_run
+from pipeline.run import EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL
+from tests.damaged import SAMPLE_PULSES, write_variants
+
+METHOD = ["--optimizer", "none", "--points-per-range", "400"]
+FOLDER_RUNNER = ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]
+ALONE_RUNNER = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
+# rejected whole, each with a reason naming the file
+FILE_REJECTED = {"cut_header", "cut_vlrs", "empty", "foreign_text", "foreign_binary", "missing_wdp", "empty_wdp",
+                 "x_scale_zero", "cut_laz"}
+# damage that may leave a readable file: random bytes of text fields or mantissas, samples, a count too low
+MAY_BE_HARMLESS = {"good", "flip_header", "flip_descriptor", "flip_packets", "low_count"}
+ALONE = ["good", "cut_points", "huge_count", "flip_points", "x_t_not_finite", "empty_wdp", "flip_laz"]
+
+
+def snapshot(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def rows(folder, table, source_file=None):
+    frame = ds.dataset(str(folder / table), format="parquet").to_table().to_pandas()
+    if source_file is not None:
+        frame = frame[frame.source_file == source_file]
+    keys = [k for k in ("pulse_id", "echo_index", "stage", "reason") if k in frame.columns]
+    return frame.drop(columns=[c for c in ("geometry",) if c in frame.columns]) \
+        .sort_values(keys).reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def damaged(tmp_path_factory, leica_dir):
+    """The variants (seed 12) in one folder, run together; a foreign file in the output folder's parent."""
+    root = tmp_path_factory.mktemp("damaged")
+    variants = write_variants(leica_dir, root / "in", seed=12)
+    before = snapshot(root / "in")
+    out = root / "out"
+    code = main(["run", str(root / "in"), "--output", str(out)] + METHOD + FOLDER_RUNNER)
+    return root, variants, out, code, before
+
+
+def test_the_run_finishes_with_the_partial_code_and_leaves_the_inputs_alone(damaged):
+    root, variants, out, code, before = damaged
+    assert code == EXIT_PARTIAL
+    summary = read_run(out)
+    assert summary["status"] == "partial"
+    assert sorted(i["name"] for i in summary["inputs"]) == sorted(v.file_name for v in variants)
+    assert snapshot(root / "in") == before
+
+
+def test_every_pulse_is_decomposed_or_rejected_and_the_counts_match_the_metrics(damaged):
+    _, variants, out, _, _ = damaged
+    summary = read_run(out)
+    per_input = {i["name"]: i["counts"] for i in summary["inputs"]}
+    rejected = rows(out, "rejected")
+    for v in variants:
+        c = per_input[v.file_name]
+        assert c["pulses_read"] == c["pulses_decomposed"] + c["pulses_rejected"], v
+        if v.name in FILE_REJECTED:
+            assert c["files_rejected"] == 1 and c["pulses_read"] == 0, v
+        elif v.pulses_intact:  # every pulse the file promises is accounted for
+            assert c["pulses_read"] == SAMPLE_PULSES, v
+        if v.name not in MAY_BE_HARMLESS:
+            assert (rejected.source_file == v.file_name).any(), f"{v}: damage that nothing reports"
+    for key in ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "problems", "echoes_kept"):
+        assert summary["metrics"].get(key, 0) == summary["counts"][key], key
+    assert summary["counts"]["pulses_decomposed"] > 8 * SAMPLE_PULSES  # the readable files went through
+
+
+def test_rejections_name_the_file_and_the_problem(damaged):
+    _, variants, out, _, _ = damaged
+    rejected = rows(out, "rejected")
+    assert rejected.reason.str.len().min() > 10
+    files = rejected[rejected.stage == "open"]
+    assert {f"{n}.las" for n in FILE_REJECTED - {"cut_laz"}} | {"cut_laz.laz"} <= set(files.source_file)
+    for _, row in files.iterrows():
+        assert row.source_file in row.reason
+    by_file = rejected.groupby("source_file").reason.apply(" | ".join)
+    assert "truncated: 1000 of 1125 point records present" in by_file["cut_points.las"]
+    assert "1125 of 1000000000 point records present" in by_file["huge_count.las"]
+    assert "is empty" in by_file["empty_wdp.las"] and "x scale 0" in by_file["x_scale_zero.las"]
+    assert "non-finite" in by_file["y_t_not_finite.las"] and "non-finite" in by_file["nan_gain.las"]
+    assert "Traceback" not in " ".join(rejected.reason)
+
+
+def test_no_non_finite_value_reaches_an_output(damaged):
+    _, _, out, _, _ = damaged
+    for table in ("echoes", "pulses"):
+        data = ds.dataset(str(out / table), format="parquet").to_table()
+        for field in data.schema:
+            if pa.types.is_floating(field.type):
+                assert np.isfinite(data.column(field.name).to_numpy()).all(), (table, field.name)
+    for path in sorted((out / "las").iterdir()):
+        las = laspy.read(path)
+        for name in ("x", "y", "z", "gps_time", "amplitude", "echo_width", "alpha"):
+            assert np.isfinite(np.asarray(las[name], dtype=float)).all(), (path.name, name)
+    assert not list(out.rglob("*.tmp")) and not (out / "parts").exists()
+
+
+@pytest.mark.parametrize("name", ALONE)
+def test_a_file_alone_gives_the_rows_it_gives_in_the_folder(damaged, name, tmp_path):
+    root, variants, out, _, _ = damaged
+    variant = next(v for v in variants if v.name == name)
+    alone = tmp_path / "alone"
+    code = main(["run", str(root / "in" / variant.file_name), "--output", str(alone)] + METHOD + ALONE_RUNNER)
+    summary = read_run(alone)
+    together = {i["name"]: i["counts"] for i in read_run(out)["inputs"]}[variant.file_name]
+    expected = EXIT_OK if name == "good" else EXIT_NOTHING_DONE if not together["pulses_decomposed"] else EXIT_PARTIAL
+    assert code == expected == summary["exit_code"]
+    assert summary["inputs"][0]["counts"] == together
+    for table in ("echoes", "pulses", "rejected"):
+        if together["pulses_decomposed"] or table == "rejected":
+            assert rows(alone, table).equals(rows(out, table, variant.file_name)), table
+    if together["pulses_decomposed"]:
+        assert (alone / "las" / f"{name}.las").read_bytes() == (out / "las" / f"{name}.las").read_bytes()
+        assert (alone / "mcap" / f"{name}.mcap").read_bytes() == (out / "mcap" / f"{name}.mcap").read_bytes()
+
+
+def test_the_generator_is_seeded(tmp_path, leica_dir):
+    a = write_variants(leica_dir, tmp_path / "a", seed=3)
+    write_variants(leica_dir, tmp_path / "b", seed=3)
+    write_variants(leica_dir, tmp_path / "c", seed=4)
+    assert snapshot(tmp_path / "a") == snapshot(tmp_path / "b") != snapshot(tmp_path / "c")
+    assert len(a) == len({v.name for v in a}) >= 20
+    assert json.dumps([v.damage for v in a])  # every variant says what was done to it
