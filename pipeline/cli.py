@@ -182,7 +182,13 @@ def _view(args: argparse.Namespace) -> int:
 
     from pipeline.view import make_server, url_of
 
-    server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    try:
+        server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    except OSError as err:  # the port is taken, or the address is not this machine's
+        if isinstance(err, FileNotFoundError):
+            raise
+        raise ValueError(f"cannot listen on {args.host}:{args.port}: {err.strerror or err}; "
+                         f"choose another --port (0 picks a free one)") from None
     url = url_of(server)
     print(f"fwl view: serving {', '.join(args.paths or ['.'])} at {url} (Ctrl-C to stop)", flush=True)
     if not args.no_browser:

@@ -25,7 +25,7 @@ FILE_REJECTED = {"cut_header", "cut_vlrs", "empty", "foreign_text", "foreign_bin
                  "x_scale_zero", "cut_laz"}
 # damage that may leave a readable file: random bytes of text fields or mantissas, samples, a count too low
 MAY_BE_HARMLESS = {"good", "flip_header", "flip_descriptor", "flip_packets", "low_count"}
-ALONE = ["good", "cut_points", "huge_count", "flip_points", "x_t_not_finite", "empty_wdp", "flip_laz"]
+ALONE = ["good", "cut_points", "flip_points", "x_t_not_finite", "empty_wdp"]
 
 
 def snapshot(folder):
