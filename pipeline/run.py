@@ -225,6 +225,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
                                  line_every=60.0 if watch else float("inf")):
                     result = pipeline.run()
                     result.wait_until_finish()
+                if hasattr(result, "client"):  # the Dask runner leaves its client open
+                    result.client.close()
         shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)

@@ -24,26 +24,16 @@ def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes
 
 @functools.lru_cache(maxsize=64)
 def file_crs_projjson(path: str) -> str | None:
-    """The input's coordinate reference system as PROJJSON, or None when the file names none.
-
-    The same CRS the point cloud gets as WKT (fwcore.io.crs: a WKT record, or GeoTIFF keys' EPSG code).
-    """
+    """The input's coordinate reference system as PROJJSON (fwcore.io.crs_wkt, LAS or PulseWaves, read with
+    pyproj), or None."""
     import pyproj
 
-    from fwcore.io.formats import is_pulsewaves
+    from fwcore.io import crs_wkt
 
     try:
-        if is_pulsewaves(path):
-            from fwcore.io.pulsewaves import open_pulsewaves
-            wkt = open_pulsewaves(path).crs_wkt
-        else:
-            import laspy
-
-            from fwcore.io.crs import las_crs_wkt
-            with laspy.open(path) as reader:
-                wkt, _ = las_crs_wkt(reader.header)
+        wkt = crs_wkt(path)
         return pyproj.CRS.from_wkt(wkt).to_json() if wkt else None
-    except Exception:  # noqa: BLE001  unreadable CRS records: the CRS is unknown, not invented
+    except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
         return None
 
 

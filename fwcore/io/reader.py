@@ -280,7 +280,8 @@ def _ranges_text(values: list[int]) -> str:
 # ---------------------------------------------------------------- read
 
 def _field(points, name: str, dtype=np.float64) -> np.ndarray:
-    return np.asarray(points[name]).astype(dtype)
+    with np.errstate(invalid="ignore"):  # damaged records hold signalling NaNs; non-finite values are checked after
+        return np.asarray(points[name]).astype(dtype)
 
 
 def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = None) -> PulseBatch:
