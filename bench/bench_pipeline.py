@@ -1,6 +1,6 @@
 """Pipeline benchmark: pulses/s end to end (DirectRunner, 2 workers) against the engine alone on 2 cores.
 
-    python bench/bench_pipeline.py [--copies 109] [--generations 20] [--workdir DIR]
+    python bench/bench_pipeline.py [--copies 109] [--generations 20 | --preset fast] [--workdir DIR]
 
 Makes a file of copies x 924 pulses by repeating the Leica sample (shifted in
 space and time, each copy its own packets), then times (1) the engine alone:
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from fwcore.config import DecompositionConfig
+from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.io import PulseBatch, read_pulses
 from fwcore.io.writer import write_waveform_las
@@ -94,7 +94,8 @@ class PeakMemory:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--copies", type=int, default=109, help="924 pulses each (109: 100,716 pulses)")
-    parser.add_argument("--generations", type=int, default=20)
+    parser.add_argument("--generations", type=int, default=20, help="MDE's G (without --preset)")
+    parser.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration instead of MDE at G")
     parser.add_argument("--workdir", default=None)
     args = parser.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-bench-"))
@@ -102,9 +103,13 @@ def main() -> None:
     big = repeated(sample, args.copies)
     path = write_waveform_las(work / "flight.las", big, "las13-wdp", 8)
     fwhm = system_pulse_fwhm_ps(sample)
-    config = DecompositionConfig(generations=args.generations, system_pulse_fwhm_ps=fwhm)
+    if args.preset:
+        config, method = DecompositionConfig(**PRESETS[args.preset], system_pulse_fwhm_ps=fwhm), f"preset {args.preset}"
+    else:
+        config, method = DecompositionConfig(generations=args.generations, system_pulse_fwhm_ps=fwhm), \
+            f"MDE NP 60, G {args.generations}"
     print(f"{len(big)} pulses in {path} ({path.stat().st_size / 1e6:.0f} MB + "
-          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); MDE NP 60, G {args.generations}")
+          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}")
 
     pulses = read_pulses(path)
     decompose_batch(pulse_waveforms(pulses, 0), config.replace(generations=1), threads=2)  # compile
@@ -117,7 +122,7 @@ def main() -> None:
     from pipeline.run import run
     with PeakMemory() as pipeline_memory:
         start = time.perf_counter()
-        summary = run([str(path)], work / "out", config, ("parquet", "las"), points_per_range=5000)
+        summary = run([str(path)], work / "out", config, ("parquet", "las"), points_per_range=5000, watch=False)
         pipeline = summary["counts"]["pulses_read"] / (time.perf_counter() - start)
     print(f"{'':34} {'pulses/s':>9} {'peak RSS MiB':>13}")
     print(f"{'engine alone, 2 threads':34} {engine:9.1f} {engine_memory.peak / 2**20:13.0f}")

@@ -1,7 +1,7 @@
 """The method comparison: every optimizer on the same waveforms, their point clouds, the evaluation budget.
 
 Pure functions over a WaveformBatch (and, for LAS input, its PulseBatch);
-`fwl compare` (pipeline.compare) writes the tables and figures. Every
+`fwl compare` (fwcore.studies.comparison) writes the tables and figures. Every
 optimizer sees the same initial estimate, bounds and fit error; the
 population methods of the method's comparison (GA, PSO, DE) run at its
 100 x 100, MDE at the paper's 60 x 80.

@@ -102,7 +102,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from pipeline.compare import run_comparison
+    from fwcore.studies.comparison import run_comparison
 
     config = _config_from_args(args)
     optimizers = [Optimizer(o.strip()) for o in args.optimizers.split(",") if o.strip()]
@@ -126,7 +126,7 @@ def _compare(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from fwcore.io.writer import write_waveform_las
     from fwcore.simulate import SceneConfig, SensorConfig, simulate_flight
-    from pipeline.evaluate import truth_path, write_truth
+    from fwcore.studies.truth import truth_path, write_truth
 
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps,
                           samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
@@ -147,8 +147,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from pipeline.compare import markdown_table, write_csv
-    from pipeline.evaluate import EVALUATION_COLUMNS, evaluate_runs
+    from fwcore.studies.comparison import markdown_table, write_csv
+    from fwcore.studies.evaluate import EVALUATION_COLUMNS, evaluate_runs
 
     from pipeline.outputs import read_run
     for folder in args.results:  # an interrupted run's tables would read as a poor method
@@ -196,7 +196,13 @@ def _view(args: argparse.Namespace) -> int:
 
     from pipeline.view import make_server, url_of
 
-    server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    try:
+        server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+    except OSError as err:  # the port is taken, or the address is not this machine's
+        if isinstance(err, FileNotFoundError):
+            raise
+        raise ValueError(f"cannot listen on {args.host}:{args.port}: {err.strerror or err}; "
+                         f"choose another --port (0 picks a free one)") from None
     url = url_of(server)
     print(f"fwl view: serving {', '.join(args.paths or ['.'])} at {url} (Ctrl-C to stop)", flush=True)
     if not args.no_browser:

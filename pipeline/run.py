@@ -9,8 +9,12 @@ no such input, an output folder that holds what is not ours), nothing touched; 1
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import platform
 import shutil
+import signal
+import threading
 import time
 from importlib import metadata
 from pathlib import Path
@@ -123,6 +127,26 @@ def status_of(counts: dict[str, int]) -> str:
 EXIT_CODES = {"complete": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_NOTHING_DONE}
 
 
+@contextlib.contextmanager
+def _quiet_after_interrupt():
+    """On Ctrl-C, Beam's teardown (its logged errors, its threads' tracebacks) goes unsaid: the caller
+    says "interrupted" once. Only the main thread can take signals; elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupted(signum, frame):
+        logging.disable(logging.CRITICAL)  # for the rest of this process, which is ending
+        threading.excepthook = lambda args: None
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, interrupted)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def check_run_arguments(formats, limit: int | None, points_per_range: int) -> frozenset[str]:
     formats = frozenset(formats)
     unknown = formats - FORMATS
@@ -180,7 +204,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     began = time.perf_counter()
     result, tasks, file_rejections = None, [], []
     try:
-        with watched_logs(output, verbose) as (say, terminal):
+        with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             tasks, file_rejections = plan_inputs(paths, names, config, points_per_range, limit)
             _write_file_rejections(output, file_rejections)
             total = sum(planned_pulses(t) for t in tasks)
@@ -201,6 +225,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
                                  line_every=60.0 if watch else float("inf")):
                     result = pipeline.run()
                     result.wait_until_finish()
+                if hasattr(result, "client"):  # the Dask runner leaves its client open
+                    result.client.close()
         shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)

@@ -132,7 +132,7 @@ _NUMBERS = {"type": "array", "items": {"type": "number"}}
 WAVEFORM_SCHEMA = {
     "type": "object",
     "properties": {
-        "pulse_id": {"type": "integer", "description": "the packet's byte offset in its file"},
+        "pulse_id": {"type": "integer", "description": "the pulse's identity, as in the tables"},
         "gps_time": {"type": "number", "description": "the point records' gps_time, as in the file"},
         "time_ps": {**_NUMBERS, "description": "each sample's time after the first, ps"},
         "raw": {**_NUMBERS, "description": "the digitized samples"},

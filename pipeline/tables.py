@@ -24,15 +24,17 @@ def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes
 
 @functools.lru_cache(maxsize=64)
 def file_crs_projjson(path: str) -> str | None:
-    """The input's coordinate reference system as PROJJSON (its LAS CRS records read with pyproj), or None."""
-    import laspy
+    """The input's coordinate reference system as PROJJSON (fwcore.io.crs_wkt, LAS or PulseWaves, read with
+    pyproj), or None."""
+    import pyproj
+
+    from fwcore.io import crs_wkt
 
     try:
-        with laspy.open(path) as reader:
-            crs = reader.header.parse_crs()
+        wkt = crs_wkt(path)
+        return pyproj.CRS.from_wkt(wkt).to_json() if wkt else None
     except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
         return None
-    return crs.to_json() if crs is not None else None
 
 
 def wkb_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:

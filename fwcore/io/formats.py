@@ -55,6 +55,19 @@ def input_summary(path: str | Path) -> InputSummary:
     return InputSummary(opened.point_count, adjusted)
 
 
+def crs_wkt(path: str | Path) -> str | None:
+    """The file's coordinate reference system as OGC WKT (LAS: WKT record or GeoTIFF keys; PulseWaves: keys,
+    or Earth-centred by magnitude), None when it names none."""
+    if is_pulsewaves(path):
+        from fwcore.io.pulsewaves import open_pulsewaves
+        return open_pulsewaves(path).crs_wkt
+    import laspy
+
+    from fwcore.io.crs import las_crs_wkt
+    with laspy.open(path) as reader:
+        return las_crs_wkt(reader.header)[0]
+
+
 def plan_point_ranges(path: str | Path, points_per_range: int = 10_000) -> list[PointRange]:
     """Ranges of a file's records (LAS points, PulseWaves pulses), each pulse in exactly one."""
     if is_pulsewaves(path):

@@ -280,7 +280,8 @@ def _ranges_text(values: list[int]) -> str:
 # ---------------------------------------------------------------- read
 
 def _field(points, name: str, dtype=np.float64) -> np.ndarray:
-    return np.asarray(points[name]).astype(dtype)
+    with np.errstate(invalid="ignore"):  # damaged records hold signalling NaNs; non-finite values are checked after
+        return np.asarray(points[name]).astype(dtype)
 
 
 def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = None) -> PulseBatch:
@@ -308,6 +309,10 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     keep = keys >= 0
     if point_range.foreign_points:
         keep &= ~np.isin(index, np.asarray(point_range.foreign_points))
+    no_packet = int((keys < 0).sum())
+    if no_packet and point_range.max_pulses is None:  # no pulse to put them in: reported, not dropped silently
+        rejected.append((-1, f"{wf.path}: {no_packet} point records of points {point_range.start}..{stop - 1} "
+                             "point at no waveform packet (descriptor index 0, or an impossible offset)"))
     xyz = np.stack([_field(points, "X") * scale[0] + offset[0], _field(points, "Y") * scale[1] + offset[1],
                     _field(points, "Z") * scale[2] + offset[2]], axis=1)
     return_number = _field(points, "return_number", np.int64)

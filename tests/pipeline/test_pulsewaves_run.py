@@ -54,3 +54,12 @@ def test_point_cloud_is_las14_with_the_inputs_crs(pulsewaves_run, name, epsg):
     assert (las.header.version.minor, las.header.point_format.id) == (4, 6)
     assert las.header.global_encoding.wkt and las.header.parse_crs().to_epsg() == epsg
     assert {"echo_width", "alpha", "channel"} <= set(las.point_format.extra_dimension_names)
+
+
+def test_geoparquet_carries_the_earth_centred_crs(pulsewaves_run):
+    import pyarrow.parquet as pq
+
+    part = sorted((pulsewaves_run / "echoes").glob("riegl_example3*.parquet"))[0]
+    geo = json.loads(pq.read_schema(part).metadata[b"geo"])
+    column = geo["columns"][geo["primary_column"]]
+    assert column["crs"]["id"] == {"authority": "EPSG", "code": 4978}

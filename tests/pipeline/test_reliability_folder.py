@@ -1,7 +1,12 @@
 """What a run may do to its output folder, how it names its outputs, its exit codes and run.json."""
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 
 import pyarrow.dataset as ds
 import pytest
@@ -9,7 +14,7 @@ import pytest
 from pipeline.cli import main
 from pipeline.outputs import (MANIFEST, IncompleteRunError, InputNames, OutputFolderError, expand_inputs,
                               is_complete, read_run, take_output_folder)
-from pipeline.run import EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
+from pipeline.run import EXIT_INTERRUPTED, EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
 
 QUICK = ["--preset", "fast", "--limit", "20", "--points-per-range", "300", "--direct_num_workers=1",
          "--direct_running_mode=in_memory"]
@@ -183,8 +188,8 @@ def test_exit_codes_and_counts_tell_the_truth(tmp_path, leica_dir):
     assert main(["run", str(data / "junk.las"), "--output", str(tmp_path / "none")] + QUICK) == EXIT_NOTHING_DONE
     assert read_run(tmp_path / "none")["status"] == "failed"
     out = tmp_path / "some"
-    args = ["--preset", "fast", "--points-per-range", "300", "--direct_num_workers=2",
-            "--direct_running_mode=multi_processing"]
+    args = ["--optimizer", "none", "--points-per-range", "300", "--direct_num_workers=1",
+            "--direct_running_mode=in_memory"]
     assert main(["run", str(data), "--output", str(out)] + args) == EXIT_PARTIAL
     summary = read_run(out)
     c = summary["counts"]
@@ -212,3 +217,25 @@ def test_run_version_prints_the_version_and_runs_nothing(capsys, tmp_path, monke
         main(["run", "--version"])
     assert stop.value.code == 0 and capsys.readouterr().out.startswith("fwl 0.")
     assert not any(tmp_path.iterdir())
+
+
+def test_ctrl_c_stops_cleanly_and_a_rerun_completes_the_folder(tmp_path, leica_dir):
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", str(leica_dir / "leica_a.las"),
+                            "--output", str(out), "--points-per-range", "100"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 240
+    while not list((out / "echoes").glob("*.parquet")) and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert run.poll() is None, "the run ended before it could be interrupted"
+    os.killpg(run.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole process group
+    stdout, stderr = run.communicate(timeout=120)
+    assert run.returncode == EXIT_INTERRUPTED
+    assert stderr.strip().splitlines() == [f"fwl run: interrupted; {out} holds an incomplete run (no run.json): "
+                                           f"rerun the same command to complete it"], stderr
+    assert not list(out.rglob("*.tmp")) and not is_complete(out)
+    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out), "--optimizer", "none",
+                 "--direct_num_workers=1", "--direct_running_mode=in_memory"]) == EXIT_OK
+    summary = read_run(out)
+    assert summary["counts"]["pulses_decomposed"] == 924 and summary["config"]["optimizer"] == "none"
+    assert len(rows(out, "pulses")) == 924 and not (out / "parts").exists()

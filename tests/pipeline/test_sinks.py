@@ -109,3 +109,19 @@ def test_the_default_output_of_a_run_is_a_handful_of_lines(tmp_path):
     assert lines[0].startswith("fwl run: 1 file(s), 100 pulses in 1 ranges")
     assert len(lines) <= 4, lines
     assert any(p.name == "driver.log" for p in (tmp_path / "out" / "logs").iterdir())
+
+
+def test_the_progress_bar_counts_the_marks_ranges_leave(tmp_path):
+    import io
+    from pipeline.progress import ProgressBar
+    from pipeline.sinks import write_json
+    stream = io.StringIO()
+    bar = ProgressBar(tmp_path, 1000, stream, interactive=True)
+    write_json(tmp_path / "a-000000000000.json", {"pulses": 300, "rejected": 2})
+    write_json(tmp_path / "a-000000000400.json", {"pulses": 200, "rejected": 0})
+    (tmp_path / "a-000000000800.json.tmp").write_text("{")  # being written: not counted
+    bar.poll()
+    bar.poll()  # each mark counts once
+    assert (bar.done, bar.rejected) == (500, 2)
+    line = bar.line()
+    assert "500/1,000 pulses  50%" in line and "rejected 2" in line and "ETA" in line

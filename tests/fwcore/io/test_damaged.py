@@ -42,7 +42,8 @@ def test_header_count_too_high_is_reported(leica_copy):
     _set_point_count(leica_copy, 5000)
     pulses = read_pulses(leica_copy)
     assert len(pulses) == 924
-    assert [r for p, r in pulses.rejected if p == -1] == [f"{leica_copy}: truncated: 1125 of 5000 point records present"]
+    reports = [r for p, r in pulses.rejected if p == -1]
+    assert reports == [f"{leica_copy}: truncated: 1125 of 5000 point records present"]
 
 
 def test_header_count_too_low_still_reads_every_record(leica_copy, caplog):
@@ -135,3 +136,15 @@ def test_corrupt_laz_points_are_a_clear_error(tmp_path, leica_dir):
     else:  # decodable garbage: whatever was read has finite geometry, the rest has reasons
         for b in batches:
             assert np.isfinite(b.anchor).all() and np.isfinite(b.direction).all()
+
+
+def test_points_without_a_packet_are_reported(leica_copy):
+    las = laspy.read(leica_copy)
+    alone = np.flatnonzero(np.asarray(las.number_of_returns) == 1)[:4]
+    las.wavepacket_index[alone] = 0
+    las.write(leica_copy)
+    batches = [read_pulses(r) for r in plan_point_ranges(leica_copy, 400)]
+    assert sum(len(b) for b in batches) == 920
+    reports = [r for b in batches for p, r in b.rejected if p == -1]
+    assert sum(int(r.split(": ")[1].split()[0]) for r in reports) == 4
+    assert all("point at no waveform packet" in r for r in reports)

@@ -50,7 +50,8 @@ def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
     assert {"amplitude", "echo_width", "alpha", "echo_energy", "fit_error"} <= set(
         las.point_format.extra_dimension_names)
     assert "sigma" not in las.point_format.extra_dimension_names
-    np.testing.assert_allclose(np.asarray(las.echo_width), result.fwhm[result.reject == 0] * 2000.0, rtol=1e-6)  # 2 ns sampling
+    # FWHM in ps: 2 ns sampling
+    np.testing.assert_allclose(np.asarray(las.echo_width), result.fwhm[result.reject == 0] * 2000.0, rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(las.classification), 1)  # the Leica points' class, kept
     assert las.header.system_identifier.rstrip("\0") == "ALSXX"
     np.testing.assert_allclose(las.x, echoes["x"], atol=5e-4)

@@ -291,3 +291,11 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
         server.viewer.jobs.stop_all()
         server.shutdown()
         server.server_close()
+
+
+def test_fwl_view_says_when_its_port_is_taken(viewed, capsys):
+    from pipeline.cli import main
+
+    port = urlsplit(viewed.url).port
+    assert main(["view", str(viewed.run), "--no-browser", "--port", str(port)]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err

@@ -6,7 +6,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.cli import main
-from pipeline.evaluate import evaluate_run, match_echoes, range_crlb_cm
+from fwcore.studies.evaluate import evaluate_run, match_echoes, range_crlb_cm
 from fwcore.simulate import SensorConfig
 
 HIGH_SNR = ["--noise", "0.5", "--shot-noise", "0", "--weak-fraction", "0"]

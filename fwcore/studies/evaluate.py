@@ -1,4 +1,4 @@
-"""`fwl simulate` output and `fwl evaluate`: the pipeline's echoes against a simulated flight's truth.
+"""`fwl evaluate`: a run's echoes against a simulated flight's truth (fwcore.studies.truth).
 
 A true echo and a decomposed (kept) echo of the same pulse match when each
 is the other's nearest in time and they lie within `match_ps` (default
@@ -10,7 +10,6 @@ Cramer-Rao lower bound of the range error of a single echo in the same noise.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Sequence
@@ -20,29 +19,12 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from fwcore.simulate import RANGE_M_PER_PS, SceneConfig, SensorConfig, SimulatedFlight
+from fwcore.simulate import RANGE_M_PER_PS, SensorConfig
+from fwcore.studies.truth import TRUTH_METADATA_KEY
 
-TRUTH_METADATA_KEY = b"fwlidar.simulation"
 SNR_BANDS = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 50.0), (50.0, np.inf))
 _CM_PER_PS = RANGE_M_PER_PS * 100.0
 _KEY_STRIDE = 1.0e6  # ps: wider than any packet, so pulse_id * stride + time never mixes pulses
-
-
-def truth_path(las_path: str | Path) -> Path:
-    """sim.las -> sim.truth.parquet"""
-    las_path = Path(las_path)
-    return las_path.with_name(las_path.stem + ".truth.parquet")
-
-
-def write_truth(path: str | Path, flight: SimulatedFlight, sensor: SensorConfig, scene: SceneConfig,
-                seed: int) -> Path:
-    """The truth table, with the sensor, scene and seed in its metadata."""
-    table = pa.table({k: (pa.array(v.tolist(), pa.string()) if v.dtype == object else v)
-                      for k, v in flight.truth.items()})
-    meta = {"sensor": dataclasses.asdict(sensor), "scene": dataclasses.asdict(scene), "seed": seed}
-    table = table.replace_schema_metadata({TRUTH_METADATA_KEY: json.dumps(meta).encode()})
-    pq.write_table(table, path)
-    return Path(path)
 
 
 def _sensor_of(truth: pa.Table) -> SensorConfig:
