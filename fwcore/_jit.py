@@ -11,14 +11,16 @@ import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
 
-# fastmath lets LLVM reassociate and vectorize (results stay deterministic for a given compiled
-# kernel), but without nnan/ninf (stumpy's set): with them LLVM may assume no inf or NaN exists,
-# and np.isfinite(np.inf) is True inside a kernel, which breaks every inf sentinel. Nor "contract":
-# whether LLVM fuses a multiply-add depends on what it inlined, so a kernel compiled fresh and one
-# loaded from numba's cache by a worker process differed in the last bits.
+# Kernels are strict IEEE by default: fast-math results depend on what LLVM inlined and fused,
+# so a kernel compiled fresh and one loaded from numba's cache by a worker differed in the last
+# bits, and a file run alone then gave other rows than in a folder. Only the population
+# methods' float32 objective (fwcore.optimizers.objective, never a reported number) takes
+# SIMD_JIT: fastmath to reassociate and vectorize, but without nnan/ninf (stumpy's set): with
+# them LLVM may assume no inf or NaN exists, and np.isfinite(np.inf) is True inside a kernel.
 # error_model="numpy": no zero-division checks, whose exception branch blocks SIMD.
-FASTMATH = frozenset({"nsz", "arcp", "afn", "reassoc"})
-JIT = dict(cache=True, fastmath=set(FASTMATH), nogil=True, error_model="numpy")
+FASTMATH = frozenset({"nsz", "arcp", "contract", "afn", "reassoc"})
+JIT = dict(cache=True, nogil=True, error_model="numpy")
+SIMD_JIT = dict(JIT, fastmath=set(FASTMATH))
 JIT_INLINE = dict(JIT, inline="always")
 PARALLEL_JIT = dict(JIT, parallel=True)
 

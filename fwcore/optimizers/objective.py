@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, _bits_of_f32, fast_exp2, fast_log2
+from fwcore._jit import JIT_INLINE, SIMD_JIT, _bits_of_f32, fast_exp2, fast_log2
 from fwcore.model import PARAMS_PER_ECHO
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -41,7 +41,7 @@ def padded_length(n: int) -> int:
     return (n + LANES - 1) // LANES * LANES
 
 
-@njit(**JIT)
+@njit(**SIMD_JIT)
 def fill_model(x, n_echoes, tpos, gaussian, eps, model):
     """Write the model of individual x into `model` (float32, padded to whole blocks),
     evaluating each echo only over the aligned blocks where it exceeds eps."""
@@ -79,7 +79,7 @@ def fill_model(x, n_echoes, tpos, gaussian, eps, model):
                 model[i] += a32 * fast_exp2(-fast_exp2(p32 * fast_log2(z)))
 
 
-@njit(**JIT)
+@njit(**SIMD_JIT)
 def fit_error(x, n_echoes, tpos, target, weight, gaussian, eps, model):
     """Eq. 9: sum of |model - target| over valid samples (weight 1, else 0). `model` is scratch."""
     fill_model(x, n_echoes, tpos, gaussian, eps, model)

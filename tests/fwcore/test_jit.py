@@ -28,9 +28,9 @@ def test_kernels_see_inf_and_nan():
     # fastmath without nnan/ninf: an inf sentinel stays infinite inside a kernel
     from numba import njit
 
-    from fwcore._jit import JIT
+    from fwcore._jit import SIMD_JIT
 
-    @njit(**JIT)
+    @njit(**SIMD_JIT)
     def finite(x):
         return np.isfinite(x), np.isnan(x)
 
