@@ -9,7 +9,11 @@ For each size, `fwl simulate` writes a flight (not timed with the run), then
 start-up included; peak memory is the largest sum of RSS over the run's
 process and all its children (Beam's workers; with --dask, the cluster's
 worker processes too), sampled every 0.2 s. --dask N adds the run of size N
-on Beam's Dask runner against a local distributed cluster of 2 workers.
+on Beam's Dask runner against a local distributed cluster of 2 workers
+(its start-up is printed on its own line and not counted in the run).
+A short untimed run first fills numba's cache; run it on a checkout that
+does not change meanwhile: a kernel whose source changed recompiles in every
+worker process (~40 s each on this machine), which is not throughput.
 """
 
 from __future__ import annotations
@@ -57,6 +61,8 @@ def main() -> None:
         start = time.perf_counter()
         fwl("simulate", "--pulses", str(n), "--output", str(las), "--seed", "1")
         simulate = time.perf_counter() - start
+        # untimed: numba's cache filled for this checkout, so that no timed run compiles
+        fwl("run", str(las), "--output", str(work / "warm"), "--formats", "parquet,las", "--limit", "300", *method)
         runs = []
         if n in sizes:
             runs.append(("direct", []))
@@ -65,7 +71,11 @@ def main() -> None:
         for runner, extra in runs:
             if extra is None:
                 from distributed import LocalCluster
+                start = time.perf_counter()
                 with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+                    # the cluster stands for one already running: its start is reported, not counted in the run
+                    print(f"# dask: local cluster of 2 worker processes started in {time.perf_counter() - start:.1f} s",
+                          flush=True)
                     extra = ["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
                              f"--dask_client_address={c.scheduler_address}"]
                     seconds, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)

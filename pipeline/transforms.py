@@ -336,5 +336,6 @@ class DecomposeFlight(beam.PTransform):
         if self.formats & {"las", "mcap"}:
             written.append(out | "Parts" >> beam.Filter(lambda e: isinstance(e, RangePart))
                            | "AssembleFiles" >> AssembleFiles(self.output, self.laz))
-        return (tuple(written) | "AllWritten" >> beam.Flatten()
-                | "Done" >> beam.combiners.Count.Globally())
+        # the last step joins every sink; a Flatten, not a global combine, whose empty-input default is
+        # a side input that the Dask runner computes as a nested job inside one worker's task
+        return tuple(written) | "Done" >> beam.Flatten()
