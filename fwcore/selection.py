@@ -22,7 +22,7 @@ from fwcore.bounds import echo_bounds
 from fwcore.filter import KEPT, mark_spurious
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import _smooth
+from fwcore.preprocess import _smooth, gaussian_weights
 
 
 
@@ -110,8 +110,7 @@ def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, t
     smoothed = np.empty(n)
     smoothed_standard = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
-    half = int(math.ceil(4.0 * pulse_sigma))
-    w = np.exp(-0.5 * (np.arange(-half, half + 1) / pulse_sigma) ** 2)
+    w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
     added = 0
     n_jacobians = 0
