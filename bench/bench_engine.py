@@ -82,9 +82,11 @@ def leica_rows() -> None:
     print(f"\nLeica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns; from its single "
           f"returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance {system.shape_tolerance:.3f})")
     print(f"{'preset':28} {'pulses/s':>9} {'returns':>8} {'extra':>7} {'spur/pulse':>10} {'raw err':>8} "
-          f"{'seed-stable':>11} {'nit':>5}")
+          f"{'seed-stable':>11} {'MDE ran':>7}")
     variants = [(name, preset(name)) for name in PRESET_NAMES]
     variants.append(("default, shape tolerance 0", preset("default").replace(shape_tolerance=0.0)))
+    variants.append(("default with mde-lm", preset("default").replace(optimizer="mde-lm")))
+    variants.append(("default, SNR floor 6", preset("default").replace(min_snr=6.0)))
     for label, base in variants:
         config = base.replace(system_pulse_fwhm_ps=system.fwhm_ps)
         if config.shape_tolerance is None:
@@ -96,7 +98,14 @@ def leica_rows() -> None:
         n_system = pulses.return_xyz.shape[0]
         print(f"{label:28} {rate:9.1f} {points.matched_system / n_system:8.3f} {points.new_points / n_system:7.3f} "
               f"{(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
-              f"{stable_share(result, other, 2.0):11.4f} {result.nit.mean():5.1f}", flush=True)
+              f"{stable_share(result, other, 2.0):11.4f} {mde_share(config, result):7.2f}", flush=True)
+
+
+def mde_share(config: DecompositionConfig, result) -> float:
+    """Share of waveforms on which a population search ran (lm-mde: its gate failed)."""
+    if config.optimizer.value in ("lm", "lbfgs", "none"):
+        return 0.0
+    return float(np.mean(result.nit[result.status == 0] > 0))
 
 
 def held_out(samples, valid, config, seeds):
@@ -127,17 +136,20 @@ def neon_rows() -> None:
     print(f"\nNEON sample ({len(batch)} waveforms; pulse FWHM {outgoing / 1000:.2f} ns from the outgoing pulses, "
           f"{estimated / 1000:.2f} ns estimated from the returns alone)")
     print(f"{'preset':10} {'width from':10} {'wf/s':>7} {'raw err':>8} {'held-out':>9} {'fitted':>7} {'ratio':>6} "
-          f"{'echoes':>6} {'kept':>5}")
-    for name in PRESET_NAMES:
-        for source, fwhm in (("outgoing", outgoing), ("returns", estimated)):
-            config = preset(name).replace(system_pulse_fwhm_ps=fwhm)
-            result, rate = timed(batch, config)
-            ok = result.status == 0
-            out, fitted = held_out(returns.samples, returns.valid, config, seeds)
-            n = len(batch)
-            print(f"{name:10} {source:10} {rate:7.1f} {result.fit_error_raw[ok].mean():8.1f} {out:9.2f} "
-                  f"{fitted:7.2f} {out / fitted:6.3f} {result.reject.size / n:6.2f} "
-                  f"{(result.reject == 0).sum() / n:5.2f}", flush=True)
+          f"{'echoes':>6} {'kept':>5} {'MDE ran':>7}")
+    variants = [(name, source, preset(name).replace(system_pulse_fwhm_ps=fwhm))
+                for name in PRESET_NAMES for source, fwhm in (("outgoing", outgoing), ("returns", estimated))]
+    default = preset("default").replace(system_pulse_fwhm_ps=outgoing)
+    variants += [("fit raw", "outgoing", default.replace(fit_target="raw")),
+                 ("mde-lm", "outgoing", default.replace(optimizer="mde-lm"))]
+    for name, source, config in variants:
+        result, rate = timed(batch, config)
+        ok = result.status == 0
+        out, fitted = held_out(returns.samples, returns.valid, config, seeds)
+        n = len(batch)
+        print(f"{name:10} {source:10} {rate:7.1f} {result.fit_error_raw[ok].mean():8.1f} {out:9.2f} "
+              f"{fitted:7.2f} {out / fitted:6.3f} {result.reject.size / n:6.2f} "
+              f"{(result.reject == 0).sum() / n:5.2f} {mde_share(config, result):7.2f}", flush=True)
 
 
 def simulation_rows() -> None:
@@ -147,9 +159,10 @@ def simulation_rows() -> None:
         subprocess.run([*fwl, "simulate", "--pulses", "10000", "--seed", "7", "--output", str(las)], check=True,
                        capture_output=True)
         print("\nSimulated flight (fwl simulate --pulses 10000 --seed 7; fwl run, 2 workers; fwl evaluate)")
-        for name in PRESET_NAMES:
+        runs = [(name, [] if name == "default" else ["--preset", name]) for name in PRESET_NAMES]
+        runs.append(("default-snr6", ["--min-snr", "6"]))
+        for name, extra in runs:
             out = Path(work) / name
-            extra = [] if name == "default" else ["--preset", name]
             subprocess.run([*fwl, "run", str(las), "--output", str(out), "--formats", "parquet", *extra], check=True,
                            capture_output=True)
             report = subprocess.run([*fwl, "evaluate", str(out), "--truth", str(las.with_suffix(".truth.parquet"))],

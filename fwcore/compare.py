@@ -27,6 +27,7 @@ COMPARISON_SETTINGS: dict[Optimizer, dict] = {
     Optimizer.DE: dict(population=100, generations=100),
     Optimizer.MDE: dict(population=60, generations=80),
     Optimizer.MDE_LM: dict(population=60, generations=80),
+    Optimizer.LM_MDE: dict(population=60, generations=80),
 }
 
 

@@ -29,7 +29,8 @@ from fwcore.optimizers.local import levenberg_marquardt
 from fwcore.preprocess import initial_estimate
 from fwcore.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
-from fwcore.selection import add_missing_echoes, add_shot_noise, drop_unneeded_echoes, noise_variance
+from fwcore.noise_model import add_shot_noise, noise_variance
+from fwcore.selection import add_missing_echoes, drop_unneeded_echoes
 
 _LN2 = math.log(2.0)
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
@@ -130,6 +131,9 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
     variance = np.empty(times.size)
     noise_variance(smoothed, valid, background, noise, p.shape_tolerance, variance)
     weights = 1.0 / np.sqrt(variance)
+    signal = np.empty(times.size)  # the smoothed height above background, where shot noise arises
+    for j in range(times.size):
+        signal[j] = max(smoothed[int(times[j])] - background, 0.0)
 
     peak = 0.0
     for i in range(n):
@@ -154,18 +158,15 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples
         best, nfev, nit, message = run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
-                                                 times, fit_target, weights, eps, seed)
+                                                 times, fit_target, raw, signal, variance, eps, seed)
 
     dropped = 0
     added = 0
     if p.select_echoes and p.method != OPT_NONE and p.method != OPT_GA_ITERATIVE:
         if not local:  # a population's best is not at the least-squares optimum the refits compare with
             _, used, _ = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
-                                             p.lm_iterations, 1e-8)
+                                             p.lm_iterations, p.lm_tolerance)
             nfev += used
-        signal = np.empty(times.size)
-        for j in range(times.size):
-            signal[j] = max(smoothed[int(times[j])] - background, 0.0)
         if p.signal_dependent_noise:
             add_shot_noise(best, n_echoes, times, raw, signal, variance)
             weights = 1.0 / np.sqrt(variance)

@@ -20,6 +20,16 @@ MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can 
 
 
 @njit(**JIT)
+def gaussian_weights(sigma):
+    """The Gaussian filter's unnormalised weights exp(-j^2 / (2 sigma^2)) for |j| <= ceil(4 sigma)."""
+    half = int(math.ceil(4.0 * sigma))
+    weights = np.empty(2 * half + 1)
+    for j in range(-half, half + 1):
+        weights[j + half] = math.exp(-0.5 * (j / sigma) ** 2)
+    return weights
+
+
+@njit(**JIT)
 def _smooth(samples, valid, sigma, out):
     """Gaussian filter by normalized convolution, so gaps do not pull the signal to zero."""
     n = samples.size
@@ -27,10 +37,8 @@ def _smooth(samples, valid, sigma, out):
         for i in range(n):
             out[i] = samples[i]
         return
-    half = int(math.ceil(4.0 * sigma))
-    weights = np.empty(2 * half + 1)
-    for j in range(-half, half + 1):
-        weights[j + half] = math.exp(-0.5 * (j / sigma) ** 2)
+    weights = gaussian_weights(sigma)
+    half = weights.size // 2
     for i in range(n):
         acc = 0.0
         norm = 0.0
@@ -63,10 +71,8 @@ def _residual_attenuation(valid, sigma, out):
     if sigma <= 0.0:
         out[:] = 0.0
         return
-    half = int(math.ceil(4.0 * sigma))
-    weights = np.empty(2 * half + 1)
-    for j in range(-half, half + 1):
-        weights[j + half] = math.exp(-0.5 * (j / sigma) ** 2)
+    weights = gaussian_weights(sigma)
+    half = weights.size // 2
     for i in range(n):
         norm = 0.0
         square = 0.0

@@ -22,39 +22,8 @@ from fwcore.bounds import echo_bounds
 from fwcore.filter import KEPT, mark_spurious
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import _smooth
+from fwcore.preprocess import _smooth, gaussian_weights
 
-_LM_TOLERANCE = 1e-8
-
-
-@njit(**JIT)
-def noise_variance(smoothed, valid, background, noise, shape_tolerance, out):
-    """Per valid sample, sigma**2 + (shape_tolerance x signal)**2, signal the smoothed height above background."""
-    m = 0
-    for i in range(smoothed.size):
-        if valid[i]:
-            s = max(smoothed[i] - background, 0.0) * shape_tolerance
-            out[m] = noise * noise + s * s
-            m += 1
-
-
-@njit(**JIT)
-def add_shot_noise(x, n_echoes, times, raw, signal, variance):
-    """Add the Poisson-like term g x signal to `variance`, g >= 0 fitted by least squares to the
-    squared residuals of x that the variance does not explain; returns g."""
-    model = np.empty(times.size)
-    individual_model(x, n_echoes, times, model)
-    num = 0.0
-    den = 0.0
-    for i in range(times.size):
-        if signal[i] > 0.0:
-            r = model[i] - raw[i]
-            num += signal[i] * (r * r - variance[i])
-            den += signal[i] * signal[i]
-    g = max(num / den, 0.0) if den > 0.0 else 0.0
-    for i in range(times.size):
-        variance[i] += g * max(signal[i], 0.0)
-    return g
 
 
 @njit(**JIT)
@@ -112,7 +81,7 @@ def drop_unneeded_echoes(p, best, lower, upper, n_echoes, times, target, raw, we
             reduced = _without_echo(best, k)
             reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
             _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, target, weights, reduced_lower,
-                                             reduced_upper, p.lm_iterations, _LM_TOLERANCE)
+                                             reduced_upper, p.lm_iterations, p.lm_tolerance)
             n_jacobians += used
             reduced_chi2 = squared_error(reduced, n_echoes - 1, times, raw, weights)
             if reduced_chi2 - chi2 <= penalty:
@@ -141,8 +110,7 @@ def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, t
     smoothed = np.empty(n)
     smoothed_standard = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
-    half = int(math.ceil(4.0 * pulse_sigma))
-    w = np.exp(-0.5 * (np.arange(-half, half + 1) / pulse_sigma) ** 2)
+    w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
     added = 0
     n_jacobians = 0
@@ -172,7 +140,7 @@ def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, t
         echo_bounds(amplitude, float(peak), pulse_sigma, amplitude, noise, first, last, p.gaussian, p.alpha_min,
                     p.alpha_max, d, trial, trial_lower, scratch, trial_upper)
         _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, target, weights, trial_lower, trial_upper,
-                                         p.lm_iterations, _LM_TOLERANCE)
+                                         p.lm_iterations, p.lm_tolerance)
         n_jacobians += used
         trial_chi2 = squared_error(trial, n_echoes + 1, times, raw, weights)
         if chi2 - trial_chi2 <= penalty:

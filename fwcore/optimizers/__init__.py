@@ -8,6 +8,7 @@ same things: the best individual, model evaluations, iterations and a message.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from numba import njit
@@ -16,11 +17,12 @@ from fwcore._jit import JIT
 from fwcore.config import Optimizer
 from fwcore.optimizers.evolution import evolve, init_population
 from fwcore.optimizers.ga import evolve_ga
-from fwcore.optimizers.local import lbfgs, levenberg_marquardt
+from fwcore.optimizers.local import lbfgs, levenberg_marquardt, squared_error
 from fwcore.optimizers.objective import LANES, fit_error
 from fwcore.optimizers.pso import swarm
+from fwcore.noise_model import add_shot_noise
 
-OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE = range(9)
+OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE, OPT_LM_MDE = range(10)
 # Per-waveform messages (records.MESSAGES spells them out).
 MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_OPTIMIZED = range(5)
 
@@ -46,63 +48,110 @@ OPTIMIZERS: dict[Optimizer, OptimizerSpec] = {
     Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, True, True, "MDE, then an LM polish of its best individual"),
     Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, False, True,
                                           "the patent's binary GA, adding echoes until R^2 is reached"),
+    Optimizer.LM_MDE: OptimizerSpec(OPT_LM_MDE, True, True,
+                                    "LM; where its fit fails the noise model's chi^2 test, MDE around it, "
+                                    "polished by LM, kept when clearly better"),
 }
 
 
 @njit(**JIT)
-def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, weights,
-                  eps, seed):
+def _population_search(p, method, start, lower, upper, n_echoes, fit_samples, valid, eps, seed):
+    """A population method (p.method's kind) on Eq. 9 over `fit_samples`, its population seeded
+    around `start`. Returns (best individual, model evaluations, generations, converged)."""
+    n = fit_samples.size
+    state = np.empty(1, dtype=np.uint64)
+    state[0] = seed
+    n_pad = (n + LANES - 1) // LANES * LANES
+    tpos = np.arange(n_pad).astype(np.float32)
+    target = np.zeros(n_pad, dtype=np.float32)
+    target[:n] = fit_samples
+    weight = np.zeros(n_pad, dtype=np.float32)
+    weight[:n] = valid
+    model = np.empty(n_pad, dtype=np.float32)
+    pop = np.empty((p.population, start.size))
+    init_population(start, lower, upper, p.init_spread, state, pop)
+    fitness = np.empty(p.population)
+    for i in range(p.population):
+        fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, eps, model)
+    nfev = p.population
+    done = True
+    if method == OPT_GA:
+        nfev += evolve_ga(pop, fitness, lower, upper, p.generations, p.crossover_rate, p.ga_mutation_rate,
+                          state, n_echoes, tpos, target, weight, p.gaussian, eps)
+        nit = p.generations
+    elif method == OPT_PSO:
+        nfev += swarm(pop, fitness, lower, upper, p.generations, state, n_echoes, tpos, target, weight,
+                      p.gaussian, eps)
+        nit = p.generations
+    else:
+        used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
+                                 p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
+                                 p.de_scale_factor, p.tol, p.atol, state, n_echoes, tpos, target, weight,
+                                 p.gaussian, eps)
+        nfev += used
+    return pop[np.argmin(fitness)].copy(), nfev, nit, done
+
+
+@njit(**JIT)
+def reduced_chi2(x, n_echoes, times, raw, signal, variance):
+    """chi^2 per degree of freedom of x on the raw samples under the noise model, with the
+    Poisson-like term fitted to x's residual (noise_model.add_shot_noise) added to `variance`."""
+    shot = variance.copy()
+    add_shot_noise(x, n_echoes, times, raw, signal, shot)
+    chi2 = squared_error(x, n_echoes, times, raw, 1.0 / np.sqrt(shot))
+    return chi2 / max(times.size - x.size, 1)
+
+
+@njit(**JIT)
+def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, raw, signal,
+                  variance, eps, seed):
     """Optimise individual x0 of n_echoes echoes with method p.method.
 
     Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
     within [lower, upper]; local ones least squares over the valid samples (times, fit_target,
-    weights) within [lower, local_upper]. Returns (best, model evaluations, iterations, message)."""
+    weights 1 / sqrt(variance)) within [lower, local_upper]. lm-mde fits LM first and searches with
+    MDE only where the LM fit's reduced chi^2 on the raw samples exceeds p.mde_gate; MDE's polished
+    result replaces LM's only when it lowers chi^2 by more than one parameter's BIC price, ln m.
+    Returns (best, model evaluations, iterations, message); lm-mde's iterations are MDE's
+    generations (0: the LM fit passed)."""
     best = x0.copy()
     method = p.method
     if n_echoes == 0:
         return best, 0, 0, MSG_NO_ECHOES
     if method == OPT_NONE:
         return best, 0, 0, MSG_NOT_OPTIMIZED
+    weights = 1.0 / np.sqrt(variance)
     nfev = 0
     nit = 0
     message = MSG_CONVERGED
+    if method == OPT_LM_MDE:
+        _, used, done = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+                                            p.lm_iterations, p.lm_tolerance)
+        nfev += used
+        message = MSG_CONVERGED if done else MSG_MAX_ITERATIONS
+        if reduced_chi2(best, n_echoes, times, raw, signal, variance) <= p.mde_gate:
+            return best, nfev, 0, message
+        searched, used, nit, done = _population_search(p, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
+                                                       valid, eps, seed)
+        nfev += used
+        _, used, polished = levenberg_marquardt(searched, n_echoes, times, fit_target, weights, lower, local_upper,
+                                                p.lm_iterations, p.lm_tolerance)
+        nfev += used
+        chi2 = squared_error(best, n_echoes, times, raw, weights)
+        if squared_error(searched, n_echoes, times, raw, weights) < chi2 - math.log(times.size):
+            best = searched
+            message = MSG_CONVERGED if done and polished else (MSG_MAX_GENERATIONS if not done else
+                                                                MSG_MAX_ITERATIONS)
+        return best, nfev, nit, message
     if method in (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM):
-        n = fit_samples.size
-        state = np.empty(1, dtype=np.uint64)
-        state[0] = seed
-        n_pad = (n + LANES - 1) // LANES * LANES
-        tpos = np.arange(n_pad).astype(np.float32)
-        target = np.zeros(n_pad, dtype=np.float32)
-        target[:n] = fit_samples
-        weight = np.zeros(n_pad, dtype=np.float32)
-        weight[:n] = valid
-        model = np.empty(n_pad, dtype=np.float32)
-        pop = np.empty((p.population, x0.size))
-        init_population(x0, lower, upper, p.init_spread, state, pop)
-        fitness = np.empty(p.population)
-        for i in range(p.population):
-            fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, eps, model)
-        nfev = p.population
-        if method == OPT_GA:
-            nfev += evolve_ga(pop, fitness, lower, upper, p.generations, p.crossover_rate, p.ga_mutation_rate,
-                              state, n_echoes, tpos, target, weight, p.gaussian, eps)
-            nit = p.generations
-        elif method == OPT_PSO:
-            nfev += swarm(pop, fitness, lower, upper, p.generations, state, n_echoes, tpos, target, weight,
-                          p.gaussian, eps)
-            nit = p.generations
-        else:
-            used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
-                                     p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
-                                     p.de_scale_factor, p.tol, p.atol, state, n_echoes, tpos, target, weight,
-                                     p.gaussian, eps)
-            nfev += used
-            if not done:
-                message = MSG_MAX_GENERATIONS
-        best = pop[np.argmin(fitness)].copy()
+        best, used, nit, done = _population_search(p, method, x0, lower, upper, n_echoes, fit_samples, valid,
+                                                   eps, seed)
+        nfev += used
+        if not done:
+            message = MSG_MAX_GENERATIONS
     if method == OPT_LM or method == OPT_MDE_LM:
         _, used, done = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
-                                            p.lm_iterations, 1e-8)
+                                            p.lm_iterations, p.lm_tolerance)
         nfev += used
         if method == OPT_LM:
             nit = used

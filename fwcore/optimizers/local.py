@@ -34,8 +34,9 @@ _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplit
 
 
 @njit(**JIT)
-def model_and_jacobian(x, n_echoes, times, model, jac):
-    """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x."""
+def model_and_jacobian(x, n_echoes, times, model, jac, windows):
+    """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
+    windows[k] = [lo, hi): the samples where echo k's columns may be non-zero."""
     m = times.size
     for i in range(m):
         model[i] = x[0]
@@ -51,6 +52,8 @@ def model_and_jacobian(x, n_echoes, times, model, jac):
         reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
         lo = np.searchsorted(times, u - reach)
         hi = np.searchsorted(times, u + reach, side="right")
+        windows[k, 0] = lo
+        windows[k, 1] = hi
         for i in range(lo, hi):
             d = times[i] - u
             z = abs(d) / h
@@ -127,17 +130,25 @@ def _solve_damped(jtj, grad, lam, free, step):
 
 
 @njit(**JIT)
-def _normal_equations(jac, residual, weights, jtj, grad):
-    """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted."""
+def _normal_equations(jac, residual, weights, windows, jtj, grad):
+    """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. Each sum runs only
+    over the samples where both columns can be non-zero (their echoes' windows): the terms left
+    out are exact zeros, so the result is the full sum's, bit for bit."""
     m, d = jac.shape
     for r in range(d):
+        lo_r, hi_r = (0, m) if r == 0 else (windows[(r - 1) // PARAMS_PER_ECHO, 0],
+                                            windows[(r - 1) // PARAMS_PER_ECHO, 1])
         g = 0.0
-        for i in range(m):
+        for i in range(lo_r, hi_r):
             g += jac[i, r] * weights[i] * residual[i]
         grad[r] = g
         for c in range(r, d):
+            lo, hi = lo_r, hi_r
+            if c > 0:
+                lo = max(lo, windows[(c - 1) // PARAMS_PER_ECHO, 0])
+                hi = min(hi, windows[(c - 1) // PARAMS_PER_ECHO, 1])
             acc = 0.0
-            for i in range(m):
+            for i in range(lo, hi):
                 acc += jac[i, r] * jac[i, c] * weights[i] * weights[i]
             jtj[r, c] = acc
             jtj[c, r] = acc
@@ -159,12 +170,14 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
     jac = np.empty((m, d))
     trial_model = np.empty(m)
     trial_jac = np.empty((m, d))
+    windows = np.zeros((n_echoes, 2), dtype=np.int64)
+    trial_windows = np.zeros((n_echoes, 2), dtype=np.int64)
     residual = np.empty(m)
     jtj = np.empty((d, d))
     grad = np.empty(d)
     step = np.empty(d)
     trial = np.empty(d)
-    model_and_jacobian(x, n_echoes, times, model, jac)
+    model_and_jacobian(x, n_echoes, times, model, jac, windows)
     ssr = 0.0
     for i in range(m):
         residual[i] = weights[i] * (model[i] - target[i])
@@ -172,7 +185,7 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
     n_jacobians = 1
     lam = 1e-3
     done = False
-    _normal_equations(jac, residual, weights, jtj, grad)
+    _normal_equations(jac, residual, weights, windows, jtj, grad)
     for _ in range(max_iterations):
         if not _solve_damped(jtj, grad, lam, free, step):
             lam *= 10.0
@@ -182,7 +195,7 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
             continue
         for j in range(d):
             trial[j] = min(max(x[j] + step[j], lower[j]), upper[j])
-        model_and_jacobian(trial, n_echoes, times, trial_model, trial_jac)
+        model_and_jacobian(trial, n_echoes, times, trial_model, trial_jac, trial_windows)
         n_jacobians += 1
         trial_ssr = 0.0
         for i in range(m):
@@ -191,7 +204,8 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
             x[:] = trial
-            jac[:, :] = trial_jac
+            jac, trial_jac = trial_jac, jac  # the trial's Jacobian becomes the current one
+            windows, trial_windows = trial_windows, windows
             for i in range(m):
                 residual[i] = weights[i] * (trial_model[i] - target[i])
             ssr = trial_ssr
@@ -199,7 +213,7 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
             if gain <= tolerance * ssr:
                 done = True
                 break
-            _normal_equations(jac, residual, weights, jtj, grad)
+            _normal_equations(jac, residual, weights, windows, jtj, grad)
         else:
             lam *= 4.0
             if lam > 1e12:
@@ -210,7 +224,8 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
 
 @njit(**JIT)
 def _ssr_and_gradient(x, n_echoes, times, target, free, model, jac, grad):
-    model_and_jacobian(x, n_echoes, times, model, jac)
+    windows = np.empty((n_echoes, 2), dtype=np.int64)
+    model_and_jacobian(x, n_echoes, times, model, jac, windows)
     ssr = 0.0
     for j in range(x.size):
         grad[j] = 0.0

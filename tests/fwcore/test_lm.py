@@ -16,8 +16,12 @@ UPPER = np.array([30.0, 200.0, 50.0, 10.0, 2.6, 200.0, 65.0, 10.0, 2.6])
 def test_jacobian_matches_central_differences():
     model = np.empty(T.size)
     jac = np.empty((T.size, START.size))
-    model_and_jacobian(START, 2, T, model, jac)
+    windows = np.empty((2, 2), dtype=np.int64)
+    model_and_jacobian(START, 2, T, model, jac, windows)
     np.testing.assert_allclose(model, model_of_individual(START, T), rtol=1e-12)
+    for k, (lo, hi) in enumerate(windows):  # outside its window an echo's columns are zero
+        columns = jac[:, 1 + 4 * k:5 + 4 * k]
+        assert not columns[:lo].any() and not columns[hi:].any() and columns[lo:hi].any()
     numeric = np.empty_like(jac)
     for j in range(START.size):
         step = np.zeros(START.size)

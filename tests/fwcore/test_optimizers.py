@@ -70,7 +70,7 @@ def test_the_patent_method_stops_at_its_r2_threshold():
 
 def test_mde_lm_polish_lowers_the_fit_error_of_mde():
     y, _, _ = _two_echoes(3)
-    mde = decompose_waveform(y, SPACING, seed=1, config=CONFIG)
+    mde = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde"))
     polished = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde-lm"))
     assert polished.rmse <= mde.rmse
 
@@ -88,3 +88,32 @@ def test_every_optimizer_is_deterministic():
         b = decompose_waveform(y, SPACING, seed=9, config=config)
         np.testing.assert_array_equal(a.amplitude, b.amplitude)
         assert math.isfinite(a.fit_error)
+
+
+def _batch(n=8):
+    return WaveformBatch.from_waveforms([_two_echoes(seed)[0] for seed in range(n)], SPACING, np.arange(n))
+
+
+def test_lm_mde_is_lm_where_the_lm_fit_passes_the_noise_model():
+    # white noise of the model's own kind: every LM fit is as good as the noise allows
+    batch = _batch()
+    lm = decompose_batch(batch, CONFIG.replace(optimizer="lm"))
+    gated = decompose_batch(batch, CONFIG.replace(optimizer="lm-mde"))
+    assert (gated.nit == 0).all()  # no MDE generation ran
+    np.testing.assert_array_equal(gated.position, lm.position)
+    np.testing.assert_array_equal(gated.amplitude, lm.amplitude)
+
+
+def test_lm_mde_searches_everywhere_at_gate_zero_and_never_keeps_a_worse_fit():
+    batch = _batch()
+    config = CONFIG.replace(select_echoes=False)
+    lm = decompose_batch(batch, config.replace(optimizer="lm"))
+    searched = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0))
+    assert (searched.nit > 0).all()
+    # MDE's polished fit replaces LM's only when chi^2 falls by more than ln m
+    assert (searched.rmse <= lm.rmse + 1e-9).all()
+
+
+def test_mde_gate_must_not_be_negative():
+    with pytest.raises(ValueError, match="mde_gate"):
+        DecompositionConfig(mde_gate=-1.0)
