@@ -42,6 +42,18 @@ class Viewed:
         with urllib.request.urlopen(request, timeout=120) as r:
             return json.loads(r.read())
 
+    def decompose(self, input_id: str, seconds: float = 600.0) -> dict:
+        """Pick an input and poll the catalog until its background job ends; its final catalog entry
+        (every job state seen is kept in job_states)."""
+        self.job_states.append(self.post("/api/decompose", {"input": input_id}))
+        deadline = time.time() + seconds
+        while True:
+            (listed,) = self.get("/api/catalog")["inputs"]
+            self.job_states.append(listed["job"])
+            if listed["job"]["status"] != "running" or time.time() >= deadline:
+                return listed
+            time.sleep(0.5)
+
     def echoes(self):
         return ds.dataset(str(self.run / "echoes"), format="parquet").to_table().to_pandas()
 
@@ -63,14 +75,7 @@ def viewed(tmp_path_factory, leica_dir):
     try:
         (listed,) = v.get("/api/catalog")["inputs"]
         v.input_id = listed["id"]
-        v.job_states.append(v.post("/api/decompose", {"input": v.input_id}))
-        deadline = time.time() + 600
-        while time.time() < deadline:
-            (listed,) = v.get("/api/catalog")["inputs"]
-            v.job_states.append(listed["job"])
-            if listed["job"]["status"] != "running":
-                break
-            time.sleep(0.5)
+        listed = v.decompose(v.input_id)
         assert listed["job"]["status"] == "done", (runs / "leica_a.log").read_text()
         v.run_id = listed["run"]
         yield v

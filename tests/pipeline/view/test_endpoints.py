@@ -215,7 +215,6 @@ def test_fwl_view_names_a_missing_folder(tmp_path, capsys):
 def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_dir):
     """An input whose packet file lost its end: the run is partial (fwl run exits non-zero) and shown."""
     import shutil
-    import time
 
     import pyarrow.dataset as ds
 
@@ -232,12 +231,7 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
     try:
         v = Viewed(url_of(server), tmp_path, runs / "cut", "", "", [])
         (listed,) = v.get("/api/catalog")["inputs"]
-        v.post("/api/decompose", {"input": listed["id"]})
-        for _ in range(1200):
-            (listed,) = v.get("/api/catalog")["inputs"]
-            if listed["job"]["status"] != "running":
-                break
-            time.sleep(0.5)
+        listed = v.decompose(listed["id"])
         assert listed["job"]["status"] == "done", (runs / "cut.log").read_text()
         s = v.get(f"/api/summary?run={listed['run']}")
         c = s["counts"]
@@ -258,7 +252,6 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
 def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
     """A .pls+.wvs input, picked in the viewer: its pulses come back from the PulseWaves reader."""
     import shutil
-    import time
     from pathlib import Path
 
     from pipeline.view.jobs import Jobs
@@ -275,12 +268,7 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
         v = Viewed(url_of(server), tmp_path, runs / "las13fwf_example1", "", "", [])
         (listed,) = v.get("/api/catalog")["inputs"]
         assert listed["name"] == "las13fwf_example1.pls" and listed["run"] is None
-        v.post("/api/decompose", {"input": listed["id"]})
-        for _ in range(1200):
-            (listed,) = v.get("/api/catalog")["inputs"]
-            if listed["job"]["status"] != "running":
-                break
-            time.sleep(0.5)
+        listed = v.decompose(listed["id"])
         assert listed["job"]["status"] == "done", (runs / "las13fwf_example1.log").read_text()
         echoes, pulses = v.echoes(), v.pulses()
         assert len(pulses) == 20
