@@ -6,7 +6,9 @@
 For each size, `fwl simulate` writes a flight (not timed with the run), then
 `fwl run` decomposes it in a fresh process on the DirectRunner with 2 workers
 (parquet and LAS outputs). Throughput is pulses over the run's wall time,
-start-up included; peak memory is the largest sum of RSS over the run's
+start-up included; "steady" is pulses over the time from the first range's
+end to the last's (start-up, planning and assembly left out, so sizes compare);
+peak memory is the largest sum of RSS over the run's
 process and all its children (Beam's workers; with --dask, the cluster's
 worker processes too), sampled every 0.2 s. --dask N adds the run of size N
 on Beam's Dask runner against a local distributed cluster of 2 workers
@@ -19,9 +21,12 @@ worker process (~40 s each on this machine), which is not throughput.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -34,12 +39,49 @@ def fwl(*args: str) -> None:
                    stderr=subprocess.DEVNULL)
 
 
-def timed_run(las: Path, out: Path, method: list[str], extra: list[str]) -> tuple[float, float]:
-    with PeakMemory() as memory:
+class RangeEnds:
+    """When each range's progress mark appears under the run's parts/ folder, and its pulses."""
+
+    def __init__(self, marks: Path):
+        self.marks, self.seen = marks, {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+
+    def _watch(self):
+        while not self._stop.is_set():
+            try:
+                names = [n for n in os.listdir(self.marks) if n.endswith(".json") and n not in self.seen]
+            except FileNotFoundError:
+                names = []
+            for name in names:
+                try:
+                    self.seen[name] = (time.perf_counter(), int(json.loads((self.marks / name).read_text())["pulses"]))
+                except (OSError, ValueError):  # being written: next time
+                    pass
+            time.sleep(0.1)
+
+    def steady_rate(self) -> float:
+        """Pulses of all ranges but the first over the time between the first's end and the last's."""
+        ends = sorted(self.seen.values())
+        if len(ends) < 2 or ends[-1][0] <= ends[0][0]:
+            return float("nan")
+        return sum(n for _, n in ends[1:]) / (ends[-1][0] - ends[0][0])
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
+def timed_run(las: Path, out: Path, method: list[str], extra: list[str]) -> tuple[float, float, float]:
+    with PeakMemory() as memory, RangeEnds(out / "parts") as ends:
         start = time.perf_counter()
         fwl("run", str(las), "--output", str(out), "--formats", "parquet,las", *method, *extra)
         seconds = time.perf_counter() - start
-    return seconds, memory.peak / 2**20
+    return seconds, ends.steady_rate(), memory.peak / 2**20
 
 
 def main() -> None:
@@ -53,7 +95,7 @@ def main() -> None:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-scale-"))
     method = ["--preset", args.preset] + (["--optimizer", args.optimizer] if args.optimizer else [])
     label = args.preset + (f"/{args.optimizer}" if args.optimizer else "")
-    print(f"{'pulses':>9} {'runner':10} {'preset':7} {'simulate s':>10} {'run s':>8} {'pulses/s':>9} "
+    print(f"{'pulses':>9} {'runner':10} {'preset':7} {'simulate s':>10} {'run s':>8} {'pulses/s':>9} {'steady':>8} "
           f"{'peak RSS MiB':>13}", flush=True)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     for n in sorted(set(sizes) | ({args.dask} if args.dask else set())):
@@ -78,10 +120,10 @@ def main() -> None:
                           flush=True)
                     extra = ["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
                              f"--dask_client_address={c.scheduler_address}"]
-                    seconds, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
+                    seconds, steady, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
             else:
-                seconds, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
-            print(f"{n:9d} {runner:10} {label:7} {simulate:10.1f} {seconds:8.1f} {n / seconds:9.1f} "
+                seconds, steady, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
+            print(f"{n:9d} {runner:10} {label:7} {simulate:10.1f} {seconds:8.1f} {n / seconds:9.1f} {steady:8.1f} "
                   f"{peak:13.0f}", flush=True)
         for f in work.glob(f"sim_{n}.*"):
             f.unlink()
