@@ -298,8 +298,8 @@ class KernelParams(NamedTuple):
 # Named configurations (README, "Presets"): the defaults are the best we know.
 # "paper": the MDE method exactly as published: its noise formula and constant noise, its filter
 # (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
-# polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate, fewer and looser iterations,
-# with the default's selection.
+# polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate,
+# fewer and looser iterations, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"optimizer": Optimizer.MDE, "generations": 80, "tol": 0.0, "atol": 0.0,
               "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,

@@ -1,6 +1,6 @@
 """Decompose waveforms: the orchestration of the engine's steps, and its Python API.
 
-    initial estimate -> bounds -> optimizer -> model-order selection -> filter -> metrics
+    initial estimate -> bounds -> optimizer -> model-order selection -> raw polish -> filter -> metrics
 
 `decompose_batch` is the entry point: many waveforms of any lengths in one
 numba-parallel call, one waveform per thread, each with its own random
