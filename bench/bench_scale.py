@@ -5,7 +5,8 @@
 
 For each size, `fwl simulate` writes a flight (not timed with the run), then
 `fwl run` decomposes it in a fresh process on the DirectRunner with 2 workers
-(parquet and LAS outputs). Throughput is pulses over the run's wall time,
+(parquet and LAS outputs); "sim MiB" is the simulator's peak RSS (it writes the flight
+one chunk of pulses at a time). Throughput is pulses over the run's wall time,
 start-up included; "steady" is pulses over the time from the first range's
 end to the last's (start-up, planning and assembly left out, so sizes compare);
 peak memory is the largest sum of RSS over the run's
@@ -95,14 +96,15 @@ def main() -> None:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-scale-"))
     method = ["--preset", args.preset] + (["--optimizer", args.optimizer] if args.optimizer else [])
     label = args.preset + (f"/{args.optimizer}" if args.optimizer else "")
-    print(f"{'pulses':>9} {'runner':10} {'preset':7} {'simulate s':>10} {'run s':>8} {'pulses/s':>9} {'steady':>8} "
-          f"{'peak RSS MiB':>13}", flush=True)
+    print(f"{'pulses':>9} {'runner':10} {'preset':7} {'simulate s':>10} {'sim MiB':>8} {'run s':>8} {'pulses/s':>9} "
+          f"{'steady':>8} {'peak RSS MiB':>13}", flush=True)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     for n in sorted(set(sizes) | ({args.dask} if args.dask else set())):
         las = work / f"sim_{n}.las"
-        start = time.perf_counter()
-        fwl("simulate", "--pulses", str(n), "--output", str(las), "--seed", "1")
-        simulate = time.perf_counter() - start
+        with PeakMemory() as simulator:
+            start = time.perf_counter()
+            fwl("simulate", "--pulses", str(n), "--output", str(las), "--seed", "1")
+            simulate = time.perf_counter() - start
         # untimed: numba's cache filled for this checkout, so that no timed run compiles
         fwl("run", str(las), "--output", str(work / "warm"), "--formats", "parquet,las", "--limit", "300", *method)
         runs = []
@@ -123,8 +125,8 @@ def main() -> None:
                     seconds, steady, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
             else:
                 seconds, steady, peak = timed_run(las, work / f"out_{runner}_{n}", method, extra)
-            print(f"{n:9d} {runner:10} {label:7} {simulate:10.1f} {seconds:8.1f} {n / seconds:9.1f} {steady:8.1f} "
-                  f"{peak:13.0f}", flush=True)
+            print(f"{n:9d} {runner:10} {label:7} {simulate:10.1f} {simulator.peak / 2**20:8.0f} {seconds:8.1f} "
+                  f"{n / seconds:9.1f} {steady:8.1f} {peak:13.0f}", flush=True)
         for f in work.glob(f"sim_{n}.*"):
             f.unlink()
 

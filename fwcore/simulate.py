@@ -12,12 +12,16 @@ the system's own returns, written as the points that carry each packet.
 Times count from each packet's first sample, as the pipeline's do; sigma is
 Chauve's, with t in ps (fwcore.model); x, y, z follow the same geolocation as
 the reader's (X = X0 + (L0 - t) x_t).
+
+A flight is simulated in chunks of CHUNK_PULSES pulses, each from its own random stream (the seed and the
+chunk's index), so a flight of any size is written holding one chunk (fwcore.studies.truth.write_flight).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Iterator
 
 import numpy as np
 from numba import njit
@@ -31,6 +35,9 @@ LIGHT_M_PER_PS = 299792458.0e-12
 RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range
 MAX_ECHOES = 6
 MAX_RETURNS = 5
+# Pulses simulated at a time. The flight's bytes depend on it (each chunk draws from its own stream), so it
+# is fixed, not an option; a flight of at most one chunk is the flight simulated before there were chunks.
+CHUNK_PULSES = 100_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,9 +99,10 @@ def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 120.0 + 6.0 * np.sin(x / 90.0) + 4.0 * np.cos(y / 70.0) + 1.5 * np.sin((x + y) / 23.0)
 
 
-def _scene_echoes(n: int, scene: SceneConfig, sensor: SensorConfig, rng: np.random.Generator):
-    """Per pulse: geometry, and up to MAX_ECHOES surfaces (range, amplitude, FWHM factor, alpha, kind)."""
-    i = np.arange(n)
+def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, rng: np.random.Generator):
+    """Per pulse first..first+n-1: geometry, and up to MAX_ECHOES surfaces (range, amplitude, FWHM factor,
+    alpha, kind)."""
+    i = first + np.arange(n)
     gps = scene.start_gps_time + i / scene.pulse_rate_hz
     line, step = np.divmod(i, scene.pulses_per_line)
     frac = step / max(scene.pulses_per_line - 1, 1)
@@ -217,12 +225,37 @@ def _detect(samples, n_samples, threshold, out_index, out_count):
 
 def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene: SceneConfig = SceneConfig(),
                     seed: int = 0, source_file: str = "simulated.las") -> SimulatedFlight:
-    """Simulate n_pulses pulses; the same arguments give the same flight."""
+    """Simulate n_pulses pulses in memory; the same arguments give the same flight, chunk by chunk the
+    flight of simulate_chunks."""
+    chunks = list(simulate_chunks(n_pulses, sensor, scene, seed, source_file))
+    return chunks[0] if len(chunks) == 1 else _concatenate(chunks)
+
+
+def simulate_chunks(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene: SceneConfig = SceneConfig(),
+                    seed: int = 0, source_file: str = "simulated.las") -> Iterator[SimulatedFlight]:
+    """The flight of n_pulses pulses, CHUNK_PULSES at a time, in pulse order: one chunk in memory at a time.
+
+    Each chunk's packet offsets are those of the whole file (packets in pulse order, as
+    fwcore.io.writer writes them), so its pulses are what the reader will say of the written flight.
+    """
     if n_pulses < 1:
         raise ValueError("simulate at least one pulse")
-    rng = np.random.default_rng(seed)
+    for chunk, first in enumerate(range(0, n_pulses, CHUNK_PULSES)):
+        yield _simulate_chunk(first, min(CHUNK_PULSES, n_pulses - first), sensor, scene, _chunk_rng(seed, chunk),
+                              source_file)
+
+
+def _chunk_rng(seed: int, chunk: int) -> np.random.Generator:
+    """Chunk 0 draws from the seed itself (the flight before chunks); chunk k > 0 from the seed's k-th child
+    stream (numpy's SeedSequence spawn key), independent of every other seed's and chunk's."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(chunk,) if chunk else ()))
+
+
+def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, rng: np.random.Generator,
+                    source_file: str) -> SimulatedFlight:
+    """Pulses first..first+n_pulses-1 of the flight."""
     gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind = _scene_echoes(
-        n_pulses, scene, sensor, rng)
+        first, n_pulses, scene, sensor, rng)
     has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
     top_range = ranges[:, 0]
     time_ps = np.where(has, sensor.pre_trigger_ps + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
@@ -262,14 +295,16 @@ def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene:
     first_return = return_offsets[:-1]
 
     lengths = np.full(n_pulses, n_samples)
+    first_packet_byte = first * n_samples * (sensor.bits // 8)  # the packets of the chunks before this one
     pulse_id = pulse_ids_as_written(gps, r_xyz[first_return])  # what the reader will say of the written file
     pulses = PulseBatch(
         source_file=source_file, pulse_id=pulse_id,
-        packet_offset=packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits)), descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
+        packet_offset=packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits)) + first_packet_byte,
+        descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
         anchor=r_xyz[first_return], anchor_location_ps=r_time[first_return], direction=direction,
         scan_angle=np.degrees(angle), point_source_id=np.ones(n_pulses, np.uint16),
-        scan_direction_flag=((np.arange(n_pulses) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
-        edge_of_flight_line=np.isin(np.arange(n_pulses) % scene.pulses_per_line,
+        scan_direction_flag=(((first + np.arange(n_pulses)) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
+        edge_of_flight_line=np.isin((first + np.arange(n_pulses)) % scene.pulses_per_line,
                                     (0, scene.pulses_per_line - 1)).astype(np.uint8),
         user_data=np.zeros(n_pulses, np.uint8), sample_spacing_ps=np.full(n_pulses, sensor.sample_spacing_ps),
         digitizer_gain=np.full(n_pulses, sensor.digitizer_gain),
@@ -290,6 +325,23 @@ def simulate_flight(n_pulses: int, sensor: SensorConfig = SensorConfig(), scene:
         "x": e_xyz[:, 0], "y": e_xyz[:, 1], "z": e_xyz[:, 2],
     }
     return SimulatedFlight(pulses, truth, sensor.bits)
+
+
+def _concatenate(chunks: list[SimulatedFlight]) -> SimulatedFlight:
+    """Consecutive chunks as one flight (offsets into the samples and the returns shifted to match)."""
+    batches = [c.pulses for c in chunks]
+    fields = {}
+    for field in dataclasses.fields(PulseBatch):
+        values = [getattr(b, field.name) for b in batches]
+        if field.name in ("sample_offsets", "return_offsets"):
+            ends = np.cumsum([0] + [v[-1] for v in values[:-1]])
+            fields[field.name] = np.concatenate([values[0][:1]] + [v[1:] + e for v, e in zip(values, ends)])
+        elif isinstance(values[0], np.ndarray):
+            fields[field.name] = np.concatenate(values)
+        else:  # the source file, and optional columns the simulator leaves unset
+            fields[field.name] = values[0]
+    truth = {k: np.concatenate([c.truth[k] for c in chunks]) for k in chunks[0].truth}
+    return SimulatedFlight(PulseBatch(**fields), truth, chunks[0].bits)
 
 
 def render_truth(truth: dict[str, np.ndarray], n_samples: int, spacing_ps: float, background: float) -> np.ndarray:

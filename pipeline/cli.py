@@ -124,9 +124,8 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from fwcore.io.writer import write_waveform_las
-    from fwcore.simulate import SceneConfig, SensorConfig, simulate_flight
-    from fwcore.studies.truth import truth_path, write_truth
+    from fwcore.simulate import SceneConfig, SensorConfig
+    from fwcore.studies.truth import write_flight
 
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps,
                           samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
@@ -135,14 +134,10 @@ def _simulate(args: argparse.Namespace) -> int:
     scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
                         canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
                         weak_echo_fraction=args.weak_fraction)
-    output = Path(args.output)
     start = time.perf_counter()
-    flight = simulate_flight(args.pulses, sensor, scene, args.seed, source_file=output.name)
-    write_waveform_las(output, flight.pulses, args.format, bits=args.bits)
-    truth = write_truth(truth_path(output), flight, sensor, scene, args.seed)
-    n_echoes = flight.truth["time_ps"].size
-    print(f"wrote {output} ({args.format}, {args.bits}-bit): {args.pulses} pulses, {flight.pulses.return_xyz.shape[0]} "
-          f"system returns; {truth}: {n_echoes} true echoes; {time.perf_counter() - start:.1f} s")
+    flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
+    print(f"wrote {flight.las} ({args.format}, {args.bits}-bit): {flight.n_pulses} pulses, {flight.n_returns} "
+          f"system returns; {flight.truth}: {flight.n_echoes} true echoes; {time.perf_counter() - start:.1f} s")
     return 0
 
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import logging
+import shutil
 import struct
 from pathlib import Path
 from typing import Iterable
 
 import laspy
-from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
@@ -133,72 +133,158 @@ def write_waveform_las(path: str | Path, pulses: PulseBatch, layout: str = "las1
     one descriptor per distinct (bits, samples, spacing, gain, offset), numbered from 1 around the
     indices in `empty_descriptors`, which get descriptors of 0 samples (as RIEGL writes a hundred).
     """
-    if layout not in ("las13-wdp", "las14-wdp", "las14-internal"):
-        raise ValueError(f"layout must be las13-wdp, las14-wdp or las14-internal, not {layout!r}")
-    path = Path(path)
-    n = len(pulses)
-    bits = np.broadcast_to(np.asarray(bits), (n,))
-    if not np.isin(bits, (8, 16)).all():
-        raise ValueError("bits per sample must be 8 or 16")
-    if np.any(np.diff(pulses.return_offsets) < 1):
-        raise ValueError("every pulse needs at least one point (system return) to carry its packet")
-    lengths = np.diff(pulses.sample_offsets)
-    kinds = list(zip(bits.tolist(), lengths.tolist(), pulses.sample_spacing_ps.tolist(),
-                     pulses.digitizer_gain.tolist(), pulses.digitizer_offset.tolist()))
-    empty = sorted(set(int(i) for i in empty_descriptors))
-    free = (i for i in range(1, 256) if i not in empty)
-    table = {kind: next(free) for kind in dict.fromkeys(kinds)}
-    descriptors = [WaveformDescriptor(i, k[0], 0, k[1], k[2], k[3], k[4]) for k, i in table.items()]
-    descriptors += [WaveformDescriptor(i, 16, 0, 0, 0.0, 0.0, 0.0) for i in empty]
-    descriptors.sort(key=lambda d: d.index)
-    # packets, in pulse order, after the record header
-    blobs, packet_offset = [], packet_byte_offsets(lengths, bits)
-    for i in range(n):
-        dtype = "<u1" if bits[i] == 8 else "<u2"
-        top = (1 << int(bits[i])) - 1
-        blobs.append(np.clip(np.round(pulses.pulse_samples(i)), 0, top).astype(dtype).tobytes())
-    packet_data = b"".join(blobs)
-    record = _evlr_header(len(packet_data), "fwlidar waveform packets") + packet_data
+    with WaveformLasWriter(path, layout, scales, offsets, empty_descriptors) as writer:
+        writer.write(pulses, bits)
+    return Path(path)
 
-    version, point_format = ("1.3", 4) if layout == "las13-wdp" else ("1.4", 9)
-    header = laspy.LasHeader(point_format=point_format, version=version)
-    header.scales, header.offsets = np.asarray(scales), np.asarray(offsets)
-    for d in descriptors:
-        header.vlrs.append(laspy.VLR("LASF_Spec", 99 + d.index, "Waveform Packet Descriptor", d.to_record_data()))
-    owner = np.repeat(np.arange(n), np.diff(pulses.return_offsets))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pulses.return_xyz.T
-    las.gps_time = pulses.gps_time[owner]
-    las.return_number = pulses.return_number
-    las.number_of_returns = np.diff(pulses.return_offsets)[owner].astype(np.uint8)
-    las.intensity = pulses.return_intensity
-    if pulses.classification is not None:
-        las.classification = pulses.classification[owner]
-    if point_format == 4:
-        las.scan_angle_rank = np.round(pulses.scan_angle[owner]).astype(np.int8)
-    else:
-        las.scan_angle = np.round(pulses.scan_angle[owner] / 0.006).astype(np.int16)
-    las.scan_direction_flag = pulses.scan_direction_flag[owner]
-    las.edge_of_flight_line = pulses.edge_of_flight_line[owner]
-    las.point_source_id = pulses.point_source_id[owner]
-    las.user_data = pulses.user_data[owner]
-    las.wavepacket_index = np.array([table[k] for k in kinds], dtype=np.uint8)[owner]
-    las.wavepacket_offset = packet_offset[owner].astype(np.uint64)
-    las.wavepacket_size = np.array([len(b) for b in blobs], dtype=np.uint32)[owner]
-    las.return_point_wave_location = pulses.return_location_ps.astype(np.float32)
-    las.x_t, las.y_t, las.z_t = pulses.direction[owner].astype(np.float32).T
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if layout != "las14-internal":
-        las.header.global_encoding.waveform_data_packets_external = True
-        las.write(path)
-        path.with_suffix(".wdp").write_bytes(record)
-    else:
-        las.header.global_encoding.waveform_data_packets_internal = True
-        las.evlrs = VLRList([laspy.VLR("LASF_Spec", 65535, "Waveform Data Packets", packet_data)])
-        las.write(path)
-        with laspy.open(path) as reader:
-            start = reader.header.start_of_first_evlr
-        with open(path, "r+b") as f:
-            f.seek(227)  # start_of_waveform_data_packet_record in the LAS 1.3/1.4 header
-            f.write(struct.pack("<Q", start))
-    return path
+
+class WaveformLasWriter:
+    """write_waveform_las batch by batch, holding one batch: the same bytes as one call on all the pulses.
+
+    The header (and its descriptors) precedes the points, so the first batch decides the descriptors and
+    later batches may only reuse its (bits, samples, spacing, gain, offset) kinds. Packets stream to the
+    .wdp as batches come; packets inside the file follow all the points, so they wait in a scratch file
+    beside it until close(). The header's counts and bounds are laspy's, updated batch by batch. If the
+    writing fails, what was written is removed (a file without its end is not a flight).
+    """
+
+    def __init__(self, path: str | Path, layout: str = "las13-wdp", scales=DEFAULT_SCALES,
+                 offsets=DEFAULT_OFFSETS, empty_descriptors: Iterable[int] = ()) -> None:
+        if layout not in ("las13-wdp", "las14-wdp", "las14-internal"):
+            raise ValueError(f"layout must be las13-wdp, las14-wdp or las14-internal, not {layout!r}")
+        self.path = Path(path)
+        self.layout = layout
+        self.scales, self.offsets = np.asarray(scales), np.asarray(offsets)
+        self.empty = sorted(set(int(i) for i in empty_descriptors))
+        self.packets_path = (self.path.with_suffix(".wdp") if layout != "las14-internal"
+                             else self.path.with_name(self.path.name + ".packets.partial"))
+        self._table: dict[tuple, int] | None = None  # descriptor index of each kind, from the first batch
+        self._points: laspy.LasWriter | None = None
+        self._packets = None
+        self._packet_bytes = 0
+
+    def __enter__(self) -> "WaveformLasWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self._abandon()
+
+    def write(self, pulses: PulseBatch, bits: int | np.ndarray = 8) -> None:
+        """Append these pulses (bits per file or per pulse, as write_waveform_las)."""
+        n = len(pulses)
+        bits = np.broadcast_to(np.asarray(bits), (n,))
+        if not np.isin(bits, (8, 16)).all():
+            raise ValueError("bits per sample must be 8 or 16")
+        if np.any(np.diff(pulses.return_offsets) < 1):
+            raise ValueError("every pulse needs at least one point (system return) to carry its packet")
+        lengths = np.diff(pulses.sample_offsets)
+        kinds = list(zip(bits.tolist(), lengths.tolist(), pulses.sample_spacing_ps.tolist(),
+                         pulses.digitizer_gain.tolist(), pulses.digitizer_offset.tolist()))
+        if self._table is None:
+            self._start(kinds)
+        unknown = set(kinds) - self._table.keys()
+        if unknown:
+            raise ValueError(f"{self.path.name}: a later batch has packets of a kind the first batch did not "
+                             f"(bits, samples, spacing, gain, offset) {sorted(unknown)[0]}: the descriptors "
+                             f"are in the header, written with the first batch")
+        packet_data = _packet_bytes(pulses, bits)
+        sizes = lengths.astype(np.int64) * (bits.astype(np.int64) // 8)
+        packet_offset = packet_byte_offsets(lengths, bits) + self._packet_bytes
+        self._points.write_points(self._point_record(pulses, kinds, packet_offset, sizes).points)
+        self._packets.write(packet_data)
+        self._packet_bytes += len(packet_data)
+
+    def close(self) -> Path:
+        """Finish the file: header counts and bounds, the packets' record length, internal packets appended."""
+        if self._table is None:
+            raise ValueError(f"{self.path.name}: no pulses were written")
+        self._points.close()
+        self._packets.seek(0)
+        self._packets.write(_evlr_header(self._packet_bytes, "fwlidar waveform packets"))
+        self._packets.close()
+        if self.layout == "las14-internal":
+            with open(self.path, "r+b") as f, open(self.packets_path, "rb") as packets:
+                start = f.seek(0, 2)
+                f.write(_evlr_header(self._packet_bytes, "Waveform Data Packets"))
+                packets.seek(EVLR_HEADER_BYTES)
+                shutil.copyfileobj(packets, f, 16 << 20)
+                # the header's start of the waveform packets, of the first EVLR and the number of EVLRs
+                f.seek(227)
+                f.write(struct.pack("<QQI", start, start, 1))
+            self.packets_path.unlink()
+        return self.path
+
+    def _start(self, kinds: list[tuple]) -> None:
+        free = (i for i in range(1, 256) if i not in self.empty)
+        self._table = {kind: next(free) for kind in dict.fromkeys(kinds)}
+        descriptors = [WaveformDescriptor(i, k[0], 0, k[1], k[2], k[3], k[4]) for k, i in self._table.items()]
+        descriptors += [WaveformDescriptor(i, 16, 0, 0, 0.0, 0.0, 0.0) for i in self.empty]
+        descriptors.sort(key=lambda d: d.index)
+        version, point_format = ("1.3", 4) if self.layout == "las13-wdp" else ("1.4", 9)
+        header = laspy.LasHeader(point_format=point_format, version=version)
+        header.scales, header.offsets = self.scales, self.offsets
+        for d in descriptors:
+            header.vlrs.append(laspy.VLR("LASF_Spec", 99 + d.index, "Waveform Packet Descriptor",
+                                         d.to_record_data()))
+        if self.layout == "las14-internal":
+            header.global_encoding.waveform_data_packets_internal = True
+        else:
+            header.global_encoding.waveform_data_packets_external = True
+        self.header = header
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._points = laspy.open(self.path, mode="w", header=header,
+                                  do_compress=self.path.suffix.lower() == ".laz")
+        self._packets = open(self.packets_path, "w+b")
+        self._packets.write(bytes(EVLR_HEADER_BYTES))  # its record length is known at close
+
+    def _point_record(self, pulses: PulseBatch, kinds: list[tuple], packet_offset: np.ndarray,
+                      sizes: np.ndarray) -> laspy.LasData:
+        owner = np.repeat(np.arange(len(pulses)), np.diff(pulses.return_offsets))
+        las = laspy.LasData(self.header)
+        las.x, las.y, las.z = pulses.return_xyz.T
+        las.gps_time = pulses.gps_time[owner]
+        las.return_number = pulses.return_number
+        las.number_of_returns = np.diff(pulses.return_offsets)[owner].astype(np.uint8)
+        las.intensity = pulses.return_intensity
+        if pulses.classification is not None:
+            las.classification = pulses.classification[owner]
+        if self.header.point_format.id == 4:
+            las.scan_angle_rank = np.round(pulses.scan_angle[owner]).astype(np.int8)
+        else:
+            las.scan_angle = np.round(pulses.scan_angle[owner] / 0.006).astype(np.int16)
+        las.scan_direction_flag = pulses.scan_direction_flag[owner]
+        las.edge_of_flight_line = pulses.edge_of_flight_line[owner]
+        las.point_source_id = pulses.point_source_id[owner]
+        las.user_data = pulses.user_data[owner]
+        las.wavepacket_index = np.array([self._table[k] for k in kinds], dtype=np.uint8)[owner]
+        las.wavepacket_offset = packet_offset[owner].astype(np.uint64)
+        las.wavepacket_size = sizes.astype(np.uint32)[owner]
+        las.return_point_wave_location = pulses.return_location_ps.astype(np.float32)
+        las.x_t, las.y_t, las.z_t = pulses.direction[owner].astype(np.float32).T
+        return las
+
+    def _abandon(self) -> None:
+        if self._points is not None:
+            self._points.dest.close()
+        if self._packets is not None:
+            self._packets.close()
+        for path in (self.path, self.packets_path):
+            path.unlink(missing_ok=True)
+
+
+def _packet_bytes(pulses: PulseBatch, bits: np.ndarray) -> bytes:
+    """The pulses' packets in pulse order: samples rounded and clipped to the bits' range."""
+    if bits.size and (bits == bits[0]).all():  # one sample type: one conversion of all the samples
+        top = (1 << int(bits[0])) - 1
+        values = np.round(pulses.samples[pulses.sample_offsets[0]:pulses.sample_offsets[-1]])
+        np.clip(values, 0, top, out=values)  # in place: a chunk of a flight is hundreds of MB of samples
+        return values.astype("<u1" if bits[0] == 8 else "<u2").tobytes()
+    blobs = []
+    for i in range(len(pulses)):
+        top = (1 << int(bits[i])) - 1
+        blobs.append(np.clip(np.round(pulses.pulse_samples(i)), 0, top).astype(
+            "<u1" if bits[i] == 8 else "<u2").tobytes())
+    return b"".join(blobs)

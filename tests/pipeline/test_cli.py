@@ -83,3 +83,20 @@ def test_presets_then_toml_then_flags(tmp_path):
     paper = _config_from_args(build_parser().parse_args(["run", "--preset", "paper", "--no-select-echoes"]))
     assert not paper.select_echoes and paper.optimizer is Optimizer.MDE and paper.tol == 0.0
     assert paper.noise_estimator.value == "residual" and paper.generations == 80
+
+
+def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_path, monkeypatch, capsys):
+    import laspy
+
+    from fwcore import simulate
+
+    monkeypatch.setattr(simulate, "CHUNK_PULSES", 100)
+    las = tmp_path / "sim.las"
+    assert main(["simulate", "--pulses", "250", "--seed", "2", "--format", "las14-internal", "--bits", "16",
+                 "--background", "300", "--output", str(las)]) == 0
+    points = laspy.read(las)
+    truth = pq.read_table(tmp_path / "sim.truth.parquet")
+    out = capsys.readouterr().out
+    assert f"250 pulses, {len(points.points)} system returns" in out and f"{truth.num_rows} true echoes" in out
+    assert points.header.global_encoding.waveform_data_packets_internal and points.header.number_of_evlrs == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.las", "sim.truth.parquet"]  # no scratch packets

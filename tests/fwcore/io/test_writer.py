@@ -5,7 +5,8 @@ import pytest
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.writer import write_point_cloud, write_waveform_las
+from fwcore.io.reader import plan_point_ranges
+from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
 
 
@@ -83,3 +84,34 @@ def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica
     assert len(wkt) == 1 and "WGS 84 / UTM zone 32N" in wkt[0].string
     assert back.header.parse_crs().to_epsg() == 32632
     assert not any(v.record_id == 34735 for v in back.header.vlrs)  # formats 6-10 carry WKT, not GeoTIFF keys
+
+
+@pytest.mark.parametrize("layout, mixed", [("las13-wdp", False), ("las14-wdp", True), ("las14-internal", True)])
+def test_written_batch_by_batch_the_file_is_the_same_bytes(tmp_path, leica_dir, leica, layout, mixed):
+    ranges = plan_point_ranges(leica_dir / "leica_a.las", 400)
+    assert len(ranges) == 3
+    batches = [read_pulses(r) for r in ranges]
+
+    def bits(n, first):  # every third pulse at 16 bits: two descriptors, both in the first batch
+        return np.where((first + np.arange(n)) % 3 == 0, 16, 8) if mixed else 8
+
+    whole = write_waveform_las(tmp_path / "whole.las", leica, layout, bits(len(leica), 0))
+    with WaveformLasWriter(tmp_path / "parts.las", layout) as writer:
+        first = 0
+        for batch in batches:
+            writer.write(batch, bits(len(batch), first))
+            first += len(batch)
+    assert whole.read_bytes() == (tmp_path / "parts.las").read_bytes()
+    if layout != "las14-internal":
+        assert (tmp_path / "whole.wdp").read_bytes() == (tmp_path / "parts.wdp").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["whole.las", "parts.las"] + (["whole.wdp", "parts.wdp"] if layout != "las14-internal" else []))
+
+
+def test_a_later_batch_with_a_new_descriptor_is_refused_and_the_partial_file_removed(tmp_path, leica_dir):
+    first, second = (read_pulses(r) for r in plan_point_ranges(leica_dir / "leica_a.las", 400)[:2])
+    with pytest.raises(ValueError, match="kind the first batch did not"):
+        with WaveformLasWriter(tmp_path / "x.las", "las14-internal") as writer:
+            writer.write(first, 8)
+            writer.write(second, 16)
+    assert list(tmp_path.iterdir()) == []
