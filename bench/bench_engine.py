@@ -87,6 +87,8 @@ def leica_rows() -> None:
     variants.append(("default, shape tolerance 0", preset("default").replace(shape_tolerance=0.0)))
     variants.append(("default with mde-lm", preset("default").replace(optimizer="mde-lm")))
     variants.append(("default, SNR floor 6", preset("default").replace(min_snr=6.0)))
+    variants.append(("default, first echo 0.35", preset("default").replace(first_echo_ratio=0.35)))
+    variants.append(("default, no raw polish", preset("default").replace(raw_polish=False)))
     for label, base in variants:
         config = base.replace(system_pulse_fwhm_ps=system.fwhm_ps)
         if config.shape_tolerance is None:
@@ -141,6 +143,7 @@ def neon_rows() -> None:
                 for name in PRESET_NAMES for source, fwhm in (("outgoing", outgoing), ("returns", estimated))]
     default = preset("default").replace(system_pulse_fwhm_ps=outgoing)
     variants += [("fit raw", "outgoing", default.replace(fit_target="raw")),
+                 ("no polish", "outgoing", default.replace(raw_polish=False)),
                  ("mde-lm", "outgoing", default.replace(optimizer="mde-lm"))]
     for name, source, config in variants:
         result, rate = timed(batch, config)
@@ -161,6 +164,7 @@ def simulation_rows() -> None:
         print("\nSimulated flight (fwl simulate --pulses 10000 --seed 7; fwl run, 2 workers; fwl evaluate)")
         runs = [(name, [] if name == "default" else ["--preset", name]) for name in PRESET_NAMES]
         runs.append(("default-snr6", ["--min-snr", "6"]))
+        runs.append(("default-first-echo-0.35", ["--first-echo-ratio", "0.35"]))
         for name, extra in runs:
             out = Path(work) / name
             subprocess.run([*fwl, "run", str(las), "--output", str(out), "--formats", "parquet", *extra], check=True,

@@ -1,6 +1,6 @@
 """Decompose waveforms: the orchestration of the engine's steps, and its Python API.
 
-    initial estimate -> bounds -> optimizer -> model-order selection -> filter -> metrics
+    initial estimate -> bounds -> optimizer -> model-order selection -> raw polish -> filter -> metrics
 
 `decompose_batch` is the entry point: many waveforms of any lengths in one
 numba-parallel call, one waveform per thread, each with its own random
@@ -25,7 +25,7 @@ from fwcore.filter import mark_spurious
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model
 from fwcore.optimizers import OPT_GA_ITERATIVE, OPT_NONE, OPTIMIZERS, MSG_CONVERGED, run_optimizer
 from fwcore.optimizers.ga_iterative import ga_iterative
-from fwcore.optimizers.local import levenberg_marquardt
+from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import initial_estimate
 from fwcore.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
@@ -102,7 +102,7 @@ def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes):
     reasons = np.zeros(n_echoes, dtype=np.int8)
     mark_spurious(echoes.amplitude[:n_echoes].copy(), echoes.position[:n_echoes].copy(), widths, first, last,
                   pulse_fwhm, noise, p.min_snr, p.min_amplitude_ratio, p.min_separation_factor,
-                  p.min_width_factor, p.max_width_factor, reasons)
+                  p.min_width_factor, p.max_width_factor, p.first_echo_ratio, reasons)
     for j in range(n_echoes):
         echoes[j].reason = reasons[j]
 
@@ -178,6 +178,14 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
             pulse_sigma, noise)
         nfev += used
 
+    if (p.raw_polish and p.fit_denoised and n_echoes > 0 and p.method != OPT_NONE
+            and p.method != OPT_GA_ITERATIVE):
+        # the smoothing bends steep rises (NEON): where the fit to the denoised target fails the noise
+        # model on the raw samples, LM refits it to them from where it is, with the same echoes
+        if squared_error(best, n_echoes, times, raw, weights) / max(times.size - best.size, 1) > p.raw_polish_gate:
+            _, used, _ = levenberg_marquardt(best, n_echoes, times, raw, weights, lower, local_upper,
+                                             p.lm_iterations, p.lm_tolerance)
+            nfev += used
     out.background = best[0]
     out.noise_sigma = noise
     out.nfev = nfev

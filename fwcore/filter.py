@@ -17,15 +17,19 @@ REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wi
 
 @njit(**JIT)
 def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sigma, min_snr,
-                  min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, reason):
+                  min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, first_echo_ratio,
+                  reason):
     """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions).
 
     (1) amplitude below min_amplitude_ratio x the largest, or below min_snr x
     sigma_noise (a bump of a few counts is not a return); (3) centre outside
     [first, last]; (4) FWHM below min_width_factor or above max_width_factor x the
     pulse FWHM; then (2) of two echoes closer than min_separation_factor x the
-    pulse FWHM the weaker is spurious, so a weak early bump cannot knock out the
-    strong echo after it.
+    pulse FWHM one is spurious: the earlier is kept when its amplitude is at
+    least first_echo_ratio x the later's (an unresolved return is reported at its
+    first surface), otherwise the weaker, so a weak early bump cannot knock out
+    the strong echo after it. first_echo_ratio = 1 is the method's rule (the
+    weaker goes).
     """
     n = amplitude.size
     largest = 0.0
@@ -47,7 +51,7 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sig
         if reason[k] != KEPT:
             continue
         if previous >= 0 and position[k] - position[previous] < min_separation_factor * pulse_fwhm:
-            if amplitude[k] > amplitude[previous]:
+            if first_echo_ratio * amplitude[k] > amplitude[previous]:
                 reason[previous] = TOO_CLOSE
                 previous = k
             else:
@@ -59,7 +63,7 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sig
 def filter_echoes(amplitude, position, width, first: float, last: float, pulse_fwhm: float,
                   noise_sigma: float = 0.0, min_snr: float = 0.0, min_amplitude_ratio: float = 0.2,
                   min_separation_factor: float = 1.0, min_width_factor: float = 1.0,
-                  max_width_factor: float = 3.0) -> np.ndarray:
+                  max_width_factor: float = 3.0, first_echo_ratio: float = 1.0) -> np.ndarray:
     """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position."""
     amplitude = np.ascontiguousarray(amplitude, dtype=np.float64)
     position = np.ascontiguousarray(position, dtype=np.float64)
@@ -68,5 +72,6 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
     reason = np.zeros(amplitude.size, dtype=np.int8)
     mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
                   float(pulse_fwhm), float(noise_sigma), float(min_snr), float(min_amplitude_ratio),
-                  float(min_separation_factor), float(min_width_factor), float(max_width_factor), reason)
+                  float(min_separation_factor), float(min_width_factor), float(max_width_factor),
+                  float(first_echo_ratio), reason)
     return reason

@@ -67,6 +67,10 @@ def add_method_arguments(parser, compare: bool = False) -> None:
                    help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
     g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
     g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
+    g.add_argument("--raw-polish", dest="raw_polish", action=argparse.BooleanOptionalAction,
+                   help="LM refits the raw samples where the denoised fit fails the noise model there (default on)")
+    g.add_argument("--raw-polish-gate", dest="raw_polish_gate", type=float,
+                   help="chi^2 per degree of freedom on the raw samples above which the raw polish runs (1.5)")
     g.add_argument("--max-echoes", dest="max_echoes", type=int)
     g.add_argument("--select-echoes", dest="select_echoes", action=argparse.BooleanOptionalAction,
                    help="model-order selection: drop and add echoes by the BIC with LM refits (default on)")
@@ -74,6 +78,9 @@ def add_method_arguments(parser, compare: bool = False) -> None:
     g.add_argument("--shape-tolerance", dest="shape_tolerance", type=float,
                    help="relative departure of the pulse from the model that is not another echo (Leica: 0.06)")
     g.add_argument("--min-snr", dest="min_snr", type=float, help="echoes below this x sigma_noise are weak")
+    g.add_argument("--first-echo-ratio", dest="first_echo_ratio", type=float,
+                   help="of two echoes closer than the pulse width, the earlier stays when its amplitude is at "
+                        "least this share of the later's (default 1: the weaker goes; 0.35: the first surface)")
     g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)|")
     g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
     g.add_argument("--lm-tolerance", dest="lm_tolerance", type=float,

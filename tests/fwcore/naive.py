@@ -74,7 +74,7 @@ __all__ = ["SQRT_2LN2", "model_of_individual", "gaussian_smooth", "mde_generatio
 
 
 def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise, min_snr, min_ratio,
-                  min_separation, min_width, max_width) -> list[str]:
+                  min_separation, min_width, max_width, first_echo_ratio=1.0) -> list[str]:
     """The filter's rules, one echo at a time (echoes sorted by position)."""
     largest = max(amplitude, default=0.0)
     reasons = []
@@ -93,9 +93,10 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise, mi
     previous = None
     for k in kept:
         if previous is not None and position[k] - position[previous] < min_separation * pulse_fwhm:
-            weaker = previous if amplitude[k] > amplitude[previous] else k
-            reasons[weaker] = "too_close"
-            previous = k if weaker == previous else previous
+            # the earlier stays unless it is below first_echo_ratio x the later
+            dropped = previous if first_echo_ratio * amplitude[k] > amplitude[previous] else k
+            reasons[dropped] = "too_close"
+            previous = k if dropped == previous else previous
         else:
             previous = k
     return reasons

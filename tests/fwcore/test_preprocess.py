@@ -92,8 +92,23 @@ def test_filter_matches_the_naive_reference():
         n = int(rng.integers(1, 8))
         position = np.sort(rng.uniform(-5, 105, n))
         amplitude, width = rng.uniform(0, 100, n), rng.uniform(1, 25, n)
-        args = (0.0, 100.0, 8.0, 2.0, 4.0, 0.05, 1.0, 0.5, 3.0)
+        args = (0.0, 100.0, 8.0, 2.0, 4.0, 0.05, 1.0, 0.5, 3.0, float(rng.choice([1.0, 0.35, 0.6])))
         codes = filter_echoes(amplitude, position, width, *args[:3], noise_sigma=args[3], min_snr=args[4],
                               min_amplitude_ratio=args[5], min_separation_factor=args[6], min_width_factor=args[7],
-                              max_width_factor=args[8])
+                              max_width_factor=args[8], first_echo_ratio=args[9])
         assert [REJECT_REASONS[c] for c in codes] == naive.mark_spurious(amplitude, position, width, *args)
+
+
+def test_of_a_close_pair_the_first_stays_when_it_is_strong_enough():
+    from fwcore.filter import REJECT_REASONS, filter_echoes
+
+    # a shoulder at 40% of the stronger echo 5 samples later (pulse FWHM 8): one unresolved return
+    amplitude, position, width = np.array([40.0, 100.0]), np.array([50.0, 55.0]), np.array([8.0, 8.0])
+
+    def reasons(ratio):
+        codes = filter_echoes(amplitude, position, width, 0.0, 100.0, 8.0, first_echo_ratio=ratio)
+        return [REJECT_REASONS[c] for c in codes]
+
+    assert reasons(1.0) == ["too_close", ""]  # the method's rule: the weaker goes
+    assert reasons(0.35) == ["", "too_close"]  # the first surface
+    assert reasons(0.5) == ["too_close", ""]  # below half of the later: a bump, not a surface
