@@ -62,25 +62,22 @@ def repeated(pulses: PulseBatch, copies: int) -> PulseBatch:
         return_offsets=offsets(pulses.return_offsets))
 
 
-class PeakMemory:
-    """Largest total RSS of this process and its children (Beam's workers), sampled in a thread."""
+class Sampler:
+    """Calls `sample()` every `every` seconds in a thread while the `with` block runs."""
+
+    every = 0.2
 
     def __init__(self):
-        self.peak = 0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread = threading.Thread(target=self._loop, daemon=True)
 
-    def _sample(self):
-        me = psutil.Process()
+    def sample(self) -> None:
+        raise NotImplementedError
+
+    def _loop(self):
         while not self._stop.is_set():
-            total = 0
-            for p in [me, *me.children(recursive=True)]:
-                try:
-                    total += p.memory_info().rss
-                except psutil.Error:
-                    pass
-            self.peak = max(self.peak, total)
-            time.sleep(0.2)
+            self.sample()
+            time.sleep(self.every)
 
     def __enter__(self):
         self._thread.start()
@@ -89,6 +86,24 @@ class PeakMemory:
     def __exit__(self, *exc):
         self._stop.set()
         self._thread.join()
+
+
+class PeakMemory(Sampler):
+    """Largest total RSS of this process and its children (Beam's workers), sampled in a thread."""
+
+    def __init__(self):
+        super().__init__()
+        self.peak = 0
+        self._me = psutil.Process()
+
+    def sample(self):
+        total = 0
+        for p in [self._me, *self._me.children(recursive=True)]:
+            try:
+                total += p.memory_info().rss
+            except psutil.Error:
+                pass
+        self.peak = max(self.peak, total)
 
 
 def main() -> None:

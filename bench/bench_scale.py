@@ -27,12 +27,11 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pipeline import PeakMemory  # noqa: E402
+from bench_pipeline import PeakMemory, Sampler  # noqa: E402
 
 
 def fwl(*args: str) -> None:
@@ -40,26 +39,25 @@ def fwl(*args: str) -> None:
                    stderr=subprocess.DEVNULL)
 
 
-class RangeEnds:
+class RangeEnds(Sampler):
     """When each range's progress mark appears under the run's parts/ folder, and its pulses."""
 
-    def __init__(self, marks: Path):
-        self.marks, self.seen = marks, {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._watch, daemon=True)
+    every = 0.1
 
-    def _watch(self):
-        while not self._stop.is_set():
+    def __init__(self, marks: Path):
+        super().__init__()
+        self.marks, self.seen = marks, {}
+
+    def sample(self):
+        try:
+            names = [n for n in os.listdir(self.marks) if n.endswith(".json") and n not in self.seen]
+        except FileNotFoundError:
+            names = []
+        for name in names:
             try:
-                names = [n for n in os.listdir(self.marks) if n.endswith(".json") and n not in self.seen]
-            except FileNotFoundError:
-                names = []
-            for name in names:
-                try:
-                    self.seen[name] = (time.perf_counter(), int(json.loads((self.marks / name).read_text())["pulses"]))
-                except (OSError, ValueError):  # being written: next time
-                    pass
-            time.sleep(0.1)
+                self.seen[name] = (time.perf_counter(), int(json.loads((self.marks / name).read_text())["pulses"]))
+            except (OSError, ValueError):  # being written: next time
+                pass
 
     def steady_rate(self) -> float:
         """Pulses of all ranges but the first over the time between the first's end and the last's."""
@@ -67,15 +65,6 @@ class RangeEnds:
         if len(ends) < 2 or ends[-1][0] <= ends[0][0]:
             return float("nan")
         return sum(n for _, n in ends[1:]) / (ends[-1][0] - ends[0][0])
-
-    def __enter__(self):
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self._stop.set()
-        self._thread.join()
-
 
 def timed_run(las: Path, out: Path, method: list[str], extra: list[str]) -> tuple[float, float, float]:
     with PeakMemory() as memory, RangeEnds(out / "parts") as ends:
