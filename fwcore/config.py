@@ -9,9 +9,10 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+import operator
 import tomllib
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, get_type_hints
 
 
 class Optimizer(str, enum.Enum):
@@ -198,7 +199,7 @@ class DecompositionConfig:
         """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
         from fwcore.optimizers import OPTIMIZERS
 
-        return KernelParams(
+        return KernelParams.typed(
             method=OPTIMIZERS[self.optimizer].code, gaussian=self.model is Model.GAUSSIAN,
             fit_denoised=self.fit_target is FitTarget.DENOISED,
             robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
@@ -293,6 +294,14 @@ class KernelParams(NamedTuple):
     ga_iterative_r2: float
     ga_iterative_generations: int
     mde_gate: float
+
+    @classmethod
+    def typed(cls, **values: Any) -> "KernelParams":
+        """Each value as its field's type: numba compiles every kernel afresh for each tuple of argument
+        types, so min_snr=8 (an int from JSON or TOML) beside min_snr=8.0 would cost a second full compile."""
+        cast = {float: float, int: operator.index, bool: bool}  # index: an int setting of 2.5 stays an error
+        kinds = get_type_hints(cls)
+        return cls(**{name: cast[kinds[name]](values[name]) for name in cls._fields})
 
 
 # Named configurations (README, "Presets"): the defaults are the best we know.
