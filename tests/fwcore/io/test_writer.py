@@ -8,11 +8,22 @@ from fwcore.io import read_pulses
 from fwcore.io.reader import plan_point_ranges
 from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
+from fwcore.survey import file_system_pulse
 
 
 @pytest.fixture(scope="module")
 def leica(leica_dir):
     return read_pulses(leica_dir / "leica_a.las")
+
+
+@pytest.fixture(scope="module")
+def leica_result(leica, leica_dir):
+    """The sample decomposed once for the point-cloud tests, on its system pulse measured as `fwl run` measures
+    it (the default 4 ns pulse, a third of Leica's, makes every waveform a slow many-echo fit: 18 s, not 1)."""
+    pulse = file_system_pulse(leica_dir / "leica_a.las", len(leica.return_number), DecompositionConfig())
+    config = DecompositionConfig(generations=10, system_pulse_fwhm_ps=pulse.fwhm_ps,
+                                 shape_tolerance=pulse.shape_tolerance)
+    return decompose_batch(pulse_waveforms(leica, 0), config)
 
 
 def test_las13_wdp_round_trip(tmp_path, leica):
@@ -40,9 +51,8 @@ def test_las14_internal_packets_with_several_descriptors_round_trip(tmp_path, le
     np.testing.assert_array_equal(back.return_location_ps, leica.return_location_ps.astype(np.float32))
 
 
-def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
-    pulses = leica
-    result = decompose_batch(pulse_waveforms(pulses, 0), DecompositionConfig(generations=10))
+def test_decomposed_point_cloud(tmp_path, leica, leica_dir, leica_result):
+    pulses, result = leica, leica_result
     echoes = decomposed_echoes(pulses, result)
     path = write_point_cloud(tmp_path / "cloud.laz", leica_dir / "leica_a.las", echoes)
     las = laspy.read(path)
@@ -67,7 +77,7 @@ def test_decomposed_point_cloud(tmp_path, leica, leica_dir):
     assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
 
 
-def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica, leica_dir):
+def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica, leica_dir, leica_result):
     import struct
 
     las = laspy.read(leica_dir / "leica_a.las")
@@ -76,8 +86,7 @@ def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica
     las.header.vlrs.append(laspy.VLR("LASF_Projection", 34735, "GeoKeyDirectoryTag", keys))
     template = tmp_path / "utm32.las"
     las.write(template)
-    result = decompose_batch(pulse_waveforms(leica, 0), DecompositionConfig(generations=2))
-    path = write_point_cloud(tmp_path / "cloud.las", template, decomposed_echoes(leica, result))
+    path = write_point_cloud(tmp_path / "cloud.las", template, decomposed_echoes(leica, leica_result))
     back = laspy.read(path)
     assert back.header.global_encoding.wkt
     wkt = [v for v in back.header.vlrs if v.record_id == 2112]

@@ -17,7 +17,9 @@ def high_snr_run(tmp_path_factory):
     work = tmp_path_factory.mktemp("sim")
     las = work / "sim.las"
     assert main(["simulate", "--pulses", "400", "--seed", "4", "--output", str(las), *HIGH_SNR]) == 0
-    assert main(["run", str(las), "--output", str(work / "run"), "--formats", "parquet"]) == 0
+    # in process: the study reads the run's rows, which do not depend on the runner (a worker pool costs 4 s)
+    assert main(["run", str(las), "--output", str(work / "run"), "--formats", "parquet",
+                 "--direct_num_workers=1", "--direct_running_mode=in_memory"]) == 0
     return work
 
 
