@@ -34,6 +34,7 @@ class PulseOwnership:
     straying: np.ndarray  # points whose pulse another range owns, in point order
     stray_owner: np.ndarray  # the range that owns each straying point's pulse
     descriptor_points: np.ndarray  # points per descriptor index (256: LAS's index is one byte)
+    descriptor_pulses: np.ndarray  # pulses (distinct packets) per descriptor index
 
 
 def pulse_ownership(key_chunks: Iterable[tuple[int, np.ndarray]], n_points: int, points_per_range: int,
@@ -42,7 +43,7 @@ def pulse_ownership(key_chunks: Iterable[tuple[int, np.ndarray]], n_points: int,
     point order as (first point, keys); a key < 0 is a point without a packet, part of no pulse."""
     n_ranges = -(-n_points // points_per_range)
     bits = math.ceil(math.log2(n_points / bucket_points)) if n_points > bucket_points else 0
-    descriptor_points = np.zeros(256, np.int64)
+    descriptor_points, descriptor_pulses = np.zeros(256, np.int64), np.zeros(256, np.int64)
     pulses_per_range = np.zeros(n_ranges, np.int64)
     straying, stray_owner = [], []
     with _KeyBuckets(bits) as buckets:
@@ -51,19 +52,22 @@ def pulse_ownership(key_chunks: Iterable[tuple[int, np.ndarray]], n_points: int,
             descriptor_points += np.bincount(keys[has_packet] >> KEY_SHIFT, minlength=256)[:256]
             buckets.add(keys[has_packet], first + np.flatnonzero(has_packet))
         for keys, points in buckets:
-            owner_of_pulse, away, away_owner = _owners(keys, points, points_per_range)
+            pulse_keys, owner_of_pulse, away, away_owner = _owners(keys, points, points_per_range)
             pulses_per_range += np.bincount(owner_of_pulse, minlength=n_ranges)
+            descriptor_pulses += np.bincount(pulse_keys >> KEY_SHIFT, minlength=256)[:256]
             straying.append(away)
             stray_owner.append(away_owner)
     straying = np.concatenate(straying) if straying else np.zeros(0, np.int64)
     stray_owner = np.concatenate(stray_owner) if stray_owner else np.zeros(0, np.int64)
     by_point = np.argsort(straying, kind="stable")
-    return PulseOwnership(pulses_per_range, straying[by_point], stray_owner[by_point], descriptor_points)
+    return PulseOwnership(pulses_per_range, straying[by_point], stray_owner[by_point], descriptor_points,
+                          descriptor_pulses)
 
 
 def _owners(keys: np.ndarray, points: np.ndarray, points_per_range: int
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For points in point order: each pulse's owner, and the points another range owns, with that range."""
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For points in point order: each pulse's key and owner, and the points another range owns, with that
+    range."""
     order = np.argsort(keys, kind="stable")  # the points of one pulse together, first point first
     keys, points = keys[order], points[order]
     new_pulse = np.empty(keys.size, dtype=bool)
@@ -73,7 +77,7 @@ def _owners(keys: np.ndarray, points: np.ndarray, points_per_range: int
     owner_of_pulse = points[first] // points_per_range
     owner = np.repeat(owner_of_pulse, np.diff(np.append(first, keys.size)))
     away = owner != points // points_per_range
-    return owner_of_pulse, points[away], owner[away]
+    return keys[first], owner_of_pulse, points[away], owner[away]
 
 
 class _KeyBuckets:

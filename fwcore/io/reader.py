@@ -29,7 +29,6 @@ from fwcore.io.packets import PacketStore, external_packet_file, lastools_compre
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 LOG = logging.getLogger("fwl")
-_KEY_SHIFT = KEY_SHIFT
 MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
 MAX_GPS_TIME_S = 2e9  # adjusted standard GPS time spans 1980-2043 within +-1e9 s; week time < 604800 s
 _OFFSET_MASK = np.int64((1 << 48) - 1)
@@ -193,24 +192,23 @@ class _Points:
             raise WaveformFileError(f"{self.wf.path}: point records {start}..{stop} cannot be read "
                                     f"({type(err).__name__}: {err})") from None
 
-    def packet_key_chunks(self, chunk_points: int = 1_000_000) -> Iterator[tuple[int, np.ndarray]]:
-        """(first point, packet keys) chunk by chunk; uncompressed records are read, not mapped, so that a
+    def chunks(self, chunk_points: int = 1_000_000) -> Iterator[tuple[int, np.ndarray]]:
+        """(first point, point records) chunk by chunk; uncompressed records are read, not mapped, so that a
         pass over the whole file never keeps it resident."""
         header = self.reader.header
         for at in range(0, self.wf.point_count, chunk_points):
             stop = min(self.wf.point_count, at + chunk_points)
             if self.data is not None:
-                rows = np.fromfile(self.wf.path, dtype=self.data.dtype, count=stop - at,
-                                   offset=header.offset_to_point_data + at * self.data.dtype.itemsize)
+                yield at, np.fromfile(self.wf.path, dtype=self.data.dtype, count=stop - at,
+                                      offset=header.offset_to_point_data + at * self.data.dtype.itemsize)
             else:
-                rows = self.read(at, stop).array
-            yield at, _packet_keys(rows)
+                yield at, self.read(at, stop).array
 
 
 def _packet_keys(points) -> np.ndarray:
     index = np.asarray(points["wavepacket_index"]).astype(np.int64)
     offset = np.asarray(points["wavepacket_offset"]).astype(np.int64)
-    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << _KEY_SHIFT) | offset, -1)
+    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << KEY_SHIFT) | offset, -1)
 
 
 # ---------------------------------------------------------------- plan
@@ -231,7 +229,8 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, chunk_po
     if n == 0:
         return [PointRange(str(path), 0, 0, n_pulses=0, problems=wf.problems)] if wf.problems else []
     with _Points(wf) as points:
-        owned = pulse_ownership(points.packet_key_chunks(chunk_points), n, points_per_range, bucket_points)
+        key_chunks = ((at, _packet_keys(rows)) for at, rows in points.chunks(chunk_points))
+        owned = pulse_ownership(key_chunks, n, points_per_range, bucket_points)
     _warn_unusable(wf, owned.descriptor_points)
     straying, stray_owner = owned.straying, owned.stray_owner
     by_owner = np.argsort(stray_owner, kind="stable")  # each range's extra points, in point order
@@ -327,7 +326,7 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     direction = np.stack([_field(points, c)[anchors] for c in ("x_t", "y_t", "z_t")], axis=1)
     location = _field(points, "return_point_wave_location")[anchors]
     pulse_id = pulse_identity(gps_time, xyz[anchors])
-    d_index = (pulse_keys >> _KEY_SHIFT).astype(np.int64)
+    d_index = (pulse_keys >> KEY_SHIFT).astype(np.int64)
     byte_offset = pulse_keys & _OFFSET_MASK
     sizes = _field(points, "wavepacket_size", np.int64)[anchors]
 

@@ -45,6 +45,7 @@ def test_bucketed_ownership_is_the_definition(bucket_points):
     assert straying.size > 100  # the shuffle did scatter pulses over ranges
     has = keys >= 0
     np.testing.assert_array_equal(owned.descriptor_points[:4], np.bincount(keys[has] >> 48, minlength=4))
+    np.testing.assert_array_equal(owned.descriptor_pulses[:4], np.bincount(np.unique(keys[has]) >> 48, minlength=4))
 
 
 def test_planning_in_buckets_gives_the_same_ranges(tmp_path, leica_dir, monkeypatch):
