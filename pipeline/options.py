@@ -179,6 +179,25 @@ def check_beam_args(beam_args: list[str], ours: Iterable[str] = ()) -> PipelineO
     return options
 
 
+def pipeline_runner(options: PipelineOptions):
+    """The runner object to give beam.Pipeline: for the DirectRunner, the FnApiRunner it runs our pipeline on
+    when Prism is unavailable; None lets Beam resolve any other runner by its name.
+
+    Beam 2.77's DirectRunner first tries Prism, a Go binary it downloads from GitHub at each run: offline that
+    fails in a moment, online it would run the job on another engine than the one we test (its own workers and
+    logging, after a download). Built as the DirectRunner builds it, with the options for the SDK workers.
+    """
+    runner = options.view_as(StandardOptions).runner
+    if not (isinstance(runner, str) and runner.rsplit(".", 1)[-1] == "DirectRunner"):
+        return None
+    from apache_beam.portability.api import beam_provision_api_pb2
+    from apache_beam.runners.portability.fn_api_runner import fn_runner
+    from apache_beam.runners.portability.portable_runner import JobServiceHandle
+    encoded = JobServiceHandle.encode_pipeline_options(options.get_all_options())
+    provision = fn_runner.ExtendedProvisionInfo(beam_provision_api_pb2.ProvisionInfo(pipeline_options=encoded))
+    return fn_runner.FnApiRunner(provision_info=provision)
+
+
 def is_dask(options: PipelineOptions) -> bool:
     runner = options.view_as(StandardOptions).runner
     return isinstance(runner, str) and runner.endswith("DaskRunner")

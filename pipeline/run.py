@@ -26,7 +26,7 @@ import pyarrow.parquet as pq
 
 import fwcore
 from fwcore.config import DecompositionConfig
-from pipeline.options import check_beam_args, is_dask
+from pipeline.options import check_beam_args, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete,
                               list_outputs, read_run, remove_partial_files, take_output_folder, write_run_json)
 from pipeline.plan import plan_inputs, planned_pulses
@@ -223,7 +223,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 say.flush()
             if tasks:
-                pipeline = beam.Pipeline(options=options)
+                pipeline = beam.Pipeline(runner=pipeline_runner(options), options=options)
                 (pipeline | "Ranges" >> beam.Create(tasks)
                  | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask))
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,

@@ -8,7 +8,8 @@ import laspy
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
-from fwcore.io.reader import _KEY_SHIFT, _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
+from fwcore.io.ownership import pulse_ownership
+from fwcore.io.reader import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
 
 
 def crs_name(wkt: str | None) -> str | None:
@@ -31,23 +32,23 @@ def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
     wf = open_waveform_file(path)
     with laspy.open(path) as reader:
         header = reader.header
-    keys = np.zeros(0, np.int64)
-    t_min = t_max = None
-    if wf.point_count:
-        with _Points(wf) as points:
-            parts, times = [], []
-            for at in range(0, wf.point_count, chunk_points):
-                stop = min(wf.point_count, at + chunk_points)
-                chunk = points.data[at:stop] if points.data is not None else points.read(at, stop).array
-                parts.append(_packet_keys(chunk))
-                times.append(np.asarray(chunk["gps_time"]))
-            keys = np.concatenate(parts)
-            gps = np.concatenate(times)
-            finite = gps[np.isfinite(gps)]
-            if finite.size:
-                t_min, t_max = float(finite.min()), float(finite.max())
-    pulses = np.unique(keys[keys >= 0])
-    per_descriptor = dict(zip(*[a.tolist() for a in np.unique(pulses >> _KEY_SHIFT, return_counts=True)]))
+    seen = {"gps": [np.inf, -np.inf], "offset": -1}
+
+    def key_chunks(points):  # the pass also finds the GPS time range and the largest packet offset
+        for at, rows in points.chunks(chunk_points):
+            keys = _packet_keys(rows)
+            gps = np.asarray(rows["gps_time"])
+            gps = gps[np.isfinite(gps)]
+            if gps.size:
+                seen["gps"] = [min(seen["gps"][0], gps.min()), max(seen["gps"][1], gps.max())]
+            if (keys >= 0).any():
+                seen["offset"] = max(seen["offset"], int((keys[keys >= 0] & _OFFSET_MASK).max()))
+            yield at, keys
+
+    with _Points(wf) as points:  # one pulse per distinct packet, counted in bounded memory
+        owned = pulse_ownership(key_chunks(points), wf.point_count, max(1, wf.point_count))
+    t_min, t_max = (float(t) for t in seen["gps"]) if np.isfinite(seen["gps"][0]) else (None, None)
+    per_descriptor = {i: int(c) for i, c in enumerate(owned.descriptor_pulses) if c}
     descriptors = [{"index": d.index, "bits": d.bits_per_sample, "samples": d.n_samples,
                     "spacing_ps": d.sample_spacing_ps, "gain": d.gain, "offset": d.offset,
                     "compression": d.compression, "pulses": int(per_descriptor.get(d.index, 0)),
@@ -69,8 +70,8 @@ def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
         "generating_software": header.generating_software,
         "points": wf.header_point_count,
         "points_present": wf.point_count,
-        "pulses": int(pulses.size),
-        "points_without_packet": int((keys < 0).sum()),
+        "pulses": int(owned.descriptor_pulses.sum()),
+        "points_without_packet": int(wf.point_count - owned.descriptor_points.sum()),
         "descriptors": descriptors,
         "descriptors_missing": [{"index": int(i), "pulses": int(per_descriptor[i])} for i in missing],
         "packets": storage,
@@ -80,7 +81,7 @@ def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
                      "type": "adjusted standard GPS time" if header.global_encoding.gps_time_type
                      else "GPS week seconds"},
         "problems": list(wf.problems),
-        "largest_packet_offset": int((keys[keys >= 0] & _OFFSET_MASK).max()) if (keys >= 0).any() else None,
+        "largest_packet_offset": seen["offset"] if seen["offset"] >= 0 else None,
     }
 
 

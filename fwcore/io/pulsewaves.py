@@ -536,12 +536,12 @@ def plan_pulse_ranges(path: str | Path, pulses_per_range: int = 10_000) -> list[
             for start in range(0, n, pulses_per_range)]
 
 
-def _warn_unusable(pw: PulseWavesFile) -> None:
-    descriptor = np.asarray(pw.records()["descriptor"]) if pw.point_count else np.zeros(0, np.uint8)
-    index, n = np.unique(descriptor, return_counts=True)
-    used = dict(zip(index.tolist(), n.tolist()))
+def _warn_unusable(pw: PulseWavesFile, chunk_pulses: int = 1_000_000) -> None:
+    used = np.zeros(256, np.int64)  # pulses per descriptor index, a chunk at a time: memory bounded
+    for at in range(0, pw.point_count, chunk_pulses):
+        used += np.bincount(np.asarray(pw.records(at, at + chunk_pulses)["descriptor"]), minlength=256)[:256]
     for d in sorted(pw.descriptors.values(), key=lambda d: d.index):
-        if d.problem and d.index in used:
+        if d.problem and used[d.index]:
             LOG.warning("%s: %s: its %d pulses are rejected", pw.path.name, d.problem, used[d.index])
 
 

@@ -17,17 +17,18 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Iterator
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 from fwcore.io.descriptors import WaveformDescriptor, read_descriptors
+from fwcore.io.ownership import BUCKET_POINTS, KEY_SHIFT, pulse_ownership
 from fwcore.io.packets import PacketStore, external_packet_file, lastools_compression
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 LOG = logging.getLogger("fwl")
-_KEY_SHIFT = np.int64(48)  # key = descriptor index << 48 | byte offset
 MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
 MAX_GPS_TIME_S = 2e9  # adjusted standard GPS time spans 1980-2043 within +-1e9 s; week time < 604800 s
 _OFFSET_MASK = np.int64((1 << 48) - 1)
@@ -191,34 +192,34 @@ class _Points:
             raise WaveformFileError(f"{self.wf.path}: point records {start}..{stop} cannot be read "
                                     f"({type(err).__name__}: {err})") from None
 
-    def packet_keys(self, chunk_points: int = 1_000_000) -> np.ndarray:
-        n = self.wf.point_count
-        keys = np.empty(n, dtype=np.int64)
-        for at in range(0, n, chunk_points):
-            stop = min(n, at + chunk_points)
+    def chunks(self, chunk_points: int = 1_000_000) -> Iterator[tuple[int, np.ndarray]]:
+        """(first point, point records) chunk by chunk; uncompressed records are read, not mapped, so that a
+        pass over the whole file never keeps it resident."""
+        header = self.reader.header
+        for at in range(0, self.wf.point_count, chunk_points):
+            stop = min(self.wf.point_count, at + chunk_points)
             if self.data is not None:
-                keys[at:stop] = _packet_keys(self.data[at:stop])
+                yield at, np.fromfile(self.wf.path, dtype=self.data.dtype, count=stop - at,
+                                      offset=header.offset_to_point_data + at * self.data.dtype.itemsize)
             else:
-                keys[at:stop] = _packet_keys(self.read(at, stop).array)
-        return keys
+                yield at, self.read(at, stop).array
 
 
 def _packet_keys(points) -> np.ndarray:
     index = np.asarray(points["wavepacket_index"]).astype(np.int64)
     offset = np.asarray(points["wavepacket_offset"]).astype(np.int64)
-    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << _KEY_SHIFT) | offset, -1)
+    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << KEY_SHIFT) | offset, -1)
 
 
 # ---------------------------------------------------------------- plan
 
-def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
-                      chunk_points: int = 1_000_000) -> list[PointRange]:
+def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, chunk_points: int = 1_000_000,
+                      bucket_points: int = BUCKET_POINTS) -> list[PointRange]:
     """Split a file into point ranges so that every pulse belongs to exactly one.
 
-    One streaming pass reads the packet keys (8 bytes per point); memory grows
-    with the point count only here, never in the readers of the ranges. The
-    file's problems (points the header promises but the file lacks) travel
-    with the first range, which reports them.
+    One streaming pass reads the packet keys; `pulse_ownership` finds each pulse's owner in memory bounded
+    by `chunk_points` and `bucket_points`, whatever the file's size. The file's problems (points the header
+    promises but the file lacks) travel with the first range, which reports them.
     """
     path = Path(path)
     wf = open_waveform_file(path)
@@ -228,59 +229,31 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000,
     if n == 0:
         return [PointRange(str(path), 0, 0, n_pulses=0, problems=wf.problems)] if wf.problems else []
     with _Points(wf) as points:
-        keys = points.packet_keys(chunk_points)
-    _warn_unusable(wf, keys)
-    starts = np.arange(0, n, points_per_range)
-    pulses_per_range, straying, stray_owner = pulse_owners(keys, points_per_range)
-    del keys
+        key_chunks = ((at, _packet_keys(rows)) for at, rows in points.chunks(chunk_points))
+        owned = pulse_ownership(key_chunks, n, points_per_range, bucket_points)
+    _warn_unusable(wf, owned.descriptor_points)
+    straying, stray_owner = owned.straying, owned.stray_owner
+    by_owner = np.argsort(stray_owner, kind="stable")  # each range's extra points, in point order
+    owner_bounds = np.searchsorted(stray_owner[by_owner], np.arange(len(owned.pulses_per_range) + 1))
     ranges = []
-    for r, start in enumerate(starts):
+    for r, start in enumerate(range(0, n, points_per_range)):
         stop = min(n, start + points_per_range)
-        extra = tuple(int(p) for p in straying[stray_owner == r])
-        foreign = tuple(int(p) for p in straying[(straying >= start) & (straying < stop)])
-        ranges.append(PointRange(str(path), int(start), int(stop), extra, foreign, int(pulses_per_range[r]),
+        extra = tuple(int(p) for p in straying[by_owner[owner_bounds[r]:owner_bounds[r + 1]]])
+        foreign = tuple(int(p) for p in straying[np.searchsorted(straying, start):np.searchsorted(straying, stop)])
+        ranges.append(PointRange(str(path), start, stop, extra, foreign, int(owned.pulses_per_range[r]),
                                  problems=wf.problems if r == 0 else ()))
     return ranges
 
 
-def pulse_owners(keys: np.ndarray, points_per_range: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each pulse (packet key >= 0) belongs to the range of its first point: the pulses of each range, and
-    the points whose pulse belongs to another range (point order) with that range.
-
-    One stable sort of the keys groups each pulse's points in point order: planning a 1M-pulse flight
-    peaked ~95 bytes a point, the file's memory map included, against 126 with np.unique and its index
-    and inverse (2.4 GB for a flight of 10M pulses).
-    """
-    n_ranges = -(-keys.size // points_per_range)
-    order = np.argsort(keys, kind="stable")  # points of one pulse together, first point first
-    sorted_keys = keys[order]
-    start = int(np.searchsorted(sorted_keys, 0))  # points without a packet sort first (-1)
-    order = order[start:]
-    new_pulse = np.empty(order.size, dtype=bool)
-    new_pulse[:1] = True
-    np.not_equal(sorted_keys[start + 1:], sorted_keys[start:-1], out=new_pulse[1:])
-    del sorted_keys
-    first = np.flatnonzero(new_pulse)  # where each pulse's points begin in `order`
-    del new_pulse
-    owner_of_pulse = order[first] // points_per_range
-    owner = np.repeat(owner_of_pulse, np.diff(np.append(first, order.size)))
-    away = owner != order // points_per_range
-    straying, stray_owner = order[away], owner[away]
-    by_point = np.argsort(straying, kind="stable")
-    return (np.bincount(owner_of_pulse, minlength=n_ranges), straying[by_point], stray_owner[by_point])
-
-
-def _warn_unusable(wf: WaveformFile, keys: np.ndarray) -> None:
+def _warn_unusable(wf: WaveformFile, descriptor_points: np.ndarray) -> None:
     """One warning per unusable descriptor that pulses use, one line for all the unused ones."""
     bad = unusable_descriptors(wf)
     if not bad:
         return
-    index, points = np.unique(keys[keys >= 0] >> _KEY_SHIFT, return_counts=True)
-    used = dict(zip(index.tolist(), points.tolist()))
     for d, reason in bad.items():
-        if d in used:
-            LOG.warning("%s: its %d points' pulses are rejected", reason, used[d])
-    unused = [d for d in bad if d not in used]
+        if descriptor_points[d]:
+            LOG.warning("%s: its %d points' pulses are rejected", reason, descriptor_points[d])
+    unused = [d for d in bad if not descriptor_points[d]]
     if unused:
         LOG.warning("%s: %d unusable waveform descriptors are not used by any point (%s)", wf.path.name,
                     len(unused), _ranges_text(unused))
@@ -353,7 +326,7 @@ def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = 
     direction = np.stack([_field(points, c)[anchors] for c in ("x_t", "y_t", "z_t")], axis=1)
     location = _field(points, "return_point_wave_location")[anchors]
     pulse_id = pulse_identity(gps_time, xyz[anchors])
-    d_index = (pulse_keys >> _KEY_SHIFT).astype(np.int64)
+    d_index = (pulse_keys >> KEY_SHIFT).astype(np.int64)
     byte_offset = pulse_keys & _OFFSET_MASK
     sizes = _field(points, "wavepacket_size", np.int64)[anchors]
 
