@@ -2,19 +2,21 @@
 
     ReadTasks (planned on the driver) -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
         -> RangeParts -> GroupByFile -> AssembleFile -> Done
-    any stage -> Rejection -> DeadLetter -> rejected/<stem>-<range>.parquet -> Done
+    any stage -> Rejection -> (the range's end, in RangeStages) rejected/<stem>-<range>.parquet
 
 One dead-letter path: a stage hands on its record or Rejections, and an
 exception in a stage turns its range into Rejections with the reason. Beam
 2.77's Dask runner hands the consumer of a tagged output every output of the
 ParDo (its ParDo collects all tags into one bag, and a tagged PCollection maps
 to its producer's bag), so Rejections travel in the main stream: `_Stage`,
-the base of every stage, passes them on, and `DeadLetter` splits them off
-once, by type. All sinks join in one last step because that runner computes
-only the graph's last step. The four stages of a range run in one ParDo,
-`RangeStages`, so that only the small records that leave a range (RangePart,
-Rejection) are a ParDo's outputs: that runner keeps every output of a ParDo
-in the task that made it until the whole job ends (8 MB a range otherwise).
+the base of every stage, passes them on, and `RangeStages` splits them off
+once, by type, at the range's end. The four stages of a range run in one
+ParDo, `RangeStages`, so that only the small record that leaves a range (its
+RangePart) is a ParDo's output: that runner keeps every output of a ParDo in
+the task that made it until the whole job ends (8 MB a range otherwise). A
+range's rejections are all made in that one call, so they are written there,
+one file per range, without a GroupByKey (on that runner a task shuffle whose
+tasks grow as ranges x log(ranges), kept by the scheduler and workers).
 """
 
 from __future__ import annotations
@@ -274,8 +276,15 @@ class WriteRange(_Stage):
 
 # ---------------------------------------------------------------- a range, all stages
 
+def write_rejections(output: str, task: ReadTask, rows: list[Rejection]) -> Path:
+    """A range's Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
+    rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
+    table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+    return write_part(table, Path(output) / "rejected", part_name(task.source.stem, task.start))
+
+
 class RangeStages(beam.DoFn):
-    """ReadTask -> RangePart and Rejections: each range through the stages in turn, in one ParDo.
+    """ReadTask -> RangePart: each range through the stages in turn, in one ParDo; its Rejections to rejected/.
 
     Beam 2.77's Dask runner collects a ParDo's outputs in a receiver that is an argument of the
     partition's task, and a worker keeps the arguments of a finished task until every task after it,
@@ -283,8 +292,8 @@ class RangeStages(beam.DoFn):
     stayed in the workers for the whole run. Here they are released as soon as the range is written.
     """
 
-    def __init__(self, *stages: _Stage):
-        self.stages = stages
+    def __init__(self, output: str, *stages: _Stage):
+        self.output, self.stages = output, stages
 
     def setup(self):
         for stage in self.stages:
@@ -294,7 +303,10 @@ class RangeStages(beam.DoFn):
         items = [task]
         for stage in self.stages:
             items = [out for item in items for out in stage.process(item)]
-        yield from items
+        rejected = [e for e in items if isinstance(e, Rejection)]  # the one place where the dead letter leaves
+        if rejected:
+            write_rejections(self.output, task, rejected)
+        yield from (e for e in items if not isinstance(e, Rejection))
 
 
 # ---------------------------------------------------------------- per file
@@ -324,24 +336,6 @@ class AssembleFiles(beam.PTransform):
 
 
 @dataclasses.dataclass
-class DeadLetter(beam.PTransform):
-    """Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
-
-    output: str
-
-    def expand(self, rejected):
-        def write(item):
-            (stem, start), rows = item
-            rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
-            table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-            write_part(table, Path(self.output) / "rejected", part_name(stem, start))
-            return stem, len(rows)
-
-        return (rejected | "KeyByRange" >> beam.Map(lambda r: ((r.stem, r.range_start), r))
-                | "GroupByRange" >> beam.GroupByKey() | "Write" >> beam.Map(write))
-
-
-@dataclasses.dataclass
 class DecomposeFlight(beam.PTransform):
     """The whole dataflow, from planned ranges to written outputs."""
 
@@ -354,16 +348,13 @@ class DecomposeFlight(beam.PTransform):
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        out = tasks | "RangeStages" >> beam.ParDo(RangeStages(
+        parts = tasks | "RangeStages" >> beam.ParDo(RangeStages(
+            self.output,
             ReadRange(self.output),
             Decompose(self.output, self.config),
             Geolocate(self.output, "mcap" in self.formats),
             WriteRange(self.output, self.formats)))
-        written = [out | "Rejected" >> beam.Filter(lambda e: isinstance(e, Rejection))
-                   | "DeadLetter" >> DeadLetter(self.output)]
-        if self.formats & {"las", "mcap"}:
-            written.append(out | "Parts" >> beam.Filter(lambda e: isinstance(e, RangePart))
-                           | "AssembleFiles" >> AssembleFiles(self.output, self.laz))
-        # the last step joins every sink; a Flatten, not a global combine, whose empty-input default is
-        # a side input that the Dask runner computes as a nested job inside one worker's task
-        return tuple(written) | "Done" >> beam.Flatten()
+        if not self.formats & {"las", "mcap"}:
+            return parts
+        return parts | "AssembleFiles" >> AssembleFiles(self.output, self.laz)
+

@@ -93,7 +93,7 @@ def test_range_stages_in_one_pardo_give_what_the_four_pardos_give(tmp_path, leic
         for i, stage in enumerate(_stages(chained, config)):
             out = out | f"Stage{i}" >> beam.ParDo(stage)
         assert_that(out | "Chained" >> beam.Map(_summary), equal_to(expected), label="chained")
-        together = p | "Tasks2" >> beam.Create(tasks) | beam.ParDo(RangeStages(*_stages(one, config)))
+        together = p | "Tasks2" >> beam.Create(tasks) | beam.ParDo(RangeStages(one, *_stages(one, config)))
         assert_that(together | "One" >> beam.Map(_summary), equal_to(expected), label="one")
     for start in (0, 400, 800):
         name = f"leica_a-{start:012d}.parquet"
@@ -102,13 +102,18 @@ def test_range_stages_in_one_pardo_give_what_the_four_pardos_give(tmp_path, leic
     assert sum(pq.read_table(p).num_rows for p in (Path(one) / "pulses").glob("*.parquet")) == 924
 
 
-def test_range_stages_pass_a_failed_range_on_as_rejections(tmp_path, leica_dir):
+def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_path, leica_dir):
     for suffix in (".las", ".wdp"):
         shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"gone{suffix}")
     config = DecompositionConfig(generations=3)
     tasks, _ = plan_inputs([str(tmp_path / "gone.las")], config, 600)
     (tmp_path / "gone.wdp").unlink()  # after planning: reading the range fails, the later stages pass it on
+    out = str(tmp_path / "out")
     with TestPipeline() as p:
-        out = p | beam.Create(tasks) | beam.ParDo(RangeStages(*_stages(str(tmp_path / "out"), config)))
-        assert_that(out | beam.Map(lambda r: (type(r).__name__, r.range_start, r.pulse_id, r.stage)),
-                    equal_to([("Rejection", 0, -1, "read"), ("Rejection", 600, -1, "read")]))
+        parts = p | beam.Create(tasks) | beam.ParDo(RangeStages(out, *_stages(out, config)))
+        assert_that(parts, equal_to([]))  # nothing of these ranges was written but their rejections
+    written = sorted((tmp_path / "out" / "rejected").glob("*.parquet"))
+    assert [f.name for f in written] == ["gone-000000000000.parquet", "gone-000000000600.parquet"]
+    rows = [pq.read_table(f).to_pylist() for f in written]
+    assert [[(r["source_file"], r["pulse_id"], r["stage"], r["reason"].split(":")[0]) for r in t] for t in rows] == \
+        [[("gone.las", -1, "read", "points 0-600 (500 pulses)")], [("gone.las", -1, "read", "points 600-1125 (424 pulses)")]]
