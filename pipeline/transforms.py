@@ -1,7 +1,8 @@
 """The Beam transforms: each stage a few lines over a fwcore function.
 
     ReadTasks (planned on the driver) -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
-        -> RangeParts -> GroupByFile -> AssembleFile -> Done
+        -> RangeParts -> GroupByFile -> assemble_file
+        (on Dask the RangeParts end the job; a second job: written_parts -> assemble_file)
     any stage -> Rejection -> (the range's end, in RangeStages) rejected/<stem>-<range>.parquet
 
 One dead-letter path: a stage hands on its record or Rejections, and an
@@ -16,7 +17,8 @@ RangePart) is a ParDo's output: that runner keeps every output of a ParDo in
 the task that made it until the whole job ends (8 MB a range otherwise). A
 range's rejections are all made in that one call, so they are written there,
 one file per range, without a GroupByKey (on that runner a task shuffle whose
-tasks grow as ranges x log(ranges), kept by the scheduler and workers).
+tasks grow as ranges x log(ranges), kept by the scheduler and workers); for
+the same reason, on that runner the files are assembled in a second job.
 """
 
 from __future__ import annotations
@@ -311,28 +313,46 @@ class RangeStages(beam.DoFn):
 
 # ---------------------------------------------------------------- per file
 
+def assemble_file(item: tuple[str, list[RangePart]], output: str, laz: bool) -> str:
+    """One input's RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in
+    range order; the parts are removed once in the file."""
+    stem, ranges = item
+    ranges = sorted(ranges, key=lambda r: r.range_start)
+    las = [Path(r.las) for r in ranges if r.las]
+    mcap = [Path(r.mcap) for r in ranges if r.mcap]
+    if las:
+        assemble_las(las, Path(output) / "las" / f"{stem}{'.laz' if laz else '.las'}", laz)
+    if mcap:
+        assemble_mcap(mcap, Path(output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
+    remove_parts(las + mcap)
+    return stem
+
+
+def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -> list[tuple[str, list[RangePart]]]:
+    """After the ranges' job, each input's RangeParts as the files under parts/ show them (a range is written
+    whole or not at all, and the output folder held no parts before the run), in plan order."""
+    files: dict[str, list[RangePart]] = {}
+    for task in tasks:
+        name, parts = part_name(task.source.stem, task.start), Path(output) / PARTS
+        las, mcap = parts / f"{name}.las", parts / f"{name}.mcap"
+        las = str(las) if "las" in formats and las.exists() else ""
+        mcap = str(mcap) if "mcap" in formats and mcap.exists() else ""
+        if las or mcap:
+            files.setdefault(task.source.stem, []).append(RangePart(
+                task.source.stem, task.source.path, task.start, las, mcap, task.source.adjusted_standard_gps_time))
+    return list(files.items())
+
+
 @dataclasses.dataclass
 class AssembleFiles(beam.PTransform):
-    """RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in range order."""
+    """RangeParts -> each input's point cloud and MCAP (assemble_file), the parts grouped by input."""
 
     output: str
     laz: bool = False
 
     def expand(self, parts):
-        def assemble(item):
-            stem, ranges = item
-            ranges = sorted(ranges, key=lambda r: r.range_start)
-            las = [Path(r.las) for r in ranges if r.las]
-            mcap = [Path(r.mcap) for r in ranges if r.mcap]
-            if las:
-                assemble_las(las, Path(self.output) / "las" / f"{stem}{'.laz' if self.laz else '.las'}", self.laz)
-            if mcap:
-                assemble_mcap(mcap, Path(self.output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
-            remove_parts(las + mcap)
-            return stem
-
         return (parts | "KeyByFile" >> beam.Map(lambda p: (p.stem, p))
-                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble))
+                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble_file, self.output, self.laz))
 
 
 @dataclasses.dataclass
@@ -344,6 +364,9 @@ class DecomposeFlight(beam.PTransform):
     formats: frozenset[str]
     laz: bool = False
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
+    # False: end at the RangeParts, for a second job of written_parts -> assemble_file (see run.py: on the
+    # Dask runner a GroupByKey is a task shuffle whose tasks, ranges x log(ranges), the cluster holds to the end)
+    assemble: bool = True
 
     def expand(self, tasks):
         if self.spread:
@@ -354,7 +377,7 @@ class DecomposeFlight(beam.PTransform):
             Decompose(self.output, self.config),
             Geolocate(self.output, "mcap" in self.formats),
             WriteRange(self.output, self.formats)))
-        if not self.formats & {"las", "mcap"}:
+        if not self.assemble or not self.formats & {"las", "mcap"}:
             return parts
         return parts | "AssembleFiles" >> AssembleFiles(self.output, self.laz)
 

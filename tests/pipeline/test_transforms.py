@@ -12,7 +12,8 @@ from fwcore.config import DecompositionConfig
 from pipeline.outputs import InputNames
 from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import DecomposedRange, RangePart, Rejection
-from pipeline.transforms import Decompose, Geolocate, RangeStages, ReadRange, WriteRange
+from pipeline.transforms import (Decompose, Geolocate, RangeStages, ReadRange, WriteRange, assemble_file,
+                                 written_parts)
 
 
 def plan_inputs(paths, config, points_per_range, limit=None):
@@ -117,3 +118,22 @@ def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_pa
     rows = [pq.read_table(f).to_pylist() for f in written]
     assert [[(r["source_file"], r["pulse_id"], r["stage"], r["reason"].split(":")[0]) for r in t] for t in rows] == \
         [[("gone.las", -1, "read", "points 0-600 (500 pulses)")], [("gone.las", -1, "read", "points 600-1125 (424 pulses)")]]
+
+
+def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, leica_dir):
+    """On Dask the ranges' job ends at the parts; written_parts lists them from parts/ for assemble_file."""
+    import laspy
+
+    config = DecompositionConfig(generations=3)
+    tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 400)
+    out = str(tmp_path / "out")
+    with TestPipeline() as p:  # the middle range is not written: it must not be looked for
+        p | beam.Create([tasks[2], tasks[0]]) | beam.ParDo(RangeStages(out, *_stages(out, config)))
+    files = written_parts(out, tasks, frozenset({"parquet", "las"}))
+    assert [(stem, [(r.range_start, Path(r.las).name, r.mcap) for r in parts]) for stem, parts in files] == \
+        [("leica_a", [(0, "leica_a-000000000000.las", ""), (800, "leica_a-000000000800.las", "")])]
+    points = [laspy.read(r.las).header.point_count for r in files[0][1]]
+    assert assemble_file(files[0], out, False) == "leica_a"
+    assembled = laspy.read(tmp_path / "out" / "las" / "leica_a.las")
+    assert points[0] > 0 and assembled.header.point_count == sum(points)
+    assert not list((tmp_path / "out" / "parts").glob("*.las"))  # the parts are removed once in the file
