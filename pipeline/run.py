@@ -33,7 +33,7 @@ from pipeline.plan import plan_inputs, planned_pulses
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
 from pipeline.tables import REJECTED_SCHEMA, empty_rejected_table
-from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight
+from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight, assemble_file, written_parts
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
            "OutputFolderError", "is_complete", "read_run", "run"]
@@ -190,6 +190,14 @@ def _one_partition_per_range(options, n_ranges: int) -> None:
         bags.npartitions = max(1, n_ranges)
 
 
+def _run_job(pipeline: beam.Pipeline):
+    result = pipeline.run()
+    result.wait_until_finish()
+    if hasattr(result, "client"):  # the Dask runner leaves its client open
+        result.client.close()
+    return result
+
+
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True) -> dict:
@@ -225,13 +233,18 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
             if tasks:
                 pipeline = beam.Pipeline(runner=pipeline_runner(options), options=options)
                 (pipeline | "Ranges" >> beam.Create(tasks)
-                 | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask))
+                 | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask,
+                                                        assemble=not dask))
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
                                  line_every=60.0 if watch else float("inf")):
-                    result = pipeline.run()
-                    result.wait_until_finish()
-                if hasattr(result, "client"):  # the Dask runner leaves its client open
-                    result.client.close()
+                    result = _run_job(pipeline)
+                    if dask:  # the files assembled in a second job: no GroupByKey, a task shuffle on Dask
+                        files = written_parts(str(output), tasks, formats)
+                        if files:
+                            assembly = beam.Pipeline(options=options)
+                            (assembly | "Files" >> beam.Create(files)
+                             | "Assemble" >> beam.Map(assemble_file, str(output), laz))
+                            _run_job(assembly)
         shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)

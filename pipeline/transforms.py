@@ -1,17 +1,24 @@
 """The Beam transforms: each stage a few lines over a fwcore function.
 
-    ReadTasks (planned on the driver) -> Spread -> ReadRange -> Decompose -> Geolocate -> WriteRange
-        -> RangeParts -> GroupByFile -> AssembleFile -> Done
-    any stage -> Rejection -> DeadLetter -> rejected/<stem>-<range>.parquet -> Done
+    ReadTasks (planned on the driver) -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
+        -> RangeParts -> GroupByFile -> assemble_file
+        (on Dask the RangeParts end the job; a second job: written_parts -> assemble_file)
+    any stage -> Rejection -> (the range's end, in RangeStages) rejected/<stem>-<range>.parquet
 
 One dead-letter path: a stage hands on its record or Rejections, and an
 exception in a stage turns its range into Rejections with the reason. Beam
 2.77's Dask runner hands the consumer of a tagged output every output of the
 ParDo (its ParDo collects all tags into one bag, and a tagged PCollection maps
 to its producer's bag), so Rejections travel in the main stream: `_Stage`,
-the base of every stage, passes them on, and `DeadLetter` splits them off
-once, by type. All sinks join in one last step because that runner computes
-only the graph's last step.
+the base of every stage, passes them on, and `RangeStages` splits them off
+once, by type, at the range's end. The four stages of a range run in one
+ParDo, `RangeStages`, so that only the small record that leaves a range (its
+RangePart) is a ParDo's output: that runner keeps every output of a ParDo in
+the task that made it until the whole job ends (8 MB a range otherwise). A
+range's rejections are all made in that one call, so they are written there,
+one file per range, without a GroupByKey (on that runner a task shuffle whose
+tasks grow as ranges x log(ranges), kept by the scheduler and workers); for
+the same reason, on that runner the files are assembled in a second job.
 """
 
 from __future__ import annotations
@@ -269,48 +276,83 @@ class WriteRange(_Stage):
                         str(paths["mcap"]) if "mcap" in self.formats else "", task.source.adjusted_standard_gps_time)
 
 
+# ---------------------------------------------------------------- a range, all stages
+
+def write_rejections(output: str, task: ReadTask, rows: list[Rejection]) -> Path:
+    """A range's Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
+    rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
+    table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+    return write_part(table, Path(output) / "rejected", part_name(task.source.stem, task.start))
+
+
+class RangeStages(beam.DoFn):
+    """ReadTask -> RangePart: each range through the stages in turn, in one ParDo; its Rejections to rejected/.
+
+    Beam 2.77's Dask runner collects a ParDo's outputs in a receiver that is an argument of the
+    partition's task, and a worker keeps the arguments of a finished task until every task after it,
+    to the job's end, is released: as four ParDos, every range's pulses, fit and tables (8 MB a range)
+    stayed in the workers for the whole run. Here they are released as soon as the range is written.
+    """
+
+    def __init__(self, output: str, *stages: _Stage):
+        self.output, self.stages = output, stages
+
+    def setup(self):
+        for stage in self.stages:
+            stage.setup()
+
+    def process(self, task: ReadTask):
+        items = [task]
+        for stage in self.stages:
+            items = [out for item in items for out in stage.process(item)]
+        rejected = [e for e in items if isinstance(e, Rejection)]  # the one place where the dead letter leaves
+        if rejected:
+            write_rejections(self.output, task, rejected)
+        yield from (e for e in items if not isinstance(e, Rejection))
+
+
 # ---------------------------------------------------------------- per file
+
+def assemble_file(item: tuple[str, list[RangePart]], output: str, laz: bool) -> str:
+    """One input's RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in
+    range order; the parts are removed once in the file."""
+    stem, ranges = item
+    ranges = sorted(ranges, key=lambda r: r.range_start)
+    las = [Path(r.las) for r in ranges if r.las]
+    mcap = [Path(r.mcap) for r in ranges if r.mcap]
+    if las:
+        assemble_las(las, Path(output) / "las" / f"{stem}{'.laz' if laz else '.las'}", laz)
+    if mcap:
+        assemble_mcap(mcap, Path(output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
+    remove_parts(las + mcap)
+    return stem
+
+
+def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -> list[tuple[str, list[RangePart]]]:
+    """After the ranges' job, each input's RangeParts as the files under parts/ show them (a range is written
+    whole or not at all, and the output folder held no parts before the run), in plan order."""
+    files: dict[str, list[RangePart]] = {}
+    for task in tasks:
+        name, parts = part_name(task.source.stem, task.start), Path(output) / PARTS
+        las, mcap = parts / f"{name}.las", parts / f"{name}.mcap"
+        las = str(las) if "las" in formats and las.exists() else ""
+        mcap = str(mcap) if "mcap" in formats and mcap.exists() else ""
+        if las or mcap:
+            files.setdefault(task.source.stem, []).append(RangePart(
+                task.source.stem, task.source.path, task.start, las, mcap, task.source.adjusted_standard_gps_time))
+    return list(files.items())
+
 
 @dataclasses.dataclass
 class AssembleFiles(beam.PTransform):
-    """RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in range order."""
+    """RangeParts -> each input's point cloud and MCAP (assemble_file), the parts grouped by input."""
 
     output: str
     laz: bool = False
 
     def expand(self, parts):
-        def assemble(item):
-            stem, ranges = item
-            ranges = sorted(ranges, key=lambda r: r.range_start)
-            las = [Path(r.las) for r in ranges if r.las]
-            mcap = [Path(r.mcap) for r in ranges if r.mcap]
-            if las:
-                assemble_las(las, Path(self.output) / "las" / f"{stem}{'.laz' if self.laz else '.las'}", self.laz)
-            if mcap:
-                assemble_mcap(mcap, Path(self.output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
-            remove_parts(las + mcap)
-            return stem
-
         return (parts | "KeyByFile" >> beam.Map(lambda p: (p.stem, p))
-                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble))
-
-
-@dataclasses.dataclass
-class DeadLetter(beam.PTransform):
-    """Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
-
-    output: str
-
-    def expand(self, rejected):
-        def write(item):
-            (stem, start), rows = item
-            rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
-            table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-            write_part(table, Path(self.output) / "rejected", part_name(stem, start))
-            return stem, len(rows)
-
-        return (rejected | "KeyByRange" >> beam.Map(lambda r: ((r.stem, r.range_start), r))
-                | "GroupByRange" >> beam.GroupByKey() | "Write" >> beam.Map(write))
+                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble_file, self.output, self.laz))
 
 
 @dataclasses.dataclass
@@ -322,20 +364,20 @@ class DecomposeFlight(beam.PTransform):
     formats: frozenset[str]
     laz: bool = False
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
+    # False: end at the RangeParts, for a second job of written_parts -> assemble_file (see run.py: on the
+    # Dask runner a GroupByKey is a task shuffle whose tasks, ranges x log(ranges), the cluster holds to the end)
+    assemble: bool = True
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        out = (tasks
-               | "ReadRange" >> beam.ParDo(ReadRange(self.output))
-               | "Decompose" >> beam.ParDo(Decompose(self.output, self.config))
-               | "Geolocate" >> beam.ParDo(Geolocate(self.output, "mcap" in self.formats))
-               | "WriteRange" >> beam.ParDo(WriteRange(self.output, self.formats)))
-        written = [out | "Rejected" >> beam.Filter(lambda e: isinstance(e, Rejection))
-                   | "DeadLetter" >> DeadLetter(self.output)]
-        if self.formats & {"las", "mcap"}:
-            written.append(out | "Parts" >> beam.Filter(lambda e: isinstance(e, RangePart))
-                           | "AssembleFiles" >> AssembleFiles(self.output, self.laz))
-        # the last step joins every sink; a Flatten, not a global combine, whose empty-input default is
-        # a side input that the Dask runner computes as a nested job inside one worker's task
-        return tuple(written) | "Done" >> beam.Flatten()
+        parts = tasks | "RangeStages" >> beam.ParDo(RangeStages(
+            self.output,
+            ReadRange(self.output),
+            Decompose(self.output, self.config),
+            Geolocate(self.output, "mcap" in self.formats),
+            WriteRange(self.output, self.formats)))
+        if not self.assemble or not self.formats & {"las", "mcap"}:
+            return parts
+        return parts | "AssembleFiles" >> AssembleFiles(self.output, self.laz)
+
