@@ -15,10 +15,8 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/fwl run --output out/run --points-per-range 300
 
-# Two test processes, one per core of a small machine: on a fresh clone one compiles the numba kernels while
-# the other runs tests. A file's tests stay in one process, so its module fixtures run once.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
