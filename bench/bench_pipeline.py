@@ -11,6 +11,7 @@ the process and all its children, sampled every 0.2 s.
 
 from __future__ import annotations
 
+import abc
 import argparse
 import dataclasses
 import tempfile
@@ -62,7 +63,7 @@ def repeated(pulses: PulseBatch, copies: int) -> PulseBatch:
         return_offsets=offsets(pulses.return_offsets))
 
 
-class Sampler:
+class Sampler(abc.ABC):
     """Calls `sample()` every `every` seconds in a thread while the `with` block runs."""
 
     every = 0.2
@@ -71,8 +72,9 @@ class Sampler:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
 
+    @abc.abstractmethod
     def sample(self) -> None:
-        raise NotImplementedError
+        """One measurement (a subclass's)."""
 
     def _loop(self):
         while not self._stop.is_set():

@@ -66,6 +66,7 @@ class RangeEnds(Sampler):
             return float("nan")
         return sum(n for _, n in ends[1:]) / (ends[-1][0] - ends[0][0])
 
+
 def timed_run(las: Path, out: Path, method: list[str], extra: list[str]) -> tuple[float, float, float]:
     with PeakMemory() as memory, RangeEnds(out / "parts") as ends:
         start = time.perf_counter()

@@ -332,8 +332,9 @@ def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -
     """After the ranges' job, each input's RangeParts as the files under parts/ show them (a range is written
     whole or not at all, and the output folder held no parts before the run), in plan order."""
     files: dict[str, list[RangePart]] = {}
+    parts = Path(output) / PARTS
     for task in tasks:
-        name, parts = part_name(task.source.stem, task.start), Path(output) / PARTS
+        name = part_name(task.source.stem, task.start)
         las, mcap = parts / f"{name}.las", parts / f"{name}.mcap"
         las = str(las) if "las" in formats and las.exists() else ""
         mcap = str(mcap) if "mcap" in formats and mcap.exists() else ""
