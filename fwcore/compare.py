@@ -100,13 +100,46 @@ class PointComparison:
     mean_distance: float  # over matched system points, to their nearest decomposed point
     median_distance: float
     p95_distance: float
+    dead_zone: float  # the system's smallest separation of two returns of one pulse (m; 0 when unknown)
+    new_in_dead_zone: int  # new points within dead_zone of a return of their own pulse (<= new_points)
 
     def row(self) -> dict:
         return dataclasses.asdict(self)
 
 
-def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance: float = 0.5) -> PointComparison:
-    """Nearest-neighbour matching both ways between the system's returns and the decomposed points."""
+def system_dead_zone(system_xyz: np.ndarray, system_pulse: np.ndarray) -> float:
+    """The smallest distance (m) between two consecutive returns of one pulse: a discrete-return
+    detector is blind for a while after it triggers, so it never reports two returns closer than
+    this (Leica sample: 3.57 m). 0 when no pulse has two returns."""
+    system_xyz = np.asarray(system_xyz, dtype=float).reshape(-1, 3)
+    same = np.asarray(system_pulse)[1:] == np.asarray(system_pulse)[:-1]
+    if not same.any():
+        return 0.0
+    return float(np.linalg.norm(np.diff(system_xyz, axis=0)[same], axis=1).min())
+
+
+def _nearest_in_own_pulse(points: np.ndarray, pulse: np.ndarray, others: np.ndarray,
+                          other_pulse: np.ndarray) -> np.ndarray:
+    """For each point, the distance to the nearest of `others` with the same pulse (inf when none)."""
+    distance = np.full(len(points), np.inf)
+    order = np.argsort(other_pulse, kind="stable")
+    sorted_pulse = np.asarray(other_pulse)[order]
+    lo = np.searchsorted(sorted_pulse, pulse, side="left")
+    hi = np.searchsorted(sorted_pulse, pulse, side="right")
+    # a pulse holds a handful of returns: a loop over the widest pulse, vectorised over the points
+    for step in range(int((hi - lo).max()) if len(points) else 0):
+        has = lo + step < hi
+        other = others[order[lo[has] + step]]
+        distance[has] = np.minimum(distance[has], np.linalg.norm(points[has] - other, axis=1))
+    return distance
+
+
+def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance: float = 0.5,
+                   system_pulse: np.ndarray | None = None,
+                   decomposed_pulse: np.ndarray | None = None) -> PointComparison:
+    """Nearest-neighbour matching both ways between the system's returns and the decomposed points.
+    With each point's pulse, the new points are also counted where the system could not have
+    reported them: within its dead zone of one of the pulse's returns."""
     system_xyz = np.asarray(system_xyz, dtype=float).reshape(-1, 3)
     decomposed_xyz = np.asarray(decomposed_xyz, dtype=float).reshape(-1, 3)
     if len(system_xyz) and len(decomposed_xyz):
@@ -118,12 +151,19 @@ def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance:
     matched = to_ours <= distance
     close = to_ours[matched]
     stat = (lambda f: float(f(close))) if close.size else (lambda f: float("nan"))
+    dead_zone, in_dead_zone = 0.0, 0
+    if system_pulse is not None and decomposed_pulse is not None:
+        dead_zone = system_dead_zone(system_xyz, system_pulse)
+        new = to_system > distance
+        own = _nearest_in_own_pulse(decomposed_xyz[new], np.asarray(decomposed_pulse)[new], system_xyz,
+                                    np.asarray(system_pulse))
+        in_dead_zone = int((own < dead_zone).sum())
     return PointComparison(
         distance=distance, system_points=len(system_xyz), decomposed_points=len(decomposed_xyz),
         matched_system=int(matched.sum()), missed_system=int((~matched).sum()),
         matched_decomposed=int((to_system <= distance).sum()), new_points=int((to_system > distance).sum()),
         mean_distance=stat(np.mean), median_distance=stat(np.median),
-        p95_distance=stat(lambda d: np.percentile(d, 95)))
+        p95_distance=stat(lambda d: np.percentile(d, 95)), dead_zone=dead_zone, new_in_dead_zone=in_dead_zone)
 
 
 # ---------------------------------------------------------------- the evaluation budget

@@ -74,6 +74,10 @@ class PulseBatch:
     def pulse_samples(self, i: int) -> np.ndarray:
         return self.samples[self.sample_offsets[i]:self.sample_offsets[i + 1]]
 
+    def return_pulse(self) -> np.ndarray:
+        """For each of the system's returns, the row of its pulse."""
+        return np.repeat(np.arange(len(self)), np.diff(self.return_offsets))
+
     def outgoing_samples(self, i: int) -> np.ndarray:
         if self.outgoing is None:
             return np.zeros(0)

@@ -214,15 +214,20 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
             kept = run.result.reject == 0
             xyz = echo_positions(data.pulses, run.result)[kept]
             point_rows.append({"optimizer": run.label, "model": run.config.model.value,
-                               **compare_points(data.pulses.return_xyz, xyz, distance).row()})
+                               **compare_points(data.pulses.return_xyz, xyz, distance, data.pulses.return_pulse(),
+                                                run.result.echo_waveform[kept]).row()})
         write_csv(output / "points.csv", point_rows)
         point_columns = [("optimizer", "optimizer", "{}"), ("model", "model", "{}"),
                          ("system_points", "system points", "{}"), ("decomposed_points", "decomposed", "{}"),
                          ("matched_system", "matched", "{}"), ("missed_system", "missed", "{}"),
-                         ("new_points", "new", "{}"), ("mean_distance", "mean d (m)", "{:.3f}"),
+                         ("new_points", "new", "{}"), ("new_in_dead_zone", "new in dead zone", "{}"),
+                         ("mean_distance", "mean d (m)", "{:.3f}"),
                          ("median_distance", "median d (m)", "{:.3f}"), ("p95_distance", "p95 d (m)", "{:.3f}")]
         with open(output / "compare.md", "a") as f:
-            f.write(f"\n## Points against the system's returns (matched within {distance} m)\n\n")
+            f.write(f"\n## Points against the system's returns (matched within {distance} m)\n\n"
+                    f"New points in the dead zone lie within {point_rows[0]['dead_zone']:.2f} m of a return of "
+                    "their own pulse, the smallest separation at which the system ever reports two returns: "
+                    "it could not have reported them.\n\n")
             f.write(markdown_table(point_rows, point_columns))
         written.append("points.csv")
     if pulses:

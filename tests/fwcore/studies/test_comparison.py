@@ -5,7 +5,8 @@ import csv
 import numpy as np
 import pytest
 
-from fwcore.compare import budget_settings, choose_fast_preset, compare_points
+from fwcore.compare import budget_settings, choose_fast_preset, compare_points, system_dead_zone
+from fwcore.io import read_pulses
 from pipeline.cli import main
 
 FAST = "none,lm,lbfgs,ga,pso,de,mde,mde-lm,ga-iterative"
@@ -47,6 +48,8 @@ def test_point_counts_add_up(leica_compare):
         assert n["matched_system"] + n["missed_system"] == n["system_points"] > 0
         assert n["matched_decomposed"] + n["new_points"] == n["decomposed_points"]
         assert float(r["median_distance"]) <= 0.5
+        assert 0 <= int(r["new_in_dead_zone"]) <= n["new_points"]
+        assert float(r["dead_zone"]) >= 3.57  # the 40 pulses' closest returns are no closer than the file's
 
 
 def test_figures_are_written(leica_compare):
@@ -79,6 +82,27 @@ def test_compare_points_by_hand():
     c = compare_points(system, ours, 0.5)
     assert (c.matched_system, c.missed_system, c.matched_decomposed, c.new_points) == (2, 1, 2, 2)
     assert c.mean_distance == pytest.approx(0.2)
+
+
+def test_new_points_in_the_dead_zone_by_hand():
+    # pulse 0: returns 4 m apart (the dead zone); pulse 1: one return
+    system = np.array([[0, 0, 0], [0, 0, 4], [100, 0, 0]], float)
+    system_pulse = np.array([0, 0, 1])
+    # new points: 2 m from pulse 0's return (in its dead zone); 5 m from it (beyond); 1 m from pulse 1's
+    # return but in pulse 0 (another pulse's return does not blind this one); 3 m from pulse 1's return
+    ours = np.array([[0, 0, 0.1], [0, 0, -2], [0, 0, 9], [101, 0, 0], [100, 0, 3]], float)
+    ours_pulse = np.array([0, 0, 0, 0, 1])
+    c = compare_points(system, ours, 0.5, system_pulse, ours_pulse)
+    assert c.dead_zone == pytest.approx(4.0)
+    assert (c.new_points, c.new_in_dead_zone) == (4, 2)
+    assert compare_points(system, ours, 0.5).new_in_dead_zone == 0  # without pulses: not counted
+
+
+def test_leica_system_never_reports_two_returns_closer_than_its_dead_zone(leica_dir):
+    pulses = read_pulses(leica_dir / "leica_a.las")
+    # 201 consecutive pairs of returns in 182 multi-return pulses; the closest is 3.57 m apart
+    assert system_dead_zone(pulses.return_xyz, pulses.return_pulse()) == pytest.approx(3.575, abs=0.001)
+    assert system_dead_zone(pulses.return_xyz[:1], np.zeros(1, int)) == 0.0
 
 
 def test_fast_preset_choice_is_the_fastest_within_tolerance():
