@@ -12,6 +12,7 @@ Per preset (the default, `fast`, `paper`), one thread, after compilation:
   the returns alone;
 - a simulated flight (`fwl simulate --pulses 10000 --seed 7`, `fwl run`,
   `fwl evaluate`): recall, precision, range RMSE / CRLB;
+- the median distance of a recovered return to its echo (m), echoes placed with the file's range offset;
 - the extra echoes again, counting only those beyond the system's dead zone ("beyond dz": farther
   than its smallest separation of two returns of one pulse from every return of their pulse, where
   the system could have reported them);
@@ -83,10 +84,11 @@ def leica_rows() -> None:
     pulses = read_pulses(LEICA)
     system = file_system_pulse(LEICA, pulses.return_xyz.shape[0], DecompositionConfig())  # as fwl run measures it
     print(f"\nLeica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns; from its single "
-          f"returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance {system.shape_tolerance:.3f}; "
+          f"returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance {system.shape_tolerance:.3f}, "
+          f"range offset {system.range_offset_ps / 1000:+.2f} ns; "
           f"dead zone {system_dead_zone(pulses.return_xyz, pulses.return_pulse()):.2f} m)")
-    print(f"{'preset':28} {'pulses/s':>9} {'returns':>8} {'extra':>7} {'beyond dz':>9} {'spur/pulse':>10} "
-          f"{'raw err':>8} {'seed-stable':>11} {'MDE ran':>7}")
+    print(f"{'preset':28} {'pulses/s':>9} {'returns':>8} {'extra':>7} {'beyond dz':>9} {'median d':>8} "
+          f"{'spur/pulse':>10} {'raw err':>8} {'seed-stable':>11} {'MDE ran':>7}")
     variants = [(name, preset(name)) for name in PRESET_NAMES]
     variants.append(("default, shape tolerance 0", preset("default").replace(shape_tolerance=0.0)))
     variants.append(("default with mde-lm", preset("default").replace(optimizer="mde-lm")))
@@ -100,11 +102,11 @@ def leica_rows() -> None:
         result, rate = timed(pulse_waveforms(pulses, 0), config)
         other = decompose_batch(pulse_waveforms(pulses, 1), config, threads=1)
         kept = result.reject == 0
-        points = compare_points(pulses.return_xyz, echo_positions(pulses, result)[kept], 0.5,
-                                pulses.return_pulse(), result.echo_waveform[kept])
+        xyz = echo_positions(pulses, result, system.range_offset_ps)[kept]
+        points = compare_points(pulses.return_xyz, xyz, 0.5, pulses.return_pulse(), result.echo_waveform[kept])
         n_system = pulses.return_xyz.shape[0]
         print(f"{label:28} {rate:9.1f} {points.matched_system / n_system:8.3f} {points.new_points / n_system:7.3f} "
-              f"{(points.new_points - points.new_in_dead_zone) / n_system:9.3f} "
+              f"{(points.new_points - points.new_in_dead_zone) / n_system:9.3f} {points.median_distance:8.3f} "
               f"{(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
               f"{stable_share(result, other, 2.0):11.4f} {mde_share(config, result):7.2f}", flush=True)
 

@@ -23,6 +23,7 @@ from fwcore.records import BatchDecomposition, WaveformBatch
 LOG = logging.getLogger("fwl")
 
 PULSE_WIDTH_POINTS = 5000  # the head of a file that measures its pulse width: fixed by the file, not the range size
+RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range offset
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,6 +34,8 @@ class SystemPulse:
     fwhm_source: str  # configured | single returns | estimated from the waveforms | default (unmeasurable)
     shape_tolerance: float
     shape_source: str  # configured | single returns | none measured
+    range_offset_ps: float = 0.0  # added to an echo's time to place it where the system places its returns
+    range_offset_source: str = "none measured"  # single returns (how many) | none measured
 
 
 def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig) -> float:
@@ -55,16 +58,32 @@ def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig) -
     return float(np.sqrt(max(num / den, 0.0))) if den > 0 else 0.0
 
 
+def measure_range_offset(batch: WaveformBatch, config: DecompositionConfig,
+                         return_time_ps: np.ndarray) -> tuple[float, int]:
+    """Where the system places a return against the centre of the echo the run finds there: the median of
+    (return time - echo time) over the waveforms of `batch` (single returns, `return_time_ps` within
+    each packet) where the run's decomposition keeps exactly one echo; and how many those are.
+    The system's range reference is a point of its pulse that a fitted centre need not be (Leica:
+    1.3 ns before it, 0.2 m of range)."""
+    result = decompose_batch(batch, config, threads=1)
+    kept = np.flatnonzero(result.reject == 0)
+    owner = result.echo_waveform[kept]  # sorted: echoes are grouped by waveform
+    one = np.flatnonzero((result.status == 0) & (np.bincount(owner, minlength=len(result)) == 1))
+    if one.size == 0:
+        return 0.0, 0
+    echo_time_ps = result.position[kept[np.searchsorted(owner, one)]] * batch.sample_spacing_ps[one]
+    return float(np.median(np.asarray(return_time_ps, dtype=float)[one] - echo_time_ps)), int(one.size)
+
+
 def file_system_pulse(path: str | Path, point_count: int, config: DecompositionConfig,
                       head_points: int = PULSE_WIDTH_POINTS) -> SystemPulse:
     """The file's system pulse from the first `head_points` records: its FWHM from the recorded outgoing
     waveforms (PulseWaves) or the pulses the system saw as single returns (LAS), else estimated from the
-    waveforms' isolated echoes, else the configured default, with a warning; and the model's shape
-    tolerance fitted on the single returns (0 where there are none)."""
+    waveforms' isolated echoes, else the configured default, with a warning; the model's shape
+    tolerance fitted on the single returns (0 where there are none); and the range offset that places
+    an echo where the system places its returns (0 where there are no single returns)."""
     fwhm, fwhm_source = config.system_pulse_fwhm_ps, "configured"
     tolerance, shape_source = config.shape_tolerance, "configured"
-    if fwhm is not None and tolerance is not None:
-        return SystemPulse(fwhm, fwhm_source, tolerance, shape_source)
     pulses = read_pulses(PointRange(str(path), 0, min(point_count, head_points))) if point_count > 0 else None
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
     if fwhm is None:
@@ -84,16 +103,25 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
         if fwhm_source.startswith("estimated"):
             LOG.warning("%s: no single-return pulse; system pulse FWHM %.0f ps %s", Path(path).name, fwhm,
                         fwhm_source)
-    if tolerance is None:
-        if single.size:
-            batch = pulse_waveforms(pulses, 0)
-            picked = WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single],
-                                                  pulses.sample_spacing_ps[single], batch.seeds[single])
+    offset, offset_source = 0.0, "none measured"
+    if single.size:
+        batch = pulse_waveforms(pulses, config.seed)
+        picked = WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single],
+                                              pulses.sample_spacing_ps[single], batch.seeds[single])
+        if tolerance is None:
             tolerance = measure_shape_tolerance(picked, config.replace(system_pulse_fwhm_ps=fwhm))
             shape_source = "single returns"
-        else:
-            tolerance, shape_source = 0.0, "none measured"
-    return SystemPulse(float(fwhm), fwhm_source, float(tolerance), shape_source)
+        head = slice(0, RANGE_OFFSET_PULSES)  # enough for a median within millimetres, cheap for any preset
+        offset, n = measure_range_offset(
+            WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single[head]],
+                                         pulses.sample_spacing_ps[single[head]], batch.seeds[single[head]]),
+            config.replace(system_pulse_fwhm_ps=fwhm, shape_tolerance=tolerance),
+            pulses.return_location_ps[pulses.return_offsets[single[head]]])
+        if n:
+            offset_source = f"single returns ({n})"
+    if tolerance is None:
+        tolerance, shape_source = 0.0, "none measured"
+    return SystemPulse(float(fwhm), fwhm_source, float(tolerance), shape_source, offset, offset_source)
 
 
 def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
     source = InputFile(path, name, stem, pulse.fwhm_ps, adjusted, pulse.shape_tolerance, pulse.fwhm_source,
-                       pulse.shape_source)
+                       pulse.shape_source, pulse.range_offset_ps, pulse.range_offset_source)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:

@@ -31,6 +31,8 @@ class InputFile:
     shape_tolerance: float = 0.0  # the model's relative shape error on this file's pulse (fwcore.survey)
     pulse_width_source: str = "configured"
     shape_tolerance_source: str = "configured"
+    range_offset_ps: float = 0.0  # added to echo times when placing echoes (fwcore.survey.SystemPulse)
+    range_offset_source: str = "none measured"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -256,7 +256,9 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     system_pulses = {t.source.path: {"system_pulse_fwhm_ps": t.source.system_pulse_fwhm_ps,
                                      "system_pulse_fwhm_source": t.source.pulse_width_source,
                                      "shape_tolerance": t.source.shape_tolerance,
-                                     "shape_tolerance_source": t.source.shape_tolerance_source} for t in tasks}
+                                     "shape_tolerance_source": t.source.shape_tolerance_source,
+                                     "range_offset_ps": t.source.range_offset_ps,
+                                     "range_offset_source": t.source.range_offset_source} for t in tasks}
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],

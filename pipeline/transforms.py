@@ -225,7 +225,7 @@ class Geolocate(_Stage):
 
     def run(self, item: DecomposedRange):
         pulses, result = item.pulses, item.result
-        xyz = echo_positions(pulses, result)
+        xyz = echo_positions(pulses, result, item.task.source.range_offset_ps)
         echoes, table = pulse_tables(item.task.source.name, pulses, result, item.config, xyz, result.status == 0)
         yield GeolocatedRange(item.task, echoes, table, decomposed_echoes(pulses, result, xyz),
                               _waveform_views(pulses, result) if self.with_views else None,

@@ -38,6 +38,7 @@ class ComparisonInput:
     pulse_id: np.ndarray
     config: DecompositionConfig
     pulses: object | None = None  # fwcore.io.records.PulseBatch for LAS input
+    range_offset_ps: float = 0.0  # where the system places returns against an echo's centre (LAS input)
 
 
 def load_input(path: str | Path, config: DecompositionConfig, limit: int | None = None,
@@ -62,7 +63,8 @@ def load_input(path: str | Path, config: DecompositionConfig, limit: int | None 
         pulses = _first_pulses(pulses, limit)
     pulse = file_system_pulse(path, len(pulses.return_xyz), config)  # as fwl run measures it
     config = config.replace(system_pulse_fwhm_ps=pulse.fwhm_ps, shape_tolerance=pulse.shape_tolerance)
-    return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, config, pulses)
+    return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, config, pulses,
+                           pulse.range_offset_ps)
 
 
 def _first_pulses(pulses, n: int):
@@ -212,7 +214,7 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
     if data.pulses is not None:
         for run in runs:
             kept = run.result.reject == 0
-            xyz = echo_positions(data.pulses, run.result)[kept]
+            xyz = echo_positions(data.pulses, run.result, data.range_offset_ps)[kept]
             point_rows.append({"optimizer": run.label, "model": run.config.model.value,
                                **compare_points(data.pulses.return_xyz, xyz, distance, data.pulses.return_pulse(),
                                                 run.result.echo_waveform[kept]).row()})

@@ -93,6 +93,11 @@ def test_point_cloud_opens_and_matches_the_system_returns(leica_run, leica_dir):
     # threshold (README, "Engine benchmark"; the 98.5% and 20% are not reached)
     assert recall >= 0.96
     assert extra < 0.37
+    # echoes placed with the file's range offset (README, "The range offset"): 0.156 m without it
+    assert np.median(d_system[d_system <= 0.5]) < 0.10
+    summary = json.loads((leica_run / "run.json").read_text())["inputs"][0]
+    assert summary["range_offset_ps"] == pytest.approx(-1184.5, abs=1.0)
+    assert summary["range_offset_source"] == "single returns (269)"
 
 
 def test_mcap_holds_point_clouds_and_waveforms(leica_run):
