@@ -151,17 +151,17 @@ def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance:
     matched = to_ours <= distance
     close = to_ours[matched]
     stat = (lambda f: float(f(close))) if close.size else (lambda f: float("nan"))
+    new = to_system > distance
     dead_zone, in_dead_zone = 0.0, 0
     if system_pulse is not None and decomposed_pulse is not None:
         dead_zone = system_dead_zone(system_xyz, system_pulse)
-        new = to_system > distance
         own = _nearest_in_own_pulse(decomposed_xyz[new], np.asarray(decomposed_pulse)[new], system_xyz,
                                     np.asarray(system_pulse))
         in_dead_zone = int((own < dead_zone).sum())
     return PointComparison(
         distance=distance, system_points=len(system_xyz), decomposed_points=len(decomposed_xyz),
         matched_system=int(matched.sum()), missed_system=int((~matched).sum()),
-        matched_decomposed=int((to_system <= distance).sum()), new_points=int((to_system > distance).sum()),
+        matched_decomposed=int((~new).sum()), new_points=int(new.sum()),
         mean_distance=stat(np.mean), median_distance=stat(np.median),
         p95_distance=stat(lambda d: np.percentile(d, 95)), dead_zone=dead_zone, new_in_dead_zone=in_dead_zone)
 

@@ -105,18 +105,19 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
                         fwhm_source)
     offset, offset_source = 0.0, "none measured"
     if single.size:
-        batch = pulse_waveforms(pulses, config.seed)
-        picked = WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single],
-                                              pulses.sample_spacing_ps[single], batch.seeds[single])
+        seeds = pulse_waveforms(pulses, config.seed).seeds
+
+        def waveforms(rows: np.ndarray) -> WaveformBatch:
+            return WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in rows],
+                                                pulses.sample_spacing_ps[rows], seeds[rows])
+
         if tolerance is None:
-            tolerance = measure_shape_tolerance(picked, config.replace(system_pulse_fwhm_ps=fwhm))
+            tolerance = measure_shape_tolerance(waveforms(single), config.replace(system_pulse_fwhm_ps=fwhm))
             shape_source = "single returns"
-        head = slice(0, RANGE_OFFSET_PULSES)  # enough for a median within millimetres, cheap for any preset
-        offset, n = measure_range_offset(
-            WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in single[head]],
-                                         pulses.sample_spacing_ps[single[head]], batch.seeds[single[head]]),
-            config.replace(system_pulse_fwhm_ps=fwhm, shape_tolerance=tolerance),
-            pulses.return_location_ps[pulses.return_offsets[single[head]]])
+        head = single[:RANGE_OFFSET_PULSES]  # enough for a median within millimetres, cheap for any preset
+        offset, n = measure_range_offset(waveforms(head), config.replace(system_pulse_fwhm_ps=fwhm,
+                                                                         shape_tolerance=tolerance),
+                                         pulses.return_location_ps[pulses.return_offsets[head]])
         if n:
             offset_source = f"single returns ({n})"
     if tolerance is None:
