@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.engine import decompose_batch
+from fwcore.io.records import PulseBatch
 from fwcore.records import BatchDecomposition, WaveformBatch
 
 # The comparison's settings per optimizer (on top of the caller's configuration).
@@ -102,6 +103,9 @@ class PointComparison:
     p95_distance: float
     dead_zone: float  # the system's smallest separation of two returns of one pulse (m; 0 when unknown)
     new_in_dead_zone: int  # new points within dead_zone of a return of their own pulse (<= new_points)
+    # new points standing for returns the system reported and the file omits (compare_to_system, which
+    # then counts new_in_dead_zone among the others: omitted + in dead zone <= new points)
+    new_at_omitted_returns: int = 0
 
     def row(self) -> dict:
         return dataclasses.asdict(self)
@@ -165,6 +169,48 @@ def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance:
         mean_distance=stat(np.mean), median_distance=stat(np.median),
         p95_distance=stat(lambda d: np.percentile(d, 95)), dead_zone=dead_zone, new_in_dead_zone=in_dead_zone)
 
+
+
+def omitted_returns_found(pulses: PulseBatch, time_ps: np.ndarray, pulse: np.ndarray) -> np.ndarray:
+    """Which of the points (`time_ps` within the packet, on the system's range reference; `pulse`, their
+    rows) stand for a return the system reported but the file omits (PulseBatch.omitted_returns): one
+    of their pulse's points after its held returns numbered below the omitted one and before those
+    numbered above, each point standing for one omitted return at most."""
+    time_ps, pulse = np.asarray(time_ps, dtype=float), np.asarray(pulse)
+    found = np.zeros(time_ps.size, dtype=bool)
+    for i in np.flatnonzero(pulses.omitted_returns()):
+        lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
+        numbers = pulses.return_number[lo:hi].astype(int)
+        times = pulses.return_location_ps[lo:hi].astype(float)
+        mine = np.flatnonzero(pulse == i)
+        mine = mine[np.argsort(time_ps[mine], kind="stable")]
+        # in return-number order the windows only move later, so the earliest free point is the best choice
+        for j in sorted(set(range(1, int(pulses.number_of_returns[lo:hi].max()) + 1)) - set(numbers.tolist())):
+            after = times[numbers < j].max() if (numbers < j).any() else -np.inf
+            before = times[numbers > j].min() if (numbers > j).any() else np.inf
+            free = mine[~found[mine] & (time_ps[mine] > after) & (time_ps[mine] < before)]
+            if free.size:
+                found[free[0]] = True
+    return found
+
+
+def compare_to_system(pulses: PulseBatch, xyz: np.ndarray, time_ps: np.ndarray, pulse: np.ndarray,
+                      distance: float = 0.5) -> PointComparison:
+    """compare_points of decomposed points (`xyz`; `time_ps`, their times within the packet on the system's
+    range reference; `pulse`, their rows) against the file's own returns. The new points split into those
+    standing for returns the system reported but the file omits, those in its dead zone, and the rest."""
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    pulse = np.asarray(pulse)
+    points = compare_points(pulses.return_xyz, xyz, distance, pulses.return_pulse(), pulse)
+    if not len(pulses.return_xyz) or not len(xyz):
+        return points
+    to_system, _ = cKDTree(pulses.return_xyz).query(xyz)
+    new = np.flatnonzero(to_system > distance)
+    omitted = omitted_returns_found(pulses, np.asarray(time_ps, dtype=float)[new], pulse[new])
+    rest = new[~omitted]
+    own = _nearest_in_own_pulse(xyz[rest], pulse[rest], pulses.return_xyz, pulses.return_pulse())
+    return dataclasses.replace(points, new_at_omitted_returns=int(omitted.sum()),
+                               new_in_dead_zone=int((own < points.dead_zone).sum()))
 
 # ---------------------------------------------------------------- the evaluation budget
 

@@ -43,13 +43,18 @@ def system_pulse_fwhm_ps(pulses: PulseBatch) -> float:
     return width * float(np.median(pulses.sample_spacing_ps[single]))
 
 
+def echo_times_ps(pulses: PulseBatch, result: BatchDecomposition, range_offset_ps: float = 0.0) -> np.ndarray:
+    """Every echo's time within its packet (ps), in the result's echo order, on the system's range
+    reference: its centre's time plus the file's range offset (fwcore.survey.SystemPulse: where the
+    system places a return against the fitted echo's centre)."""
+    return result.position * pulses.sample_spacing_ps[result.echo_waveform] + range_offset_ps
+
+
 def echo_positions(pulses: PulseBatch, result: BatchDecomposition, range_offset_ps: float = 0.0) -> np.ndarray:
-    """Positions (m, 3) of every echo of decomposed pulses, in the result's echo order: each at its
-    centre's time plus the file's range offset (fwcore.survey.SystemPulse: where the system places a
-    return against the fitted echo's centre)."""
+    """Positions (m, 3) of every echo of decomposed pulses, in the result's echo order, at echo_times_ps."""
     owner = result.echo_waveform
-    time_ps = result.position * pulses.sample_spacing_ps[owner] + range_offset_ps
-    return geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner], time_ps)
+    return geolocate(pulses.anchor[owner], pulses.anchor_location_ps[owner], pulses.direction[owner],
+                     echo_times_ps(pulses, result, range_offset_ps))
 
 
 def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,

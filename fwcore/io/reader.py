@@ -428,6 +428,7 @@ def _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, 
         segment=np.zeros(good.size, np.int16),
         rgb=rgb, nir=nir,
         rejected=rejected,
+        number_of_returns=_field(points, "number_of_returns", np.uint8)[return_points],
     )
 
 

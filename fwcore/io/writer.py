@@ -247,7 +247,9 @@ class WaveformLasWriter:
         las.x, las.y, las.z = pulses.return_xyz.T
         las.gps_time = pulses.gps_time[owner]
         las.return_number = pulses.return_number
-        las.number_of_returns = np.diff(pulses.return_offsets)[owner].astype(np.uint8)
+        # the file's own count where it has one: a clipped file's pulse may hold fewer returns than it had
+        las.number_of_returns = (pulses.number_of_returns if pulses.number_of_returns is not None
+                                 else np.diff(pulses.return_offsets)[owner]).astype(np.uint8)
         las.intensity = pulses.return_intensity
         if pulses.classification is not None:
             las.classification = pulses.classification[owner]

@@ -19,11 +19,11 @@ from typing import Sequence
 import numpy as np
 
 from fwcore.compare import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
-                            compare_points)
+                            compare_to_system)
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
-from fwcore.pulses import echo_positions, pulse_waveforms
+from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv
 from fwcore.preprocess import estimate_pulse_fwhm
 from fwcore.rng import pulse_seed
@@ -72,7 +72,7 @@ def _first_pulses(pulses, n: int):
     s_end, r_end = pulses.sample_offsets[n], pulses.return_offsets[n]
     per_pulse = {f.name for f in dataclasses.fields(pulses)} - {
         "source_file", "samples", "sample_offsets", "return_xyz", "return_number", "return_intensity",
-        "return_location_ps", "return_offsets", "rejected", "outgoing", "outgoing_offsets"}
+        "return_location_ps", "return_offsets", "rejected", "outgoing", "outgoing_offsets", "number_of_returns"}
     changes = {name: getattr(pulses, name)[:n] for name in per_pulse if getattr(pulses, name) is not None}
     if pulses.outgoing is not None:  # PulseWaves: the recorded outgoing waveforms, flat like the samples
         changes.update(outgoing=pulses.outgoing[:pulses.outgoing_offsets[n]],
@@ -81,7 +81,8 @@ def _first_pulses(pulses, n: int):
         pulses, **changes, samples=pulses.samples[:s_end], sample_offsets=pulses.sample_offsets[:n + 1],
         return_xyz=pulses.return_xyz[:r_end], return_number=pulses.return_number[:r_end],
         return_intensity=pulses.return_intensity[:r_end], return_location_ps=pulses.return_location_ps[:r_end],
-        return_offsets=pulses.return_offsets[:n + 1])
+        return_offsets=pulses.return_offsets[:n + 1],
+        number_of_returns=None if pulses.number_of_returns is None else pulses.number_of_returns[:r_end])
 
 
 # ---------------------------------------------------------------- writing
@@ -215,21 +216,26 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
         for run in runs:
             kept = run.result.reject == 0
             xyz = echo_positions(data.pulses, run.result, data.range_offset_ps)[kept]
+            times = echo_times_ps(data.pulses, run.result, data.range_offset_ps)[kept]
             point_rows.append({"optimizer": run.label, "model": run.config.model.value,
-                               **compare_points(data.pulses.return_xyz, xyz, distance, data.pulses.return_pulse(),
-                                                run.result.echo_waveform[kept]).row()})
+                               **compare_to_system(data.pulses, xyz, times, run.result.echo_waveform[kept],
+                                                   distance).row()})
         write_csv(output / "points.csv", point_rows)
         point_columns = [("optimizer", "optimizer", "{}"), ("model", "model", "{}"),
                          ("system_points", "system points", "{}"), ("decomposed_points", "decomposed", "{}"),
                          ("matched_system", "matched", "{}"), ("missed_system", "missed", "{}"),
-                         ("new_points", "new", "{}"), ("new_in_dead_zone", "new in dead zone", "{}"),
+                         ("new_points", "new", "{}"), ("new_at_omitted_returns", "at omitted returns", "{}"),
+                         ("new_in_dead_zone", "new in dead zone", "{}"),
                          ("mean_distance", "mean d (m)", "{:.3f}"),
                          ("median_distance", "median d (m)", "{:.3f}"), ("p95_distance", "p95 d (m)", "{:.3f}")]
         with open(output / "compare.md", "a") as f:
             f.write(f"\n## Points against the system's returns (matched within {distance} m)\n\n"
-                    f"New points in the dead zone lie within {point_rows[0]['dead_zone']:.2f} m of a return of "
-                    "their own pulse, the smallest separation at which the system ever reports two returns: "
-                    "it could not have reported them.\n\n")
+                    f"{int(data.pulses.omitted_returns().sum())} returns the system reported are not in the "
+                    "file (its pulses number more returns than it holds: it was clipped); new points at "
+                    "omitted returns lie where one of them must, between their pulse's held returns. "
+                    f"Of the other new points, those in the dead zone lie within {point_rows[0]['dead_zone']:.2f} m "
+                    "of a return of their own pulse, the smallest separation at which the system ever reports "
+                    "two returns: it could not have reported them.\n\n")
             f.write(markdown_table(point_rows, point_columns))
         written.append("points.csv")
     if pulses:

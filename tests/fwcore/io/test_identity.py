@@ -55,7 +55,8 @@ def _head(pulses, n):
         pulses, **{f: getattr(pulses, f)[:n] for f in per_pulse}, samples=pulses.samples[:s],
         sample_offsets=pulses.sample_offsets[:n + 1], return_xyz=pulses.return_xyz[:r],
         return_number=pulses.return_number[:r], return_intensity=pulses.return_intensity[:r],
-        return_location_ps=pulses.return_location_ps[:r], return_offsets=pulses.return_offsets[:n + 1])
+        return_location_ps=pulses.return_location_ps[:r], return_offsets=pulses.return_offsets[:n + 1],
+        number_of_returns=pulses.number_of_returns[:r])
 
 
 def test_repeated_time_and_anchor_are_told_apart_by_record_order():

@@ -5,7 +5,8 @@ import csv
 import numpy as np
 import pytest
 
-from fwcore.compare import budget_settings, choose_fast_preset, compare_points, system_dead_zone
+from fwcore.compare import (budget_settings, choose_fast_preset, compare_points, compare_to_system,
+                            omitted_returns_found, system_dead_zone)
 from fwcore.io import read_pulses
 from pipeline.cli import main
 
@@ -48,7 +49,7 @@ def test_point_counts_add_up(leica_compare):
         assert n["matched_system"] + n["missed_system"] == n["system_points"] > 0
         assert n["matched_decomposed"] + n["new_points"] == n["decomposed_points"]
         assert float(r["median_distance"]) <= 0.5
-        assert 0 <= int(r["new_in_dead_zone"]) <= n["new_points"]
+        assert 0 <= int(r["new_at_omitted_returns"]) + int(r["new_in_dead_zone"]) <= n["new_points"]
         assert float(r["dead_zone"]) >= 3.57  # the 40 pulses' closest returns are no closer than the file's
 
 
@@ -114,3 +115,41 @@ def test_fast_preset_choice_is_the_fastest_within_tolerance():
     families = {s.family for s in budget_settings()}
     assert families == {"mde k x t = 1", "mde k x t = 5", "mde k x t = 10", "de generational", "de immediate",
                         "mde-lm", "lm"}
+
+
+def test_the_leica_sample_omits_returns_its_pulses_had(leica_dir):
+    """Clipped to a plot, the sample keeps a pulse's returns inside it only: 16 pulses number returns the
+    file does not hold (pulse 182 holds only return 3 of 3)."""
+    pulses = read_pulses(leica_dir / "leica_a.las")
+    omitted = pulses.omitted_returns()
+    assert (omitted.sum(), int((omitted > 0).sum())) == (21, 16)
+    lo, hi = pulses.return_offsets[182], pulses.return_offsets[183]
+    assert pulses.return_number[lo:hi].tolist() == [3] and pulses.number_of_returns[lo:hi].tolist() == [3]
+    assert omitted[182] == 2
+
+
+def test_omitted_returns_are_found_only_where_they_must_lie(leica_dir):
+    """Pulse 182 holds return 3 of 3 at 155 ns: its returns 1 and 2 lay before it, one point each."""
+    pulses = read_pulses(leica_dir / "leica_a.las")
+    t3 = float(pulses.return_location_ps[pulses.return_offsets[182]])
+    rows = np.full(4, 182)
+    found = omitted_returns_found(pulses, np.array([t3 - 40_000, t3 - 60_000, t3 - 20_000, t3 + 30_000]), rows)
+    assert found.tolist() == [True, True, False, False]  # the two earliest; none after return 3
+    assert not omitted_returns_found(pulses, np.array([1000.0]), np.array([0])).any()  # pulse 0 omits none
+
+
+def test_compare_to_system_splits_the_new_points(leica_dir):
+    """Every return itself matches; a point before pulse 182's held return stands for an omitted one, a point
+    1 m beyond a return of pulse 0 is in the dead zone: the new points split between them."""
+    pulses = read_pulses(leica_dir / "leica_a.las")
+    lo = pulses.return_offsets[182]
+    metres_per_ps = np.linalg.norm(pulses.direction[[182, 0]], axis=1)
+    up_the_ray = pulses.direction[[182, 0]] / metres_per_ps[:, None]  # position = anchor + (L0 - t) direction
+    xyz = np.vstack([pulses.return_xyz, pulses.return_xyz[lo] + 8.0 * up_the_ray[0],
+                     pulses.return_xyz[0] + 1.0 * up_the_ray[1]])
+    times = np.concatenate([pulses.return_location_ps, [pulses.return_location_ps[lo] - 8.0 / metres_per_ps[0],
+                                                        pulses.return_location_ps[0] - 1.0 / metres_per_ps[1]]])
+    rows = np.concatenate([pulses.return_pulse(), [182, 0]])
+    c = compare_to_system(pulses, xyz, times, rows)
+    assert (c.matched_system, c.new_points) == (1125, 2)
+    assert (c.new_at_omitted_returns, c.new_in_dead_zone) == (1, 1)
