@@ -18,6 +18,9 @@ Per preset (the default, `fast`, `paper`), one thread, after compilation:
 - the extra echoes again, counting only those beyond the system's dead zone ("beyond dz": farther
   than its smallest separation of two returns of one pulse from every return of their pulse, where
   the system could have reported them);
+- where the default's extra echoes lie: between the lowest and highest system returns within 5 m
+  horizontally, below or above them, against the same echoes at random times of their packets, and
+  from the two the number of fits to background noise among them;
 - Sylva (PyPI sylva-rs, Rust LM, RAYON_NUM_THREADS=1) on the same Leica file;
 - peak memory (RSS) of this process.
 """
@@ -38,10 +41,12 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fwcore.compare import compare_to_system, system_dead_zone  # noqa: E402
+from fwcore.compare import (ABOVE, BELOW, BETWEEN, compare_to_system, extra_points,  # noqa: E402
+                            height_among_returns, system_dead_zone)
 from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
 from fwcore.engine import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
+from fwcore.io.geolocate import geolocate  # noqa: E402
 from fwcore.neon import pulse_fwhm_ps, read_neon_csv  # noqa: E402
 from fwcore.preprocess import estimate_pulse_fwhm  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
@@ -114,6 +119,35 @@ def leica_rows() -> None:
               f"{(extra - points.new_in_dead_zone) / n_system:9.3f} {points.median_distance:8.3f} "
               f"{(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
               f"{stable_share(result, other, 2.0):11.4f} {mde_share(config, result):7.2f}", flush=True)
+        if label == "default":
+            where_extras = extras_among_returns(pulses, result, xyz, times)
+    print(where_extras)
+
+
+def extras_among_returns(pulses, result, xyz, times) -> str:
+    """Where the kept echoes that match no return lie against the system's returns within 5 m horizontally,
+    and where the same echoes would lie at random times of their packets (what fits to noise would give)."""
+    owner = result.echo_waveform[result.reject == 0]
+    new, omitted = extra_points(pulses, xyz, times, owner)
+    extra = np.flatnonzero(new & ~omitted)
+    rows = owner[extra]
+    span_ps = np.diff(pulses.sample_offsets)[rows] * pulses.sample_spacing_ps[rows]
+    random_ps = np.random.default_rng(0).uniform(0.0, span_ps)
+    at_random = geolocate(pulses.anchor[rows], pulses.anchor_location_ps[rows], pulses.direction[rows], random_ps)
+
+    ours, chance = height_among_returns(xyz[extra], pulses.return_xyz), height_among_returns(at_random, pulses.return_xyz)
+
+    def shares(where) -> str:
+        return " / ".join(f"{np.mean(where == w):.2f}" for w in (BETWEEN, BELOW, ABOVE))
+
+    # fits to the background's noise land anywhere in a packet: below the ground as often as random times do
+    # (artefacts next to a surface, a split return, are not counted so)
+    below_by_chance = max(float(np.mean(chance == BELOW)), 1e-9)
+    noise_like = (ours == BELOW).sum() / below_by_chance
+    return (f"The default's {extra.size} extra echoes against the system's returns within 5 m horizontally "
+            f"(between their lowest and highest / below / above): {shares(ours)}; at random times of the same "
+            f"packets: {shares(chance)}. Fits to background noise among them, so estimated: {noise_like:.0f} "
+            f"({noise_like / len(pulses.return_xyz):.3f} per system return)")
 
 
 def mde_share(config: DecompositionConfig, result) -> float:

@@ -194,23 +194,56 @@ def omitted_returns_found(pulses: PulseBatch, time_ps: np.ndarray, pulse: np.nda
     return found
 
 
+def extra_points(pulses: PulseBatch, xyz: np.ndarray, time_ps: np.ndarray, pulse: np.ndarray,
+                 distance: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """(new, at omitted returns): the decomposed points (`xyz`; `time_ps`, their times within the packet on
+    the system's range reference; `pulse`, their rows) farther than `distance` from every return of the
+    file, and among those the ones that stand for returns the system reported but the file omits."""
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    if not len(pulses.return_xyz) or not len(xyz):
+        return np.ones(len(xyz), dtype=bool), np.zeros(len(xyz), dtype=bool)
+    to_system, _ = cKDTree(pulses.return_xyz).query(xyz)
+    new = to_system > distance
+    omitted = np.zeros(len(xyz), dtype=bool)
+    omitted[new] = omitted_returns_found(pulses, np.asarray(time_ps, dtype=float)[new], np.asarray(pulse)[new])
+    return new, omitted
+
+
 def compare_to_system(pulses: PulseBatch, xyz: np.ndarray, time_ps: np.ndarray, pulse: np.ndarray,
                       distance: float = 0.5) -> PointComparison:
-    """compare_points of decomposed points (`xyz`; `time_ps`, their times within the packet on the system's
-    range reference; `pulse`, their rows) against the file's own returns. The new points split into those
-    standing for returns the system reported but the file omits, those in its dead zone, and the rest."""
+    """compare_points of decomposed points (as extra_points) against the file's own returns. The new points
+    split into those standing for returns the system reported but the file omits, those in its dead zone,
+    and the rest."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     pulse = np.asarray(pulse)
     points = compare_points(pulses.return_xyz, xyz, distance, pulses.return_pulse(), pulse)
-    if not len(pulses.return_xyz) or not len(xyz):
-        return points
-    to_system, _ = cKDTree(pulses.return_xyz).query(xyz)
-    new = np.flatnonzero(to_system > distance)
-    omitted = omitted_returns_found(pulses, np.asarray(time_ps, dtype=float)[new], pulse[new])
-    rest = new[~omitted]
+    new, omitted = extra_points(pulses, xyz, time_ps, pulse, distance)
+    rest = new & ~omitted
     own = _nearest_in_own_pulse(xyz[rest], pulse[rest], pulses.return_xyz, pulses.return_pulse())
     return dataclasses.replace(points, new_at_omitted_returns=int(omitted.sum()),
                                new_in_dead_zone=int((own < points.dead_zone).sum()))
+
+
+BELOW, BETWEEN, ABOVE, NO_RETURN_NEAR = -1, 0, 1, 2
+
+
+def height_among_returns(xyz: np.ndarray, system_xyz: np.ndarray, radius: float = 5.0,
+                         tolerance: float = 0.5) -> np.ndarray:
+    """Where each point lies against the system's returns within `radius` m of it horizontally: BELOW the
+    lowest of them (by more than `tolerance`), ABOVE the highest, BETWEEN, or NO_RETURN_NEAR. A surface the
+    system did not report lies between (the canopy, the understory, the ground); an echo fitted to noise
+    anywhere in a packet mostly lies below the ground, where most of a packet's span is."""
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    system_xyz = np.asarray(system_xyz, dtype=float).reshape(-1, 3)
+    where = np.full(len(xyz), NO_RETURN_NEAR, dtype=np.int8)
+    if not len(xyz) or not len(system_xyz):
+        return where
+    for i, near in enumerate(cKDTree(system_xyz[:, :2]).query_ball_point(xyz[:, :2], radius)):
+        if near:
+            z = system_xyz[near, 2]
+            where[i] = (BELOW if xyz[i, 2] < z.min() - tolerance else ABOVE if xyz[i, 2] > z.max() + tolerance
+                        else BETWEEN)
+    return where
 
 # ---------------------------------------------------------------- the evaluation budget
 

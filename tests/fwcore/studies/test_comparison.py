@@ -5,8 +5,9 @@ import csv
 import numpy as np
 import pytest
 
-from fwcore.compare import (budget_settings, choose_fast_preset, compare_points, compare_to_system,
-                            omitted_returns_found, system_dead_zone)
+from fwcore.compare import (ABOVE, BELOW, BETWEEN, NO_RETURN_NEAR, budget_settings, choose_fast_preset,
+                            compare_points, compare_to_system, height_among_returns, omitted_returns_found,
+                            system_dead_zone)
 from fwcore.io import read_pulses
 from pipeline.cli import main
 
@@ -153,3 +154,13 @@ def test_compare_to_system_splits_the_new_points(leica_dir):
     c = compare_to_system(pulses, xyz, times, rows)
     assert (c.matched_system, c.new_points) == (1125, 2)
     assert (c.new_at_omitted_returns, c.new_in_dead_zone) == (1, 1)
+
+
+def test_height_among_returns_by_hand():
+    """Returns at 10 m and 30 m height around (0, 0), one at 20 m 8 m away: a point within 5 m horizontally is
+    between, below or above the two near ones (0.5 m of tolerance); one 20 m away has none near."""
+    system = np.array([[0.0, 0.0, 10.0], [1.0, 0.0, 30.0], [8.0, 0.0, 20.0]])
+    points = np.array([[0.0, 1.0, 20.0], [0.0, 1.0, 9.6], [0.0, 1.0, 9.4], [0.0, 1.0, 31.0], [20.0, 0.0, 20.0]])
+    assert height_among_returns(points, system).tolist() == [BETWEEN, BETWEEN, BELOW, ABOVE, NO_RETURN_NEAR]
+    assert height_among_returns(points, system, radius=10.0)[4] == NO_RETURN_NEAR  # 12 m from the nearest
+    assert height_among_returns(points[:1], system[2:], radius=10.0).tolist() == [BETWEEN]  # 20 m exactly
