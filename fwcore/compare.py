@@ -170,7 +170,6 @@ def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance:
         p95_distance=stat(lambda d: np.percentile(d, 95)), dead_zone=dead_zone, new_in_dead_zone=in_dead_zone)
 
 
-
 def omitted_returns_found(pulses: PulseBatch, time_ps: np.ndarray, pulse: np.ndarray) -> np.ndarray:
     """Which of the points (`time_ps` within the packet, on the system's range reference; `pulse`, their
     rows) stand for a return the system reported but the file omits (PulseBatch.omitted_returns): one
@@ -244,6 +243,7 @@ def height_among_returns(xyz: np.ndarray, system_xyz: np.ndarray, radius: float 
             where[i] = (BELOW if xyz[i, 2] < z.min() - tolerance else ABOVE if xyz[i, 2] > z.max() + tolerance
                         else BETWEEN)
     return where
+
 
 # ---------------------------------------------------------------- the evaluation budget
 

@@ -68,7 +68,7 @@ class PulseBatch:
     outgoing_spacing_ps: np.ndarray | None = None
     rejected: tuple[tuple[int, str], ...] = ()  # (pulse_id, reason) of pulses that could not be read; -1: no pulse
     # per return: how many returns the system reported for its pulse (LAS number_of_returns), where recorded;
-    # more than the file holds where it was clipped to a plot (fwcore.io.records.PulseBatch.omitted_returns)
+    # more than the file holds where it was clipped to a plot (omitted_returns)
     number_of_returns: np.ndarray | None = None
 
     def __len__(self) -> int:
