@@ -47,16 +47,18 @@ def _f32_of_bits(typingctx, x):
     return sig, codegen
 
 
-# 2**f on [0, 1): degree-4 Chebyshev fit, relative error 3.6e-6 (far below any digitizer's noise).
-_E0, _E1, _E2, _E3, _E4 = (
-    _F32(1.0000036), _F32(0.69296955), _F32(0.24162132), _F32(0.05171774), _F32(0.01368398),
+# 2**f on [0, 1): degree-3 Chebyshev fit, relative error 1.0e-4. The population methods' objective
+# is all it serves (reported numbers are float64 libm): an echo of an 8-bit digitizer's full scale
+# is then off by at most 0.05 DN, a sixth of its quantisation noise, and the two degrees fewer make
+# MDE 9% faster (degree 4, 3.6e-6, with degree 5 below: `paper` 58 against 63 pulses/s on Leica).
+_E0, _E1, _E2, _E3 = (
+    _F32(0.9998967), _F32(0.69639057), _F32(0.22451635), _F32(0.0790857),
 )
 _LO_EXP = _F32(-126.0)
 _ONE = _F32(1.0)
-# log2(1 + f) on f in [0, 1): degree-5 Chebyshev fit, absolute error 1.4e-5 (no division, which is slow in SIMD).
-_L0, _L1, _L2, _L3, _L4, _L5 = (
-    _F32(1.4390930e-05), _F32(1.4415921), _F32(-0.70725346), _F32(0.41156149),
-    _F32(-0.18983245), _F32(0.043928627),
+# log2(1 + f) on f in [0, 1): degree-4 Chebyshev fit, absolute error 1.0e-4 (no division, which is slow in SIMD).
+_L0, _L1, _L2, _L3, _L4 = (
+    _F32(1.00189034e-04), _F32(1.43730211), _F32(-0.672934175), _F32(0.315467596), _F32(-0.0800108761),
 )
 _MANTISSA = np.int32(0x007FFFFF)
 _ONE_BITS = np.int32(0x3F800000)
@@ -69,7 +71,7 @@ def fast_exp2(x):
     x = max(x, _LO_EXP)
     xi = np.floor(x)
     f = x - xi
-    p = _E0 + f * (_E1 + f * (_E2 + f * (_E3 + f * _E4)))
+    p = _E0 + f * (_E1 + f * (_E2 + f * _E3))
     scale = _f32_of_bits((np.int32(xi) + np.int32(127)) << np.int32(23))
     return p * scale
 
@@ -80,7 +82,7 @@ def fast_log2(x):
     bits = _bits_of_f32(x)
     e = _F32((bits >> np.int32(23)) - np.int32(127))
     f = _f32_of_bits((bits & _MANTISSA) | _ONE_BITS) - _ONE
-    return e + (_L0 + f * (_L1 + f * (_L2 + f * (_L3 + f * (_L4 + f * _L5)))))
+    return e + (_L0 + f * (_L1 + f * (_L2 + f * (_L3 + f * _L4))))
 
 
 @njit(**JIT)

