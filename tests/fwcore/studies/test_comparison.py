@@ -37,6 +37,8 @@ def test_every_optimizer_has_a_row_with_physical_numbers(leica_compare):
         assert float(r["fit_error"]) >= 0 and float(r["rmse"]) >= 0 and float(r["r2"]) <= 1
         assert float(r["echoes_kept"]) <= float(r["echoes"])
         assert float(r["seconds"]) > 0
+    # the method's fixed budgets, every generation run: MDE 60 + 80 x 60 x (5 candidates + 1 trial), DE 100 x 101
+    assert float(by["mde"]["evaluations"]) >= 28_860 and float(by["de"]["evaluations"]) >= 10_100
     # every optimizer starts from the initial estimate: the local ones can only improve it
     for name in ("lm", "lbfgs", "mde-lm"):
         assert float(by[name]["fit_error"]) < float(by["none"]["fit_error"])
