@@ -139,6 +139,14 @@ def _nearest_in_own_pulse(points: np.ndarray, pulse: np.ndarray, others: np.ndar
     return distance
 
 
+def _in_dead_zone(points: np.ndarray, pulse: np.ndarray, system_xyz: np.ndarray,
+                  system_pulse: np.ndarray) -> tuple[float, int]:
+    """(the system's dead zone, how many of `points` lie within it of a return of their own pulse)."""
+    dead_zone = system_dead_zone(system_xyz, system_pulse)
+    own = _nearest_in_own_pulse(points, pulse, system_xyz, np.asarray(system_pulse))
+    return dead_zone, int((own < dead_zone).sum())
+
+
 def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance: float = 0.5,
                    system_pulse: np.ndarray | None = None,
                    decomposed_pulse: np.ndarray | None = None) -> PointComparison:
@@ -159,10 +167,8 @@ def compare_points(system_xyz: np.ndarray, decomposed_xyz: np.ndarray, distance:
     new = to_system > distance
     dead_zone, in_dead_zone = 0.0, 0
     if system_pulse is not None and decomposed_pulse is not None:
-        dead_zone = system_dead_zone(system_xyz, system_pulse)
-        own = _nearest_in_own_pulse(decomposed_xyz[new], np.asarray(decomposed_pulse)[new], system_xyz,
-                                    np.asarray(system_pulse))
-        in_dead_zone = int((own < dead_zone).sum())
+        dead_zone, in_dead_zone = _in_dead_zone(decomposed_xyz[new], np.asarray(decomposed_pulse)[new],
+                                                system_xyz, system_pulse)
     return PointComparison(
         distance=distance, system_points=len(system_xyz), decomposed_points=len(decomposed_xyz),
         matched_system=int(matched.sum()), missed_system=int((~matched).sum()),
@@ -216,12 +222,12 @@ def compare_to_system(pulses: PulseBatch, xyz: np.ndarray, time_ps: np.ndarray, 
     and the rest."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     pulse = np.asarray(pulse)
-    points = compare_points(pulses.return_xyz, xyz, distance, pulses.return_pulse(), pulse)
+    points = compare_points(pulses.return_xyz, xyz, distance)
     new, omitted = extra_points(pulses, xyz, time_ps, pulse, distance)
     rest = new & ~omitted
-    own = _nearest_in_own_pulse(xyz[rest], pulse[rest], pulses.return_xyz, pulses.return_pulse())
-    return dataclasses.replace(points, new_at_omitted_returns=int(omitted.sum()),
-                               new_in_dead_zone=int((own < points.dead_zone).sum()))
+    dead_zone, in_dead_zone = _in_dead_zone(xyz[rest], pulse[rest], pulses.return_xyz, pulses.return_pulse())
+    return dataclasses.replace(points, dead_zone=dead_zone, new_in_dead_zone=in_dead_zone,
+                               new_at_omitted_returns=int(omitted.sum()))
 
 
 BELOW, BETWEEN, ABOVE, NO_RETURN_NEAR = -1, 0, 1, 2
