@@ -85,11 +85,16 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     config = _config_from_args(args)
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
-                      beam_args, verbose=args.verbose)
+                      beam_args, verbose=args.verbose, resume=args.resume)
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
-              f"rerun the same command to complete it", file=sys.stderr)
+              f"rerun the same command with --resume to complete it", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if args.resume and summary.get("taken") != "resumed":
+        said = {"new": "nothing to resume: a new run", "complete": "already complete: nothing to do"}
+        print(f"fwl run --resume: {args.output}: {said.get(summary.get('taken'), said['complete'])}")
+    elif summary.get("ranges_reused"):
+        print(f"resumed: {summary['ranges_reused']} of {summary['ranges']} ranges reused")
     c = summary["counts"]
     problems = f", problems {c['problems']}" if c.get("problems") else ""  # ranges lost whole, missing records
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
@@ -99,6 +104,38 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     if c["pulses_rejected"] or c["files_rejected"] or c.get("problems"):
         print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
     return summary["exit_code"]
+
+
+def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
+    from pipeline.options import check_beam_args
+    from pipeline.run import EXIT_INTERRUPTED, check_run_arguments, run, run_settings
+    from pipeline.watch import watch
+
+    config = _config_from_args(args)
+    formats = check_run_arguments(args.formats, args.limit, args.points_per_range)
+    if not args.poll > 0:
+        raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
+    check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
+    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz)
+    running = []
+
+    def run_batch(paths: list[str]) -> dict:
+        running.append(paths)
+        summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args,
+                      verbose=args.verbose, add=True)
+        running.clear()
+        return summary
+
+    try:
+        watch(args.folder, args.output, config, settings, run_batch, args.poll, args.once,
+              lambda line: print(line, flush=True))
+    except KeyboardInterrupt:
+        if running:
+            print(f"fwl watch: interrupted while processing {', '.join(Path(p).name for p in running[0])}; "
+                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        print("fwl watch: stopped", flush=True)
+    return 0
 
 
 def _compare(args: argparse.Namespace) -> int:
@@ -234,8 +271,23 @@ def build_parser() -> argparse.ArgumentParser:
                                               "(their *.las, *.laz, *.pls); "
                                              "default: the bundled Leica sample")
     r.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
+    r.add_argument("--resume", action="store_true",
+                   help="go on with the interrupted run in --output (same inputs and options): keep every range it "
+                        "finished, run the rest; a changed input or option is refused")
     FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
+
+    w = sub.add_parser("watch", help="process the full-waveform files that land in a folder, each once, as they "
+                                     "become complete", allow_abbrev=False,
+                       epilog="Run options and Beam pipeline options are those of fwl run; each batch of new files "
+                              "is an fwl run into --output, which grows file by file. Ctrl-C stops (exit 0; 130 when "
+                              "it interrupts a batch, which a restart resumes).")
+    w.add_argument("folder", help="the folder where flight lines land (its *.las, *.laz, *.pls; not recursive)")
+    w.add_argument("--poll", type=float, default=5.0, help="seconds between looks at the folder (default 5)")
+    w.add_argument("--once", action="store_true",
+                   help="look twice, process what is complete, and exit (for cron and scripts)")
+    FwlOptions._add_argparse_args(w)
+    w.set_defaults(handler=_watch)
 
     c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ file or a NEON CSV: tables and figures")
     c.add_argument("input", help="full-waveform LAS/LAZ file, or a NEON-layout CSV")
@@ -315,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     try:
-        if args.command == "run":
+        if args.command in ("run", "watch"):
             return args.handler(args, rest)
         if rest:
             raise unknown_option_error(rest, _parser_flags(parser, args.command))

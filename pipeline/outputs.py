@@ -4,6 +4,14 @@ A run never removes what it did not write. It takes a folder that is new,
 empty, or holds only an earlier run's outputs, which it knows by the manifest
 (fwl-output.json) it writes before anything else. run.json is written last:
 a folder without it holds an incomplete run.
+
+The manifest also fingerprints the run: its settings (the decomposition's
+configuration and what shapes the outputs) and each input's identity (sizes
+and digests of the file and its packet file). A folder is taken three ways:
+
+    replace  a new run: the earlier run's files go (fwl run)
+    resume   the same inputs and settings: every file stays, the run goes on (fwl run --resume)
+    add      the same settings: more inputs join the folder's, a replaced input's outputs go (fwl watch)
 """
 
 from __future__ import annotations
@@ -11,9 +19,12 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import glob
+import hashlib
 import json
 import os
+import re
 from pathlib import Path, PurePosixPath
+from typing import Any
 
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
@@ -28,6 +39,10 @@ class OutputFolderError(ValueError):
 
 class IncompleteRunError(ValueError):
     """A folder without run.json: its run did not finish (or it is not a run's folder)."""
+
+
+class ResumeError(OutputFolderError):
+    """A folder that cannot be resumed or added to by this call: other inputs or settings; says which."""
 
 
 # ---------------------------------------------------------------- inputs
@@ -89,6 +104,43 @@ class InputNames:
         return self.stems.get(name) or Path(name).stem
 
 
+# ---------------------------------------------------------------- what a run is made of
+
+DIGEST_BYTES = 1 << 20  # of a file's head and of its tail: where a re-delivered flight line differs (header, points)
+
+
+def _file_identity(path: str) -> dict[str, Any]:
+    if "://" in path:  # object stores: what their listing says
+        from apache_beam.io.filesystems import FileSystems
+        meta = FileSystems.match([path])[0].metadata_list[0]
+        return {"size": meta.size_in_bytes, "updated": meta.last_updated_in_seconds}
+    size = os.path.getsize(path)
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        digest.update(f.read(DIGEST_BYTES))
+        if size > DIGEST_BYTES:
+            f.seek(max(DIGEST_BYTES, size - DIGEST_BYTES))
+            digest.update(f.read(DIGEST_BYTES))
+    return {"size": size, "sha256": digest.hexdigest()}
+
+
+def input_identity(path: str) -> dict[str, dict[str, Any]]:
+    """What tells an input from a changed one, cheaply at any size: per file (the input and the file beside it
+    that holds its samples) its size and a digest of its first and last MiB. Times are left out: a copy
+    changes them, not the data."""
+    from fwcore.io import packet_file
+    files = [path] + ([str(c)] if "://" not in path and (c := packet_file(path)) else [])
+    return {PurePosixPath(f.split("://", 1)[-1]).name: _file_identity(f) for f in files}
+
+
+def differences(before: Any, now: Any, where: str = "") -> list[str]:
+    """Each leaf of two nested dicts that differs, as "key.sub: before -> now"."""
+    if isinstance(before, dict) and isinstance(now, dict):
+        return [d for k in sorted(set(before) | set(now), key=str)
+                for d in differences(before.get(k), now.get(k), f"{where}.{k}" if where else str(k))]
+    return [] if before == now else [f"{where}: {before!r} -> {now!r}"]
+
+
 # ---------------------------------------------------------------- the folder
 
 def _is_ours(relative: PurePosixPath, stems: set[str], listed: set[str]) -> bool:
@@ -148,8 +200,16 @@ def earlier_run_files(folder: Path) -> list[PurePosixPath]:
     return files
 
 
-def take_output_folder(folder: Path, names: InputNames, inputs: list[str]) -> None:
-    """Check, then empty the earlier run's files from `folder`, and claim it for this run with a manifest.
+def _manifest_entry(path: str, names: InputNames, identities: dict[str, dict] | None) -> dict:
+    name = names.name(path)
+    return {"path": path, "name": name, "stem": names.stem(name),
+            "identity": (identities or {}).get(path), "done": False}
+
+
+def take_output_folder(folder: Path, names: InputNames, inputs: list[str], settings: dict | None = None,
+                       identities: dict[str, dict] | None = None) -> None:
+    """Check, then empty the earlier run's files from `folder`, and claim it for this run with a manifest that
+    fingerprints it (`settings`, each input's identity).
 
     run.json goes first, so that a folder interrupted here reads as incomplete.
     """
@@ -169,12 +229,136 @@ def take_output_folder(folder: Path, names: InputNames, inputs: list[str]) -> No
             for sub in sorted((p for p in (folder / d).rglob("*") if p.is_dir()), reverse=True):
                 sub.rmdir()
             (folder / d).rmdir()
+    write_manifest(folder, settings, [_manifest_entry(p, names, identities) for p in inputs])
+
+
+def read_manifest(folder: Path) -> dict:
+    """The manifest of an fwl output folder (OutputFolderError when it is missing or unreadable)."""
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        _ = [(i["path"], i["stem"]) for i in manifest["inputs"]]
+        return manifest
+    except FileNotFoundError:
+        raise OutputFolderError(f"{folder}: not an fwl run output folder (no {MANIFEST})") from None
+    except (ValueError, KeyError, TypeError) as err:
+        raise OutputFolderError(f"{folder / MANIFEST}: unreadable manifest ({err}); remove the folder yourself") \
+            from None
+
+
+def write_manifest(folder: Path, settings: dict | None, inputs: list[dict], started: str | None = None) -> None:
     manifest = {
-        "written_by": "fwl run", "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "written_by": "fwl run",
+        "started": started or datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "note": f"fwl run owns this folder's {', '.join(OUTPUT_DIRS)} folders; {RUN_JSON} marks a complete run",
-        "inputs": [{"path": p, "name": names.name(p), "stem": names.stem(names.name(p))} for p in inputs],
+        "settings": settings,
+        "inputs": inputs,
     }
     _write_atomically(folder / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+
+
+def mark_inputs_done(folder: Path, paths: list[str], planned: dict[str, dict]) -> None:
+    """In the manifest: these inputs are complete, with what their plan measured (for later run.json files)."""
+    manifest = read_manifest(folder)
+    for entry in manifest["inputs"]:
+        if entry["path"] in paths:
+            entry["done"] = True
+            entry["planned"] = planned.get(entry["path"], {})
+    write_manifest(folder, manifest.get("settings"), manifest["inputs"], manifest.get("started"))
+
+
+def _fingerprinted(folder: Path, how: str) -> dict:
+    earlier_run_files(folder)  # refuses a folder that holds what is not ours
+    manifest = read_manifest(folder)
+    if manifest.get("settings") is None:
+        raise ResumeError(f"{folder}: its run was written by an fwl that did not fingerprint its runs, so it cannot "
+                          f"{how}; run without --resume into it (which replaces it), or choose another folder")
+    return manifest
+
+
+def resume_output_folder(folder: Path, names: InputNames, inputs: list[str], settings: dict,
+                         identities: dict[str, dict]) -> str:
+    """Claim `folder` to go on with its interrupted run: the same inputs, unchanged, and the same settings,
+    else ResumeError naming what differs. Returns "resumed"; "new" when there was nothing to resume (a new
+    or empty folder, now claimed as by take_output_folder); "complete" when its run had finished (left as is)."""
+    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+        take_output_folder(folder, names, inputs, settings, identities)
+        return "new"
+    manifest = _fingerprinted(folder, "be resumed")
+    fix = "run without --resume to start over, or resume with the interrupted run's inputs and options"
+    changed = differences(manifest["settings"], settings)
+    if changed:
+        raise ResumeError(f"{folder}: cannot resume: the settings differ from the interrupted run's "
+                          f"({'; '.join(changed)}); {fix}")
+    before = {i["path"]: i for i in manifest["inputs"]}
+    missing, added = sorted(set(before) - set(inputs)), sorted(set(inputs) - set(before))
+    if missing or added:
+        said = ([f"not given now: {', '.join(missing)}"] if missing else []) + \
+            ([f"not in the interrupted run: {', '.join(added)}"] if added else [])
+        raise ResumeError(f"{folder}: cannot resume: other inputs ({'; '.join(said)}); {fix}")
+    for path in inputs:
+        changed = differences(before[path].get("identity"), identities[path])
+        if changed:
+            raise ResumeError(f"{path}: changed since the interrupted run in {folder} read it "
+                              f"({'; '.join(changed)}); {fix}")
+    if is_complete(folder):
+        return "complete"
+    (folder / RUN_JSON).unlink(missing_ok=True)  # a damaged one
+    return "resumed"
+
+
+def add_to_output_folder(folder: Path, inputs: list[str], settings: dict,
+                         identities: dict[str, dict]) -> tuple[InputNames, list[str]]:
+    """Claim `folder` for more inputs beside those it holds (fwl watch): the same settings, else ResumeError.
+    An input it holds whose identity changed (a replaced file) loses its outputs, to be made anew; one it
+    holds unchanged keeps them (its finished ranges are reused). Returns the names of all the folder's
+    inputs, and the inputs replaced."""
+    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+        names = InputNames.of(inputs)
+        take_output_folder(folder, names, inputs, settings, identities)
+        return names, []
+    manifest = check_settings(folder, settings)
+    entries = {i["path"]: i for i in manifest["inputs"]}
+    replaced = [p for p in inputs if p in entries and entries[p].get("identity") != identities[p]]
+    for path in replaced:
+        remove_input_outputs(folder, entries[path]["stem"])
+        entries[path].update(identity=identities[path], done=False, planned={})
+    names = InputNames.of(list(entries) + [p for p in inputs if p not in entries])
+    kept = InputNames({p: e["name"] for p, e in entries.items()}, {e["name"]: e["stem"] for e in entries.values()})
+    for path in inputs:
+        if path not in entries:  # a new input: its own name, and a stem no earlier input has
+            name, stem = names.name(path), names.stem(names.name(path))
+            taken = set(kept.stems.values())
+            stem = stem if stem not in taken else name.replace("/", "__")
+            entries[path] = {"path": path, "name": name, "stem": stem, "identity": identities[path], "done": False}
+            kept.names[path], kept.stems[name] = name, stem
+    (folder / RUN_JSON).unlink(missing_ok=True)
+    write_manifest(folder, settings, list(entries.values()), manifest.get("started"))
+    return kept, replaced
+
+
+def check_settings(folder: Path, settings: dict) -> dict:
+    """The manifest of a folder to add inputs to, if it made its outputs with these settings (a new or empty
+    folder has none: {}); else ResumeError naming the settings that differ."""
+    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+        return {}
+    manifest = _fingerprinted(folder, "take more inputs")
+    changed = differences(manifest["settings"], settings)
+    if changed:
+        raise ResumeError(f"{folder}: holds outputs made with other settings ({'; '.join(changed)}); "
+                          f"use the same options, or another --output")
+    return manifest
+
+
+def remove_input_outputs(folder: Path, stem: str) -> list[Path]:
+    """Every file of one input in our folders: its tables' parts, point cloud, MCAP, parts and plan."""
+    own = re.compile(re.escape(stem) + r"(-\d{12})?\.")
+    gone = []
+    for d in OUTPUT_DIRS:
+        for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:
+            if p.is_file() and own.match(p.name):
+                p.unlink()
+                gone.append(p)
+    return gone
 
 
 def remove_partial_files(folder: Path) -> list[Path]:

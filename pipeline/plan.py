@@ -1,19 +1,69 @@
-"""Planning on the driver: input patterns -> files -> ranges of a few thousand pulses each.
+"""Planning: an input file -> its ranges of a few thousand pulses each, and what the file does not record.
 
-The driver plans before the pipeline starts, so that the progress bar knows
-the total and every runner receives the ranges as its first collection (the
-Dask runner partitions that collection, one range per partition).
+A file's plan is one pass over its packet keys (every pulse in exactly one
+range) and the measurement of its system pulse. It is the dataflow's first
+stage, run on the workers, one file per element (`transforms.PlanFile`): a
+cluster plans many files at once and the driver only lists the inputs. Each
+plan is written to parts/plans/<stem>.json, which the driver reads back: it
+then knows the total for the progress bar and the ranges, which become the
+first collection of the ranges' job (the Dask runner partitions a job's
+first collection, one range per partition, and cannot spread ranges born
+inside a partition). A resumed run reuses the plans it finds.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
+from typing import NamedTuple
 
 from fwcore.config import DecompositionConfig
 from fwcore.io import input_summary, plan_point_ranges
+from fwcore.io.records import PointRange
 from fwcore.survey import file_system_pulse
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
+
+PLANS = Path("parts") / "plans"  # under the output folder
+
+
+class InputToPlan(NamedTuple):
+    """The driver -> plan: an input as listed, under its output names."""
+
+    path: str
+    name: str
+    stem: str
+
+
+@dataclasses.dataclass(frozen=True)
+class FilePlan:
+    """plan -> the driver: a file's ranges, or the Rejection that says why it could not be planned."""
+
+    source: InputFile | None
+    ranges: tuple[PointRange, ...] = ()
+    rejection: Rejection | None = None
+
+    @property
+    def tasks(self) -> list[ReadTask]:
+        return [ReadTask(self.source, r) for r in self.ranges]
+
+    def to_json(self) -> dict:
+        return {"source": dataclasses.asdict(self.source) if self.source else None,
+                "ranges": [dataclasses.asdict(r) for r in self.ranges],
+                "rejection": self.rejection._asdict() if self.rejection else None}
+
+    @classmethod
+    def from_json(cls, value: dict) -> "FilePlan":
+        def point_range(r: dict) -> PointRange:
+            return PointRange(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
+        return cls(InputFile(**value["source"]) if value["source"] else None,
+                   tuple(point_range(r) for r in value["ranges"]),
+                   Rejection(**value["rejection"]) if value["rejection"] else None)
+
+
+def plan_path(output: str | Path, stem: str) -> Path:
+    return Path(output) / PLANS / f"{stem}.json"
 
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
@@ -35,19 +85,39 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     return tasks
 
 
+def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range: int,
+               limit: int | None = None) -> FilePlan:
+    """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception."""
+    try:
+        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit)
+    except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
+        reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
+        return FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open", reason))
+    return FilePlan(tasks[0].source if tasks else None, tuple(t.point_range for t in tasks))
+
+
+def inputs_to_plan(paths: list[str], names: InputNames) -> list[InputToPlan]:
+    return [InputToPlan(p, names.name(p), names.stem(names.name(p))) for p in paths]
+
+
 def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,
                 limit: int | None = None) -> tuple[list[ReadTask], list[Rejection]]:
-    """The ranges of every file, and a Rejection naming the problem for each file that cannot be planned."""
-    tasks, rejected = [], []
-    for path in paths:
-        name = names.name(path)
-        stem = names.stem(name)
+    """Every file planned here, one after another (the workers' stage does the same per file): the ranges of
+    every file, and a Rejection naming the problem for each file that cannot be planned."""
+    plans = [plan_input(i, config, points_per_range, limit) for i in inputs_to_plan(paths, names)]
+    return [t for p in plans for t in p.tasks], [p.rejection for p in plans if p.rejection]
+
+
+def read_plans(output: str | Path, inputs: list[InputToPlan]) -> dict[str, FilePlan]:
+    """The plans the workers wrote, by input path; an input without one is a Rejection (its planning was lost)."""
+    plans = {}
+    for item in inputs:
         try:
-            tasks.extend(plan_file(path, name, stem, config, points_per_range, limit))
-        except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
-            reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
-            rejected.append(Rejection(name, stem, -1, -1, "open", reason))
-    return tasks, rejected
+            plans[item.path] = FilePlan.from_json(json.loads(plan_path(output, item.stem).read_text()))
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            plans[item.path] = FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open",
+                                                            f"its plan was not written ({err})"))
+    return plans
 
 
 def planned_pulses(task: ReadTask) -> int:

@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Iterable, TextIO
 
 # Beam and its dependencies' warnings that say nothing about the run.
 HARMLESS = ("apitools not found", "Discarding unparseable args", "semi_persistent_directory",
@@ -104,12 +104,12 @@ class ProgressBar:
     now and then."""
 
     def __init__(self, marks: Path, total: int, stream: TextIO, interactive: bool | None = None,
-                 every: float = 0.5, line_every: float = 60.0):
+                 every: float = 0.5, line_every: float = 60.0, already: Iterable[str] = ()):
         self.marks, self.total, self.stream = marks, total, stream
         self.interactive = stream.isatty() if interactive is None else interactive
         self.every, self.line_every = every, line_every
         self.done = self.rejected = 0
-        self._seen: set[str] = set()
+        self._seen: set[str] = set(already)  # the marks of ranges an earlier run finished: not in the total
         self._began = time.perf_counter()
         self._last_line = self._began
         self._stop = threading.Event()

@@ -27,16 +27,19 @@ import pyarrow.parquet as pq
 import fwcore
 from fwcore.config import DecompositionConfig
 from pipeline.options import check_beam_args, is_dask, pipeline_runner
-from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete,
-                              list_outputs, read_run, remove_partial_files, take_output_folder, write_run_json)
-from pipeline.plan import plan_inputs, planned_pulses
+from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
+                              expand_inputs, input_identity, is_complete, list_outputs, mark_inputs_done,
+                              read_manifest, read_run, remove_partial_files, resume_output_folder,
+                              take_output_folder, write_run_json)
+from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, plan_path, planned_pulses, read_plans
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
-from pipeline.tables import REJECTED_SCHEMA, empty_rejected_table
-from pipeline.transforms import NAMESPACE, PARTS, DecomposeFlight, assemble_file, written_parts
+from pipeline.tables import empty_rejected_table
+from pipeline.transforms import (NAMESPACE, PARTS, AssembleFiles, DecomposeFlight, PlanFiles, progress_mark,
+                                 range_is_complete, remove_range_files, written_parts)
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
-           "OutputFolderError", "is_complete", "read_run", "run"]
+           "OutputFolderError", "ResumeError", "is_complete", "read_run", "run", "run_settings"]
 
 EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 FORMATS = frozenset({"parquet", "las", "mcap"})
@@ -165,13 +168,6 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
     return formats
 
 
-def _write_file_rejections(output: Path, rejected: list) -> None:
-    """rejected/<stem>.parquet for each input that could not be planned (the ranges' rows come from the pipeline)."""
-    for r in rejected:
-        table = pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-        write_part(table, output / "rejected", r.stem)
-
-
 def _runner_name(options) -> str:
     runner = options.view_as(beam.options.pipeline_options.StandardOptions).runner
     name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
@@ -181,16 +177,33 @@ def _runner_name(options) -> str:
     return name
 
 
-def _one_partition_per_range(options, n_ranges: int) -> None:
-    """The Dask runner partitions the first collection into bags of 128 elements and treats Reshuffle as a
-    no-op, so a few dozen ranges would run in one partition on one worker: give each range its own."""
-    from apache_beam.runners.dask.dask_runner import DaskOptions
-    bags = options.view_as(DaskOptions)
-    if bags.npartitions is None and bags.partition_size is None:
-        bags.npartitions = max(1, n_ranges)
+class Jobs:
+    """The run's Beam jobs, each over a first collection of n elements, on the configured runner.
+
+    The Dask runner partitions a job's first collection into bags of 128 elements and treats Reshuffle as a
+    no-op, so a few dozen ranges (or files) would run in one partition on one worker: each gets its own
+    partition, unless the command line partitions them itself.
+    """
+
+    def __init__(self, options):
+        self.options = options
+        self.dask = is_dask(options)
+        if self.dask:
+            from apache_beam.runners.dask.dask_runner import DaskOptions
+            bags = options.view_as(DaskOptions)
+            self.partition_each = bags.npartitions is None and bags.partition_size is None
+
+    def run(self, n: int, build):
+        """One job: `build(pipeline)` adds its transforms; waits for its end."""
+        if self.dask and self.partition_each:
+            from apache_beam.runners.dask.dask_runner import DaskOptions
+            self.options.view_as(DaskOptions).npartitions = max(1, n)
+        return _run_job(self.options, build)
 
 
-def _run_job(pipeline: beam.Pipeline):
+def _run_job(options, build) -> object:
+    pipeline = beam.Pipeline(runner=pipeline_runner(options), options=options)
+    build(pipeline)
     result = pipeline.run()
     result.wait_until_finish()
     if hasattr(result, "client"):  # the Dask runner leaves its client open
@@ -198,83 +211,135 @@ def _run_job(pipeline: beam.Pipeline):
     return result
 
 
+def run_settings(config: DecompositionConfig, formats, limit: int | None, points_per_range: int,
+                 laz: bool) -> dict:
+    """What makes a run's outputs what they are (not the runner, nor the number of workers): its fingerprint."""
+    return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
+            "points_per_range": points_per_range, "laz": laz}
+
+
+def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
+               limit: int | None, jobs: Jobs) -> dict[str, FilePlan]:
+    """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker."""
+    todo = [i for i in inputs if not plan_path(output, i.stem).is_file()]
+    if todo:
+        jobs.run(len(todo), lambda p: (p | "Inputs" >> beam.Create(todo)
+                                       | "Plan" >> PlanFiles(str(output), config, points_per_range, limit,
+                                                             spread=not jobs.dask)))
+    return read_plans(output, inputs)
+
+
+def _planned(plan: FilePlan) -> dict:
+    """What a file's plan measured of what the file does not record (fwcore.survey), for run.json."""
+    s = plan.source
+    if s is None:
+        return {}
+    return {"system_pulse_fwhm_ps": s.system_pulse_fwhm_ps, "system_pulse_fwhm_source": s.pulse_width_source,
+            "shape_tolerance": s.shape_tolerance, "shape_tolerance_source": s.shape_tolerance_source,
+            "range_offset_ps": s.range_offset_ps, "range_offset_source": s.range_offset_source}
+
+
+def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
+    """The output folder taken as the call asks (pipeline.outputs): the names of all its inputs, and how it was
+    taken: new, resumed, complete (a resumed run that had finished) or added."""
+    identities = {p: input_identity(p) for p in paths}
+    if add:
+        return add_to_output_folder(output, paths, settings, identities)[0], "added"
+    names = InputNames.of(paths)
+    if not resume:
+        take_output_folder(output, names, paths, settings, identities)
+        return names, "new"
+    return names, resume_output_folder(output, names, paths, settings, identities)
+
+
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
-        beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True) -> dict:
+        beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
+        add: bool = False) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
-    (OutputFolderError for a folder holding what is not ours; OptionError for a mistyped option)
-    then, and nothing is changed. With `watch`, a start line and a progress bar go to the terminal;
-    logs go to DIR/logs/ (and to the terminal too with `verbose`).
+    (OutputFolderError for a folder holding what is not ours; ResumeError for a folder this call cannot
+    resume or add to; OptionError for a mistyped option) then, and nothing is changed. `resume` goes on with
+    the folder's interrupted run of the same inputs and settings, keeping every range it finished; `add`
+    (fwl watch) adds the inputs to those the folder holds. With `watch`, a start line and a progress bar go
+    to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`).
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     paths = expand_inputs(inputs or [str(BUNDLED_SAMPLE)])
-    names = InputNames.of(paths)
-    take_output_folder(output, names, paths)
+    settings = run_settings(config, formats, limit, points_per_range, laz)
+    names, taken = claim_folder(output, paths, settings, resume, add)
+    if taken == "complete":  # its run.json stays as it is
+        return {**read_run(output), "taken": taken}
     began = time.perf_counter()
-    result, tasks, file_rejections = None, [], []
+    plans: dict[str, FilePlan] = {}
+    n_ranges = n_reused = 0
+    result, jobs = None, Jobs(options)
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
-            tasks, file_rejections = plan_inputs(paths, names, config, points_per_range, limit)
-            _write_file_rejections(output, file_rejections)
-            total = sum(planned_pulses(t) for t in tasks)
-            dask = is_dask(options)
-            if dask:
-                _one_partition_per_range(options, len(tasks))
+            plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
+            tasks = [t for p in plans.values() for t in p.tasks]
+            reused = {progress_mark(output, t.source.stem, t.start).name for t in tasks if range_is_complete(output, t)}
+            todo = [t for t in tasks if progress_mark(output, t.source.stem, t.start).name not in reused]
+            for task in todo:
+                remove_range_files(output, task)
+            n_ranges, n_reused = len(tasks), len(reused)
+            total = sum(planned_pulses(t) for t in todo)
             if watch:
-                rejected = f" ({len(file_rejections)} rejected)" if file_rejections else ""
-                say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(tasks)} ranges -> "
+                rejected = sum(1 for p in plans.values() if p.rejection)
+                rejected = f" ({rejected} rejected)" if rejected else ""
+                kept = f", {n_reused} ranges reused" if n_reused else ""
+                say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 say.flush()
-            if tasks:
-                pipeline = beam.Pipeline(runner=pipeline_runner(options), options=options)
-                (pipeline | "Ranges" >> beam.Create(tasks)
-                 | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, laz, spread=not dask,
-                                                        assemble=not dask))
+            if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
-                                 line_every=60.0 if watch else float("inf")):
-                    result = _run_job(pipeline)
-                    if dask:  # the files assembled in a second job: no GroupByKey, a task shuffle on Dask
-                        files = written_parts(str(output), tasks, formats)
-                        if files:
-                            assembly = beam.Pipeline(options=options)
-                            (assembly | "Files" >> beam.Create(files)
-                             | "Assemble" >> beam.Map(assemble_file, str(output), laz))
-                            _run_job(assembly)
+                                 line_every=60.0 if watch else float("inf"), already=reused):
+                    result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
+                                                            | "DecomposeFlight" >> DecomposeFlight(
+                                                                config, str(output), formats, spread=not jobs.dask)))
+            files = written_parts(str(output), tasks, formats)
+            if files:  # each file assembled from its parts on disk, the reused ranges' and the new
+                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz))
         shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
     finally:
         remove_partial_files(output)
-    write_empty_rejected(output, [names.stem(names.name(p)) for p in paths])
     seconds = time.perf_counter() - began
-    counts, per_input = count_outputs(output, [names.name(p) for p in paths])
+    planned = {path: _planned(plan) for path, plan in plans.items()}
+    mark_inputs_done(output, paths, planned)
+    return summarise(output, formats, limit, points_per_range, config, options, seconds, result, n_ranges,
+                     n_reused, taken)
+
+
+def summarise(output: Path, formats, limit, points_per_range, config, options, seconds: float,
+              result, n_ranges: int, n_reused: int, taken: str) -> dict:
+    """run.json: the counts read back from what was written, over every input of the folder."""
+    entries = read_manifest(output)["inputs"]
+    write_empty_rejected(output, [e["stem"] for e in entries])
+    counts, per_input = count_outputs(output, [e["name"] for e in entries])
     status = status_of(counts)
-    # what each file did not record about its pulse, and how it was measured (fwcore.survey)
-    system_pulses = {t.source.path: {"system_pulse_fwhm_ps": t.source.system_pulse_fwhm_ps,
-                                     "system_pulse_fwhm_source": t.source.pulse_width_source,
-                                     "shape_tolerance": t.source.shape_tolerance,
-                                     "shape_tolerance_source": t.source.shape_tolerance_source,
-                                     "range_offset_ps": t.source.range_offset_ps,
-                                     "range_offset_source": t.source.range_offset_source} for t in tasks}
+    files_rejected = sum(c["files_rejected"] for c in per_input.values())
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
-        "inputs": [{"path": p, "name": names.name(p), "output_stem": names.stem(names.name(p)),
-                    "counts": per_input[names.name(p)], **system_pulses.get(p, {})} for p in paths],
+        "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "counts": per_input[e["name"]],
+                    **e.get("planned", {})} for e in entries],
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
-        "ranges": len(tasks),
+        "ranges": n_ranges,
+        "ranges_reused": n_reused,
+        "taken": taken,
         "config": config.to_dict(),
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metrics(result, len(file_rejections)),
+        "metrics": _metrics(result, files_rejected),
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),

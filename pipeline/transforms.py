@@ -1,8 +1,9 @@
-"""The Beam transforms: each stage a few lines over a fwcore function.
+"""The Beam transforms: each stage a few lines over a fwcore function. A run is three jobs:
 
-    ReadTasks (planned on the driver) -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
-        -> RangeParts -> GroupByFile -> assemble_file
-        (on Dask the RangeParts end the job; a second job: written_parts -> assemble_file)
+    plan:   inputs -> Spread -> PlanFile -> parts/plans/<stem>.json          (pipeline.plan)
+    ranges: ReadTasks -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
+            -> the range's parts, and its mark parts/<stem>-<range>.json, written last
+    files:  written_parts -> AssembleFiles -> las/<stem>.las, mcap/<stem>.mcap
     any stage -> Rejection -> (the range's end, in RangeStages) rejected/<stem>-<range>.parquet
 
 One dead-letter path: a stage hands on its record or Rejections, and an
@@ -18,7 +19,11 @@ the task that made it until the whole job ends (8 MB a range otherwise). A
 range's rejections are all made in that one call, so they are written there,
 one file per range, without a GroupByKey (on that runner a task shuffle whose
 tasks grow as ranges x log(ranges), kept by the scheduler and workers); for
-the same reason, on that runner the files are assembled in a second job.
+the same reason the files are assembled in a job of their own.
+
+A range's mark is the last thing it writes, and lists its files: a resumed
+run keeps a range whose mark and files are there, and redoes every other
+from scratch (`range_is_complete`, `remove_range_files`).
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ from fwcore.io.writer import write_point_cloud
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.records import STATUS_REASONS
 from fwcore.survey import model_samples
+from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
 from pipeline.records import (DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection)
 from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_mcap, write_part
 from pipeline.tables import REJECTED_SCHEMA, pulse_tables
@@ -57,8 +63,38 @@ def part_name(stem: str, range_start: int) -> str:
 
 
 def progress_mark(output: str | Path, stem: str, range_start: int) -> Path:
-    """Where a range's end is recorded: the driver's progress bar counts these."""
+    """Where a range's end is recorded: the driver's progress bar counts these, a resumed run trusts them."""
     return Path(output) / PARTS / f"{part_name(stem, range_start)}.json"
+
+
+def range_files(output: str | Path, task: ReadTask) -> list[Path]:
+    """Every file a range may write, by its deterministic names."""
+    name, out = part_name(task.source.stem, task.start), Path(output)
+    return [out / "echoes" / f"{name}.parquet", out / "pulses" / f"{name}.parquet",
+            out / "rejected" / f"{name}.parquet", out / PARTS / f"{name}.las", out / PARTS / f"{name}.mcap"]
+
+
+def mark_range_done(output: str | Path, task: ReadTask, rejected: list[Rejection]) -> Path:
+    """The range's end: its planned pulses, those rejected, and the files it wrote (written last, atomically)."""
+    written = [p.relative_to(output).as_posix() for p in range_files(output, task) if p.exists()]
+    return write_json(progress_mark(output, task.source.stem, task.start),
+                      {"pulses": planned_pulses(task), "rejected": sum(1 for r in rejected if r.pulse_id >= 0),
+                       "files": written})
+
+
+def range_is_complete(output: str | Path, task: ReadTask) -> bool:
+    """Whether a range ended (its mark is there) and every file it wrote is still there."""
+    import json
+    try:
+        mark = json.loads(progress_mark(output, task.source.stem, task.start).read_text())
+        return all((Path(output) / f).is_file() for f in mark["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def remove_range_files(output: str | Path, task: ReadTask) -> None:
+    """A range to be redone loses what an earlier attempt left of it: a part without a mark is never trusted."""
+    remove_parts(range_files(output, task) + [progress_mark(output, task.source.stem, task.start)])
 
 
 def _log_to_file(output: str) -> None:
@@ -120,26 +156,20 @@ class _Stage(beam.DoFn):
         raise NotImplementedError
 
     def reject_range(self, element, reason: str) -> list[Rejection]:
-        """Every pulse of a failed range as a Rejection (one for the range when its pulses are unknown),
-        and the range's end marked for the progress bar."""
+        """Every pulse of a failed range as a Rejection (one for the range when its pulses are unknown)."""
         task = element if isinstance(element, ReadTask) else element.task
         ids = None
         if isinstance(element, PulseRange):
-            ids, n = element.pulses.pulse_id, _range_pulses(element)
+            ids = element.pulses.pulse_id
         elif isinstance(element, DecomposedRange):  # those the engine rejected are Rejections already
-            ids, n = element.pulses.pulse_id[element.result.status == 0], _range_pulses(element)
+            ids = element.pulses.pulse_id[element.result.status == 0]
         elif isinstance(element, GeolocatedRange):
-            ids, n = element.pulses.column("pulse_id").to_numpy(), element.n_pulses
+            ids = element.pulses.column("pulse_id").to_numpy()
         where = f"points {task.point_range.start}-{task.point_range.stop}"
         if ids is None:
-            planned = task.point_range.max_pulses or task.point_range.n_pulses
-            out = [Rejection(task.source.name, task.source.stem, task.start, -1, self.stage,
-                             f"{where} ({planned} pulses): {reason}")]
-            n = max(planned, 0)
-        else:
-            out = _pulse_rejections(task, ids, self.stage, f"{where}: {reason}")
-        write_json(progress_mark(self.output, task.source.stem, task.start), {"pulses": n, "rejected": n})
-        return out
+            return [Rejection(task.source.name, task.source.stem, task.start, -1, self.stage,
+                              f"{where} ({planned_pulses(task)} pulses): {reason}")]
+        return _pulse_rejections(task, ids, self.stage, f"{where}: {reason}")
 
 
 # ---------------------------------------------------------------- read
@@ -158,11 +188,8 @@ class ReadRange(_Stage):
         self.read.inc(len(pulses) + sum(1 for pulse_id, _ in pulses.rejected if pulse_id >= 0))
         for pulse_id, reason in pulses.rejected:
             yield Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), self.stage, reason)
-        if len(pulses):
+        if len(pulses):  # else nothing left to decompose: the range ends here
             yield PulseRange(task, pulses, len(pulses.rejected))
-        else:  # nothing left to decompose: the range ends here
-            n = len(pulses.rejected)
-            write_json(progress_mark(self.output, task.source.stem, task.start), {"pulses": n, "rejected": n})
 
 
 # ---------------------------------------------------------------- decompose
@@ -269,8 +296,6 @@ class WriteRange(_Stage):
         self.decomposed.inc(item.pulses.num_rows)
         self.kept.inc(n_kept)
         self.spurious.inc(item.echoes.num_rows - n_kept)
-        write_json(progress_mark(self.output, task.source.stem, task.start),
-                   {"pulses": item.n_pulses, "rejected": item.n_rejected})
         yield RangePart(task.source.stem, task.source.path, task.start,
                         str(paths["las"]) if "las" in self.formats else "",
                         str(paths["mcap"]) if "mcap" in self.formats else "", task.source.adjusted_standard_gps_time)
@@ -286,7 +311,8 @@ def write_rejections(output: str, task: ReadTask, rows: list[Rejection]) -> Path
 
 
 class RangeStages(beam.DoFn):
-    """ReadTask -> RangePart: each range through the stages in turn, in one ParDo; its Rejections to rejected/.
+    """ReadTask -> RangePart: each range through the stages in turn, in one ParDo; its Rejections to rejected/,
+    then its mark.
 
     Beam 2.77's Dask runner collects a ParDo's outputs in a receiver that is an argument of the
     partition's task, and a worker keeps the arguments of a finished task until every task after it,
@@ -308,7 +334,12 @@ class RangeStages(beam.DoFn):
         rejected = [e for e in items if isinstance(e, Rejection)]  # the one place where the dead letter leaves
         if rejected:
             write_rejections(self.output, task, rejected)
+        mark_range_done(self.output, task, rejected)  # the one place where a range's end is recorded
         yield from (e for e in items if not isinstance(e, Rejection))
+
+    def teardown(self):
+        for stage in self.stages:
+            stage.teardown()
 
 
 # ---------------------------------------------------------------- per file
@@ -330,7 +361,7 @@ def assemble_file(item: tuple[str, list[RangePart]], output: str, laz: bool) -> 
 
 def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -> list[tuple[str, list[RangePart]]]:
     """After the ranges' job, each input's RangeParts as the files under parts/ show them (a range is written
-    whole or not at all, and the output folder held no parts before the run), in plan order."""
+    whole or not at all, and a range's stale parts are removed before it is redone), in plan order."""
     files: dict[str, list[RangePart]] = {}
     parts = Path(output) / PARTS
     for task in tasks:
@@ -344,41 +375,72 @@ def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -
     return list(files.items())
 
 
+# ---------------------------------------------------------------- the three jobs
+
+class PlanFile(beam.DoFn):
+    """InputToPlan -> its stem: the file's plan (pipeline.plan) to parts/plans/<stem>.json; a file that cannot
+    be planned also to rejected/<stem>.parquet."""
+
+    def __init__(self, output: str, config: DecompositionConfig, points_per_range: int, limit: int | None):
+        self.output, self.config, self.points_per_range, self.limit = output, config, points_per_range, limit
+
+    def setup(self):
+        _log_to_file(self.output)
+
+    def process(self, item: InputToPlan):
+        began = time.perf_counter()
+        plan = plan_input(item, self.config, self.points_per_range, self.limit)
+        if plan.rejection:
+            r = plan.rejection
+            write_part(pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA),
+                       Path(self.output) / "rejected", item.stem)
+        write_json(plan_path(self.output, item.stem), plan.to_json())
+        LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
+        yield item.stem
+
+
 @dataclasses.dataclass
-class AssembleFiles(beam.PTransform):
-    """RangeParts -> each input's point cloud and MCAP (assemble_file), the parts grouped by input."""
+class PlanFiles(beam.PTransform):
+    """The inputs, each planned by a worker."""
 
     output: str
-    laz: bool = False
+    config: DecompositionConfig
+    points_per_range: int
+    limit: int | None = None
+    spread: bool = True  # Reshuffle the files over workers (the Dask runner spreads them by its partitions)
 
-    def expand(self, parts):
-        return (parts | "KeyByFile" >> beam.Map(lambda p: (p.stem, p))
-                | "GroupByFile" >> beam.GroupByKey() | "Assemble" >> beam.Map(assemble_file, self.output, self.laz))
+    def expand(self, inputs):
+        if self.spread:
+            inputs = inputs | "Spread" >> beam.Reshuffle()
+        return inputs | "PlanFile" >> beam.ParDo(PlanFile(self.output, self.config, self.points_per_range, self.limit))
 
 
 @dataclasses.dataclass
 class DecomposeFlight(beam.PTransform):
-    """The whole dataflow, from planned ranges to written outputs."""
+    """Planned ranges -> each range read, decomposed, geolocated and written, with its mark."""
 
     config: DecompositionConfig
     output: str
     formats: frozenset[str]
-    laz: bool = False
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
-    # False: end at the RangeParts, for a second job of written_parts -> assemble_file (see run.py: on the
-    # Dask runner a GroupByKey is a task shuffle whose tasks, ranges x log(ranges), the cluster holds to the end)
-    assemble: bool = True
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        parts = tasks | "RangeStages" >> beam.ParDo(RangeStages(
+        return tasks | "RangeStages" >> beam.ParDo(RangeStages(
             self.output,
             ReadRange(self.output),
             Decompose(self.output, self.config),
             Geolocate(self.output, "mcap" in self.formats),
             WriteRange(self.output, self.formats)))
-        if not self.assemble or not self.formats & {"las", "mcap"}:
-            return parts
-        return parts | "AssembleFiles" >> AssembleFiles(self.output, self.laz)
 
+
+@dataclasses.dataclass
+class AssembleFiles(beam.PTransform):
+    """Each input's RangeParts (written_parts) -> its point cloud and MCAP (assemble_file)."""
+
+    output: str
+    laz: bool = False
+
+    def expand(self, files):
+        return files | "Assemble" >> beam.Map(assemble_file, self.output, self.laz)

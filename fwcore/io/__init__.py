@@ -6,12 +6,12 @@ dispatch on the file's format, and both give the same PulseBatch.
 """
 
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.formats import (InputSummary, crs_wkt, describe_file, input_summary, is_pulsewaves, open_input,
-                               plan_point_ranges, read_pulses)
+from fwcore.io.formats import (InputSummary, crs_wkt, describe_file, input_summary, is_pulsewaves, needs_packet_file,
+                               open_input, packet_file, plan_point_ranges, read_pulses)
 from fwcore.io.geolocate import geolocate
 from fwcore.io.reader import WaveformFile, WaveformFileError, open_waveform_file
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 __all__ = ["InputSummary", "PointRange", "PulseBatch", "WaveformDescriptor", "WaveformFile", "WaveformFileError",
-           "crs_wkt", "describe_file", "geolocate", "input_summary", "is_pulsewaves", "open_input",
-           "open_waveform_file", "plan_point_ranges", "pulse_identity", "read_pulses"]
+           "crs_wkt", "describe_file", "geolocate", "input_summary", "is_pulsewaves", "needs_packet_file", "open_input",
+           "open_waveform_file", "packet_file", "plan_point_ranges", "pulse_identity", "read_pulses"]

@@ -27,6 +27,37 @@ def is_pulsewaves(path: str | Path) -> bool:
         return False
 
 
+LAS_GLOBAL_ENCODING_AT = 6  # uint16 in the public header block; bit 2 (value 4): waveform packets external
+LAS_EXTERNAL_PACKETS = 4
+
+
+def packet_file(path: str | Path) -> Path | None:
+    """The file beside `path` that holds its samples, if one is there: a LAS file's .wdp/.wdz, a PulseWaves
+    file's .wvs (same base name, either case)."""
+    path = Path(path)
+    if is_pulsewaves(path):
+        suffixes = (".wvs", ".WVS")
+    else:  # as the reader looks: a .laz's compressed packets first
+        las = (".wdp", ".WDP", ".wdz", ".WDZ")
+        suffixes = las[2:] + las[:2] if path.suffix.lower() == ".laz" else las
+    return next((path.with_suffix(s) for s in suffixes if path.with_suffix(s).is_file()), None)
+
+
+def needs_packet_file(path: str | Path) -> bool:
+    """Whether the samples of `path` live in a file beside it: always for PulseWaves; for LAS, as the header's
+    global encoding says (read from its bytes, so a file still being copied answers too)."""
+    if is_pulsewaves(path):
+        return True
+    try:
+        with open(path, "rb") as f:
+            head = f.read(LAS_GLOBAL_ENCODING_AT + 2)
+    except OSError:
+        return False
+    if len(head) < LAS_GLOBAL_ENCODING_AT + 2 or head[:4] != b"LASF":
+        return False  # not LAS (yet): whoever opens it says what is wrong
+    return bool(int.from_bytes(head[LAS_GLOBAL_ENCODING_AT:], "little") & LAS_EXTERNAL_PACKETS)
+
+
 def open_input(path: str | Path):
     """The opened header of either format (WaveformFile or PulseWavesFile); errors name the file."""
     if is_pulsewaves(path):

@@ -75,3 +75,30 @@ def test_dask_runner_gives_the_direct_runners_rows(tmp_path, leica_dir, cluster)
     assert las == (tmp_path / "direct" / "las" / "leica_a.las").read_bytes()
     # both workers decomposed ranges: each left its own log file
     assert len(list((tmp_path / "dask" / "logs").glob("worker-*.log"))) == 2
+
+
+def test_planning_on_the_workers_gives_the_drivers_plans(tmp_path, leica_dir, cluster):
+    """The plan job on the cluster and on the DirectRunner: the plans the driver makes by itself, file by file."""
+    import apache_beam as beam
+
+    from fwcore.config import DecompositionConfig
+    from pipeline.options import check_beam_args
+    from pipeline.outputs import InputNames
+    from pipeline.plan import inputs_to_plan, plan_input, read_plans
+    from pipeline.run import Jobs
+    from pipeline.transforms import PlanFiles
+
+    bad = tmp_path / "broken.las"
+    bad.write_bytes(b"LASF" + bytes(50))
+    paths = [str(leica_dir / "leica_a.las"), str(leica_dir / "leica_a.laz"), str(bad)]
+    inputs = inputs_to_plan(paths, InputNames.of(paths))
+    config = DecompositionConfig()
+    expected = {i.path: plan_input(i, config, 400, 500) for i in inputs}
+    assert expected[str(bad)].rejection and len(expected[paths[0]].ranges) == 2
+    for runner, args in (("direct", []), ("dask", ["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
+                                                   f"--dask_client_address={cluster}"])):
+        jobs, out = Jobs(check_beam_args(args)), tmp_path / runner
+        jobs.run(len(inputs), lambda p: p | beam.Create(inputs) | PlanFiles(str(out), config, 400, 500,
+                                                                            spread=not jobs.dask))
+        assert read_plans(out, inputs) == expected, runner
+        assert (out / "rejected" / "broken.parquet").is_file()

@@ -232,7 +232,7 @@ def test_ctrl_c_stops_cleanly_and_a_rerun_completes_the_folder(tmp_path, leica_d
     stdout, stderr = run.communicate(timeout=120)
     assert run.returncode == EXIT_INTERRUPTED
     assert stderr.strip().splitlines() == [f"fwl run: interrupted; {out} holds an incomplete run (no run.json): "
-                                           f"rerun the same command to complete it"], stderr
+                                           f"rerun the same command with --resume to complete it"], stderr
     assert not list(out.rglob("*.tmp")) and not is_complete(out)
     assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out), "--optimizer", "none",
                  "--direct_num_workers=1", "--direct_running_mode=in_memory"]) == EXIT_OK

@@ -1,0 +1,130 @@
+"""`fwl watch`: each flight line processed once it is complete, once, also across restarts; a replaced one again."""
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.outputs import input_identity, read_run
+from pipeline.watch import FolderWatch, due, snapshot
+
+RUN = ["--preset", "fast", "--formats", "parquet,las", "--direct_num_workers=1", "--direct_running_mode=in_memory"]
+
+
+def fwl_watch(folder, output, *extra):
+    return subprocess.Popen([sys.executable, "-m", "pipeline.cli", "watch", str(folder), "--output", str(output),
+                             "--poll", "0.5", *RUN, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def wait_for(condition, seconds=180):
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.2)
+
+
+def done_inputs(output):
+    try:
+        return [(i["name"], i["counts"]["pulses_read"]) for i in json.loads((output / "run.json").read_text())["inputs"]]
+    except (OSError, ValueError):
+        return []
+
+
+# ---------------------------------------------------------------- complete, steady, due
+
+def test_an_input_is_ready_once_its_packets_are_there_and_nothing_grows(tmp_path, leica_dir):
+    watcher = FolderWatch(tmp_path)
+    shutil.copy(leica_dir / "leica_a.las", tmp_path / "a.las")  # its header says: packets in a.wdp
+    assert snapshot(tmp_path / "a.las") is None
+    assert watcher.ready() == {} and watcher.ready() == {}
+    data = (leica_dir / "leica_a.wdp").read_bytes()
+    (tmp_path / "a.wdp").write_bytes(data[:1000])  # arriving
+    assert watcher.ready() == {}
+    (tmp_path / "a.wdp").write_bytes(data)
+    assert watcher.ready() == {}  # grew since the last look
+    ready = watcher.ready()
+    assert list(ready) == [str(tmp_path / "a.las")] and ready[str(tmp_path / "a.las")]["a.wdp"]["size"] == len(data)
+    (tmp_path / "notes.txt").write_text("not an input")
+    assert list(watcher.ready()) == [str(tmp_path / "a.las")]
+
+
+def test_due_are_the_ready_inputs_the_output_lacks_or_holds_another_version_of(tmp_path, leica_dir):
+    for suffix in (".las", ".wdp"):
+        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
+    path = str(tmp_path / "leica_a.las")
+    ready = {path: input_identity(path)}
+    out = tmp_path / "out"
+    assert due(ready, out) == [path]  # no output folder yet
+    out.mkdir()
+    (out / "fwl-output.json").write_text(json.dumps({"settings": {}, "inputs": [
+        {"path": path, "name": "leica_a.las", "stem": "leica_a", "identity": ready[path], "done": False}]}))
+    assert due(ready, out) == [path]  # begun, not finished
+    (out / "fwl-output.json").write_text(json.dumps({"settings": {}, "inputs": [
+        {"path": path, "name": "leica_a.las", "stem": "leica_a", "identity": ready[path], "done": True}]}))
+    assert due(ready, out) == []
+    assert due({path: {"leica_a.las": {"size": 1, "sha256": "0"}}}, out) == [path]  # replaced
+
+
+# ---------------------------------------------------------------- the command
+
+def test_watch_processes_a_file_once_complete_once_across_restarts_and_again_when_replaced(tmp_path, leica_dir):
+    land, out = tmp_path / "land", tmp_path / "out"
+    land.mkdir()
+    watcher = fwl_watch(land, out)
+    try:
+        shutil.copy(leica_dir / "leica_a.las", land / "leica_a.las")
+        time.sleep(2.5)  # five polls: the .las alone is not complete
+        assert not (out / "run.json").exists()
+        shutil.copy(leica_dir / "leica_a.wdp", land / "leica_a.wdp")
+        wait_for(lambda: done_inputs(out) == [("leica_a.las", 924)])
+        first = (out / "las" / "leica_a.las").stat().st_mtime_ns
+        watcher.send_signal(signal.SIGINT)
+        stdout, stderr = watcher.communicate(timeout=60)
+    finally:
+        watcher.kill()
+    assert watcher.returncode == 0, stderr
+    assert stdout.count("new or replaced file(s): leica_a.las") == 1 and "fwl watch: stopped" in stdout
+
+    # a restart finds the file done: nothing runs
+    again = fwl_watch(land, out, "--once")
+    stdout, stderr = again.communicate(timeout=120)
+    assert again.returncode == 0, stderr
+    assert "new or replaced" not in stdout
+    assert (out / "las" / "leica_a.las").stat().st_mtime_ns == first
+
+    # a re-delivered flight line under the same name replaces the outputs of the first
+    assert main(["simulate", "--pulses", "60", "--seed", "3", "--output", str(land / "leica_a.las")]) == 0
+    (land / "leica_a.truth.parquet").unlink()
+    (land / "second.las").write_bytes(b"LASF" + bytes(300))  # damaged: rejected with its reason, not retried
+    replaced = fwl_watch(land, out, "--once")
+    stdout, stderr = replaced.communicate(timeout=180)
+    assert replaced.returncode == 0, stderr
+    assert "new or replaced file(s): leica_a.las, second.las" in stdout
+    summary = read_run(out)
+    assert [(i["name"], i["counts"]["pulses_read"], i["counts"]["files_rejected"]) for i in summary["inputs"]] == \
+        [("leica_a.las", 60, 0), ("second.las", 0, 1)]
+    assert sorted(p.name for p in (out / "pulses").iterdir()) == ["leica_a-000000000000.parquet"]
+    # the rejected input counts as done: a restart does not try it again
+    last = fwl_watch(land, out, "--once")
+    stdout, _ = last.communicate(timeout=120)
+    assert "new or replaced" not in stdout
+
+
+def test_watch_refuses_an_output_made_with_other_settings_before_it_waits(tmp_path, leica_dir, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out), "--limit", "20", *RUN]) == 0
+    (tmp_path / "land").mkdir()
+    assert main(["watch", str(tmp_path / "land"), "--output", str(out), "--once", "--optimizer", "none",
+                 "--limit", "20", *RUN]) == 2
+    assert "holds outputs made with other settings" in capsys.readouterr().err
+    assert main(["watch", str(tmp_path / "nowhere"), "--output", str(out), "--once", *RUN]) == 2
+    assert "no such folder to watch" in capsys.readouterr().err
+    assert main(["watch", str(tmp_path / "land"), "--output", str(out), "--poll", "0", *RUN]) == 2
+    assert "--poll must be" in capsys.readouterr().err
