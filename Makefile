@@ -22,6 +22,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
 	$(BIN)/python bench/bench_read.py
 	$(BIN)/python bench/bench_pipeline.py
+	$(BIN)/python bench/bench_survey.py
 
 clean:
 	rm -rf $(VENV) out

@@ -13,7 +13,9 @@ watch   `fwl watch --poll 1` (default preset) on an empty folder; three copies o
         the output's run.json listing the file.
 plan    FILES simulated files of FILE_PULSES pulses, planned (packet keys and system pulse) one after
         another on the driver, as runs did before, then by the plan job on a local Dask cluster of 2 worker
-        processes (its start is not counted; its workers are warmed by planning two files first).
+        processes (its start is not counted; each of its workers plans one file before the clock starts,
+        as the driver does, so that loading numba's kernels is not counted on either side), once with
+        distributed's default settings and once with the workers' housekeeping quieted (QUIET_WORKERS).
 many    `fwl run --preset fast --formats parquet,las` on the folder of those FILES files, and on one
         simulated file of LARGE pulses: pulses/s over the wall time and peak RSS (the largest sum over the
         run's process and its children, sampled every 0.2 s).
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import shutil
 import signal
@@ -128,6 +131,13 @@ def bench_watch(work: Path, arrivals: int = 3) -> None:
 
 # ---------------------------------------------------------------- plan
 
+# A worker's housekeeping wakes its event loop every 20 ms (tick) and samples its task's stack every 10 ms
+# (profiler), each time taking the GIL from the task; on a machine with a core per worker that costs a
+# Python-heavy task such as planning ~25% (deploy/README.md)
+QUIET_WORKERS = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
+                 "distributed.admin.system-monitor.interval": "5s", "distributed.worker.memory.monitor-interval": "5s"}
+
+
 def small_files(work: Path, files: int, pulses: int) -> Path:
     folder = work / "files"
     if not folder.is_dir():
@@ -141,7 +151,8 @@ def small_files(work: Path, files: int, pulses: int) -> Path:
 
 def bench_plan(work: Path, files: int, pulses: int) -> None:
     import apache_beam as beam
-    from distributed import LocalCluster
+    import dask
+    from distributed import Client, LocalCluster
 
     from fwcore.config import DecompositionConfig
     from pipeline.options import check_beam_args
@@ -157,20 +168,21 @@ def bench_plan(work: Path, files: int, pulses: int) -> None:
     start = time.perf_counter()
     on_driver = {i.path: plan_input(i, config, 5000) for i in inputs}
     driver_s = time.perf_counter() - start
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        jobs = Jobs(check_beam_args(["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
-                                     f"--dask_client_address={cluster.scheduler_address}"]))
-
-        def plan_job(items, out):
-            jobs.run(len(items), lambda p: p | beam.Create(items) | PlanFiles(str(out), config, 5000, spread=False))
-
-        plan_job(inputs[:2], work / "plan_warm")  # each worker loads the kernels once
-        start = time.perf_counter()
-        plan_job(inputs, work / "plan_dask")
-        dask_s = time.perf_counter() - start
-    same = read_plans(work / "plan_dask", inputs) == on_driver
-    print(f"plan: {files} files of {pulses} pulses: driver alone {driver_s:.1f} s, Dask job on 2 workers "
-          f"{dask_s:.1f} s ({driver_s / dask_s:.2f} x faster); the same plans: {same}", flush=True)
+    for label, settings in (("default", {}), ("quiet workers", QUIET_WORKERS)):
+        with dask.config.set(settings), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                                     dashboard_address=None) as cluster:
+            jobs = Jobs(check_beam_args(["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
+                                         f"--dask_client_address={cluster.scheduler_address}"]))
+            with Client(cluster.scheduler_address) as client:  # each worker loads numba's kernels before the clock
+                client.run(plan_input, inputs[0], config, 5000)
+            out = work / f"plan_dask_{label.replace(' ', '_')}"
+            shutil.rmtree(out, ignore_errors=True)
+            start = time.perf_counter()
+            jobs.run(len(inputs), lambda p: p | beam.Create(inputs) | PlanFiles(str(out), config, 5000, spread=False))
+            dask_s = time.perf_counter() - start
+        same = read_plans(out, inputs) == on_driver
+        print(f"plan: {files} files of {pulses} pulses: driver alone {driver_s:.1f} s, Dask job on 2 workers "
+              f"({label}) {dask_s:.1f} s ({driver_s / dask_s:.2f} x faster); the same plans: {same}", flush=True)
 
 
 # ---------------------------------------------------------------- many files against one
@@ -201,6 +213,7 @@ def main() -> None:
     parser.add_argument("--large", type=int, default=1_000_000)
     parser.add_argument("--workdir", default=None)
     args = parser.parse_args()
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the local cluster's chatter
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-survey-"))
     work.mkdir(parents=True, exist_ok=True)
     sections = args.sections.split(",")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -123,9 +124,14 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         running.append(paths)
         summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args,
                       verbose=args.verbose, add=True)
-        running.clear()
+        running.clear()  # not on an interruption: the handler below names the batch
         return summary
 
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    # a clean stop on Ctrl-C and on the TERM of a service manager, even when started with SIGINT ignored (`&`)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler), signal.signal(signal.SIGTERM, stop)
     try:
         watch(args.folder, args.output, config, settings, run_batch, args.poll, args.once,
               lambda line: print(line, flush=True))
@@ -135,6 +141,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
                   f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr)
             return EXIT_INTERRUPTED
         print("fwl watch: stopped", flush=True)
+    finally:
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
     return 0
 
 

@@ -64,7 +64,6 @@ class PulseRange:
 
     task: ReadTask
     pulses: PulseBatch
-    n_rejected: int  # pulses of the range rejected so far
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,7 +74,6 @@ class DecomposedRange:
     pulses: PulseBatch
     config: DecompositionConfig  # with the file's pulse width
     result: BatchDecomposition
-    n_rejected: int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,8 +85,6 @@ class GeolocatedRange:
     pulses: pa.Table  # one row per decomposed pulse
     cloud: dict[str, np.ndarray]  # kept echoes, geolocated (fwcore.pulses.decomposed_echoes)
     views: dict[str, np.ndarray] | None  # for MCAP: per pulse raw samples, fitted model, echoes
-    n_pulses: int  # pulses of the range, decomposed or rejected
-    n_rejected: int
 
 
 class RangePart(NamedTuple):

@@ -29,6 +29,7 @@ from scratch (`range_is_complete`, `remove_range_files`).
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import os
 import socket
@@ -84,7 +85,6 @@ def mark_range_done(output: str | Path, task: ReadTask, rejected: list[Rejection
 
 def range_is_complete(output: str | Path, task: ReadTask) -> bool:
     """Whether a range ended (its mark is there) and every file it wrote is still there."""
-    import json
     try:
         mark = json.loads(progress_mark(output, task.source.stem, task.start).read_text())
         return all((Path(output) / f).is_file() for f in mark["files"])
@@ -117,13 +117,6 @@ def _log_to_file(output: str) -> None:
 def _pulse_rejections(task: ReadTask, pulse_ids: Iterable[int], stage: str, reason: str) -> list[Rejection]:
     s = task.source
     return [Rejection(s.name, s.stem, task.start, int(p), stage, reason) for p in pulse_ids]
-
-
-def _range_pulses(item: PulseRange | DecomposedRange) -> int:
-    """All pulses of the range: those read, and those whose packet could not be."""
-    if isinstance(item, PulseRange):
-        return len(item.pulses) + item.n_rejected
-    return len(item.pulses) + item.n_rejected - int((item.result.status != 0).sum())
 
 
 class _Stage(beam.DoFn):
@@ -189,7 +182,7 @@ class ReadRange(_Stage):
         for pulse_id, reason in pulses.rejected:
             yield Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), self.stage, reason)
         if len(pulses):  # else nothing left to decompose: the range ends here
-            yield PulseRange(task, pulses, len(pulses.rejected))
+            yield PulseRange(task, pulses)
 
 
 # ---------------------------------------------------------------- decompose
@@ -224,7 +217,7 @@ class Decompose(_Stage):
                             int(item.pulses.pulse_id[i]), self.stage, STATUS_REASONS[result.status[i]])
         LOG.info("%s points %d+: %d pulses decomposed, %d rejected, %.1f pulses/s", item.task.source.name,
                  item.task.start, ok.sum(), (~ok).sum(), len(item.pulses) / max(time.perf_counter() - began, 1e-9))
-        yield DecomposedRange(item.task, item.pulses, config, result, item.n_rejected + int((~ok).sum()))
+        yield DecomposedRange(item.task, item.pulses, config, result)
 
 
 # ---------------------------------------------------------------- geolocate
@@ -255,8 +248,7 @@ class Geolocate(_Stage):
         xyz = echo_positions(pulses, result, item.task.source.range_offset_ps)
         echoes, table = pulse_tables(item.task.source.name, pulses, result, item.config, xyz, result.status == 0)
         yield GeolocatedRange(item.task, echoes, table, decomposed_echoes(pulses, result, xyz),
-                              _waveform_views(pulses, result) if self.with_views else None,
-                              _range_pulses(item), item.n_rejected)
+                              _waveform_views(pulses, result) if self.with_views else None)
 
 
 # ---------------------------------------------------------------- write a range

@@ -28,7 +28,7 @@ from typing import Callable
 
 from fwcore.config import DecompositionConfig
 from fwcore.io import needs_packet_file, packet_file
-from pipeline.outputs import INPUT_SUFFIXES, check_settings, input_identity, read_manifest
+from pipeline.outputs import INPUT_SUFFIXES, OutputFolderError, check_settings, input_identity, read_manifest
 
 Snapshot = tuple[tuple[int, int], ...]  # (size, mtime_ns) of an input and of its packet file
 
@@ -104,11 +104,17 @@ def watch(folder: str | Path, output: str | Path, config: DecompositionConfig, s
         batch = due(watcher.ready(), output)
         if batch:
             say(f"fwl watch: {len(batch)} new or replaced file(s): {', '.join(Path(p).name for p in batch)}")
-            summary = run_batch(batch)
-            batches += 1
-            c = summary["counts"]
-            say(f"fwl watch: done; the folder holds {len(summary['inputs'])} file(s), {c['pulses_read']:,} pulses "
-                f"read = {c['pulses_decomposed']:,} decomposed + {c['pulses_rejected']:,} rejected")
+            try:
+                summary = run_batch(batch)
+            except OutputFolderError:
+                raise  # the output folder itself cannot be used: waiting changes nothing
+            except (OSError, ValueError) as err:  # a file moved away meanwhile, say: the others go on
+                say(f"fwl watch: this batch did not run: {err}; its files are tried again at the next poll")
+            else:
+                batches += 1
+                c = summary["counts"]
+                say(f"fwl watch: done; the folder holds {len(summary['inputs'])} file(s), {c['pulses_read']:,} "
+                    f"pulses read = {c['pulses_decomposed']:,} decomposed + {c['pulses_rejected']:,} rejected")
         if once:
             break
     return batches

@@ -6,9 +6,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
-
-import pytest
 
 from pipeline.cli import main
 from pipeline.outputs import input_identity, read_run
