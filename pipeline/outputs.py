@@ -236,7 +236,8 @@ def read_manifest(folder: Path) -> dict:
     """The manifest of an fwl output folder (OutputFolderError when it is missing or unreadable)."""
     try:
         manifest = json.loads((folder / MANIFEST).read_text())
-        _ = [(i["path"], i["stem"]) for i in manifest["inputs"]]
+        for entry in manifest["inputs"]:  # each names its input's path and output stem
+            entry["path"], entry["stem"]
         return manifest
     except FileNotFoundError:
         raise OutputFolderError(f"{folder}: not an fwl run output folder (no {MANIFEST})") from None
@@ -351,11 +352,12 @@ def check_settings(folder: Path, settings: dict) -> dict:
 
 def remove_input_outputs(folder: Path, stem: str) -> list[Path]:
     """Every file of one input in our folders: its tables' parts, point cloud, MCAP, parts and plan."""
-    own = re.compile(re.escape(stem) + r"(-\d{12})?\.")
+    # <stem>.las, <stem>-<range>.parquet, ...: not <stem>.las.las, the file of an input whose stem is <stem>.las
+    own = re.compile(re.escape(stem) + r"(-\d{12})?\.(parquet|las|laz|mcap|json)(\.tmp)?")
     gone = []
     for d in OUTPUT_DIRS:
         for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:
-            if p.is_file() and own.match(p.name):
+            if p.is_file() and own.fullmatch(p.name):
                 p.unlink()
                 gone.append(p)
     return gone

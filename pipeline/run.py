@@ -310,18 +310,19 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     seconds = time.perf_counter() - began
     planned = {path: _planned(plan) for path, plan in plans.items()}
     mark_inputs_done(output, paths, planned)
-    return summarise(output, formats, limit, points_per_range, config, options, seconds, result, n_ranges,
-                     n_reused, taken)
+    files_rejected = sum(1 for p in plans.values() if p.rejection)
+    return summarise(output, formats, limit, points_per_range, config, options, seconds,
+                     _metrics(result, files_rejected), n_ranges, n_reused, taken)
 
 
 def summarise(output: Path, formats, limit, points_per_range, config, options, seconds: float,
-              result, n_ranges: int, n_reused: int, taken: str) -> dict:
-    """run.json: the counts read back from what was written, over every input of the folder."""
+              metrics: dict[str, int], n_ranges: int, n_reused: int, taken: str) -> dict:
+    """run.json: the counts read back from what was written, over every input of the folder; Beam's metrics
+    of this call's jobs (the ranges it ran, not those reused or added earlier)."""
     entries = read_manifest(output)["inputs"]
     write_empty_rejected(output, [e["stem"] for e in entries])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
     status = status_of(counts)
-    files_rejected = sum(c["files_rejected"] for c in per_input.values())
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
@@ -339,7 +340,7 @@ def summarise(output: Path, formats, limit, points_per_range, config, options, s
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": _metrics(result, files_rejected),
+        "metrics": metrics,
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),

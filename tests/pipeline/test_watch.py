@@ -125,3 +125,17 @@ def test_watch_refuses_an_output_made_with_other_settings_before_it_waits(tmp_pa
     assert "no such folder to watch" in capsys.readouterr().err
     assert main(["watch", str(tmp_path / "land"), "--output", str(out), "--poll", "0", *RUN]) == 2
     assert "--poll must be" in capsys.readouterr().err
+
+
+def test_a_replaced_inputs_outputs_go_and_no_other_inputs(tmp_path):
+    from pipeline.outputs import remove_input_outputs
+    files = ["echoes/x-000000000000.parquet", "pulses/x-000000000000.parquet", "rejected/x.parquet", "las/x.las",
+             "mcap/x.mcap", "parts/plans/x.json", "parts/x-000000000400.las.tmp",
+             "las/x.las.las", "echoes/x.las-000000000000.parquet", "las/xy.las", "logs/x.log"]
+    for f in files:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text("")
+    gone = remove_input_outputs(tmp_path, "x")
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in gone) == sorted(files[:7])
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == \
+        sorted(files[7:])
