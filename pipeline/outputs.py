@@ -106,7 +106,9 @@ class InputNames:
 
 # ---------------------------------------------------------------- what a run is made of
 
-DIGEST_BYTES = 1 << 20  # of a file's head and of its tail: where a re-delivered flight line differs (header, points)
+# of a file's head and of its tail: where a re-delivered flight line differs (header, VLRs, last points or
+# packets); small, as the driver reads them for every input of a survey before anything runs
+DIGEST_BYTES = 1 << 16
 
 
 def _file_identity(path: str) -> dict[str, Any]:
@@ -126,7 +128,7 @@ def _file_identity(path: str) -> dict[str, Any]:
 
 def input_identity(path: str) -> dict[str, dict[str, Any]]:
     """What tells an input from a changed one, cheaply at any size: per file (the input and the file beside it
-    that holds its samples) its size and a digest of its first and last MiB. Times are left out: a copy
+    that holds its samples) its size and a digest of its first and last 64 KiB. Times are left out: a copy
     changes them, not the data."""
     from fwcore.io import packet_file
     files = [path] + ([str(c)] if "://" not in path and (c := packet_file(path)) else [])
