@@ -21,6 +21,7 @@ from pathlib import Path
 
 import apache_beam as beam
 import pyarrow as pa
+from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
@@ -169,10 +170,10 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
 
 
 def _runner_name(options) -> str:
-    runner = options.view_as(beam.options.pipeline_options.StandardOptions).runner
+    runner = options.view_as(StandardOptions).runner
     name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
     if name == "DirectRunner":
-        workers = options.view_as(beam.options.pipeline_options.DirectOptions).direct_num_workers
+        workers = options.view_as(DirectOptions).direct_num_workers
         return f"DirectRunner, {workers} workers"
     return name
 
@@ -192,13 +193,29 @@ class Jobs:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             bags = options.view_as(DaskOptions)
             self.partition_each = bags.npartitions is None and bags.partition_size is None
+        runner = options.view_as(StandardOptions).runner
+        self.direct_processes = (isinstance(runner, str) and runner.rsplit(".", 1)[-1] == "DirectRunner"
+                                 and options.view_as(DirectOptions).direct_running_mode == "multi_processing")
 
     def run(self, n: int, build):
         """One job: `build(pipeline)` adds its transforms; waits for its end."""
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             self.options.view_as(DaskOptions).npartitions = max(1, n)
+        if self.direct_processes and n == 1:
+            return _run_job(_in_process(self.options), build)
         return _run_job(self.options, build)
+
+
+def _in_process(options):
+    """The DirectRunner's options for a job of one element (one file to plan or assemble): run in this
+    process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
+    the work."""
+    single = PipelineOptions.from_dictionary(options.get_all_options(drop_default=True))
+    single.view_as(DirectOptions).direct_running_mode = "in_memory"
+    single.view_as(DirectOptions).direct_num_workers = 1
+    single.view_as(SetupOptions).save_main_session = False
+    return single
 
 
 def _run_job(options, build) -> object:
