@@ -15,7 +15,8 @@ plan    FILES simulated files of FILE_PULSES pulses, planned (packet keys and sy
         another on the driver, as runs did before, then by the plan job on a local Dask cluster of 2 worker
         processes (its start is not counted; each of its workers plans one file before the clock starts,
         as the driver does, so that loading numba's kernels is not counted on either side), once with
-        distributed's default settings and once with the workers' housekeeping quieted (QUIET_WORKERS).
+        distributed's default settings and once with deploy/dask-workers.yaml (the workers' housekeeping
+        quieted).
 many    `fwl run --preset fast --formats parquet,las` on the folder of those FILES files, and on one
         simulated file of LARGE pulses: pulses/s over the wall time and peak RSS (the largest sum over the
         run's process and its children, sampled every 0.2 s).
@@ -131,11 +132,17 @@ def bench_watch(work: Path, arrivals: int = 3) -> None:
 
 # ---------------------------------------------------------------- plan
 
-# A worker's housekeeping wakes its event loop every 20 ms (tick) and samples its task's stack every 10 ms
-# (profiler), each time taking the GIL from the task; on a machine with a core per worker that costs a
-# Python-heavy task such as planning ~25% (deploy/README.md)
-QUIET_WORKERS = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
-                 "distributed.admin.system-monitor.interval": "5s", "distributed.worker.memory.monitor-interval": "5s"}
+def quiet_workers() -> dict[str, object]:
+    """deploy/dask-workers.yaml as dotted keys for dask.config.set: the workers' housekeeping quieted."""
+    import yaml
+
+    def flat(tree: dict, prefix: str = "") -> dict[str, object]:
+        out = {}
+        for key, value in tree.items():
+            out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value})
+        return out
+
+    return flat(yaml.safe_load((Path(__file__).resolve().parents[1] / "deploy" / "dask-workers.yaml").read_text()))
 
 
 def small_files(work: Path, files: int, pulses: int) -> Path:
@@ -168,7 +175,7 @@ def bench_plan(work: Path, files: int, pulses: int) -> None:
     start = time.perf_counter()
     on_driver = {i.path: plan_input(i, config, 5000) for i in inputs}
     driver_s = time.perf_counter() - start
-    for label, settings in (("default", {}), ("quiet workers", QUIET_WORKERS)):
+    for label, settings in (("default", {}), ("quiet workers", quiet_workers())):
         with dask.config.set(settings), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                                      dashboard_address=None) as cluster:
             jobs = Jobs(check_beam_args(["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",

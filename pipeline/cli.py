@@ -121,10 +121,14 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     running = []
 
     def run_batch(paths: list[str]) -> dict:
-        running.append(paths)
-        summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz, beam_args,
-                      verbose=args.verbose, add=True)
-        running.clear()  # not on an interruption: the handler below names the batch
+        running[:] = [paths]  # until it ends: an interruption meanwhile names it
+        try:
+            summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
+                          beam_args, verbose=args.verbose, add=True)
+        except Exception:  # failed, not interrupted: the watch goes on, idle
+            running.clear()
+            raise
+        running.clear()
         return summary
 
     def stop(signum, frame):

@@ -109,7 +109,8 @@ class FwlOptions(PipelineOptions):
     def _add_argparse_args(cls, parser) -> None:
         g = parser.add_argument_group("run")
         g.add_argument("--output", default="out/run",
-                       help="output folder (default out/run): new, empty, or an earlier run's, which is replaced")
+                       help="output folder (default out/run): new, empty, or an earlier run's, which is replaced "
+                             "(with --resume: an interrupted run's, which is completed)")
         g.add_argument("--formats", type=output_formats, default=",".join(FORMATS),
                        help="comma-separated: parquet, las, mcap (default all)")
         g.add_argument("--limit", type=positive_int, help="at most N pulses per input file")

@@ -116,13 +116,16 @@ def _file_identity(path: str) -> dict[str, Any]:
         from apache_beam.io.filesystems import FileSystems
         meta = FileSystems.match([path])[0].metadata_list[0]
         return {"size": meta.size_in_bytes, "updated": meta.last_updated_in_seconds}
-    size = os.path.getsize(path)
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        digest.update(f.read(DIGEST_BYTES))
-        if size > DIGEST_BYTES:
-            f.seek(max(DIGEST_BYTES, size - DIGEST_BYTES))
+    try:
+        size = os.path.getsize(path)
+        digest = hashlib.sha256()
+        with open(path, "rb") as f:
             digest.update(f.read(DIGEST_BYTES))
+            if size > DIGEST_BYTES:
+                f.seek(max(DIGEST_BYTES, size - DIGEST_BYTES))
+                digest.update(f.read(DIGEST_BYTES))
+    except OSError as err:  # planning rejects the file with its reason; here it is only told apart
+        return {"unreadable": err.strerror or str(err)}
     return {"size": size, "sha256": digest.hexdigest()}
 
 
@@ -278,14 +281,16 @@ def _fingerprinted(folder: Path, how: str) -> dict:
     return manifest
 
 
-def resume_output_folder(folder: Path, names: InputNames, inputs: list[str], settings: dict,
-                         identities: dict[str, dict]) -> str:
+def resume_output_folder(folder: Path, inputs: list[str], settings: dict,
+                         identities: dict[str, dict]) -> tuple[InputNames, str]:
     """Claim `folder` to go on with its interrupted run: the same inputs, unchanged, and the same settings,
-    else ResumeError naming what differs. Returns "resumed"; "new" when there was nothing to resume (a new
-    or empty folder, now claimed as by take_output_folder); "complete" when its run had finished (left as is)."""
+    else ResumeError naming what differs. Returns the inputs' names (those the folder gave them: fwl watch
+    names inputs as they come) and "resumed"; "new" when there was nothing to resume (a new or empty folder,
+    now claimed as by take_output_folder); "complete" when its run had finished (left as is)."""
     if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+        names = InputNames.of(inputs)
         take_output_folder(folder, names, inputs, settings, identities)
-        return "new"
+        return names, "new"
     manifest = _fingerprinted(folder, "be resumed")
     fix = "run without --resume to start over, or resume with the interrupted run's inputs and options"
     changed = differences(manifest["settings"], settings)
@@ -303,10 +308,16 @@ def resume_output_folder(folder: Path, names: InputNames, inputs: list[str], set
         if changed:
             raise ResumeError(f"{path}: changed since the interrupted run in {folder} read it "
                               f"({'; '.join(changed)}); {fix}")
+    names = _names_of(manifest["inputs"])
     if is_complete(folder):
-        return "complete"
+        return names, "complete"
     (folder / RUN_JSON).unlink(missing_ok=True)  # a damaged one
-    return "resumed"
+    return names, "resumed"
+
+
+def _names_of(entries: list[dict]) -> InputNames:
+    """The names a folder's manifest gave its inputs."""
+    return InputNames({e["path"]: e["name"] for e in entries}, {e["name"]: e["stem"] for e in entries})
 
 
 def add_to_output_folder(folder: Path, inputs: list[str], settings: dict,
@@ -326,7 +337,7 @@ def add_to_output_folder(folder: Path, inputs: list[str], settings: dict,
         remove_input_outputs(folder, entries[path]["stem"])
         entries[path].update(identity=identities[path], done=False, planned={})
     names = InputNames.of(list(entries) + [p for p in inputs if p not in entries])
-    kept = InputNames({p: e["name"] for p, e in entries.items()}, {e["name"]: e["stem"] for e in entries.values()})
+    kept = _names_of(list(entries.values()))  # the names given earlier stay; new inputs join them
     for path in inputs:
         if path not in entries:  # a new input: its own name, and a stem no earlier input has
             name, stem = names.name(path), names.stem(names.name(path))
@@ -352,16 +363,23 @@ def check_settings(folder: Path, settings: dict) -> dict:
     return manifest
 
 
-def remove_input_outputs(folder: Path, stem: str) -> list[Path]:
-    """Every file of one input in our folders: its tables' parts, point cloud, MCAP, parts and plan."""
+def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT_DIRS) -> list[Path]:
+    """Every file of one input in our folders `dirs` (all: its tables' parts, point cloud, MCAP, parts and
+    plan), and the folders under parts/ left empty."""
     # <stem>.las, <stem>-<range>.parquet, ...: not <stem>.las.las, the file of an input whose stem is <stem>.las
     own = re.compile(re.escape(stem) + r"(-\d{12})?\.(parquet|las|laz|mcap|json)(\.tmp)?")
     gone = []
-    for d in OUTPUT_DIRS:
+    for d in dirs:
         for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:
             if p.is_file() and own.fullmatch(p.name):
                 p.unlink()
                 gone.append(p)
+    parts = folder / "parts"
+    for d in sorted((p for p in parts.rglob("*") if p.is_dir()), reverse=True) if parts.is_dir() else []:
+        if not any(d.iterdir()):
+            d.rmdir()
+    if parts.is_dir() and not any(parts.iterdir()):
+        parts.rmdir()
     return gone
 
 

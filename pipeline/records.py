@@ -1,6 +1,6 @@
 """The records that cross the pipeline's stage boundaries, defined once.
 
-    plan (driver) -> ReadTask -> read -> PulseRange -> decompose -> DecomposedRange -> geolocate
+    plan (a worker, per file) -> ReadTask -> read -> PulseRange -> decompose -> DecomposedRange -> geolocate
     -> GeolocatedRange -> write range -> RangePart -> assemble per file
     any stage -> Rejection -> rejected/
 """
@@ -21,7 +21,8 @@ from fwcore.io.records import PointRange
 
 @dataclasses.dataclass(frozen=True)
 class InputFile:
-    """One input as planned on the driver: where it is, the name its outputs carry, what its time stamps mean."""
+    """One input as planned: where it is, the name its outputs carry, what its time stamps mean, what its
+    plan measured of its system pulse."""
 
     path: str
     name: str  # the input's file name, as the tables' source_file

@@ -10,9 +10,9 @@ no such input, an output folder that holds what is not ours), nothing touched; 1
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import platform
-import shutil
 import signal
 import threading
 import time
@@ -21,21 +21,21 @@ from pathlib import Path
 
 import apache_beam as beam
 import pyarrow as pa
-from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 import fwcore
 from fwcore.config import DecompositionConfig
 from pipeline.options import check_beam_args, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               expand_inputs, input_identity, is_complete, list_outputs, mark_inputs_done,
-                              read_manifest, read_run, remove_partial_files, resume_output_folder,
-                              take_output_folder, write_run_json)
+                              read_manifest, read_run, remove_input_outputs, remove_partial_files,
+                              resume_output_folder, take_output_folder, write_run_json)
 from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, plan_path, planned_pulses, read_plans
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
-from pipeline.tables import empty_rejected_table
+from pipeline.tables import REJECTED_SCHEMA, empty_rejected_table
 from pipeline.transforms import (NAMESPACE, PARTS, AssembleFiles, DecomposeFlight, PlanFiles, progress_mark,
                                  range_is_complete, remove_range_files, written_parts)
 
@@ -121,7 +121,7 @@ def _metric_counts(result) -> dict[str, int]:
 
 
 def _metrics(result, files_rejected: int) -> dict[str, int]:
-    """Beam's counters, and the files the driver rejected while planning (empty where the runner reports none)."""
+    """Beam's counters, and the files this call's plans rejected (empty where the runner reports none)."""
     metrics = _metric_counts(result) if result is not None else {}
     return {**metrics, "files_rejected": files_rejected} if metrics else {}
 
@@ -228,11 +228,12 @@ def _run_job(options, build) -> object:
     return result
 
 
-def run_settings(config: DecompositionConfig, formats, limit: int | None, points_per_range: int,
+def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool) -> dict:
-    """What makes a run's outputs what they are (not the runner, nor the number of workers): its fingerprint."""
+    """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
+    fwlidar, whose engine may change them): its fingerprint."""
     return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
-            "points_per_range": points_per_range, "laz": laz}
+            "points_per_range": points_per_range, "laz": laz, "fwlidar": fwcore.__version__}
 
 
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
@@ -262,11 +263,11 @@ def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, a
     identities = {p: input_identity(p) for p in paths}
     if add:
         return add_to_output_folder(output, paths, settings, identities)[0], "added"
-    names = InputNames.of(paths)
     if not resume:
+        names = InputNames.of(paths)
         take_output_folder(output, names, paths, settings, identities)
         return names, "new"
-    return names, resume_output_folder(output, names, paths, settings, identities)
+    return resume_output_folder(output, paths, settings, identities)
 
 
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
@@ -291,8 +292,31 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     if taken == "complete":  # its run.json stays as it is
         return {**read_run(output), "taken": taken}
     began = time.perf_counter()
+    done = {e["path"] for e in read_manifest(output)["inputs"] if e.get("done")}
+    if taken == "resumed" and done >= set(paths):  # killed after its last job, while counting: nothing to redo
+        jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
+    else:
+        jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch)
+        mark_inputs_done(output, paths, jobs.planned)
+    return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
+                     taken)
+
+
+@dataclasses.dataclass(frozen=True)
+class JobsDone:
+    """What a run's jobs did, for run.json: ranges planned and reused, Beam's metrics, each input's plan."""
+
+    ranges: int | None
+    ranges_reused: int | None
+    metrics: dict[str, int]
+    planned: dict[str, dict]  # input path -> what its plan measured (_planned)
+
+
+def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
+             limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool) -> JobsDone:
+    """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
+    by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    n_ranges = n_reused = 0
     result, jobs = None, Jobs(options)
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
@@ -302,13 +326,12 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
             todo = [t for t in tasks if progress_mark(output, t.source.stem, t.start).name not in reused]
             for task in todo:
                 remove_range_files(output, task)
-            n_ranges, n_reused = len(tasks), len(reused)
             total = sum(planned_pulses(t) for t in todo)
             if watch:
                 rejected = sum(1 for p in plans.values() if p.rejection)
-                rejected = f" ({rejected} rejected)" if rejected else ""
-                kept = f", {n_reused} ranges reused" if n_reused else ""
-                say.write(f"fwl run: {len(paths)} file(s){rejected}, {total:,} pulses in {len(todo)} ranges{kept} -> "
+                said = f" ({rejected} rejected)" if rejected else ""
+                kept = f", {len(reused)} ranges reused" if reused else ""
+                say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 say.flush()
@@ -321,21 +344,30 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
                 jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz))
-        shutil.rmtree(output / PARTS, ignore_errors=True)  # the parts are in the assembled files now
+        for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
+            remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
         remove_partial_files(output)
-    seconds = time.perf_counter() - began
-    planned = {path: _planned(plan) for path, plan in plans.items()}
-    mark_inputs_done(output, paths, planned)
-    files_rejected = sum(1 for p in plans.values() if p.rejection)
-    return summarise(output, formats, limit, points_per_range, config, options, seconds,
-                     _metrics(result, files_rejected), n_ranges, n_reused, taken)
+    _write_lost_plans(output, plans)
+    rejected = [p for p in plans.values() if p.rejection]
+    return JobsDone(len(tasks), len(reused), _metrics(result, len(rejected)),
+                    {path: _planned(plan) for path, plan in plans.items()})
 
 
-def summarise(output: Path, formats, limit, points_per_range, config, options, seconds: float,
-              metrics: dict[str, int], n_ranges: int, n_reused: int, taken: str) -> dict:
-    """run.json: the counts read back from what was written, over every input of the folder; Beam's metrics
-    of this call's jobs (the ranges it ran, not those reused or added earlier)."""
+def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
+    """rejected/<stem>.parquet for a file whose plan was lost (the plan job writes it for a file it rejects)."""
+    for plan in plans.values():
+        r = plan.rejection
+        if r is not None and not (output / "rejected" / f"{r.stem}.parquet").exists():
+            write_part(pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA),
+                       output / "rejected", r.stem)
+
+
+def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
+              config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str) -> dict:
+    """run.json: the counts read back from what was written, over every input of the folder (each said done
+    or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
+    ranges it ran, not those reused or added earlier)."""
     entries = read_manifest(output)["inputs"]
     write_empty_rejected(output, [e["stem"] for e in entries])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
@@ -343,21 +375,21 @@ def summarise(output: Path, formats, limit, points_per_range, config, options, s
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
-        "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "counts": per_input[e["name"]],
-                    **e.get("planned", {})} for e in entries],
+        "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
+                    "counts": per_input[e["name"]], **e.get("planned", {})} for e in entries],
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
-        "ranges": n_ranges,
-        "ranges_reused": n_reused,
+        "ranges": jobs.ranges,
+        "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
         "counts": counts,
-        "metrics": metrics,
+        "metrics": jobs.metrics,
         "seconds": round(seconds, 3),
         "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),

@@ -76,19 +76,20 @@ def range_files(output: str | Path, task: ReadTask) -> list[Path]:
 
 
 def mark_range_done(output: str | Path, task: ReadTask, rejected: list[Rejection]) -> Path:
-    """The range's end: its planned pulses, those rejected, and the files it wrote (written last, atomically)."""
-    written = [p.relative_to(output).as_posix() for p in range_files(output, task) if p.exists()]
+    """The range's end: its planned pulses, those rejected, and the files it wrote with their sizes (written
+    last, atomically)."""
+    written = {p.relative_to(output).as_posix(): p.stat().st_size for p in range_files(output, task) if p.exists()}
     return write_json(progress_mark(output, task.source.stem, task.start),
                       {"pulses": planned_pulses(task), "rejected": sum(1 for r in rejected if r.pulse_id >= 0),
                        "files": written})
 
 
 def range_is_complete(output: str | Path, task: ReadTask) -> bool:
-    """Whether a range ended (its mark is there) and every file it wrote is still there."""
+    """Whether a range ended (its mark is there) and every file it wrote is still there, at its size."""
     try:
         mark = json.loads(progress_mark(output, task.source.stem, task.start).read_text())
-        return all((Path(output) / f).is_file() for f in mark["files"])
-    except (OSError, ValueError, KeyError, TypeError):
+        return all((Path(output) / f).stat().st_size == size for f, size in mark["files"].items())
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return False
 
 
@@ -98,15 +99,19 @@ def remove_range_files(output: str | Path, task: ReadTask) -> None:
 
 
 def _log_to_file(output: str) -> None:
-    """A worker's own log lines go to logs/ under the output folder (once per process)."""
+    """A worker's own log lines go to logs/ under the output folder (once per process and folder: a process
+    that runs jobs for several folders, such as the driver's in-process jobs, logs each into its own)."""
     logger = logging.getLogger("fwl")
-    if any(getattr(h, "fwl_worker", False) for h in logger.handlers):
-        return
     logs = Path(output) / "logs"
+    for h in [h for h in logger.handlers if getattr(h, "fwl_worker", None)]:
+        if h.fwl_worker == str(logs) and Path(h.baseFilename).exists():  # not a replaced run's
+            return
+        logger.removeHandler(h)
+        h.close()
     logs.mkdir(parents=True, exist_ok=True)
     handler = logging.FileHandler(logs / f"worker-{socket.gethostname()}-{os.getpid()}.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s"))
-    handler.fwl_worker = True
+    handler.fwl_worker = str(logs)
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
     logger.propagate = False  # not to the runner's logging, which a terminal may show

@@ -21,6 +21,7 @@ again; a batch interrupted midway is resumed, its finished ranges kept.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from pathlib import Path
@@ -30,12 +31,14 @@ from fwcore.config import DecompositionConfig
 from fwcore.io import needs_packet_file, packet_file
 from pipeline.outputs import INPUT_SUFFIXES, OutputFolderError, check_settings, input_identity, read_manifest
 
+LOG = logging.getLogger("fwl")
 Snapshot = tuple[tuple[int, int], ...]  # (size, mtime_ns) of an input and of its packet file
 
 
 def input_files(folder: Path) -> list[Path]:
-    """The inputs a folder holds now (its *.las, *.laz and *.pls, not recursive), sorted."""
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES)
+    """The inputs a folder holds now (its *.las, *.laz and *.pls, not recursive), sorted, as the paths a run
+    records (a symbolic link resolved to its target, as fwl run resolves its inputs)."""
+    return sorted({p.resolve() for p in folder.iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES})
 
 
 def snapshot(path: Path) -> Snapshot | None:
@@ -46,7 +49,7 @@ def snapshot(path: Path) -> Snapshot | None:
             return None
         return tuple((s.st_size, s.st_mtime_ns) for s in (os.stat(f) for f in [path] + ([companion] if companion
                                                                                           else [])))
-    except FileNotFoundError:  # moved away between the listing and now
+    except OSError:  # moved away between the listing and now, say: not ready
         return None
 
 
@@ -63,10 +66,14 @@ class FolderWatch:
         now = {p: snapshot(p) for p in input_files(self.folder)}
         steady = {p: s for p, s in now.items() if s is not None and self.previous.get(p) == s}
         self.previous = now
+        self._identities = {k: v for k, v in self._identities.items() if k in steady.items()}  # bounded
         out = {}
         for path, snap in steady.items():
             if (path, snap) not in self._identities:
-                self._identities[(path, snap)] = input_identity(str(path))
+                try:
+                    self._identities[(path, snap)] = input_identity(str(path))
+                except OSError:  # gone since its snapshot: not ready
+                    continue
             out[str(path)] = self._identities[(path, snap)]
         return out
 
@@ -108,8 +115,10 @@ def watch(folder: str | Path, output: str | Path, config: DecompositionConfig, s
                 summary = run_batch(batch)
             except OutputFolderError:
                 raise  # the output folder itself cannot be used: waiting changes nothing
-            except (OSError, ValueError) as err:  # a file moved away meanwhile, say: the others go on
-                say(f"fwl watch: this batch did not run: {err}; its files are tried again at the next poll")
+            except Exception as err:  # noqa: BLE001  a file moved away, a failed job: the watch goes on
+                LOG.exception("fwl watch: batch %s failed", batch)
+                say(f"fwl watch: this batch did not finish ({type(err).__name__}: {err}); its files are tried "
+                    f"again at the next poll, their finished ranges kept")
             else:
                 batches += 1
                 c = summary["counts"]

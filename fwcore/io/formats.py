@@ -33,14 +33,13 @@ LAS_EXTERNAL_PACKETS = 4
 
 def packet_file(path: str | Path) -> Path | None:
     """The file beside `path` that holds its samples, if one is there: a LAS file's .wdp/.wdz, a PulseWaves
-    file's .wvs (same base name, either case)."""
-    path = Path(path)
-    if is_pulsewaves(path):
-        suffixes = (".wvs", ".WVS")
-    else:  # as the reader looks: a .laz's compressed packets first
-        las = (".wdp", ".WDP", ".wdz", ".WDZ")
-        suffixes = las[2:] + las[:2] if path.suffix.lower() == ".laz" else las
-    return next((path.with_suffix(s) for s in suffixes if path.with_suffix(s).is_file()), None)
+    file's .wvs (found as their readers find them)."""
+    from fwcore.io.packets import external_packet_file
+    from fwcore.io.pulsewaves import waves_file
+    try:
+        return waves_file(Path(path)) if is_pulsewaves(path) else external_packet_file(Path(path))
+    except FileNotFoundError:
+        return None
 
 
 def needs_packet_file(path: str | Path) -> bool:

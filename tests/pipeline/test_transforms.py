@@ -121,7 +121,7 @@ def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_pa
 
 
 def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, leica_dir):
-    """On Dask the ranges' job ends at the parts; written_parts lists them from parts/ for assemble_file."""
+    """The ranges' job ends at the parts; written_parts lists them from parts/ for the files' job (assemble_file)."""
     import laspy
 
     config = DecompositionConfig(generations=3)

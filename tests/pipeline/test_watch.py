@@ -50,6 +50,14 @@ def test_an_input_is_ready_once_its_packets_are_there_and_nothing_grows(tmp_path
     assert list(ready) == [str(tmp_path / "a.las")] and ready[str(tmp_path / "a.las")]["a.wdp"]["size"] == len(data)
     (tmp_path / "notes.txt").write_text("not an input")
     assert list(watcher.ready()) == [str(tmp_path / "a.las")]
+    # a flight line linked into the folder is known by its target, as fwl run records it
+    elsewhere = tmp_path / "store"
+    elsewhere.mkdir()
+    for suffix in (".las", ".wdp"):
+        shutil.copy(leica_dir / f"leica_a{suffix}", elsewhere / f"b{suffix}")
+    (tmp_path / "b.las").symlink_to(elsewhere / "b.las")
+    watcher.ready()
+    assert sorted(watcher.ready()) == sorted([str(elsewhere / "b.las"), str(tmp_path / "a.las")])
 
 
 def test_due_are_the_ready_inputs_the_output_lacks_or_holds_another_version_of(tmp_path, leica_dir):
