@@ -42,6 +42,7 @@ from pipeline.transforms import (NAMESPACE, PARTS, AssembleFiles, DecomposeFligh
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
            "OutputFolderError", "ResumeError", "is_complete", "read_run", "run", "run_settings"]
 
+LOG = logging.getLogger(__name__)  # the driver's: to driver.log and, for warnings, the terminal
 EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 FORMATS = frozenset({"parquet", "las", "mcap"})
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
@@ -321,6 +322,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
+            _warn_unmeasured(plans)
             tasks = [t for p in plans.values() for t in p.tasks]
             reused = {progress_mark(output, t.source.stem, t.start).name for t in tasks if range_is_complete(output, t)}
             todo = [t for t in tasks if progress_mark(output, t.source.stem, t.start).name not in reused]
@@ -352,6 +354,16 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     rejected = [p for p in plans.values() if p.rejection]
     return JobsDone(len(tasks), len(reused), _metrics(result, len(rejected)),
                     {path: _planned(plan) for path, plan in plans.items()})
+
+
+def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
+    """On the terminal: the files whose system pulse width was not measured but estimated or defaulted (the
+    workers that planned them said so in their own logs only)."""
+    for plan in plans.values():
+        s = plan.source
+        if s is not None and s.pulse_width_source.startswith(("estimated", "default")):
+            LOG.warning("%s: system pulse FWHM %.0f ps %s (no single-return pulse measured it; set "
+                        "--system-pulse-fwhm-ps to give it)", s.name, s.system_pulse_fwhm_ps, s.pulse_width_source)
 
 
 def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
