@@ -272,6 +272,11 @@ def mark_inputs_done(folder: Path, paths: list[str], planned: dict[str, dict]) -
     write_manifest(folder, manifest.get("settings"), manifest["inputs"], manifest.get("started"))
 
 
+def _is_new(folder: Path) -> bool:
+    """Nothing there yet to resume or add to: no folder, or an empty one."""
+    return not folder.exists() or (folder.is_dir() and not any(folder.iterdir()))
+
+
 def _fingerprinted(folder: Path, how: str) -> dict:
     earlier_run_files(folder)  # refuses a folder that holds what is not ours
     manifest = read_manifest(folder)
@@ -287,7 +292,7 @@ def resume_output_folder(folder: Path, inputs: list[str], settings: dict,
     else ResumeError naming what differs. Returns the inputs' names (those the folder gave them: fwl watch
     names inputs as they come) and "resumed"; "new" when there was nothing to resume (a new or empty folder,
     now claimed as by take_output_folder); "complete" when its run had finished (left as is)."""
-    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+    if _is_new(folder):
         names = InputNames.of(inputs)
         take_output_folder(folder, names, inputs, settings, identities)
         return names, "new"
@@ -326,7 +331,7 @@ def add_to_output_folder(folder: Path, inputs: list[str], settings: dict,
     An input it holds whose identity changed (a replaced file) loses its outputs, to be made anew; one it
     holds unchanged keeps them (its finished ranges are reused). Returns the names of all the folder's
     inputs, and the inputs replaced."""
-    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+    if _is_new(folder):
         names = InputNames.of(inputs)
         take_output_folder(folder, names, inputs, settings, identities)
         return names, []
@@ -353,7 +358,7 @@ def add_to_output_folder(folder: Path, inputs: list[str], settings: dict,
 def check_settings(folder: Path, settings: dict) -> dict:
     """The manifest of a folder to add inputs to, if it made its outputs with these settings (a new or empty
     folder has none: {}); else ResumeError naming the settings that differ."""
-    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+    if _is_new(folder):
         return {}
     manifest = _fingerprinted(folder, "take more inputs")
     changed = differences(manifest["settings"], settings)

@@ -35,9 +35,9 @@ from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError,
 from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, plan_path, planned_pulses, read_plans
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
-from pipeline.tables import REJECTED_SCHEMA, empty_rejected_table
+from pipeline.tables import empty_rejected_table
 from pipeline.transforms import (NAMESPACE, PARTS, AssembleFiles, DecomposeFlight, PlanFiles, progress_mark,
-                                 range_is_complete, remove_range_files, written_parts)
+                                 range_is_complete, remove_range_files, write_file_rejection, written_parts)
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
            "OutputFolderError", "ResumeError", "is_complete", "read_run", "run", "run_settings"]
@@ -323,6 +323,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
             _warn_unmeasured(plans)
+            files_rejected = sum(1 for p in plans.values() if p.rejection)
             tasks = [t for p in plans.values() for t in p.tasks]
             reused = {progress_mark(output, t.source.stem, t.start).name for t in tasks if range_is_complete(output, t)}
             todo = [t for t in tasks if progress_mark(output, t.source.stem, t.start).name not in reused]
@@ -330,8 +331,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 remove_range_files(output, task)
             total = sum(planned_pulses(t) for t in todo)
             if watch:
-                rejected = sum(1 for p in plans.values() if p.rejection)
-                said = f" ({rejected} rejected)" if rejected else ""
+                said = f" ({files_rejected} rejected)" if files_rejected else ""
                 kept = f", {len(reused)} ranges reused" if reused else ""
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
@@ -351,8 +351,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     finally:
         remove_partial_files(output)
     _write_lost_plans(output, plans)
-    rejected = [p for p in plans.values() if p.rejection]
-    return JobsDone(len(tasks), len(reused), _metrics(result, len(rejected)),
+    return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: _planned(plan) for path, plan in plans.items()})
 
 
@@ -371,8 +370,7 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
     for plan in plans.values():
         r = plan.rejection
         if r is not None and not (output / "rejected" / f"{r.stem}.parquet").exists():
-            write_part(pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA),
-                       output / "rejected", r.stem)
+            write_file_rejection(output, r)
 
 
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,

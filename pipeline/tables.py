@@ -202,6 +202,11 @@ REJECTED_SCHEMA = pa.schema([("source_file", pa.string()), ("pulse_id", pa.int64
                              ("reason", pa.string())])
 
 
+def rejected_table(rows) -> pa.Table:
+    """Rejections (pipeline.records.Rejection) as rejected/'s rows."""
+    return pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
+
+
 def empty_rejected_table() -> pa.Table:
     """rejected/ of an input without rejections: the schema and no rows, so that queries over rejected/ work."""
     return REJECTED_SCHEMA.empty_table()

@@ -39,7 +39,6 @@ from typing import Iterable, Iterator
 
 import apache_beam as beam
 import numpy as np
-import pyarrow as pa
 from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
@@ -52,7 +51,7 @@ from fwcore.survey import model_samples
 from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
 from pipeline.records import (DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection)
 from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_mcap, write_part
-from pipeline.tables import REJECTED_SCHEMA, pulse_tables
+from pipeline.tables import pulse_tables, rejected_table
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
@@ -303,8 +302,12 @@ class WriteRange(_Stage):
 def write_rejections(output: str, task: ReadTask, rows: list[Rejection]) -> Path:
     """A range's Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
     rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
-    table = pa.table({c: [getattr(r, c) for r in rows] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA)
-    return write_part(table, Path(output) / "rejected", part_name(task.source.stem, task.start))
+    return write_part(rejected_table(rows), Path(output) / "rejected", part_name(task.source.stem, task.start))
+
+
+def write_file_rejection(output: str | Path, rejection: Rejection) -> Path:
+    """A file that could not be planned -> rejected/<stem>.parquet."""
+    return write_part(rejected_table([rejection]), Path(output) / "rejected", rejection.stem)
 
 
 class RangeStages(beam.DoFn):
@@ -388,9 +391,7 @@ class PlanFile(beam.DoFn):
         began = time.perf_counter()
         plan = plan_input(item, self.config, self.points_per_range, self.limit)
         if plan.rejection:
-            r = plan.rejection
-            write_part(pa.table({c: [getattr(r, c)] for c in REJECTED_SCHEMA.names}, schema=REJECTED_SCHEMA),
-                       Path(self.output) / "rejected", item.stem)
+            write_file_rejection(self.output, plan.rejection)
         write_json(plan_path(self.output, item.stem), plan.to_json())
         LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
         yield item.stem

@@ -1,3 +1,4 @@
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -26,3 +27,11 @@ def leica_waveforms() -> np.ndarray:
 @pytest.fixture(scope="session")
 def leica_dir() -> Path:
     return DATA / "leica_als"
+
+
+@pytest.fixture
+def leica_copy(tmp_path, leica_dir) -> Path:
+    """The Leica sample's .las and .wdp copied into the test's folder: a file a test may damage or change."""
+    for suffix in (".las", ".wdp"):
+        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
+    return tmp_path / "leica_a.las"

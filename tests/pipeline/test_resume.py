@@ -8,7 +8,6 @@ import subprocess
 import sys
 import time
 
-import pytest
 
 from pipeline.cli import main
 from pipeline.outputs import MANIFEST, differences, input_identity, is_complete, read_run
@@ -27,13 +26,6 @@ def snapshot(folder):
 def outputs(folder):
     """What a run leaves for its user: the tables' parts, the point cloud, rejected rows (not logs nor run.json)."""
     return {k: v for k, v in snapshot(folder).items() if k.split("/")[0] in ("echoes", "pulses", "rejected", "las")}
-
-
-@pytest.fixture
-def leica_copy(tmp_path, leica_dir):
-    for suffix in (".las", ".wdp"):
-        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
-    return tmp_path / "leica_a.las"
 
 
 def test_a_killed_run_resumes_to_the_uninterrupted_runs_outputs(tmp_path, leica_copy):

@@ -60,10 +60,8 @@ def test_an_input_is_ready_once_its_packets_are_there_and_nothing_grows(tmp_path
     assert sorted(watcher.ready()) == sorted([str(elsewhere / "b.las"), str(tmp_path / "a.las")])
 
 
-def test_due_are_the_ready_inputs_the_output_lacks_or_holds_another_version_of(tmp_path, leica_dir):
-    for suffix in (".las", ".wdp"):
-        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
-    path = str(tmp_path / "leica_a.las")
+def test_due_are_the_ready_inputs_the_output_lacks_or_holds_another_version_of(tmp_path, leica_copy):
+    path = str(leica_copy)
     ready = {path: input_identity(path)}
     out = tmp_path / "out"
     assert due(ready, out) == [path]  # no output folder yet

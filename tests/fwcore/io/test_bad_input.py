@@ -9,13 +9,6 @@ import pytest
 from fwcore.io import WaveformFileError, open_waveform_file, read_pulses
 
 
-@pytest.fixture
-def leica_copy(tmp_path, leica_dir):
-    for suffix in (".las", ".wdp"):
-        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
-    return tmp_path / "leica_a.las"
-
-
 def test_missing_wdp(leica_copy):
     leica_copy.with_suffix(".wdp").unlink()
     with pytest.raises(FileNotFoundError, match=r"leica_a\.las.*leica_a\.wdp.*missing"):

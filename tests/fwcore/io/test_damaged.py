@@ -12,13 +12,6 @@ from fwcore.io import WaveformFileError, open_waveform_file, plan_point_ranges, 
 POINT_COUNT_AT = 107  # LAS 1.3 header: legacy number of point records (u32)
 
 
-@pytest.fixture
-def leica_copy(tmp_path, leica_dir):
-    for suffix in (".las", ".wdp"):
-        shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
-    return tmp_path / "leica_a.las"
-
-
 def _set_point_count(path, n):
     with open(path, "r+b") as f:
         f.seek(POINT_COUNT_AT)
