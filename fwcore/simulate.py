@@ -13,6 +13,11 @@ Times count from each packet's first sample, as the pipeline's do; sigma is
 Chauve's, with t in ps (fwcore.model); x, y, z follow the same geolocation as
 the reader's (X = X0 + (L0 - t) x_t).
 
+With `SceneConfig.radiometry`, every surface has a diffuse reflectance and every echo the energy of the radar
+equation (Wagner 2006): E = K rho cos(alpha) f / R^2, f the share of the footprint the surface fills (1 for an
+extended target), alpha its incidence; the flying height climbs during the flight so that ranges vary, and
+a band of the ground (the calibration patch) has one known reflectance and nothing above it.
+
 A flight is simulated in chunks of CHUNK_PULSES pulses, each from its own random stream (the seed and the
 chunk's index), so a flight of any size is written holding one chunk (fwcore.studies.truth.write_flight).
 """
@@ -78,6 +83,14 @@ class SceneConfig:
     roof_height_m: tuple[float, float] = (4.0, 12.0)
     weak_echo_fraction: float = 0.15  # vegetation layers near the noise floor
     start_gps_time: float = 400_000.0
+    # radiometry: reflectances and the radar equation's energies (otherwise amplitudes are drawn at random)
+    radiometry: bool = False
+    altitude_change_m: float = 0.0  # the flying height climbs this much (a cosine ramp) ...
+    altitude_change_s: float = 1.0  # ... over this many seconds from the start
+    beam_divergence_mrad: float = 0.5
+    radar_amplitude: float = 2000.0  # DN: the peak of a reflectance-1 extended target at 500 m, normal incidence
+    patch_y_m: tuple[float, float] = (-90.0, -50.0)  # the calibration patch: a band of open ground ...
+    patch_reflectance: float = 0.25  # ... of this reflectance
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,8 +103,36 @@ class SimulatedFlight:
 
 
 TRUTH_COLUMNS = ("pulse_id", "echo_index", "surface", "time_ps", "amplitude", "sigma_ps", "alpha", "fwhm_ps",
-                 "noise_sigma", "x", "y", "z")
+                 "noise_sigma", "x", "y", "z", "range_m", "reflectance", "incidence_deg", "extended", "energy")
 SURFACES = ("ground", "vegetation", "roof")
+GROUND_REFLECTANCES = (0.05, 0.1, 0.2, 0.3, 0.45, 0.6)  # asphalt to bright soil, a block of 20 m each
+RADAR_REFERENCE_RANGE_M = 500.0
+
+
+def sensor_position(gps_time: np.ndarray, scene: SceneConfig) -> np.ndarray:
+    """The scanner's optical centre (n, 3) at these times: straight along x at the scene's speed, climbing by
+    altitude_change_m over altitude_change_s (a cosine ramp, then level)."""
+    t = np.asarray(gps_time, dtype=float) - scene.start_gps_time
+    ramp = np.clip(t / scene.altitude_change_s, 0.0, 1.0)
+    climb = scene.altitude_change_m * 0.5 * (1.0 - np.cos(np.pi * ramp))
+    return np.stack([scene.speed_m_s * t, np.zeros(t.size), scene.altitude_m + 120.0 + climb], axis=1)
+
+
+def _terrain_normal(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Unit upward normals of _terrain (its gradient, analytically)."""
+    dx = 6.0 / 90.0 * np.cos(x / 90.0) + 1.5 / 23.0 * np.cos((x + y) / 23.0)
+    dy = -4.0 / 70.0 * np.sin(y / 70.0) + 1.5 / 23.0 * np.cos((x + y) / 23.0)
+    n = np.stack([-dx, -dy, np.ones_like(dx)], axis=1)
+    return n / np.linalg.norm(n, axis=1)[:, None]
+
+
+def echo_area(fwhm_ps: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """The area (ps per unit amplitude) of a generalized Gaussian echo exp(-|t|^(alpha^2) / (2 sigma^2)) of
+    this FWHM: 2 Gamma(1 + 1/p) h / ln2^(1/p), p = alpha^2, h = FWHM / 2."""
+    from scipy.special import gamma
+
+    p = np.asarray(alpha, dtype=float) ** 2
+    return 2.0 * gamma(1.0 + 1.0 / p) * (np.asarray(fwhm_ps) / 2.0) / LN2 ** (1.0 / p)
 
 
 def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -108,8 +149,7 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     frac = step / max(scene.pulses_per_line - 1, 1)
     forward = line % 2 == 0  # the mirror sweeps back and forth
     angle = np.radians(scene.max_scan_angle_deg) * np.where(forward, 2 * frac - 1, 1 - 2 * frac)
-    sensor_xyz = np.stack([scene.speed_m_s * (gps - scene.start_gps_time), np.zeros(n),
-                           np.full(n, scene.altitude_m + 120.0)], axis=1)
+    sensor_xyz = sensor_position(gps, scene)
     beam = np.stack([np.zeros(n), np.sin(angle), -np.cos(angle)], axis=1)
     # ground range: two fixed-point steps on the terrain height are plenty at these slopes
     ground_range = (sensor_xyz[:, 2] - 120.0) / np.cos(angle)
@@ -128,6 +168,9 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     block = (np.floor(hit[:, 0] / 35.0) * 7 + np.floor(hit[:, 1] / 35.0) * 3) % 9
     roof = (block < 9 * scene.roof_fraction) & (rng.random(n) < 0.95)
     tree = ~roof & (rng.random(n) < scene.canopy_cover)
+    if scene.radiometry:  # the calibration patch is open ground
+        open_ground = (hit[:, 1] >= scene.patch_y_m[0]) & (hit[:, 1] <= scene.patch_y_m[1])
+        roof, tree = roof & ~open_ground, tree & ~open_ground
     # ground: the last echo; under canopy it keeps what the layers let through
     ground_amplitude = rng.uniform(40, 200, n)
     rng_range[:, 0] = ground_range
@@ -173,11 +216,56 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     count[tree] = layers[tree] + 1
     amplitude[~tree & ~edge, 0] = ground_amplitude[~tree & ~edge]
     amplitude[edge, 0] = rng.uniform(40, 200, edge.sum())
+    reflectance = np.full((n, MAX_ECHOES), np.nan)
+    incidence = np.full((n, MAX_ECHOES), np.nan)
+    if scene.radiometry:
+        amplitude, reflectance, incidence = _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width,
+                                                          alpha, kind, count, tree, edge, roof, layers, amplitude)
     # echoes in time order: the layers are drawn top first, but keep the guarantee explicit
     order = np.argsort(np.where(np.arange(MAX_ECHOES)[None, :] < count[:, None], rng_range, np.inf), axis=1)
     take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
     return (gps, angle, sensor_xyz, beam, count, take(rng_range), take(amplitude), take(width), take(alpha),
-            take(kind))
+            take(kind), take(reflectance), take(incidence))
+
+
+def _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width, alpha, kind, count, tree, edge, roof,
+                  layers, drawn):
+    """Amplitudes from the radar equation: E = K rho cos(alpha) f / R^2 over each echo's area; the
+    reflectance and incidence of each surface. Vegetation near the noise floor keeps its drawn amplitude."""
+    n = hit.shape[0]
+    block = (np.floor(hit[:, 0] / 20.0) * 5 + np.floor(hit[:, 1] / 20.0) * 3) % len(GROUND_REFLECTANCES)
+    ground_rho = np.asarray(GROUND_REFLECTANCES)[block.astype(int)]
+    in_patch = (hit[:, 1] >= scene.patch_y_m[0]) & (hit[:, 1] <= scene.patch_y_m[1])
+    ground_rho = np.where(in_patch, scene.patch_reflectance, ground_rho)
+    roof_rho = 0.1 + 0.4 * ((np.floor(hit[:, 0] / 35.0) * 3 + np.floor(hit[:, 1] / 35.0) * 7) % 5) / 4.0
+    leaf_rho = rng.uniform(0.3, 0.6, (n, MAX_ECHOES))
+    share = rng.uniform(0.05, 0.35, (n, MAX_ECHOES))  # the footprint a vegetation layer intercepts
+    roof_share = rng.uniform(0.3, 0.7, n)
+    cos_ground = np.abs(np.einsum("ij,ij->i", _terrain_normal(hit[:, 0], hit[:, 1]), beam))
+    cos_flat = np.cos(angle)
+    reference_area = echo_area(np.full(1, sensor.pulse_fwhm_ps), np.full(1, np.sqrt(2.0)))[0]
+    radar_k = scene.radar_amplitude * reference_area * RADAR_REFERENCE_RANGE_M ** 2
+    has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
+    reflectance = np.where(kind == 0, ground_rho[:, None], np.where(kind == 2, roof_rho[:, None], leaf_rho))
+    cos_alpha = np.where(kind == 0, cos_ground[:, None], np.where(kind == 2, cos_flat[:, None], 1.0))
+    # the footprint each surface fills: vegetation layers in turn, the rest to the ground; a roof edge splits
+    fill = np.ones((n, MAX_ECHOES))
+    left = np.ones(n)
+    for k in range(MAX_ECHOES):
+        veg = tree & (k < layers)
+        fill[veg, k] = share[veg, k] * left[veg]
+        left = np.where(veg, left * (1.0 - share[:, k]), left)
+    rows = np.flatnonzero(tree)
+    fill[rows, layers[tree]] = left[tree]
+    fill[edge, 0] = roof_share[edge]
+    fill[edge, 1] = 1.0 - roof_share[edge]
+    energy = radar_k * reflectance * cos_alpha * fill / np.where(has, rng_range, 1.0) ** 2
+    fwhm = sensor.pulse_fwhm_ps * width
+    amplitude = np.where(has, energy / echo_area(fwhm, np.where(has, alpha, np.sqrt(2.0))), 0.0)
+    weak = (kind == 1) & (drawn < 6.5 * sensor.noise_sigma)  # the drawn near-noise-floor layers stay weak
+    amplitude = np.where(weak, drawn, amplitude)
+    incidence = np.where(has & (kind != 1), np.degrees(np.arccos(np.clip(cos_alpha, 0.0, 1.0))), np.nan)
+    return amplitude, np.where(has, reflectance, np.nan), incidence
 
 
 @njit(**JIT)
@@ -254,8 +342,8 @@ def _chunk_rng(seed: int, chunk: int) -> np.random.Generator:
 def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, rng: np.random.Generator,
                     source_file: str) -> SimulatedFlight:
     """Pulses first..first+n_pulses-1 of the flight."""
-    gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind = _scene_echoes(
-        first, n_pulses, scene, sensor, rng)
+    gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind, reflectance, incidence = \
+        _scene_echoes(first, n_pulses, scene, sensor, rng)
     has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
     top_range = ranges[:, 0]
     time_ps = np.where(has, sensor.pre_trigger_ps + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
@@ -323,6 +411,9 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         "sigma_ps": sigma_ps[has], "alpha": alpha[has], "fwhm_ps": fwhm_ps[has],
         "noise_sigma": np.full(e_owner.size, sensor.noise_sigma),
         "x": e_xyz[:, 0], "y": e_xyz[:, 1], "z": e_xyz[:, 2],
+        "range_m": ranges[has], "reflectance": reflectance[has], "incidence_deg": incidence[has],
+        "extended": np.repeat(count == 1, count),  # the one surface fills the footprint
+        "energy": amplitude[has] * echo_area(fwhm_ps[has], alpha[has]),
     }
     return SimulatedFlight(pulses, truth, sensor.bits)
 

@@ -16,7 +16,7 @@ from pipeline.progress import quiet_imports
 
 quiet_imports()  # before Beam is imported: its import-time warnings are not the user's business
 
-from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config,  # noqa: E402
+from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config, radiometry_config,  # noqa: E402
                               unknown_option_error)
 
 
@@ -84,9 +84,10 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.run import EXIT_INTERRUPTED, run
 
     config = _config_from_args(args)
+    radiometry = radiometry_config(args)
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
-                      beam_args, verbose=args.verbose, resume=args.resume)
+                      beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry)
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
               f"rerun the same command with --resume to complete it", file=sys.stderr)
@@ -113,18 +114,22 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.watch import watch
 
     config = _config_from_args(args)
+    radiometry = radiometry_config(args)
+    if radiometry.calibration_reference is not None:
+        raise ValueError("fwl watch: a reference patch lies in one flight line, not in every batch: find C_cal once "
+                         "with fwl run --calibration-reference on that line, then give --calibration-constant")
     formats = check_run_arguments(args.formats, args.limit, args.points_per_range)
     if not args.poll > 0:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
-    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz)
+    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
         running[:] = [paths]  # until it ends: an interruption meanwhile names it
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
-                          beam_args, verbose=args.verbose, add=True)
+                          beam_args, verbose=args.verbose, add=True, radiometry=radiometry)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
@@ -180,14 +185,20 @@ def _simulate(args: argparse.Namespace) -> int:
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps,
                           samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
                           background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
-                          bits=args.bits, detection_threshold=args.detection_threshold)
+                          bits=args.bits or (16 if args.radiometry else 8),
+                          detection_threshold=args.detection_threshold)
     scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
                         canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
-                        weak_echo_fraction=args.weak_fraction)
+                        weak_echo_fraction=args.weak_fraction, radiometry=args.radiometry,
+                        # the climb spans the flight, whatever its length
+                        altitude_change_m=args.altitude_change if args.radiometry else 0.0,
+                        altitude_change_s=args.pulses / SceneConfig.pulse_rate_hz,
+                        beam_divergence_mrad=args.beam_divergence_mrad, patch_reflectance=args.patch_reflectance)
     start = time.perf_counter()
     flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
-    print(f"wrote {flight.las} ({args.format}, {args.bits}-bit): {flight.n_pulses} pulses, {flight.n_returns} "
-          f"system returns; {flight.truth}: {flight.n_echoes} true echoes; {time.perf_counter() - start:.1f} s")
+    print(f"wrote {flight.las} ({args.format}, {sensor.bits}-bit): {flight.n_pulses} pulses, {flight.n_returns} "
+          f"system returns; {flight.truth}: {flight.n_echoes} true echoes; {flight.trajectory.name}"
+          f"{'; ' + flight.calibration.name if flight.calibration else ''}; {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -322,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pulses", type=int, required=True)
     s.add_argument("--output", required=True, help="FILE.las; the truth goes to FILE.truth.parquet")
     s.add_argument("--format", default="las13-wdp", choices=["las13-wdp", "las14-internal"])
-    s.add_argument("--bits", type=int, default=8, choices=[8, 16])
+    s.add_argument("--bits", type=int, choices=[8, 16], help="digitizer bits (default 8; 16 with --radiometry)")
     s.add_argument("--seed", type=int, default=0)
     sensor = s.add_argument_group("sensor")
     sensor.add_argument("--pulse-fwhm-ps", dest="pulse_fwhm_ps", type=float, default=4000.0)
@@ -343,6 +354,15 @@ def build_parser() -> argparse.ArgumentParser:
     scene.add_argument("--roof-fraction", dest="roof_fraction", type=float, default=0.12)
     scene.add_argument("--weak-fraction", dest="weak_fraction", type=float, default=0.15,
                        help="fraction of vegetation echoes near the noise floor")
+    radar = s.add_argument_group("radiometry")
+    radar.add_argument("--radiometry", action="store_true",
+                       help="surfaces of known reflectance, echo energies by the radar equation, a climbing flight, "
+                            "a calibration patch (FILE.calibration.json)")
+    radar.add_argument("--altitude-change", dest="altitude_change", type=float, default=300.0,
+                       help="metres the flight climbs from start to end (default 300)")
+    radar.add_argument("--beam-divergence-mrad", dest="beam_divergence_mrad", type=float, default=0.5)
+    radar.add_argument("--patch-reflectance", dest="patch_reflectance", type=float, default=0.25,
+                       help="the calibration patch's diffuse reflectance (default 0.25)")
     s.set_defaults(handler=_simulate)
 
     e = sub.add_parser("evaluate", help="accuracy of fwl run outputs against a simulated flight's truth")

@@ -120,6 +120,36 @@ class FwlOptions(PipelineOptions):
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
         add_method_arguments(parser)
+        add_radiometry_arguments(parser)
+
+
+def add_radiometry_arguments(parser) -> None:
+    """Range, backscatter and reflectance (fwcore.radiometry); every value is relative unless calibrated."""
+    g = parser.add_argument_group("radiometry (range, backscatter cross-section and coefficient, reflectance)")
+    g.add_argument("--trajectory", help="the platform's trajectory for LAS inputs: an SBET (17 doubles a record, "
+                                        "WGS 84, radians) or a CSV gps_time,x,y,z in the inputs' CRS")
+    g.add_argument("--calibration-reference", dest="calibration_reference",
+                   help="xmin,ymin,xmax,ymax=REFLECTANCE: a patch of known diffuse reflectance whose single returns "
+                        "give the calibration constant (or a JSON file with bbox and reflectance)")
+    g.add_argument("--calibration-constant", dest="calibration_constant", type=float,
+                   help="C_cal, as an earlier run's run.json reports it")
+    g.add_argument("--beam-divergence-mrad", dest="beam_divergence_mrad", type=float,
+                   help="the beam divergence, full angle at 1/e^2 (default: the file's, where it records it)")
+
+
+def radiometry_config(args: Any):
+    """The radiometry flags as one RadiometryConfig, checked (RadiometryError, a ValueError, names the problem)."""
+    from fwcore.radiometry import RadiometryConfig, RadiometryError, parse_calibration_reference
+
+    reference = getattr(args, "calibration_reference", None)
+    constant = getattr(args, "calibration_constant", None)
+    if reference and constant is not None:
+        raise RadiometryError("give --calibration-reference or --calibration-constant, not both")
+    return RadiometryConfig(trajectory=getattr(args, "trajectory", None),
+                            calibration_reference=parse_calibration_reference(reference) if reference else None,
+                            calibration_constant=constant,
+                            calibration_source="given" if constant is not None else "none",
+                            beam_divergence_mrad=getattr(args, "beam_divergence_mrad", None))
 
 
 def _subclasses(cls: type) -> Iterable[type]:

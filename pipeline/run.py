@@ -27,6 +27,8 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 
 import fwcore
 from fwcore.config import DecompositionConfig
+from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
+from fwcore.radiometry import RadiometryConfig
 from pipeline.options import check_beam_args, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               expand_inputs, input_identity, is_complete, list_outputs, mark_inputs_done,
@@ -230,11 +232,46 @@ def _run_job(options, build) -> object:
 
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
-                 laz: bool) -> dict:
+                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint."""
     return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
-            "points_per_range": points_per_range, "laz": laz, "fwlidar": fwcore.__version__}
+            "points_per_range": points_per_range, "laz": laz, "radiometry": radiometry.to_dict(),
+            "fwlidar": fwcore.__version__}
+
+
+def check_radiometry(paths: list[str], radiometry: RadiometryConfig) -> None:
+    """Before the folder is touched: the trajectory against each input it serves (fwcore.flight_radiometry).
+    An input that cannot be read is left to its plan, which rejects it with the reason."""
+    if not radiometry.trajectory:
+        return
+    from fwcore.io import input_summary
+
+    for path in paths:
+        try:
+            adjusted = input_summary(path).adjusted_standard_gps_time
+        except (OSError, ValueError):
+            continue
+        check_flight(path, adjusted, radiometry)
+
+
+def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometry: RadiometryConfig,
+              say) -> tuple[RadiometryConfig, dict | None]:
+    """With a reference patch: C_cal from its single returns (before the flight is decomposed), said on the terminal;
+    the radiometry the ranges then use, and the calibration for run.json."""
+    if radiometry.calibration_reference is None:
+        return radiometry, None
+    files = [PatchFile(s.path, plan.ranges, config.replace(system_pulse_fwhm_ps=s.system_pulse_fwhm_ps,
+                                                           shape_tolerance=s.shape_tolerance),
+                       s.range_offset_ps, s.adjusted_standard_gps_time)
+             for plan in plans.values() if (s := plan.source) is not None]
+    found = calibrate_on_reference(files, radiometry)
+    say.write(f"fwl run: calibration constant {found.constant:.6g} from {found.n} single returns of the reference "
+              f"patch (robust spread {100 * found.spread:.1f}%)\n")
+    say.flush()
+    calibrated = dataclasses.replace(radiometry, calibration_constant=found.constant,
+                                     calibration_source=f"reference patch ({found.n} single returns)")
+    return calibrated, {**found.to_dict(), "source": calibrated.calibration_source}
 
 
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
@@ -274,7 +311,7 @@ def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, a
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
-        add: bool = False) -> dict:
+        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -288,7 +325,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     paths = expand_inputs(inputs or [str(BUNDLED_SAMPLE)])
-    settings = run_settings(config, formats, limit, points_per_range, laz)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry)
+    check_radiometry(paths, radiometry)
     names, taken = claim_folder(output, paths, settings, resume, add)
     if taken == "complete":  # its run.json stays as it is
         return {**read_run(output), "taken": taken}
@@ -297,10 +335,11 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     if taken == "resumed" and done >= set(paths):  # killed after its last job, while counting: nothing to redo
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
     else:
-        jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch)
+        jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
+                        radiometry)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken)
+                     taken, radiometry)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -310,19 +349,23 @@ class JobsDone:
     ranges: int | None
     ranges_reused: int | None
     metrics: dict[str, int]
-    planned: dict[str, dict]  # input path -> what its plan measured (_planned)
+    planned: dict[str, dict]  # input path -> what its plan measured (_planned), and its radiometry
+    calibration: dict | None = None  # C_cal found on a reference patch, how many returns, their spread
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
-             limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool) -> JobsDone:
+             limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
+             radiometry: RadiometryConfig = RadiometryConfig()) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs = None, Jobs(options)
+    result, jobs, calibration, ranges_from = None, Jobs(options), None, {}
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
             _warn_unmeasured(plans)
+            ranges_from = _ranges_from(plans, radiometry)
+            radiometry, calibration = calibrate(plans, config, radiometry, say)
             files_rejected = sum(1 for p in plans.values() if p.rejection)
             tasks = [t for p in plans.values() for t in p.tasks]
             reused = {progress_mark(output, t.source.stem, t.start).name for t in tasks if range_is_complete(output, t)}
@@ -342,7 +385,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
                                                             | "DecomposeFlight" >> DecomposeFlight(
-                                                                config, str(output), formats, spread=not jobs.dask)))
+                                                                config, str(output), formats, spread=not jobs.dask,
+                                                                radiometry=radiometry)))
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
                 jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz))
@@ -352,7 +396,23 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         remove_partial_files(output)
     _write_lost_plans(output, plans)
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
-                    {path: _planned(plan) for path, plan in plans.items()})
+                    {path: {**_planned(plan), **ranges_from.get(path, {})} for path, plan in plans.items()},
+                    calibration)
+
+
+def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> dict[str, dict]:
+    """Each planned input's radiometry (where its ranges come from, its beam divergence), for run.json; the
+    terminal is told once per input why it has none."""
+    found = {}
+    for path, plan in plans.items():
+        s = plan.source
+        if s is None:
+            continue
+        file = file_radiometry(s.path, s.adjusted_standard_gps_time, radiometry)
+        if not file.range_source:
+            LOG.warning("%s; its radiometric columns are null", file.why_no_range)
+        found[path] = {"radiometry": file.to_dict()}
+    return found
 
 
 def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
@@ -374,7 +434,8 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
 
 
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
-              config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str) -> dict:
+              config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
+              radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -395,6 +456,8 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
+        "radiometry": {**radiometry.to_dict(), "calibration": jobs.calibration,
+                       "values": "calibrated" if jobs.calibration or radiometry.calibrated else "relative (C_cal = 1)"},
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},

@@ -92,15 +92,17 @@ def assemble_las(parts: list[Path], path: Path, laz: bool = False) -> Path:
                     writer.write_points(chunk)
                     for name in extra:
                         values = np.asarray(chunk[name])
+                        values = values[~np.isnan(values)] if values.dtype.kind == "f" else values
                         if values.size:
                             low[name] = min(low[name], float(values.min()))
                             high[name] = max(high[name], float(values.max()))
         # laspy's running Extra Bytes statistics depend on how the points were split: set them from all points
         for struct in writer.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs if extra else ():
             name = struct.name.rstrip(b"\0").decode()
-            if name in low and np.isfinite(low[name]) and struct.min_is_relevant() and struct.max_is_relevant():
-                struct._raw_min()[:] = low[name]
-                struct._raw_max()[:] = high[name]
+            if name in low and struct.min_is_relevant() and struct.max_is_relevant():
+                found = np.isfinite(low[name])  # NaN for a column without a value (radiometry unavailable)
+                struct._raw_min()[:] = low[name] if found else np.nan
+                struct._raw_max()[:] = high[name] if found else np.nan
     tmp.replace(path)
     return path
 

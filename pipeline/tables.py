@@ -125,9 +125,24 @@ def _strings(value: str, n: int) -> pa.Array:
     return pa.array([value] * n, pa.string())
 
 
+RADIOMETRY_COLUMNS = ("range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient",
+                      "reflectance")
+
+
+def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dict[str, pa.Array]:
+    """fwcore.radiometry.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
+    if radiometry is None:
+        radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable")}
+    columns = {c: pa.array(radiometry[c], pa.float64(), from_pandas=True) for c in RADIOMETRY_COLUMNS}
+    columns["radiometry"] = pa.array(np.asarray(radiometry["radiometry"], dtype=object).tolist(), pa.string())
+    return columns
+
+
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
-                 xyz: np.ndarray, ok: np.ndarray) -> tuple[pa.Table, pa.Table]:
-    """Echo rows (kept and spurious, geolocated) and pulse rows of the decomposed pulses `ok`."""
+                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None
+                 ) -> tuple[pa.Table, pa.Table]:
+    """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
+    `ok`."""
     from fwcore.model import sigma_to_time_unit
 
     counts = np.diff(result.echo_offsets)
@@ -151,6 +166,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "fwhm_ps": result.fwhm * spacing,
         "energy": result.energy * spacing,
         "background": result.background[owner],
+        **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
         GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         "kept": pa.array(result.reject == 0),

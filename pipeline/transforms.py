@@ -43,9 +43,11 @@ from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
+from fwcore.flight_radiometry import file_radiometry, range_radiometry
 from fwcore.io import read_pulses
 from fwcore.io.writer import write_point_cloud
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
+from fwcore.radiometry import RadiometryConfig
 from fwcore.records import STATUS_REASONS
 from fwcore.survey import model_samples
 from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
@@ -239,19 +241,25 @@ def _waveform_views(pulses, result) -> dict[str, np.ndarray]:
 
 
 class Geolocate(_Stage):
-    """DecomposedRange -> GeolocatedRange: every echo placed along its beam, the range's tables built."""
+    """DecomposedRange -> GeolocatedRange: every echo placed along its beam, its range and radiometry computed,
+    the range's tables built."""
 
     stage = "geolocate"
 
-    def __init__(self, output: str, with_views: bool):
+    def __init__(self, output: str, with_views: bool, radiometry: RadiometryConfig = RadiometryConfig()):
         super().__init__(output)
-        self.with_views = with_views
+        self.with_views, self.radiometry = with_views, radiometry
 
     def run(self, item: DecomposedRange):
-        pulses, result = item.pulses, item.result
-        xyz = echo_positions(pulses, result, item.task.source.range_offset_ps)
-        echoes, table = pulse_tables(item.task.source.name, pulses, result, item.config, xyz, result.status == 0)
-        yield GeolocatedRange(item.task, echoes, table, decomposed_echoes(pulses, result, xyz),
+        pulses, result, source = item.pulses, item.result, item.task.source
+        xyz = echo_positions(pulses, result, source.range_offset_ps)
+        file = file_radiometry(source.path, source.adjusted_standard_gps_time, self.radiometry)
+        radiometry = range_radiometry(pulses, result, xyz, source.range_offset_ps, file, self.radiometry)
+        echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, radiometry)
+        cloud = decomposed_echoes(pulses, result, xyz)
+        kept = result.reject == 0
+        cloud.update({name: values[kept] for name, values in radiometry.items()})
+        yield GeolocatedRange(item.task, echoes, table, cloud,
                               _waveform_views(pulses, result) if self.with_views else None)
 
 
@@ -262,9 +270,9 @@ class WriteRange(_Stage):
 
     stage = "write"
 
-    def __init__(self, output: str, formats: frozenset[str]):
+    def __init__(self, output: str, formats: frozenset[str], calibrated: bool = False):
         super().__init__(output)
-        self.formats = formats
+        self.formats, self.calibrated = formats, calibrated
         # counted once written, so that a range rejected on the way is not also counted as decomposed
         self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
         self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
@@ -282,7 +290,7 @@ class WriteRange(_Stage):
                 write_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
                 write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
             if "las" in self.formats:
-                write_point_cloud(paths["las"], task.source.path, item.cloud)
+                write_point_cloud(paths["las"], task.source.path, item.cloud, self.calibrated)
             if "mcap" in self.formats:
                 write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time)
         except Exception:
@@ -421,6 +429,7 @@ class DecomposeFlight(beam.PTransform):
     output: str
     formats: frozenset[str]
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
+    radiometry: RadiometryConfig = RadiometryConfig()
 
     def expand(self, tasks):
         if self.spread:
@@ -429,8 +438,8 @@ class DecomposeFlight(beam.PTransform):
             self.output,
             ReadRange(self.output),
             Decompose(self.output, self.config),
-            Geolocate(self.output, "mcap" in self.formats),
-            WriteRange(self.output, self.formats)))
+            Geolocate(self.output, "mcap" in self.formats, self.radiometry),
+            WriteRange(self.output, self.formats, self.radiometry.calibrated)))
 
 
 @dataclasses.dataclass

@@ -123,6 +123,7 @@ class Scanner:
     serial: str
     wavelength_nm: float
     outgoing_pulse_width_ns: float  # FWHM, in ns (the draft says nanometres)
+    beam_divergence_mrad: float | None = None  # @ 1/e^2, full angle; None where the record does not say (0 or absent)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -278,7 +279,9 @@ def _parse_scanner(index: int, payload: bytes) -> Scanner | None:
         return None
     _, _ = struct.unpack_from("<II", payload)
     wavelength, width = struct.unpack_from("<ff", payload, 136)
-    return Scanner(index, _text(payload[8:72]), _text(payload[72:136]), wavelength, width)
+    divergence = struct.unpack_from("<f", payload, 172)[0] if len(payload) >= 176 else 0.0
+    divergence = float(divergence) if np.isfinite(divergence) and 0.0 < divergence < 100.0 else None
+    return Scanner(index, _text(payload[8:72]), _text(payload[72:136]), wavelength, width, divergence)
 
 
 def waves_file(path: Path) -> Path:
@@ -637,6 +640,10 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
     outgoing_spacing = np.where(has, layout.spacing_ps[row[safe]] if row.size else 0.0, 0.0)
     flags = records["flags"][owner]
     zeros = np.zeros(rows.size)
+    # the optical centre is oc sampling units back from the anchor, where the descriptor gives a constant oc
+    optical_center = layout.optical_center[r]
+    varies = (optical_center == VARIES) | (optical_center == VARIES - (1 << 32))
+    sensor_location_ps = np.where(varies, np.nan, (-duration - optical_center) * unit_ps)
     return PulseBatch(
         source_file=str(pw.path),
         pulse_id=pulse_id[owner],
@@ -645,6 +652,7 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
         gps_time=gps_time[owner],
         anchor=anchor[owner],
         anchor_location_ps=-duration * unit_ps,
+        sensor_location_ps=sensor_location_ps,
         direction=-direction[owner] / unit_ps[:, None],
         scan_angle=zeros,
         point_source_id=np.zeros(rows.size, np.uint16),

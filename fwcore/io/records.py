@@ -70,6 +70,9 @@ class PulseBatch:
     # per return: how many returns the system reported for its pulse (LAS number_of_returns), where recorded;
     # more than the file holds where it was clipped to a plot (omitted_returns)
     number_of_returns: np.ndarray | None = None
+    # per row: the packet time (ps, like echo times) at which the beam is at the scanner's optical centre, where
+    # the file says (PulseWaves with a constant optical-centre-to-anchor offset); NaN or None where it does not
+    sensor_location_ps: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.pulse_id.size

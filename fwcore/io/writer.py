@@ -28,6 +28,16 @@ EXTRA_DIMENSIONS = (
     ("fit_error", "pulse fit error, Eq. 9 [1]"),
     ("channel", "waveform channel (PulseWaves)"),
 )
+# Radiometry (fwcore.radiometry), NaN where unavailable: (name, description when calibrated, when relative).
+RADIOMETRY_DIMENSIONS = (
+    ("range_m", "range to the scanner [m]", "range to the scanner [m]"),
+    ("incidence_deg", "incidence angle [deg]", "incidence angle [deg]"),
+    ("backscatter_cross_section_m2", "backscatter cross-section [m2]", "cross-section, relative (C=1)"),
+    ("backscatter_coefficient", "backscatter coefficient [1]", "backscatter coef., relative"),
+    ("reflectance", "diffuse reflectance [1]", "reflectance, relative (C=1)"),
+)
+RADIOMETRY_FLAG = ("radiometry", "0 none, 1 relative, 2 calibrated")
+RADIOMETRY_FLAGS = {"unavailable": 0, "relative": 1, "calibrated": 2}
 
 
 def point_cloud_template(template: str | Path) -> dict:
@@ -48,12 +58,14 @@ def point_cloud_template(template: str | Path) -> dict:
             "system_identifier": source.system_identifier, "geokeys": geokeys}
 
 
-def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, np.ndarray]) -> Path:
+def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, np.ndarray],
+                      calibrated: bool = False) -> Path:
     """LAS 1.4 point format 6 (7 with colour, 8 with NIR), one point per kept echo; .laz compresses.
 
     Scale, offset, the system identifier and the coordinate reference system come from `template` (the
     input file); the CRS is written as OGC WKT with the global encoding's WKT bit, as formats 6-10 require
-    (converted from GeoTIFF keys where the input has those). Columns: fwcore.pulses.decomposed_echoes.
+    (converted from GeoTIFF keys where the input has those). Columns: fwcore.pulses.decomposed_echoes, and the
+    radiometry's (fwcore.radiometry.echo_radiometry) as Extra Bytes, described as calibrated or relative.
     """
     path = Path(path)
     source = point_cloud_template(template)
@@ -73,7 +85,10 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     else:
         LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",
                     path.name, Path(template).name, path.name)
-    header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc) for name, desc in EXTRA_DIMENSIONS])
+    header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc) for name, desc in EXTRA_DIMENSIONS]
+                          + [laspy.ExtraBytesParams(name, "f4", description=cal if calibrated else rel)
+                             for name, cal, rel in RADIOMETRY_DIMENSIONS]
+                          + [laspy.ExtraBytesParams(RADIOMETRY_FLAG[0], "u1", description=RADIOMETRY_FLAG[1])])
     las = laspy.LasData(header)
     las.x, las.y, las.z = echoes["x"], echoes["y"], echoes["z"]
     las.gps_time = echoes["gps_time"]
@@ -90,6 +105,14 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     for name, _ in EXTRA_DIMENSIONS:
         values = echoes[name] if name in echoes else np.zeros(len(echoes["x"]))
         las[name] = np.asarray(values, dtype=np.float32)
+    n = len(echoes["x"])
+    for name, _, _ in RADIOMETRY_DIMENSIONS:
+        values = np.asarray(echoes[name] if name in echoes else np.full(n, np.nan), dtype=np.float32)
+        las[name] = np.where(np.isnan(values), np.float32(np.nan), values)  # one NaN: the bytes do not depend on how
+    flags = echoes.get(RADIOMETRY_FLAG[0], np.full(n, "unavailable"))
+    flags = np.asarray(flags).astype(str)
+    las[RADIOMETRY_FLAG[0]] = np.select([flags == k for k in RADIOMETRY_FLAGS], list(RADIOMETRY_FLAGS.values()),
+                                        0).astype(np.uint8)
     if "rgb" in echoes:
         las.red, las.green, las.blue = echoes["rgb"].T
     if "nir" in echoes:

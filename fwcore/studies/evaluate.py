@@ -160,3 +160,33 @@ def evaluate_runs(results_dirs: Sequence[str | Path], truth_file: str | Path, ma
     for d in results_dirs:
         rows.extend(evaluate_run(d, truth_file, match_ps))
     return rows
+
+
+def evaluate_radiometry(results_dir: str | Path, truth_file: str | Path, match_ps: float = 1000.0) -> dict:
+    """A run's ranges and reflectances against a radiometric flight's truth (`fwl simulate --radiometry`): over
+    the extended true echoes (one surface filling the footprint) matched by a kept echo, the median and 90th
+    percentile of |rho / rho_true - 1|, and the median |range error| in cm over every matched echo."""
+    truth_table = pq.read_table(truth_file, columns=["pulse_id", "time_ps", "range_m", "reflectance", "extended"])
+    truth = {c: truth_table.column(c).to_numpy(zero_copy_only=False) for c in truth_table.column_names}
+    echoes = ds.dataset(str(Path(results_dir) / "echoes"), format="parquet").to_table(
+        columns=["pulse_id", "time_ps", "kept", "range_m", "reflectance", "incidence_deg", "radiometry"])
+    kept = echoes.column("kept").to_numpy(zero_copy_only=False)
+    found = {c: echoes.column(c).to_numpy(zero_copy_only=False)[kept] for c in echoes.column_names}
+    t_idx, f_idx = match_echoes(truth["pulse_id"], truth["time_ps"], found["pulse_id"], found["time_ps"], match_ps)
+    range_error = np.asarray(found["range_m"][f_idx], float) - truth["range_m"][t_idx]
+    extended = truth["extended"][t_idx].astype(bool) & np.isfinite(truth["reflectance"][t_idx])
+    rho = np.asarray(found["reflectance"][f_idx], float)[extended]
+    ratio = np.abs(rho / truth["reflectance"][t_idx][extended] - 1.0)
+    ratio = ratio[np.isfinite(ratio)]
+    with_plane = np.isfinite(np.asarray(found["incidence_deg"][f_idx], float))[extended]
+    finite_range = np.isfinite(range_error)
+    return {"matched": int(t_idx.size), "extended": int(extended.sum()), "extended_with_reflectance": int(ratio.size),
+            "extended_with_plane": float(with_plane.mean()) if with_plane.size else float("nan"),
+            "reflectance_error_median": float(np.median(ratio)) if ratio.size else float("nan"),
+            "reflectance_error_p90": float(np.percentile(ratio, 90)) if ratio.size else float("nan"),
+            "range_error_median_cm": float(np.median(np.abs(range_error[finite_range])) * 100.0)
+            if finite_range.any() else float("nan"),
+            "range_bias_cm": float(np.median(range_error[finite_range]) * 100.0) if finite_range.any()
+            else float("nan"),
+            "with_range": float(finite_range.mean()) if t_idx.size else float("nan"),
+            "calibrated": float(np.mean(found["radiometry"][f_idx] == "calibrated")) if t_idx.size else float("nan")}

@@ -11,7 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.io.writer import WaveformLasWriter
-from fwcore.simulate import SceneConfig, SensorConfig, simulate_chunks
+from fwcore.simulate import SceneConfig, SensorConfig, sensor_position, simulate_chunks
 
 TRUTH_METADATA_KEY = b"fwlidar.simulation"
 
@@ -25,12 +25,50 @@ class WrittenFlight:
     n_pulses: int
     n_returns: int  # the system's returns: the file's points
     n_echoes: int  # true echoes: the truth's rows
+    trajectory: Path | None = None  # the scanner's positions: gps_time, x, y, z
+    calibration: Path | None = None  # a patch of known reflectance (radiometric scenes)
 
 
 def truth_path(las_path: str | Path) -> Path:
     """sim.las -> sim.truth.parquet"""
     las_path = Path(las_path)
     return las_path.with_name(las_path.stem + ".truth.parquet")
+
+
+def trajectory_path(las_path: str | Path) -> Path:
+    """sim.las -> sim.trajectory.csv"""
+    las_path = Path(las_path)
+    return las_path.with_name(las_path.stem + ".trajectory.csv")
+
+
+def calibration_path(las_path: str | Path) -> Path:
+    """sim.las -> sim.calibration.json"""
+    las_path = Path(las_path)
+    return las_path.with_name(las_path.stem + ".calibration.json")
+
+
+TRAJECTORY_RATE_HZ = 1000.0  # a fast INS's rate: linear interpolation between its knots is exact to 0.1 mm here
+
+
+def write_trajectory(path: str | Path, n_pulses: int, scene: SceneConfig) -> Path:
+    """The scanner's positions during the flight (and 10 ms either side) as CSV gps_time, x, y, z."""
+    duration = n_pulses / scene.pulse_rate_hz
+    times = scene.start_gps_time + np.arange(-0.01, duration + 0.01 + 0.5 / TRAJECTORY_RATE_HZ,
+                                             1.0 / TRAJECTORY_RATE_HZ)
+    xyz = sensor_position(times, scene)
+    np.savetxt(path, np.column_stack([times, xyz]), delimiter=",", header="gps_time,x,y,z", comments="",
+               fmt=("%.6f", "%.4f", "%.4f", "%.4f"))
+    return Path(path)
+
+
+def write_calibration_reference(path: str | Path, n_pulses: int, scene: SceneConfig) -> Path:
+    """The scene's calibration patch as --calibration-reference reads it: {"bbox": [...], "reflectance": R}
+    (with the beam divergence the scene was flown with, which the LAS cannot record)."""
+    end = sensor_position(np.array([scene.start_gps_time + n_pulses / scene.pulse_rate_hz]), scene)[0, 0]
+    value = {"bbox": [0.0, scene.patch_y_m[0], float(end), scene.patch_y_m[1]],
+             "reflectance": scene.patch_reflectance, "beam_divergence_mrad": scene.beam_divergence_mrad}
+    Path(path).write_text(json.dumps(value, indent=1) + "\n")
+    return Path(path)
 
 
 def write_flight(output: str | Path, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, seed: int,
@@ -46,7 +84,10 @@ def write_flight(output: str | Path, n_pulses: int, sensor: SensorConfig, scene:
             n_returns += chunk.pulses.return_xyz.shape[0]
             n_echoes += chunk.truth["time_ps"].size
             del chunk  # before the next is simulated: one chunk in memory, not two
-    return WrittenFlight(output, truth.path, n_pulses, n_returns, n_echoes)
+    trajectory = write_trajectory(trajectory_path(output), n_pulses, scene)
+    calibration = (write_calibration_reference(calibration_path(output), n_pulses, scene) if scene.radiometry
+                   else None)
+    return WrittenFlight(output, truth.path, n_pulses, n_returns, n_echoes, trajectory, calibration)
 
 
 class TruthWriter:

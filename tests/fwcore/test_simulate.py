@@ -122,7 +122,7 @@ def test_a_flight_of_several_chunks_is_written_chunk_by_chunk_and_reads_back(tmp
 def test_a_flight_that_fails_after_chunks_were_written_leaves_no_partial_files(tmp_path, monkeypatch):
     monkeypatch.setattr(simulate, "CHUNK_PULSES", 100)
     short = SensorConfig(samples_per_packet=170)  # enough for the first three chunks' trees, not the fourth's
-    assert len(list(write_flight(tmp_path / "ok.las", 300, short, SceneConfig(), seed=1).las.parent.iterdir())) == 3
+    assert len(list(write_flight(tmp_path / "ok.las", 300, short, SceneConfig(), seed=1).las.parent.iterdir())) == 4
     with pytest.raises(ValueError, match="packet is too short"):
         write_flight(tmp_path / "sim.las", 400, short, SceneConfig(), seed=1)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.las", "ok.truth.parquet", "ok.wdp"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.las", "ok.trajectory.csv", "ok.truth.parquet", "ok.wdp"]

@@ -99,4 +99,4 @@ def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_p
     out = capsys.readouterr().out
     assert f"250 pulses, {len(points.points)} system returns" in out and f"{truth.num_rows} true echoes" in out
     assert points.header.global_encoding.waveform_data_packets_internal and points.header.number_of_evlrs == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.las", "sim.truth.parquet"]  # no scratch packets
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.las", "sim.trajectory.csv", "sim.truth.parquet"]  # no scratch

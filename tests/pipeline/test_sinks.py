@@ -46,7 +46,7 @@ def test_the_assembled_laz_does_not_depend_on_the_range_size(two_range_sizes):
     assert one == (two_range_sizes / "laz-many" / "las" / "leica_a.laz").read_bytes()
     las = laspy.read(two_range_sizes / "laz-one" / "las" / "leica_a.laz")
     plain = laspy.read(two_range_sizes / "one" / "las" / "leica_a.las")
-    np.testing.assert_array_equal(las.points.array, plain.points.array)
+    assert las.points.array.tobytes() == plain.points.array.tobytes()  # bytes: NaN (no radiometry) is not == NaN
 
 
 def test_the_assembled_las_keeps_header_crs_and_extra_bytes(two_range_sizes, leica_dir):

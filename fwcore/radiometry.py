@@ -1,0 +1,434 @@
+"""Radiometry: every echo's range to the scanner, its incidence, backscatter cross-section, backscatter
+coefficient and diffuse reflectance (Wagner 2006, 2010), calibrated where the run is given how.
+
+    range:      the scanner's optical centre in the file (PulseWaves) or a trajectory at the pulse's GPS time
+    incidence:  the angle between the beam and a plane through the echo's neighbouring kept echoes
+    sigma       = C_cal R^4 E                (E the echo's energy: amplitude x width, the engine's area)
+    gamma       = 4 sigma / (pi R^2 beta^2)  (beta the beam divergence, full angle at 1/e^2)
+    rho         = gamma / (4 cos alpha)      (a Lambertian target that fills the footprint)
+
+C_cal comes from a reference patch of known reflectance (its single returns, by their median), or is given;
+without either it is 1 and every value is relative, and said so. Plain functions over numpy arrays: the
+pipeline's Geolocate stage and the calibration's pre-pass call `echo_radiometry`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+WEEK_S = 604800.0
+ADJUSTED_OFFSET_S = 1e9  # adjusted standard GPS time = GPS seconds - 1e9 (LAS global encoding bit 0)
+# one ps of echo time is this much range (two-way, in air): a file whose beam steps differ is not in metres
+RANGE_M_PER_PS = 299702547.0e-12 / 2.0
+METRIC_STEP_TOLERANCE = 0.05
+SBET_FIELDS = ("gps_time", "latitude", "longitude", "height", "x_velocity", "y_velocity", "z_velocity", "roll",
+               "pitch", "heading", "wander", "x_acceleration", "y_acceleration", "z_acceleration",
+               "x_angular_rate", "y_angular_rate", "z_angular_rate")
+SBET_RECORD = np.dtype([(f, "<f8") for f in SBET_FIELDS])  # 17 little-endian doubles, angles in radians
+CALIBRATED, RELATIVE, UNAVAILABLE = "calibrated", "relative", "unavailable"
+MAX_GEOMETRY_ANGLE_DEG = 3.0  # sensor-to-return against the beam: a trajectory in another CRS is far off this
+
+
+class RadiometryError(ValueError):
+    """A trajectory, a reference patch or an option the run cannot use; the message names the file and the fix."""
+
+
+# ---------------------------------------------------------------- options
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationReference:
+    """A patch of the scene of known diffuse reflectance (asphalt, a reference tarp): its single returns give C_cal."""
+
+    bbox: tuple[float, float, float, float]  # xmin, ymin, xmax, ymax in the inputs' CRS
+    reflectance: float
+
+    def contains(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        xmin, ymin, xmax, ymax = self.bbox
+        return (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax)
+
+
+def parse_calibration_reference(text: str) -> CalibrationReference:
+    """"xmin,ymin,xmax,ymax=REFLECTANCE", or a JSON file {"bbox": [xmin, ymin, xmax, ymax], "reflectance": R}
+    (what `fwl simulate` writes beside its flight)."""
+    where = f"--calibration-reference {text!r}"
+    if "=" not in text and Path(text).is_file():
+        try:
+            value = json.loads(Path(text).read_text())
+            bbox, reflectance = value["bbox"], value["reflectance"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise RadiometryError(f"{text}: not a calibration reference ({err}); it needs "
+                                  '{"bbox": [xmin, ymin, xmax, ymax], "reflectance": R}') from None
+    else:
+        box, _, value = text.partition("=")
+        try:
+            bbox, reflectance = [float(v) for v in box.split(",")], float(value)
+        except ValueError:
+            raise RadiometryError(f"{where}: write it as xmin,ymin,xmax,ymax=REFLECTANCE (numbers), or give a "
+                                  "JSON file with bbox and reflectance") from None
+    if len(bbox) != 4 or not all(math.isfinite(float(v)) for v in bbox):
+        raise RadiometryError(f"{where}: the patch needs four finite numbers xmin,ymin,xmax,ymax")
+    xmin, ymin, xmax, ymax = (float(v) for v in bbox)
+    if xmin >= xmax or ymin >= ymax:
+        raise RadiometryError(f"{where}: the patch is empty (xmin < xmax and ymin < ymax are needed)")
+    reflectance = float(reflectance)
+    if not (math.isfinite(reflectance) and 0.0 < reflectance <= 1.0):
+        raise RadiometryError(f"{where}: the reflectance must be in (0, 1] (a diffuse reflectance, 0.25 for 25%), "
+                              f"not {reflectance:g}")
+    return CalibrationReference((xmin, ymin, xmax, ymax), reflectance)
+
+
+@dataclasses.dataclass(frozen=True)
+class RadiometryConfig:
+    """How a run computes radiometry: one object passed down to the stages."""
+
+    trajectory: str | None = None  # SBET (binary) or CSV gps_time,x,y,z in the inputs' CRS, for LAS inputs
+    calibration_reference: CalibrationReference | None = None
+    calibration_constant: float | None = None  # C_cal: given, or found on the reference patch before the run
+    calibration_source: str = "none"  # given | reference patch (n single returns) | none
+    beam_divergence_mrad: float | None = None  # full angle at 1/e^2; overrides the file's
+    plane_neighbours: int = 10  # kept echoes that make an echo's local plane
+    plane_radius_m: float = 5.0  # the farthest neighbour that counts
+    plane_rms_m: float = 0.10  # the plane's RMS misfit above which there is no plane (vegetation, edges)
+
+    def __post_init__(self) -> None:
+        if self.calibration_constant is not None and not (math.isfinite(self.calibration_constant)
+                                                          and self.calibration_constant > 0):
+            raise RadiometryError(f"--calibration-constant must be a positive number, not {self.calibration_constant}")
+        if self.beam_divergence_mrad is not None and not (math.isfinite(self.beam_divergence_mrad)
+                                                          and self.beam_divergence_mrad > 0):
+            raise RadiometryError(f"--beam-divergence-mrad must be a positive number, not {self.beam_divergence_mrad}")
+        if self.plane_neighbours < 3 or self.plane_radius_m <= 0 or self.plane_rms_m <= 0:
+            raise RadiometryError("a local plane needs at least 3 neighbours, a positive radius and tolerance")
+
+    @property
+    def calibrated(self) -> bool:
+        return self.calibration_constant is not None
+
+    def constant(self) -> float:
+        return self.calibration_constant if self.calibration_constant is not None else 1.0
+
+    def to_dict(self) -> dict:
+        value = dataclasses.asdict(self)
+        if self.calibration_reference is not None:
+            value["calibration_reference"] = dataclasses.asdict(self.calibration_reference)
+        return value
+
+    @classmethod
+    def from_dict(cls, value: dict) -> "RadiometryConfig":
+        value = dict(value)
+        if value.get("calibration_reference"):
+            ref = value["calibration_reference"]
+            value["calibration_reference"] = CalibrationReference(tuple(ref["bbox"]), ref["reflectance"])
+        return cls(**value)
+
+
+# ---------------------------------------------------------------- trajectories
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """The platform's positions at increasing GPS times, in the inputs' CRS (the scanner's optical centre: no
+    lever arm is applied)."""
+
+    path: str
+    gps_time: np.ndarray
+    xyz: np.ndarray  # (n, 3)
+    time_system: str  # week (GPS seconds of the week) | adjusted (adjusted standard GPS time)
+
+    def positions(self, gps_time: np.ndarray, file_time_system: str) -> np.ndarray:
+        """Positions at the pulses' times (linear between knots); NaN outside the trajectory."""
+        t = to_time_system(np.asarray(gps_time, dtype=float), file_time_system, self.time_system)
+        out = np.empty((t.size, 3))
+        for k in range(3):
+            out[:, k] = np.interp(t, self.gps_time, self.xyz[:, k], left=np.nan, right=np.nan)
+        return out
+
+    def covers(self, gps_time: np.ndarray, file_time_system: str) -> bool:
+        t = to_time_system(np.asarray(gps_time, dtype=float), file_time_system, self.time_system)
+        return bool(t.size == 0 or (t.min() >= self.gps_time[0] and t.max() <= self.gps_time[-1]))
+
+
+def time_system_of(times: np.ndarray) -> str:
+    """GPS week seconds lie in [0, 604800]; adjusted standard times (GPS - 1e9) are outside it since 2011-09."""
+    return "week" if times.size and times.min() >= 0.0 and times.max() <= WEEK_S else "adjusted"
+
+
+def to_time_system(t: np.ndarray, source: str, target: str) -> np.ndarray:
+    """Times from one GPS time system to another where that needs no week number: adjusted -> week always,
+    and a trajectory in adjusted time is read into week seconds against a file in week seconds."""
+    if source == target:
+        return t
+    if source == "adjusted" and target == "week":
+        return np.mod(t + ADJUSTED_OFFSET_S, WEEK_S)
+    raise RadiometryError(f"GPS times in {source} seconds cannot be converted to {target} seconds without the GPS "
+                          "week")
+
+
+def read_trajectory_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A CSV with a header naming gps_time (or time), x, y, z: times and positions in the file's CRS."""
+    path = Path(path)
+    try:
+        with path.open() as f:
+            header = [h.strip().lower() for h in f.readline().split(",")]
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError, UnicodeDecodeError) as err:
+        raise RadiometryError(f"{path}: not a trajectory CSV ({err}); it needs a header gps_time,x,y,z and a row "
+                              "per time") from None
+    time_column = "gps_time" if "gps_time" in header else "time" if "time" in header else None
+    if time_column is None or not {"x", "y", "z"} <= set(header) or data.shape[1] != len(header):
+        raise RadiometryError(f"{path}: the header must name gps_time, x, y and z (it names {', '.join(header)})")
+    columns = [header.index(c) for c in (time_column, "x", "y", "z")]
+    return data[:, columns[0]], data[:, columns[1:]]
+
+
+def read_sbet(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """An SBET (17 little-endian doubles a record: time, latitude, longitude (radians), ellipsoidal height, ...):
+    times and (longitude deg, latitude deg, height m)."""
+    path = Path(path)
+    size = path.stat().st_size
+    if size == 0 or size % SBET_RECORD.itemsize:
+        raise RadiometryError(f"{path}: {size} bytes is not a whole number of SBET records ({SBET_RECORD.itemsize} "
+                              "bytes each: 17 doubles); give a .csv with gps_time,x,y,z for other layouts")
+    records = np.memmap(path, dtype=SBET_RECORD, mode="r")
+    lat, lon = np.asarray(records["latitude"]), np.asarray(records["longitude"])
+    if not (np.all(np.abs(lat) <= math.pi / 2) and np.all(np.abs(lon) <= 2 * math.pi)):
+        raise RadiometryError(f"{path}: latitudes and longitudes are not radians: not an SBET")
+    geographic = np.stack([np.degrees(lon), np.degrees(lat), np.asarray(records["height"])], axis=1)
+    return np.array(records["gps_time"]), geographic
+
+
+def load_trajectory(path: str | Path, crs_wkt: str | None, source: str = "") -> Trajectory:
+    """A trajectory file in the CRS of an input (`crs_wkt`, named by `source` in errors): a CSV as it is, an SBET
+    (WGS 84 ellipsoidal) transformed with pyproj. Checks that times increase and values are finite."""
+    path = Path(path)
+    if not path.is_file():
+        raise RadiometryError(f"--trajectory {path}: no such file")
+    if path.suffix.lower() in (".csv", ".txt"):
+        gps_time, xyz = read_trajectory_csv(path)
+    else:
+        gps_time, geographic = read_sbet(path)
+        if not crs_wkt:
+            raise RadiometryError(f"{source}: names no coordinate reference system, so the SBET {path.name} "
+                                  "(WGS 84) cannot be put in its coordinates: give the trajectory as a CSV "
+                                  "gps_time,x,y,z in the file's coordinates")
+        xyz = _geographic_to_crs(geographic, crs_wkt)
+    if gps_time.size < 2 or not np.all(np.isfinite(gps_time)) or not np.all(np.isfinite(xyz)):
+        raise RadiometryError(f"{path}: a trajectory needs at least two rows of finite times and positions")
+    if np.any(np.diff(gps_time) <= 0):
+        row = int(np.flatnonzero(np.diff(gps_time) <= 0)[0]) + 1
+        raise RadiometryError(f"{path}: times do not increase at row {row} ({gps_time[row - 1]!r} then "
+                              f"{gps_time[row]!r})")
+    system = time_system_of(gps_time)
+    if system == "adjusted" and gps_time.min() > ADJUSTED_OFFSET_S:  # standard GPS seconds: LAS adjusts them
+        gps_time = gps_time - ADJUSTED_OFFSET_S
+    return Trajectory(str(path), gps_time, np.ascontiguousarray(xyz, dtype=float), system)
+
+
+def _geographic_to_crs(geographic: np.ndarray, crs_wkt: str) -> np.ndarray:
+    import pyproj
+
+    target = pyproj.CRS.from_wkt(crs_wkt)
+    transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(4979), target, always_xy=True)
+    x, y, z = transformer.transform(geographic[:, 0], geographic[:, 1], geographic[:, 2])
+    return np.stack([x, y, z], axis=1)
+
+
+@functools.lru_cache(maxsize=8)
+def cached_trajectory(path: str, crs_wkt: str | None, source: str) -> Trajectory:
+    """One load per process and file: a worker places many ranges of a file against one trajectory."""
+    return load_trajectory(path, crs_wkt, source)
+
+
+def check_trajectory(trajectory: Trajectory, source: str, file_time_system: str, gps_time: np.ndarray,
+                     points: np.ndarray, beam: np.ndarray) -> None:
+    """Before any decomposition: the trajectory covers the input's times and stands where its pulses came from.
+
+    `gps_time` spans the input; `points` (m, 3) are returns of pulses at the first m times, `beam` their unit
+    directions away from the scanner. Raises RadiometryError naming the file and how to fix the call."""
+    name = Path(trajectory.path).name
+    try:
+        times = to_time_system(gps_time, file_time_system, trajectory.time_system)
+    except RadiometryError:
+        raise RadiometryError(f"{source}: its GPS times are in week seconds and the trajectory {name}'s in adjusted "
+                              f"standard time, which cannot be converted back without the GPS week: give the "
+                              "trajectory in GPS week seconds") from None
+    if trajectory.time_system != file_time_system and np.ptp(times) > np.ptp(gps_time) + 1e-6:
+        raise RadiometryError(f"{source}: its adjusted standard GPS times cross a GPS week boundary, so they cannot "
+                              f"be matched to the trajectory {name}'s week seconds: split the file at the boundary "
+                              "or give the trajectory in adjusted standard time")
+    if not trajectory.covers(gps_time, file_time_system):
+        said = {"week": "GPS week seconds", "adjusted": "adjusted standard GPS time"}
+        raise RadiometryError(
+            f"{source}: its pulses' GPS times {times.min():.3f}..{times.max():.3f} ({said[trajectory.time_system]}"
+            f"{', converted from ' + said[file_time_system] if file_time_system != trajectory.time_system else ''}) "
+            f"are not all within the trajectory {name}'s {trajectory.gps_time[0]:.3f}..{trajectory.gps_time[-1]:.3f}:"
+            " give the trajectory of this flight line (and check that both are in the same GPS time system)")
+    if not len(points):
+        return
+    sensor = trajectory.positions(gps_time[:len(points)], file_time_system)
+    toward = points - sensor
+    distance = np.linalg.norm(toward, axis=1)
+    cosine = np.einsum("ij,ij->i", toward, beam) / np.maximum(distance, 1e-12)
+    angle = np.degrees(np.arccos(np.clip(np.median(cosine), -1.0, 1.0)))
+    if not (1.0 < np.median(distance) < 100_000.0 and angle < MAX_GEOMETRY_ANGLE_DEG):
+        raise RadiometryError(
+            f"{source}: the trajectory {name} does not stand where the pulses came from in the file's coordinates "
+            f"(median distance to the returns {np.median(distance):.1f}, {angle:.1f} deg off the beam): give the "
+            "trajectory in the file's coordinate reference system")
+
+
+# ---------------------------------------------------------------- ranges, planes, the radar equation
+
+def metric_beam(direction: np.ndarray) -> np.ndarray:
+    """Whether each pulse's direction steps the distance light travels (two-way) in a ps: coordinates in metres.
+    Geographic degrees or feet are not, and get no range."""
+    step = np.linalg.norm(direction, axis=1)
+    return np.abs(step / RANGE_M_PER_PS - 1.0) < METRIC_STEP_TOLERANCE
+
+
+def local_plane_normals(xyz: np.ndarray, neighbours: int, radius_m: float, max_rms_m: float) -> np.ndarray:
+    """Unit normals (n, 3) of planes fitted to each point and its nearest `neighbours` within `radius_m`; NaN where
+    fewer than 3 neighbours are that close or the plane's RMS misfit exceeds `max_rms_m` (no plane: vegetation,
+    edges)."""
+    from scipy.spatial import cKDTree
+
+    n = len(xyz)
+    normals = np.full((n, 3), np.nan)
+    finite = np.all(np.isfinite(xyz), axis=1)
+    rows = np.flatnonzero(finite)
+    if rows.size < 4:
+        return normals
+    points = xyz[rows]
+    origin = points.mean(axis=0)  # numerically kinder than UTM or ECEF magnitudes
+    points = points - origin
+    k = min(neighbours + 1, rows.size)
+    distance, index = cKDTree(points).query(points, k=k, distance_upper_bound=radius_m)
+    present = np.isfinite(distance)
+    count = present.sum(axis=1)
+    gathered = points[np.where(present, index, 0)] * present[..., None]
+    centre = gathered.sum(axis=1) / count[:, None]
+    offsets = (gathered - centre[:, None, :]) * present[..., None]
+    covariance = np.einsum("nki,nkj->nij", offsets, offsets) / count[:, None, None]
+    values, vectors = np.linalg.eigh(covariance)
+    rms = np.sqrt(np.maximum(values[:, 0], 0.0))
+    ok = (count >= 4) & (rms <= max_rms_m) & (values[:, 1] > 4.0 * values[:, 0])  # a plane, not a line
+    normals[rows[ok]] = vectors[ok, :, 0]
+    return normals
+
+
+def incidence_angle(normals: np.ndarray, beam: np.ndarray) -> np.ndarray:
+    """Radians between the beam (unit, either sense) and the surface normal; NaN where there is no plane."""
+    cosine = np.abs(np.einsum("ij,ij->i", normals, beam))
+    return np.arccos(np.clip(cosine, 0.0, 1.0))
+
+
+def backscatter_cross_section(energy: np.ndarray, range_m: np.ndarray, constant: float) -> np.ndarray:
+    """sigma = C_cal R^4 E (m^2 when C_cal is calibrated)."""
+    return constant * range_m ** 4 * energy
+
+
+def backscatter_coefficient(cross_section: np.ndarray, range_m: np.ndarray, beam_divergence_rad: float) -> np.ndarray:
+    """gamma = 4 sigma / (pi R^2 beta^2): the cross-section per illuminated area (Wagner 2010)."""
+    return 4.0 * cross_section / (math.pi * range_m ** 2 * beam_divergence_rad ** 2)
+
+
+def diffuse_reflectance(coefficient: np.ndarray, incidence_rad: np.ndarray) -> np.ndarray:
+    """rho = gamma / (4 cos alpha), alpha 0 where unknown (the apparent reflectance, as at normal incidence)."""
+    return coefficient / (4.0 * np.cos(np.where(np.isfinite(incidence_rad), incidence_rad, 0.0)))
+
+
+@dataclasses.dataclass(frozen=True)
+class EchoGeometry:
+    """What radiometry needs of a range's echoes, in the engine's echo order."""
+
+    xyz: np.ndarray  # (m, 3) geolocated echoes
+    beam: np.ndarray  # (m, 3) unit direction of each echo's pulse, away from the scanner
+    range_m: np.ndarray  # NaN where unknown
+    energy: np.ndarray  # the echo's area in the instrument's linear units x ps
+    kept: np.ndarray  # bool
+
+
+def echo_ranges(xyz: np.ndarray, echo_time_ps: np.ndarray, direction: np.ndarray, gps_time: np.ndarray,
+                sensor_location_ps: np.ndarray | None, trajectory: Trajectory | None,
+                file_time_system: str) -> np.ndarray:
+    """Each echo's range to the scanner (m): from the scanner's place on the beam where the file records it
+    (PulseWaves), else from the trajectory at the pulse's GPS time; NaN where neither, or the file's
+    coordinates are not metres. Arrays per echo (its pulse's values repeated)."""
+    range_m = np.full(len(xyz), np.nan)
+    metric = metric_beam(direction)
+    if sensor_location_ps is not None:
+        along = np.abs(echo_time_ps - sensor_location_ps) * np.linalg.norm(direction, axis=1)
+        range_m = np.where(np.isfinite(sensor_location_ps), along, np.nan)
+    if trajectory is not None:
+        missing = ~np.isfinite(range_m)
+        if missing.any():
+            sensor = trajectory.positions(gps_time[missing], file_time_system)
+            range_m[missing] = np.linalg.norm(xyz[missing] - sensor, axis=1)
+    return np.where(metric, range_m, np.nan)
+
+
+def echo_radiometry(geometry: EchoGeometry, config: RadiometryConfig, beam_divergence_mrad: float | None
+                    ) -> dict[str, np.ndarray]:
+    """Per echo: range_m, incidence_deg (kept echoes with a local plane), backscatter_cross_section_m2,
+    backscatter_coefficient, reflectance and the flag radiometry (calibrated | relative | unavailable).
+    Values are NaN where unavailable: no range, or (coefficient and reflectance) no beam divergence."""
+    m = len(geometry.range_m)
+    normals = np.full((m, 3), np.nan)
+    kept = np.flatnonzero(geometry.kept & np.isfinite(geometry.range_m))
+    normals[kept] = local_plane_normals(geometry.xyz[kept], config.plane_neighbours, config.plane_radius_m,
+                                        config.plane_rms_m)
+    incidence = incidence_angle(normals, geometry.beam)
+    with np.errstate(invalid="ignore"):
+        sigma = backscatter_cross_section(geometry.energy, geometry.range_m, config.constant())
+        if beam_divergence_mrad:
+            gamma = backscatter_coefficient(sigma, geometry.range_m, beam_divergence_mrad * 1e-3)
+            rho = diffuse_reflectance(gamma, incidence)
+        else:
+            gamma = rho = np.full(m, np.nan)
+    has = np.isfinite(geometry.range_m) & np.isfinite(sigma)
+    flag = np.where(has, CALIBRATED if config.calibrated else RELATIVE, UNAVAILABLE)
+    return {"range_m": geometry.range_m, "incidence_deg": np.degrees(incidence),
+            "backscatter_cross_section_m2": np.where(has, sigma, np.nan), "backscatter_coefficient": gamma,
+            "reflectance": rho, "radiometry": flag}
+
+
+def calibration_samples(radiometry: dict[str, np.ndarray], xyz: np.ndarray, single: np.ndarray,
+                        reference: CalibrationReference, beam_divergence_mrad: float) -> np.ndarray:
+    """C_cal per echo of the reference patch: single returns inside it with a range and a local plane, whose
+    relative cross-section (C_cal = 1) must equal pi rho R^2 beta^2 cos alpha (a Lambertian extended target)."""
+    inside = (single & reference.contains(xyz[:, 0], xyz[:, 1]) & np.isfinite(radiometry["incidence_deg"])
+              & np.isfinite(radiometry["backscatter_cross_section_m2"]))
+    r = radiometry["range_m"][inside]
+    alpha = np.radians(radiometry["incidence_deg"][inside])
+    beta = beam_divergence_mrad * 1e-3
+    expected = math.pi * reference.reflectance * r ** 2 * beta ** 2 * np.cos(alpha)
+    return expected / radiometry["backscatter_cross_section_m2"][inside]
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """C_cal found on a reference patch: the median of its single returns' values, how many, and their spread."""
+
+    constant: float
+    n: int
+    spread: float  # robust relative spread: 1.4826 MAD / median
+    p10: float
+    p90: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def calibration_from_samples(samples: np.ndarray) -> Calibration:
+    samples = samples[np.isfinite(samples) & (samples > 0)]
+    if samples.size == 0:
+        raise RadiometryError("no single return of the reference patch has a range and a local plane")
+    median = float(np.median(samples))
+    mad = float(np.median(np.abs(samples - median)))
+    return Calibration(median, int(samples.size), 1.4826 * mad / median, float(np.percentile(samples, 10)),
+                       float(np.percentile(samples, 90)))
