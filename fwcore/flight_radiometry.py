@@ -181,15 +181,11 @@ def calibrate_on_reference(files: list[PatchFile], config: RadiometryConfig) -> 
         raise RadiometryError(f"--calibration-reference {','.join(f'{v:g}' for v in reference.bbox)}: no pulse of "
                               f"{names} reaches the patch: give a patch inside the flight's coverage (in the inputs' "
                               "coordinates)")
-    samples, divergences = [], set()
+    samples = [np.zeros(0)]
     for f, pulses in chosen:
         file = file_radiometry(f.path, f.adjusted_standard_gps_time, relative)
-        if file.beam_divergence_mrad is None:
-            raise RadiometryError(f"{Path(f.path).name}: the file does not record its beam divergence, which the "
-                                  "calibration needs: give --beam-divergence-mrad")
-        if not file.range_source:
-            raise RadiometryError(f"{file.why_no_range}; the calibration needs ranges")
-        divergences.add(file.beam_divergence_mrad)
+        if file.beam_divergence_mrad is None or not file.range_source:  # it cannot tell C_cal (run.check_radiometry)
+            continue
         result = decompose_batch(pulse_waveforms(pulses, f.config.seed), f.config, threads=1)
         xyz = echo_positions(pulses, result, f.range_offset_ps)
         columns = range_radiometry(pulses, result, xyz, f.range_offset_ps, file, relative)

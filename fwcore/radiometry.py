@@ -221,8 +221,8 @@ def load_trajectory(path: str | Path, crs_wkt: str | None, source: str = "") -> 
         raise RadiometryError(f"{path}: a trajectory needs at least two rows of finite times and positions")
     if np.any(np.diff(gps_time) <= 0):
         row = int(np.flatnonzero(np.diff(gps_time) <= 0)[0]) + 1
-        raise RadiometryError(f"{path}: times do not increase at row {row} ({gps_time[row - 1]!r} then "
-                              f"{gps_time[row]!r})")
+        raise RadiometryError(f"{path}: times do not increase at data row {row + 1} (counting from 1: {float(gps_time[row - 1])!r} then "
+                              f"{float(gps_time[row])!r})")
     system = time_system_of(gps_time)
     if system == "adjusted" and gps_time.min() > ADJUSTED_OFFSET_S:  # standard GPS seconds: LAS adjusts them
         gps_time = gps_time - ADJUSTED_OFFSET_S

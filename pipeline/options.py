@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import difflib
+from pathlib import Path
 from typing import Any, Iterable
 
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
@@ -145,7 +146,8 @@ def radiometry_config(args: Any):
     constant = getattr(args, "calibration_constant", None)
     if reference and constant is not None:
         raise RadiometryError("give --calibration-reference or --calibration-constant, not both")
-    return RadiometryConfig(trajectory=getattr(args, "trajectory", None),
+    trajectory = getattr(args, "trajectory", None)
+    return RadiometryConfig(trajectory=str(Path(trajectory).resolve()) if trajectory else None,  # workers' cwd differ
                             calibration_reference=parse_calibration_reference(reference) if reference else None,
                             calibration_constant=constant,
                             calibration_source="given" if constant is not None else "none",

@@ -28,7 +28,7 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 import fwcore
 from fwcore.config import DecompositionConfig
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
-from fwcore.radiometry import RadiometryConfig
+from fwcore.radiometry import RadiometryConfig, RadiometryError
 from pipeline.options import check_beam_args, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               expand_inputs, input_identity, is_complete, list_outputs, mark_inputs_done,
@@ -241,18 +241,26 @@ def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: in
 
 
 def check_radiometry(paths: list[str], radiometry: RadiometryConfig) -> None:
-    """Before the folder is touched: the trajectory against each input it serves (fwcore.flight_radiometry).
-    An input that cannot be read is left to its plan, which rejects it with the reason."""
-    if not radiometry.trajectory:
+    """Before the folder is touched: the trajectory against each input it serves, and a reference patch's needs
+    (an input with ranges and a beam divergence) (fwcore.flight_radiometry). An input that cannot be read is left
+    to its plan, which rejects it with the reason."""
+    if not (radiometry.trajectory or radiometry.calibration_reference):
         return
     from fwcore.io import input_summary
 
+    files = []
     for path in paths:
         try:
             adjusted = input_summary(path).adjusted_standard_gps_time
         except (OSError, ValueError):
             continue
-        check_flight(path, adjusted, radiometry)
+        files.append(check_flight(path, adjusted, radiometry))
+    if radiometry.calibration_reference and files and not any(f.range_source and f.beam_divergence_mrad
+                                                              for f in files):
+        f = files[0]
+        why = f.why_no_range if not f.range_source else (f"{Path(f.path).name}: the file does not record its beam "
+                                                         "divergence: give --beam-divergence-mrad")
+        raise RadiometryError(f"--calibration-reference needs an input with ranges and a beam divergence: {why}")
 
 
 def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometry: RadiometryConfig,

@@ -14,7 +14,8 @@ import duckdb
 import numpy as np
 
 # the page's colour choices -> echo table columns
-COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "fit_error": "fit_error"}
+COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "fit_error": "fit_error",
+                  "reflectance": "reflectance", "range": "range_m"}
 HISTOGRAM_BINS = 40
 
 _local = threading.local()

@@ -138,7 +138,8 @@ async function pickRun(id) {
 // ---------------------------------------------------------------- overview: map and 3D
 
 function colourTitle() {
-  return { height: "z (m)", amplitude: "amplitude (counts)", width: "FWHM (ps)", fit_error: "fit error" }[state.colour];
+  return { height: "z (m)", amplitude: "amplitude (counts)", width: "FWHM (ps)", fit_error: "fit error",
+    reflectance: "reflectance", range: "range (m)" }[state.colour];
 }
 
 function echoTraces(data, three) {
@@ -304,11 +305,15 @@ function metricsTable(fit, extra = []) {
   return "<table>" + rows.map(([k, v]) => `<tr><td>${k}</td><td>${fmt(v)}</td></tr>`).join("") + "</table>";
 }
 
+// the run's rows carry radiometry (fwcore.radiometry); a refit's echoes do not, and show "–"
 function echoTable(rows) {
-  const head = "<tr><th>#</th><th>kept / reason</th><th>amplitude</th><th>time (ns)</th><th>σ (ps)</th><th>α</th><th>FWHM (ps)</th><th>energy</th></tr>";
+  const relative = rows.some((e) => e.radiometry === "relative") ? " (relative)" : "";
+  const head = "<tr><th>#</th><th>kept / reason</th><th>amplitude</th><th>time (ns)</th><th>σ (ps)</th><th>α</th><th>FWHM (ps)</th><th>energy</th>" +
+    `<th>range (m)</th><th>incidence (°)</th><th>reflectance${relative}</th></tr>`;
   return head + rows.map((e) => `<tr class="echo-row ${e.kept ? "kept" : "spurious"}"><td>${e.echo_index}</td>` +
     `<td>${e.kept ? "kept" : e.reject_reason}</td><td>${fmt(e.amplitude, 2)}</td><td>${fmt(e.time_ps / NS, 3)}</td>` +
-    `<td>${fmt(e.sigma_ps, 1)}</td><td>${fmt(e.alpha, 3)}</td><td>${fmt(e.fwhm_ps, 1)}</td><td>${fmt(e.energy, 1)}</td></tr>`).join("");
+    `<td>${fmt(e.sigma_ps, 1)}</td><td>${fmt(e.alpha, 3)}</td><td>${fmt(e.fwhm_ps, 1)}</td><td>${fmt(e.energy, 1)}</td>` +
+    `<td class="radiometry">${fmt(e.range_m, 3)}</td><td>${fmt(e.incidence_deg, 1)}</td><td>${fmt(e.reflectance, 3)}</td></tr>`).join("");
 }
 
 async function showPulse(file, pulse) {

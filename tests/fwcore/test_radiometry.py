@@ -1,0 +1,484 @@
+"""Radiometry: the radar equation, trajectories (SBET, CSV, GPS time systems), local planes and incidence, the
+per-echo flags and the calibration on a reference patch of known reflectance."""
+
+import json
+import math
+
+import numpy as np
+import pyproj
+import pytest
+
+from fwcore.radiometry import (
+    CALIBRATED,
+    RELATIVE,
+    SBET_RECORD,
+    UNAVAILABLE,
+    CalibrationReference,
+    EchoGeometry,
+    RadiometryConfig,
+    RadiometryError,
+    Trajectory,
+    backscatter_coefficient,
+    backscatter_cross_section,
+    calibration_from_samples,
+    calibration_samples,
+    check_trajectory,
+    diffuse_reflectance,
+    echo_radiometry,
+    incidence_angle,
+    load_trajectory,
+    local_plane_normals,
+    metric_beam,
+    parse_calibration_reference,
+    read_sbet,
+    to_time_system,
+)
+
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+def write_csv(path, text):
+    path.write_text(text)
+    return path
+
+
+def write_sbet(path, gps_time, lat_rad, lon_rad, height):
+    records = np.zeros(len(gps_time), dtype=SBET_RECORD)
+    records["gps_time"], records["latitude"], records["longitude"], records["height"] = (
+        gps_time, lat_rad, lon_rad, height)
+    records.tofile(path)
+    return path
+
+
+def plane_grid(n, slope_x, slope_y):
+    """n x n points 1 m apart on z = slope_x x + slope_y y."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    return np.stack([x, y, slope_x * x + slope_y * y], axis=1)
+
+
+# ---------------------------------------------------------------- the radar equation
+
+def test_cross_section_is_constant_times_range_to_the_fourth_times_energy():
+    assert backscatter_cross_section(np.array([2.0]), np.array([10.0]), 0.5)[0] == pytest.approx(10000.0)
+    assert backscatter_cross_section(np.array([3.0]), np.array([2.0]), 1.0)[0] == pytest.approx(48.0)
+
+
+def test_backscatter_coefficient_is_four_sigma_over_pi_r2_beta2():
+    # 4 * 2 / (pi * 100^2 * (1e-3)^2) = 8 / (pi * 0.01) = 800 / pi
+    gamma = backscatter_coefficient(np.array([2.0]), np.array([100.0]), 1e-3)
+    assert gamma[0] == pytest.approx(800.0 / math.pi, rel=1e-12)
+
+
+def test_diffuse_reflectance_divides_by_four_cos_incidence_and_nan_incidence_is_normal():
+    rho = diffuse_reflectance(np.array([2.0, 2.0, 1.0]), np.array([math.pi / 3, np.nan, 0.0]))
+    np.testing.assert_allclose(rho, [1.0, 0.5, 0.25], rtol=1e-12)  # 2/(4*0.5), 2/(4*1), 1/4
+
+
+def test_a_lambertian_extended_target_gives_its_reflectance_back():
+    rho, r, alpha, beta = 0.3, np.array([250.0, 1200.0]), np.array([0.4, 1.1]), 0.3e-3
+    sigma = math.pi * rho * r ** 2 * beta ** 2 * np.cos(alpha)
+    back = diffuse_reflectance(backscatter_coefficient(sigma, r, beta), alpha)
+    np.testing.assert_allclose(back, [0.3, 0.3], rtol=1e-12)
+
+
+# ---------------------------------------------------------------- SBET and CSV trajectories
+
+def test_sbet_reads_times_and_degrees_and_height(tmp_path):
+    path = write_sbet(tmp_path / "sbet.out", [10.0, 11.0], [math.radians(45.0), math.radians(-30.5)],
+                      [math.radians(9.0), math.radians(-120.25)], [350.0, 410.5])
+    times, geographic = read_sbet(path)
+    np.testing.assert_array_equal(times, [10.0, 11.0])
+    np.testing.assert_allclose(geographic, [[9.0, 45.0, 350.0], [-120.25, -30.5, 410.5]], rtol=1e-12)
+
+
+def test_sbet_of_a_partial_record_is_refused_naming_the_file(tmp_path):
+    path = tmp_path / "broken_sbet.out"
+    path.write_bytes(b"\0" * (136 * 2 + 5))
+    with pytest.raises(RadiometryError, match="broken_sbet.out.*277 bytes"):
+        read_sbet(path)
+    empty = tmp_path / "empty.out"
+    empty.write_bytes(b"")
+    with pytest.raises(RadiometryError, match="empty.out"):
+        read_sbet(empty)
+
+
+def test_sbet_with_latitudes_in_degrees_is_refused(tmp_path):
+    path = write_sbet(tmp_path / "degrees.out", [10.0, 11.0], [45.0, 45.1], [0.1, 0.1], [300.0, 300.0])
+    with pytest.raises(RadiometryError, match="not radians"):
+        read_sbet(path)
+
+
+def test_csv_trajectory_loads_as_is_in_week_seconds(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "gps_time,x,y,z\n100.0,1,2,3\n101.5,4,5,6\n103,7,8,9\n")
+    trajectory = load_trajectory(path, None, "a.las")
+    np.testing.assert_array_equal(trajectory.gps_time, [100.0, 101.5, 103.0])
+    np.testing.assert_array_equal(trajectory.xyz, [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
+    assert trajectory.time_system == "week"
+
+
+def test_csv_columns_are_found_by_header_name(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "z, X ,time,y\n3,1,100,2\n6,4,101,5\n")
+    trajectory = load_trajectory(path, None, "a.las")
+    np.testing.assert_array_equal(trajectory.gps_time, [100.0, 101.0])
+    np.testing.assert_array_equal(trajectory.xyz, [[1, 2, 3], [4, 5, 6]])
+
+
+def test_csv_in_standard_gps_seconds_is_adjusted_by_1e9(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "gps_time,x,y,z\n1300000000.25,0,0,0\n1300000001.5,1,1,1\n")
+    trajectory = load_trajectory(path, None, "a.las")
+    np.testing.assert_allclose(trajectory.gps_time, [300000000.25, 300000001.5], rtol=0, atol=1e-6)
+    assert trajectory.time_system == "adjusted"
+
+
+def test_csv_in_adjusted_standard_time_stays_as_is(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "gps_time,x,y,z\n300000000.0,0,0,0\n300000001.0,1,1,1\n")
+    trajectory = load_trajectory(path, None, "a.las")
+    np.testing.assert_array_equal(trajectory.gps_time, [300000000.0, 300000001.0])
+    assert trajectory.time_system == "adjusted"
+
+
+def test_csv_without_z_is_refused_naming_its_header(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "gps_time,x,y\n1,2,3\n2,3,4\n")
+    with pytest.raises(RadiometryError, match="header.*gps_time, x, y"):
+        load_trajectory(path, None, "a.las")
+
+
+def test_csv_whose_times_do_not_increase_is_refused_naming_the_row(tmp_path):
+    path = write_csv(tmp_path / "traj.csv", "gps_time,x,y,z\n100,0,0,0\n101,0,0,0\n102,0,0,0\n101.5,0,0,0\n")
+    with pytest.raises(RadiometryError, match=r"do not increase at data row 4 \(counting from 1: 102\.0 then 101\.5\)"):
+        load_trajectory(path, None, "a.las")
+    repeated = write_csv(tmp_path / "repeated.csv", "gps_time,x,y,z\n100,0,0,0\n100,0,0,0\n")
+    with pytest.raises(RadiometryError, match="data row 2 "):
+        load_trajectory(repeated, None, "a.las")
+
+
+def test_missing_trajectory_file_is_refused(tmp_path):
+    with pytest.raises(RadiometryError, match="no such file"):
+        load_trajectory(tmp_path / "nope.csv", None, "a.las")
+
+
+def test_sbet_against_a_file_without_crs_is_refused(tmp_path):
+    path = write_sbet(tmp_path / "sbet.out", [10.0, 11.0], [0.8, 0.8], [0.15, 0.15], [300.0, 300.0])
+    with pytest.raises(RadiometryError, match="flight_7.las: names no coordinate reference system.*sbet.out"):
+        load_trajectory(path, None, "flight_7.las")
+
+
+def test_sbet_is_transformed_into_the_files_utm_crs(tmp_path):
+    lat, lon, height = np.array([48.1, 48.1005, 48.101]), np.array([9.2, 9.2004, 9.2008]), np.array(
+        [512.0, 515.5, 519.25])
+    path = write_sbet(tmp_path / "sbet.out", [1000.0, 1001.0, 1002.0], np.radians(lat), np.radians(lon), height)
+    trajectory = load_trajectory(path, pyproj.CRS.from_epsg(32632).to_wkt(), "a.las")
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(lon, lat)
+    np.testing.assert_allclose(trajectory.xyz[:, 0], x, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(trajectory.xyz[:, 1], y, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(trajectory.xyz[:, 2], height, rtol=0, atol=1e-6)
+    assert 400_000 < x[0] < 600_000  # really UTM 32N
+    np.testing.assert_array_equal(trajectory.gps_time, [1000.0, 1001.0, 1002.0])
+    assert trajectory.time_system == "week"
+
+
+# ---------------------------------------------------------------- positions and GPS time systems
+
+def week_trajectory():
+    return Trajectory("traj.csv", np.array([100.0, 110.0, 130.0]),
+                      np.array([[0.0, 0.0, 500.0], [10.0, 20.0, 510.0], [50.0, 20.0, 490.0]]), "week")
+
+
+def test_positions_are_the_knots_at_knots_and_linear_between():
+    got = week_trajectory().positions(np.array([100.0, 110.0, 130.0, 105.0, 125.0]), "week")
+    expected = [[0, 0, 500], [10, 20, 510], [50, 20, 490],
+                [5, 10, 505],  # half way along the first segment
+                [40, 20, 495]]  # three quarters along the second: 10 + 0.75*40, 510 - 0.75*20
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def test_positions_outside_the_trajectory_are_nan():
+    got = week_trajectory().positions(np.array([99.9, 130.1, 120.0]), "week")
+    assert np.isnan(got[:2]).all()
+    np.testing.assert_allclose(got[2], [30.0, 20.0, 500.0])
+
+
+def test_adjusted_file_times_are_read_as_week_seconds():
+    w = 120.0  # week seconds: on the second segment, half way
+    t = 2100 * 604800.0 + w - 1e9  # the same instant in adjusted standard time (week 2100)
+    assert t > 0
+    got = week_trajectory().positions(np.array([t, t - 15.0]), "adjusted")
+    np.testing.assert_allclose(got, [[30.0, 20.0, 500.0], [5.0, 10.0, 505.0]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(to_time_system(np.array([t]), "adjusted", "week"), [w], rtol=0, atol=1e-9)
+
+
+def test_week_seconds_cannot_become_adjusted_time():
+    with pytest.raises(RadiometryError, match="without the GPS week"):
+        to_time_system(np.array([100.0]), "week", "adjusted")
+
+
+# ---------------------------------------------------------------- checking a trajectory against a file
+
+def line_trajectory():
+    """A straight line at 500 m along x, 1 m/s, from t=1000 to 1100 (week seconds)."""
+    return Trajectory("line.csv", np.array([1000.0, 1100.0]), np.array([[0.0, 0.0, 500.0], [100.0, 0.0, 500.0]]),
+                      "week")
+
+
+def test_check_passes_for_returns_straight_below_the_sensor():
+    times = np.linspace(1010.0, 1090.0, 9)
+    points = np.stack([times - 1000.0, np.zeros(9), np.zeros(9)], axis=1)
+    check_trajectory(line_trajectory(), "a.las", "week", times, points, np.tile(DOWN, (9, 1)))
+
+
+def test_check_refuses_times_outside_the_trajectory():
+    times = np.array([1010.0, 1050.0, 1200.0])
+    points = np.stack([times - 1000.0, np.zeros(3), np.zeros(3)], axis=1)
+    with pytest.raises(RadiometryError, match="a.las.*not all within the trajectory line.csv"):
+        check_trajectory(line_trajectory(), "a.las", "week", times, points, np.tile(DOWN, (3, 1)))
+
+
+def test_check_refuses_a_trajectory_5_km_sideways():
+    times = np.linspace(1010.0, 1090.0, 9)
+    points = np.stack([times - 1000.0, np.full(9, 5000.0), np.zeros(9)], axis=1)
+    with pytest.raises(RadiometryError, match="coordinate reference system"):
+        check_trajectory(line_trajectory(), "a.las", "week", times, points, np.tile(DOWN, (9, 1)))
+
+
+def test_check_refuses_a_week_file_against_an_adjusted_trajectory():
+    adjusted = Trajectory("adj.csv", np.array([3e8, 3e8 + 100.0]), np.zeros((2, 3)), "adjusted")
+    with pytest.raises(RadiometryError, match="week seconds"):
+        check_trajectory(adjusted, "a.las", "week", np.array([10.0]), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+# ---------------------------------------------------------------- local planes and incidence
+
+def test_normals_of_a_tilted_plane_and_incidence_from_a_vertical_beam():
+    xyz = plane_grid(15, 0.2, 0.1)
+    normals = local_plane_normals(xyz, 10, 5.0, 0.10)
+    assert np.isfinite(normals).all()
+    expected = np.array([-0.2, -0.1, 1.0]) / math.sqrt(0.04 + 0.01 + 1.0)
+    np.testing.assert_allclose(np.abs(normals @ expected), 1.0, rtol=0, atol=1e-9)  # parallel, either sense
+    interior = (xyz[:, 0] >= 2) & (xyz[:, 0] <= 12) & (xyz[:, 1] >= 2) & (xyz[:, 1] <= 12)
+    incidence = incidence_angle(normals[interior], np.tile(DOWN, (interior.sum(), 1)))
+    np.testing.assert_allclose(incidence, math.atan(math.sqrt(0.2 ** 2 + 0.1 ** 2)), rtol=0, atol=1e-6)
+    # the beam's sense does not matter
+    np.testing.assert_allclose(incidence_angle(normals[interior], np.tile(-DOWN, (interior.sum(), 1))), incidence,
+                               rtol=0, atol=1e-12)
+
+
+def test_normals_survive_large_coordinates():
+    xyz = plane_grid(15, 0.2, 0.1) + np.array([500_000.0, 5_300_000.0, 400.0])
+    normals = local_plane_normals(xyz, 10, 5.0, 0.10)
+    incidence = incidence_angle(normals, np.tile(DOWN, (len(xyz), 1)))
+    np.testing.assert_allclose(incidence, math.atan(math.sqrt(0.05)), rtol=0, atol=1e-6)
+
+
+def test_scattered_points_and_too_few_points_have_no_plane():
+    rng = np.random.default_rng(11)
+    cloud = rng.uniform(0.0, 10.0, size=(300, 3))
+    assert np.isnan(local_plane_normals(cloud, 10, 5.0, 0.10)).all()
+    few = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    assert np.isnan(local_plane_normals(few, 10, 5.0, 0.10)).all()
+
+
+def test_points_on_a_line_have_no_plane():
+    line = np.stack([np.arange(20.0), np.zeros(20), np.zeros(20)], axis=1)
+    assert np.isnan(local_plane_normals(line, 10, 5.0, 0.10)).all()
+
+
+def test_a_point_with_no_neighbours_in_the_radius_has_no_plane():
+    xyz = np.vstack([plane_grid(8, 0.0, 0.0), [[100.0, 100.0, 0.0]]])
+    normals = local_plane_normals(xyz, 10, 5.0, 0.10)
+    assert np.isnan(normals[-1]).all()
+    assert np.isfinite(normals[:-1]).all()
+
+
+# ---------------------------------------------------------------- per-echo radiometry
+
+def flat_geometry(n=10, range_m=500.0, energy=2.0):
+    xyz = plane_grid(n, 0.0, 0.0)
+    m = len(xyz)
+    return EchoGeometry(xyz=xyz, beam=np.tile(DOWN, (m, 1)), range_m=np.full(m, range_m), energy=np.full(m, energy),
+                        kept=np.ones(m, dtype=bool))
+
+
+def test_a_given_constant_makes_echoes_calibrated():
+    out = echo_radiometry(flat_geometry(range_m=100.0, energy=2.0), RadiometryConfig(calibration_constant=3e-8), 0.5)
+    assert (out["radiometry"] == CALIBRATED).all()
+    np.testing.assert_allclose(out["backscatter_cross_section_m2"], 3e-8 * 100.0 ** 4 * 2.0, rtol=1e-12)  # 6.0
+    # gamma = 4 * 6 / (pi * 1e4 * 0.25e-6) = 9600 / pi; rho = gamma / 4 at normal incidence
+    np.testing.assert_allclose(out["backscatter_coefficient"], 9600.0 / math.pi, rtol=1e-12)
+    np.testing.assert_allclose(out["reflectance"], 2400.0 / math.pi, rtol=1e-9)
+    np.testing.assert_allclose(out["incidence_deg"], 0.0, rtol=0, atol=1e-6)
+
+
+def test_without_a_constant_echoes_are_relative_with_c_equal_to_one():
+    out = echo_radiometry(flat_geometry(range_m=500.0, energy=2.0), RadiometryConfig(), 0.5)
+    assert (out["radiometry"] == RELATIVE).all()
+    assert (out["backscatter_cross_section_m2"] == 500.0 ** 4 * 2.0).all()  # 1.25e11, exactly
+    np.testing.assert_array_equal(out["range_m"], 500.0)
+
+
+def test_an_echo_without_range_is_unavailable_and_nan():
+    geometry = flat_geometry()
+    geometry.range_m[3] = np.nan
+    out = echo_radiometry(geometry, RadiometryConfig(calibration_constant=1e-9), 0.5)
+    assert out["radiometry"][3] == UNAVAILABLE
+    assert (np.delete(out["radiometry"], 3) == CALIBRATED).all()
+    for column in ("range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient",
+                   "reflectance"):
+        assert np.isnan(out[column][3]), column
+    assert np.isfinite(np.delete(out["reflectance"], 3)).all()
+
+
+def test_without_beam_divergence_only_the_cross_section_is_given():
+    out = echo_radiometry(flat_geometry(range_m=10.0, energy=3.0), RadiometryConfig(), None)
+    np.testing.assert_array_equal(out["backscatter_cross_section_m2"], 30000.0)
+    assert np.isnan(out["backscatter_coefficient"]).all() and np.isnan(out["reflectance"]).all()
+    assert (out["radiometry"] == RELATIVE).all()
+
+
+def test_incidence_is_only_for_kept_echoes():
+    geometry = flat_geometry(range_m=10.0, energy=1.0)
+    geometry.kept[12] = False
+    out = echo_radiometry(geometry, RadiometryConfig(), 1.0)
+    assert np.isnan(out["incidence_deg"][12])
+    assert np.isfinite(np.delete(out["incidence_deg"], 12)).all()
+    # its reflectance is the apparent one (normal incidence): gamma / 4 = 4 * 1e4 / (pi * 100 * 1e-6) / 4
+    assert out["reflectance"][12] == pytest.approx(1e8 / math.pi, rel=1e-12)
+
+
+def test_incidence_in_degrees_on_a_tilted_plane():
+    xyz = plane_grid(15, 0.2, 0.1)
+    m = len(xyz)
+    geometry = EchoGeometry(xyz, np.tile(DOWN, (m, 1)), np.full(m, 300.0), np.ones(m), np.ones(m, dtype=bool))
+    out = echo_radiometry(geometry, RadiometryConfig(), 0.5)
+    np.testing.assert_allclose(out["incidence_deg"], math.degrees(math.atan(math.sqrt(0.05))), rtol=0, atol=1e-5)
+
+
+# ---------------------------------------------------------------- calibration on a reference patch
+
+K, RHO, BETA_MRAD, RANGE_M = 4.0e6, 0.3, 0.5, 500.0
+PATCH = CalibrationReference((0.0, 0.0, 14.5, 19.5), RHO)
+
+
+def patch_scene(noise=None):
+    """A 25 x 20 grid on z = 0, lit straight down from 500 m; x < 14.5 is the patch. Energies follow a Lambertian
+    target: E = K rho cos(a) / R^2. Every 7th echo is not a single return."""
+    x, y = np.meshgrid(np.arange(25.0), np.arange(20.0), indexing="ij")
+    xyz = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    m = len(xyz)
+    energy = np.full(m, K * RHO * 1.0 / RANGE_M ** 2)
+    if noise is not None:
+        energy = energy * (1.0 + noise * np.random.default_rng(5).standard_normal(m))
+    single = np.arange(m) % 7 != 0
+    geometry = EchoGeometry(xyz, np.tile(DOWN, (m, 1)), np.full(m, RANGE_M), energy, np.ones(m, dtype=bool))
+    columns = echo_radiometry(geometry, RadiometryConfig(), BETA_MRAD)
+    return columns, xyz, single
+
+
+def test_calibration_finds_the_constant_that_makes_sigma_lambertian():
+    columns, xyz, single = patch_scene()
+    calibration = calibration_from_samples(calibration_samples(columns, xyz, single, PATCH, BETA_MRAD))
+    expected = math.pi * (BETA_MRAD * 1e-3) ** 2 / K  # C with C R^4 E = pi rho R^2 beta^2 cos a
+    assert calibration.constant == pytest.approx(expected, rel=1e-9)
+    inside_single = (xyz[:, 0] <= 14.5) & single
+    assert inside_single.sum() < 300  # 15 x 20 inside, some of them not single
+    assert calibration.n == inside_single.sum()
+    assert calibration.spread == pytest.approx(0.0, abs=1e-9)
+    # with that constant, the patch reads back its reflectance
+    m = len(xyz)
+    calibrated = echo_radiometry(EchoGeometry(xyz, np.tile(DOWN, (m, 1)), np.full(m, RANGE_M),
+                                              np.full(m, K * RHO / RANGE_M ** 2), np.ones(m, dtype=bool)),
+                                 RadiometryConfig(calibration_constant=calibration.constant), BETA_MRAD)
+    np.testing.assert_allclose(calibrated["reflectance"], RHO, rtol=1e-8)
+
+
+def test_calibration_with_5_percent_noise_keeps_the_median_and_reports_the_spread():
+    columns, xyz, single = patch_scene(noise=0.05)
+    calibration = calibration_from_samples(calibration_samples(columns, xyz, single, PATCH, BETA_MRAD))
+    expected = math.pi * (BETA_MRAD * 1e-3) ** 2 / K
+    assert abs(calibration.constant / expected - 1.0) < 0.02
+    assert 0.02 < calibration.spread < 0.08
+    assert calibration.spread == pytest.approx(0.05, abs=0.01)  # 1.4826 MAD / median: the noise's 5%
+    assert calibration.p10 < calibration.constant < calibration.p90
+
+
+def test_calibration_without_samples_is_refused():
+    with pytest.raises(RadiometryError, match="no single return"):
+        calibration_from_samples(np.array([]))
+    with pytest.raises(RadiometryError):
+        calibration_from_samples(np.array([np.nan, -1.0, 0.0]))
+
+
+# ---------------------------------------------------------------- options
+
+def test_calibration_reference_parses_bbox_and_reflectance():
+    reference = parse_calibration_reference("0,0,10,10=0.25")
+    assert reference.bbox == (0.0, 0.0, 10.0, 10.0)
+    assert reference.reflectance == 0.25
+    assert parse_calibration_reference("-5.5,2,3,4.5=1").bbox == (-5.5, 2.0, 3.0, 4.5)
+
+
+@pytest.mark.parametrize("text", ["0,0,10,10=0", "0,0,10,10=-1", "0,0,10,10=1.5"])
+def test_calibration_reference_outside_zero_one_is_refused(text):
+    with pytest.raises(RadiometryError, match=r"\(0, 1\]"):
+        parse_calibration_reference(text)
+
+
+@pytest.mark.parametrize("text", ["=-1", "=1.5", "0,0,10=0.2", "0,0,10,10,12=0.2", "a,0,10,10=0.2", "0,0,10,10=x",
+                                  "10,0,0,10=0.2", "0,0,10,10,=0.2", "0,5,10,5=0.2", "0,0,inf,10=0.2"])
+def test_malformed_calibration_references_are_refused(text):
+    with pytest.raises(RadiometryError):
+        parse_calibration_reference(text)
+
+
+def test_empty_patch_is_refused_as_empty():
+    with pytest.raises(RadiometryError, match="empty"):
+        parse_calibration_reference("10,0,0,10=0.2")
+
+
+def test_calibration_reference_from_a_json_file(tmp_path):
+    path = tmp_path / "reference.json"
+    path.write_text(json.dumps({"bbox": [1, 2, 30, 40], "reflectance": 0.3}))
+    reference = parse_calibration_reference(str(path))
+    assert reference.bbox == (1.0, 2.0, 30.0, 40.0) and reference.reflectance == 0.3
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"bbox": [1, 2, 30, 40]}))
+    with pytest.raises(RadiometryError, match="bad.json.*not a calibration reference"):
+        parse_calibration_reference(str(bad))
+
+
+def test_reference_contains_its_bbox_edges():
+    inside = PATCH.contains(np.array([0.0, 14.5, 14.6, 5.0, -0.1]), np.array([19.5, 0.0, 5.0, 19.6, 5.0]))
+    np.testing.assert_array_equal(inside, [True, True, False, False, False])
+
+
+def test_config_refuses_bad_constant_and_divergence():
+    for bad in (-1.0, 0.0, math.nan, math.inf):
+        with pytest.raises(RadiometryError, match="calibration-constant"):
+            RadiometryConfig(calibration_constant=bad)
+    for bad in (0.0, -0.3, math.nan):
+        with pytest.raises(RadiometryError, match="beam-divergence-mrad"):
+            RadiometryConfig(beam_divergence_mrad=bad)
+    with pytest.raises(RadiometryError, match="local plane"):
+        RadiometryConfig(plane_neighbours=2)
+
+
+def test_config_round_trips_through_a_dict():
+    config = RadiometryConfig(calibration_reference=CalibrationReference((0.0, 0.0, 1.0, 1.0), 0.2),
+                              calibration_constant=2e-9, beam_divergence_mrad=0.3)
+    again = RadiometryConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert again == config
+    assert again.calibrated and again.constant() == 2e-9
+    assert not RadiometryConfig().calibrated and RadiometryConfig().constant() == 1.0
+
+
+# ---------------------------------------------------------------- metric beams
+
+def test_metric_beam_is_light_two_way_per_ps_in_metres():
+    def along_x(step):
+        return np.array([[step, 0.0, 0.0]])
+
+    assert metric_beam(along_x(1.499e-4))[0]  # 0.1499 m per 1000 ps
+    assert metric_beam(np.array([[0.0, 0.6 * 1.499e-4, -0.8 * 1.499e-4]]))[0]  # any direction
+    assert not metric_beam(along_x(1e-9))[0]  # degrees
+    assert not metric_beam(along_x(4.9e-4))[0]  # feet
+    np.testing.assert_array_equal(metric_beam(np.array([[1.499e-4, 0, 0], [1e-9, 0, 0]])), [True, False])
