@@ -23,6 +23,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_read.py
 	$(BIN)/python bench/bench_pipeline.py
 	$(BIN)/python bench/bench_survey.py
+	$(BIN)/python bench/bench_radiometry.py
 
 clean:
 	rm -rf $(VENV) out

@@ -220,7 +220,7 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     incidence = np.full((n, MAX_ECHOES), np.nan)
     if scene.radiometry:
         amplitude, reflectance, incidence = _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width,
-                                                          alpha, kind, count, tree, edge, roof, layers, amplitude)
+                                                          alpha, kind, count, tree, edge, layers, amplitude)
     # echoes in time order: the layers are drawn top first, but keep the guarantee explicit
     order = np.argsort(np.where(np.arange(MAX_ECHOES)[None, :] < count[:, None], rng_range, np.inf), axis=1)
     take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
@@ -228,8 +228,8 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
             take(kind), take(reflectance), take(incidence))
 
 
-def _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width, alpha, kind, count, tree, edge, roof,
-                  layers, drawn):
+def _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width, alpha, kind, count, tree, edge, layers,
+                  drawn):
     """Amplitudes from the radar equation: E = K rho cos(alpha) f / R^2 over each echo's area; the
     reflectance and incidence of each surface. Vegetation near the noise floor keeps its drawn amplitude."""
     n = hit.shape[0]

@@ -367,12 +367,12 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration, ranges_from = None, Jobs(options), None, {}
+    result, jobs, calibration = None, Jobs(options), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
             _warn_unmeasured(plans)
-            ranges_from = _ranges_from(plans, radiometry)
+            ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
             files_rejected = sum(1 for p in plans.values() if p.rejection)
             tasks = [t for p in plans.values() for t in p.tasks]
@@ -387,6 +387,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+                for why in no_range:  # once per input, and in run.json
+                    say.write(f"fwl run: no radiometry: {why}\n")
                 say.flush()
             if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
@@ -408,19 +410,20 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                     calibration)
 
 
-def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> dict[str, dict]:
-    """Each planned input's radiometry (where its ranges come from, its beam divergence), for run.json; the
-    terminal is told once per input why it has none."""
-    found = {}
+def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> tuple[dict[str, dict], list[str]]:
+    """Each planned input's radiometry (where its ranges come from, its beam divergence), for run.json, and why
+    those without a range have none (their radiometric columns are null)."""
+    found, no_range = {}, []
     for path, plan in plans.items():
         s = plan.source
         if s is None:
             continue
         file = file_radiometry(s.path, s.adjusted_standard_gps_time, radiometry)
         if not file.range_source:
-            LOG.warning("%s; its radiometric columns are null", file.why_no_range)
+            no_range.append(file.why_no_range)
+            LOG.info("no radiometry: %s", file.why_no_range)
         found[path] = {"radiometry": file.to_dict()}
-    return found
+    return found, no_range
 
 
 def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:

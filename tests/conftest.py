@@ -29,6 +29,11 @@ def leica_dir() -> Path:
     return DATA / "leica_als"
 
 
+@pytest.fixture(scope="session")
+def pulsewaves_dir() -> Path:
+    return DATA / "pulsewaves"
+
+
 @pytest.fixture
 def leica_copy(tmp_path, leica_dir) -> Path:
     """The Leica sample's .las and .wdp copied into the test's folder: a file a test may damage or change."""

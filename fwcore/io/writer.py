@@ -86,7 +86,8 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
         LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",
                     path.name, Path(template).name, path.name)
     header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc) for name, desc in EXTRA_DIMENSIONS]
-                          + [laspy.ExtraBytesParams(name, "f4", description=cal if calibrated else rel)
+                          + [laspy.ExtraBytesParams(name, "f4", description=cal if calibrated else rel,
+                                                    no_data=[np.nan])  # NaN: unavailable, said in the header
                              for name, cal, rel in RADIOMETRY_DIMENSIONS]
                           + [laspy.ExtraBytesParams(RADIOMETRY_FLAG[0], "u1", description=RADIOMETRY_FLAG[1])])
     las = laspy.LasData(header)

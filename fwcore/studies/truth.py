@@ -47,14 +47,15 @@ def calibration_path(las_path: str | Path) -> Path:
     return las_path.with_name(las_path.stem + ".calibration.json")
 
 
-TRAJECTORY_RATE_HZ = 1000.0  # a fast INS's rate: linear interpolation between its knots is exact to 0.1 mm here
+TRAJECTORY_RATE_HZ = 1000.0  # a fast INS's rate ...
+TRAJECTORY_KNOTS = 20_000  # ... or faster, for a short flight's climb: linear interpolation stays within 0.1 mm
 
 
 def write_trajectory(path: str | Path, n_pulses: int, scene: SceneConfig) -> Path:
     """The scanner's positions during the flight (and 10 ms either side) as CSV gps_time, x, y, z."""
     duration = n_pulses / scene.pulse_rate_hz
-    times = scene.start_gps_time + np.arange(-0.01, duration + 0.01 + 0.5 / TRAJECTORY_RATE_HZ,
-                                             1.0 / TRAJECTORY_RATE_HZ)
+    rate = min(scene.pulse_rate_hz, max(TRAJECTORY_RATE_HZ, TRAJECTORY_KNOTS / duration))
+    times = scene.start_gps_time + np.arange(-0.01, duration + 0.01 + 0.5 / rate, 1.0 / rate)
     xyz = sensor_position(times, scene)
     np.savetxt(path, np.column_stack([times, xyz]), delimiter=",", header="gps_time,x,y,z", comments="",
                fmt=("%.6f", "%.4f", "%.4f", "%.4f"))

@@ -20,11 +20,6 @@ SAMPLES = {  # name: pulses, returning rows, heights of the returning samples (R
 EARTH_CENTRED = {"optech_example1", "riegl_example3"}
 
 
-@pytest.fixture(scope="session")
-def pulsewaves_dir(leica_dir):
-    return leica_dir.parent / "pulsewaves"
-
-
 def _positions(batch):
     n = np.diff(batch.sample_offsets)
     owner = np.repeat(np.arange(len(batch)), n)
