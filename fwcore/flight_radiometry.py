@@ -21,7 +21,8 @@ from fwcore.io.records import PulseBatch
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.radiometry import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
                                cached_trajectory, calibration_from_samples, calibration_samples, check_trajectory,
-                               echo_radiometry, echo_ranges, metric_beam, time_system_of)
+                               echo_radiometry, echo_ranges, file_stamp, load_trajectory, metric_beam,
+                               time_system_of)
 from fwcore.records import BatchDecomposition
 
 LOG = logging.getLogger("fwl")
@@ -43,7 +44,7 @@ class FileRadiometry:
     def trajectory(self, config: RadiometryConfig) -> Trajectory | None:
         if not self.range_source.startswith("trajectory"):
             return None
-        return cached_trajectory(config.trajectory, self.crs_wkt, Path(self.path).name)
+        return cached_trajectory(config.trajectory, self.crs_wkt)
 
     def to_dict(self) -> dict:
         return {"range_source": self.range_source or None, "why_no_range": self.why_no_range or None,
@@ -55,11 +56,17 @@ def _sample(path: str, n: int = CHECK_PULSES) -> PulseBatch:
     return read_pulses(PointRange(str(path), 0, n, max_pulses=n))
 
 
-@functools.lru_cache(maxsize=64)
 def file_radiometry(path: str, adjusted_standard_gps_time: bool, config: RadiometryConfig) -> FileRadiometry:
     """Where a file's ranges come from: PulseWaves files whose descriptors place the optical centre at a
     constant offset from the anchor (RIEGL, Optech, GeoLas writers) carry it per pulse; otherwise the run's
-    trajectory, if any. Its beam divergence: the option, else the file's scanner record, else none."""
+    trajectory, if any; none where the file's coordinates are not metres. Its beam divergence: the option,
+    else the file's scanner record, else none. Once per process and version of the file."""
+    return _file_radiometry(str(path), adjusted_standard_gps_time, config, file_stamp(path))
+
+
+@functools.lru_cache(maxsize=256)
+def _file_radiometry(path: str, adjusted_standard_gps_time: bool, config: RadiometryConfig,
+                     stamp: tuple[int, int]) -> FileRadiometry:
     name = Path(path).name
     wkt = crs_wkt(path)
     divergence, divergence_source = config.beam_divergence_mrad, "option"
@@ -84,7 +91,11 @@ def file_radiometry(path: str, adjusted_standard_gps_time: bool, config: Radiome
     elif divergence is None:
         divergence_source = "none"
     if not source and config.trajectory and not why.endswith("no range"):
-        source, why = f"trajectory {Path(config.trajectory).name}", ""
+        sample = _sample(path)
+        if len(sample) and not metric_beam(sample.direction).any():
+            why = f"{name}: its coordinates are not metres (geographic or feet): no range"
+        else:
+            source, why = f"trajectory {Path(config.trajectory).name}", ""
     if not source and not why:
         why = f"{name}: a LAS file does not record where its scanner was: give --trajectory"
     return FileRadiometry(str(path), source, why, divergence, divergence_source, system, wkt)
@@ -116,8 +127,8 @@ def check_flight(path: str, adjusted_standard_gps_time: bool, config: Radiometry
     """Before any decomposition: the file's radiometry, its trajectory loaded and checked against it (it covers
     the file's times and stands where the pulses came from). Raises RadiometryError naming the file and the fix."""
     file = file_radiometry(path, adjusted_standard_gps_time, config)
-    trajectory = file.trajectory(config)
-    if trajectory is not None:
+    if file.range_source.startswith("trajectory"):
+        trajectory = load_trajectory(config.trajectory, file.crs_wkt, Path(path).name)
         span = _gps_time_span(path)
         if np.all(np.isfinite(span)):
             sample = _sample(path)
@@ -201,9 +212,11 @@ def _pulses_in_patch(pulses: PulseBatch, reference) -> np.ndarray:
     """Rows whose strongest sample (where the surface that dominates them is) lies inside the patch."""
     if not len(pulses):
         return np.zeros(0, np.int64)
-    starts = pulses.sample_offsets[:-1]
     lengths = np.diff(pulses.sample_offsets)
-    peak = np.array([int(np.argmax(pulses.samples[s:s + n])) if n else 0 for s, n in zip(starts, lengths)])
+    row = np.repeat(np.arange(len(pulses)), lengths)
+    first = np.lexsort((-pulses.samples, row))[pulses.sample_offsets[:-1][lengths > 0]]  # each row's largest
+    peak = np.zeros(len(pulses), np.int64)
+    peak[lengths > 0] = first - pulses.sample_offsets[:-1][lengths > 0]
     dt = pulses.anchor_location_ps - peak * pulses.sample_spacing_ps
     xyz = pulses.anchor + dt[:, None] * pulses.direction
     return np.flatnonzero(reference.contains(xyz[:, 0], xyz[:, 1]))

@@ -47,6 +47,7 @@ class CalibrationReference:
 
     bbox: tuple[float, float, float, float]  # xmin, ymin, xmax, ymax in the inputs' CRS
     reflectance: float
+    beam_divergence_mrad: float | None = None  # the divergence it was flown with, where its JSON says (fwl simulate)
 
     def contains(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         xmin, ymin, xmax, ymax = self.bbox
@@ -61,11 +62,13 @@ def parse_calibration_reference(text: str) -> CalibrationReference:
         try:
             value = json.loads(Path(text).read_text())
             bbox, reflectance = value["bbox"], value["reflectance"]
+            divergence = value.get("beam_divergence_mrad")
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise RadiometryError(f"{text}: not a calibration reference ({err}); it needs "
                                   '{"bbox": [xmin, ymin, xmax, ymax], "reflectance": R}') from None
     else:
         box, _, value = text.partition("=")
+        divergence = None
         try:
             bbox, reflectance = [float(v) for v in box.split(",")], float(value)
         except ValueError:
@@ -80,7 +83,8 @@ def parse_calibration_reference(text: str) -> CalibrationReference:
     if not (math.isfinite(reflectance) and 0.0 < reflectance <= 1.0):
         raise RadiometryError(f"{where}: the reflectance must be in (0, 1] (a diffuse reflectance, 0.25 for 25%), "
                               f"not {reflectance:g}")
-    return CalibrationReference((xmin, ymin, xmax, ymax), reflectance)
+    return CalibrationReference((xmin, ymin, xmax, ymax), reflectance,
+                                float(divergence) if divergence is not None else None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,8 +119,9 @@ class RadiometryConfig:
 
     def to_dict(self) -> dict:
         value = dataclasses.asdict(self)
-        if self.calibration_reference is not None:
-            value["calibration_reference"] = dataclasses.asdict(self.calibration_reference)
+        if self.calibration_reference is not None:  # as JSON keeps it: a fingerprint compares with its manifest copy
+            value["calibration_reference"] = {**dataclasses.asdict(self.calibration_reference),
+                                              "bbox": list(self.calibration_reference.bbox)}
         return value
 
     @classmethod
@@ -124,7 +129,8 @@ class RadiometryConfig:
         value = dict(value)
         if value.get("calibration_reference"):
             ref = value["calibration_reference"]
-            value["calibration_reference"] = CalibrationReference(tuple(ref["bbox"]), ref["reflectance"])
+            value["calibration_reference"] = CalibrationReference(tuple(ref["bbox"]), ref["reflectance"],
+                                                                  ref.get("beam_divergence_mrad"))
         return cls(**value)
 
 
@@ -159,8 +165,8 @@ def time_system_of(times: np.ndarray) -> str:
 
 
 def to_time_system(t: np.ndarray, source: str, target: str) -> np.ndarray:
-    """Times from one GPS time system to another where that needs no week number: adjusted -> week always,
-    and a trajectory in adjusted time is read into week seconds against a file in week seconds."""
+    """Times from one GPS time system to another where that needs no week number: adjusted -> week
+    ((t + 1e9) mod 604800); week -> adjusted needs the week, and raises."""
     if source == target:
         return t
     if source == "adjusted" and target == "week":
@@ -216,7 +222,7 @@ def load_trajectory(path: str | Path, crs_wkt: str | None, source: str = "") -> 
             raise RadiometryError(f"{source}: names no coordinate reference system, so the SBET {path.name} "
                                   "(WGS 84) cannot be put in its coordinates: give the trajectory as a CSV "
                                   "gps_time,x,y,z in the file's coordinates")
-        xyz = _geographic_to_crs(geographic, crs_wkt)
+        xyz = _geographic_to_crs(geographic, crs_wkt, path, source)
     if gps_time.size < 2 or not np.all(np.isfinite(gps_time)) or not np.all(np.isfinite(xyz)):
         raise RadiometryError(f"{path}: a trajectory needs at least two rows of finite times and positions")
     if np.any(np.diff(gps_time) <= 0):
@@ -229,19 +235,40 @@ def load_trajectory(path: str | Path, crs_wkt: str | None, source: str = "") -> 
     return Trajectory(str(path), gps_time, np.ascontiguousarray(xyz, dtype=float), system)
 
 
-def _geographic_to_crs(geographic: np.ndarray, crs_wkt: str) -> np.ndarray:
+def _geographic_to_crs(geographic: np.ndarray, crs_wkt: str, path: Path, source: str) -> np.ndarray:
+    """WGS 84 (ellipsoidal heights) to the file's CRS. A CRS with a vertical datum whose geoid model pyproj does
+    not have (offline: no grids) would keep ellipsoidal heights, tens of metres off: refused."""
     import pyproj
+    from pyproj.exceptions import ProjError
 
-    target = pyproj.CRS.from_wkt(crs_wkt)
-    transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(4979), target, always_xy=True)
+    try:
+        target = pyproj.CRS.from_wkt(crs_wkt)
+        transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(4979), target, always_xy=True)
+    except ProjError as err:
+        raise RadiometryError(f"{source}: its CRS cannot take the SBET {path.name} ({err}): give the trajectory as "
+                              "a CSV gps_time,x,y,z in the file's coordinates") from None
+    if len(target.sub_crs_list) > 1 and "ballpark" in transformer.description.lower():
+        raise RadiometryError(f"{source}: its heights are in a vertical datum ({target.sub_crs_list[1].name}) that "
+                              f"the SBET {path.name}'s ellipsoidal heights cannot be converted to here (no geoid "
+                              "model): give the trajectory as a CSV gps_time,x,y,z in the file's coordinates")
     x, y, z = transformer.transform(geographic[:, 0], geographic[:, 1], geographic[:, 2])
     return np.stack([x, y, z], axis=1)
 
 
+def file_stamp(path: str | Path) -> tuple[int, int]:
+    """Size and modification time: a cache keyed on them loads a file anew once it changes (fwl watch lives long)."""
+    stat = Path(path).stat()
+    return stat.st_size, stat.st_mtime_ns
+
+
 @functools.lru_cache(maxsize=8)
-def cached_trajectory(path: str, crs_wkt: str | None, source: str) -> Trajectory:
-    """One load per process and file: a worker places many ranges of a file against one trajectory."""
-    return load_trajectory(path, crs_wkt, source)
+def _cached_trajectory(path: str, crs_wkt: str | None, stamp: tuple[int, int]) -> Trajectory:
+    return load_trajectory(path, crs_wkt, "an input")
+
+
+def cached_trajectory(path: str, crs_wkt: str | None) -> Trajectory:
+    """One load per process, CRS and version of the file: a worker places many ranges against one trajectory."""
+    return _cached_trajectory(path, crs_wkt, file_stamp(path))
 
 
 def check_trajectory(trajectory: Trajectory, source: str, file_time_system: str, gps_time: np.ndarray,

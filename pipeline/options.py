@@ -147,11 +147,14 @@ def radiometry_config(args: Any):
     if reference and constant is not None:
         raise RadiometryError("give --calibration-reference or --calibration-constant, not both")
     trajectory = getattr(args, "trajectory", None)
+    patch = parse_calibration_reference(reference) if reference else None
+    divergence = getattr(args, "beam_divergence_mrad", None)
+    if divergence is None and patch is not None:  # a patch's JSON may say what the flight's file cannot
+        divergence = patch.beam_divergence_mrad
     return RadiometryConfig(trajectory=str(Path(trajectory).resolve()) if trajectory else None,  # workers' cwd differ
-                            calibration_reference=parse_calibration_reference(reference) if reference else None,
-                            calibration_constant=constant,
+                            calibration_reference=patch, calibration_constant=constant,
                             calibration_source="given" if constant is not None else "none",
-                            beam_divergence_mrad=getattr(args, "beam_divergence_mrad", None))
+                            beam_divergence_mrad=divergence)
 
 
 def _subclasses(cls: type) -> Iterable[type]:

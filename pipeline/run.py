@@ -235,8 +235,9 @@ def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: in
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint."""
+    trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
-            "points_per_range": points_per_range, "laz": laz, "radiometry": radiometry.to_dict(),
+            "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
 
 
@@ -405,9 +406,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     finally:
         remove_partial_files(output)
     _write_lost_plans(output, plans)
+    # the calibration each input's ranges used, kept in the manifest for a run.json written later
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
-                    {path: {**_planned(plan), **ranges_from.get(path, {})} for path, plan in plans.items()},
-                    calibration)
+                    {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
+                     for path, plan in plans.items()}, calibration)
 
 
 def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> tuple[dict[str, dict], list[str]]:
@@ -452,6 +454,11 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
     ranges it ran, not those reused or added earlier)."""
     entries = read_manifest(output)["inputs"]
     write_empty_rejected(output, [e["stem"] for e in entries])
+    calibration = jobs.calibration or next((c for e in entries if (c := e.get("planned", {}).get("calibration"))),
+                                           None)
+    if calibration and not radiometry.calibrated:  # found on the reference patch: what the ranges used
+        radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
+                                         calibration_source=calibration["source"])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
     status = status_of(counts)
     summary = {
@@ -467,8 +474,8 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
-        "radiometry": {**radiometry.to_dict(), "calibration": jobs.calibration,
-                       "values": "calibrated" if jobs.calibration or radiometry.calibrated else "relative (C_cal = 1)"},
+        "radiometry": {**radiometry.to_dict(), "calibration": calibration,
+                       "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},
         "beam_options": options.get_all_options(drop_default=True),
         "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
                      **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},

@@ -62,6 +62,18 @@ def test_the_calibration_constant_is_the_simulated_radar_constant(calibrated, fl
     assert summary["calibration_reference"]["reflectance"] == 0.25
 
 
+def test_a_calibrated_run_resumes_and_says_what_it_used(calibrated, flight, capsys):
+    before = (calibrated / "run.json").read_text()
+    assert main(["run", str(flight.las), "--output", str(calibrated), "--formats", "parquet,las", "--resume",
+                 "--trajectory", str(flight.trajectory), "--calibration-reference", str(flight.calibration),
+                 *QUICK]) == 0  # the patch's JSON gives the beam divergence the command line no longer does
+    assert "already complete" in capsys.readouterr().out and (calibrated / "run.json").read_text() == before
+    summary = json.loads(before)["radiometry"]
+    assert summary["calibration_constant"] == summary["calibration"]["constant"]
+    settings = json.loads((calibrated / "fwl-output.json").read_text())["settings"]["radiometry"]
+    assert settings["trajectory_identity"]["sim.trajectory.csv"]["size"] == flight.trajectory.stat().st_size
+
+
 def test_the_point_cloud_carries_the_radiometry_as_described_extra_bytes(calibrated):
     las = laspy.read(calibrated / "las" / "sim.las")
     described = {e.name: e.description for e in las.point_format.extra_dimensions}
@@ -134,8 +146,8 @@ def test_bad_radiometry_input_is_an_error_naming_the_file_and_the_fix(flight, tm
         args += ["--calibration-reference", "5000,5000,5100,5100=0.3", "--beam-divergence-mrad", "0.5"]
     if case == "dark patch":
         args += ["--calibration-reference", "0,-90,2,-50=0"]
-    if case == "no divergence":
-        args += ["--calibration-reference", str(flight.calibration)]
+    if case == "no divergence":  # the patch given on the command line, without the JSON's divergence
+        args += ["--calibration-reference", "0,-90,1,-50=0.25"]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert expected in err
