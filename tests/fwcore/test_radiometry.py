@@ -178,6 +178,24 @@ def test_sbet_is_transformed_into_the_files_utm_crs(tmp_path):
     assert trajectory.time_system == "week"
 
 
+def test_sbet_against_orthometric_heights_it_cannot_reach_is_refused(tmp_path):
+    """UTM 33N + EGM96 heights: without the geoid grid (offline) pyproj would keep ellipsoidal heights."""
+    path = write_sbet(tmp_path / "sbet.out", [10.0, 11.0], [0.8, 0.8], [0.26, 0.26], [300.0, 300.0])
+    compound = pyproj.CRS.from_user_input("EPSG:32633+5773")
+    transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(4979), compound, always_xy=True)
+    if "ballpark" not in transformer.description.lower():
+        pytest.skip("this machine's pyproj has the EGM96 grid: the heights are converted")
+    with pytest.raises(RadiometryError, match="a.las: its heights are in a vertical datum .*EGM96.*give the "
+                                              "trajectory as a CSV"):
+        load_trajectory(path, compound.to_wkt(), "a.las")
+
+
+def test_sbet_against_an_unreadable_crs_is_refused(tmp_path):
+    path = write_sbet(tmp_path / "sbet.out", [10.0, 11.0], [0.8, 0.8], [0.26, 0.26], [300.0, 300.0])
+    with pytest.raises(RadiometryError, match="a.las: its CRS cannot take the SBET sbet.out"):
+        load_trajectory(path, 'PROJCS["nonsense"]', "a.las")
+
+
 # ---------------------------------------------------------------- positions and GPS time systems
 
 def week_trajectory():
