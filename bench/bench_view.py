@@ -46,7 +46,7 @@ def make_run(folder: Path, n_echoes: int, seed: int = 0) -> None:
             "gps_time": owner * 1e-5, "echo_index": np.tile(np.arange(ECHOES_PER_PULSE, dtype=np.int32), pulse_id.size),
             "echo_count": np.full(n, ECHOES_PER_PULSE, np.int32),
             "time_ps": rng.uniform(0, 2e5, n), "amplitude": rng.gamma(2.0, 20.0, n),
-            "sigma_ps": rng.uniform(1e3, 3e3, n),
+            "sigma_chauve": rng.uniform(1e3, 3e3, n),
             "alpha": rng.uniform(1.0, 2.6, n), "fwhm_ps": rng.uniform(2e3, 8e3, n), "energy": rng.uniform(1e4, 1e6, n),
             "x": np.repeat(rng.uniform(0, 2000, pulse_id.size), ECHOES_PER_PULSE),
             "y": np.repeat(rng.uniform(0, 2000, pulse_id.size), ECHOES_PER_PULSE),

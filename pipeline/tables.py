@@ -1,7 +1,11 @@
-"""Arrow tables of decomposition results (what the command line and sinks write)."""
+"""Arrow tables of decomposition results (what the command line and sinks write), each from one column
+specification: a column's name, type, unit and meaning are written once (COLUMNS), the tables list their
+columns by name (TABLES), and every written field carries its unit and meaning in its Parquet metadata.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 
@@ -62,63 +66,157 @@ def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str 
     return {GEO_METADATA_KEY: json.dumps(meta).encode()}
 
 
+@dataclasses.dataclass(frozen=True)
+class Column:
+    """One output column: name, Arrow type, unit ("" for a name, a count or a flag) and meaning."""
+
+    name: str
+    type: pa.DataType
+    unit: str
+    meaning: str
+
+    @property
+    def field(self) -> pa.Field:
+        return pa.field(self.name, self.type, metadata={b"unit": self.unit.encode(), b"description": self.meaning.encode()})
+
+
+F64, I64, I32, I16, STR, BOOL = pa.float64(), pa.int64(), pa.int32(), pa.int16(), pa.string(), pa.bool_()
+COLUMNS = {c.name: c for c in (
+    Column("source_file", STR, "", "the input's file name"),
+    Column("pulse_id", I64, "", "the pulse's identity: a hash of its GPS time and anchor, the same in every encoding "
+                                "of the file"),
+    Column("waveform_id", I64, "", "the waveform's id in the CSV input"),
+    Column("channel", I16, "", "the PulseWaves sampling channel (LAS: 0)"),
+    Column("segment", I16, "", "the returning segment within the pulse (PulseWaves; LAS: 0)"),
+    Column("packet_offset", I64, "byte", "where the pulse's samples are: LAS packet offset, PulseWaves offset to waves"),
+    Column("gps_time", F64, "s", "the pulse's GPS time as the input stores it (week seconds or adjusted standard)"),
+    Column("echo_index", I32, "", "the echo's number in its waveform, in time order from 0, spurious ones included"),
+    Column("echo_count", I32, "", "echoes fitted to the waveform, spurious ones included"),
+    Column("time_ps", F64, "ps", "the echo's centre, from the packet's first sample"),
+    Column("time", F64, "sample", "the echo's centre, from the waveform's first sample"),
+    Column("amplitude", F64, "DN", "the echo's peak above the background, in digitizer counts"),
+    Column("amplitude_volts", F64, "V", "amplitude times the descriptor's digitizer gain"),
+    Column("sigma_chauve", F64, "ps^(alpha^2/2)", "Chauve's sigma: the echo is A exp(-|t - u|^(alpha^2) / (2 sigma^2)) "
+                                                  "with t in ps; its unit depends on alpha"),
+    Column("sigma", F64, "sample^(alpha^2/2)", "Chauve's sigma with t in samples"),
+    Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top"),
+    Column("fwhm_ps", F64, "ps", "the echo's full width at half maximum"),
+    Column("fwhm", F64, "sample", "the echo's full width at half maximum"),
+    Column("energy", F64, "DN ps", "the area under the echo (DN sample in decompose-csv's tables)"),
+    Column("background", F64, "DN", "the waveform's background level"),
+    Column("background_volts", F64, "V", "the background through the descriptor's gain and offset"),
+    Column("range_m", F64, "m", "the echo's range to the scanner (null: no trajectory or scanner position)"),
+    Column("incidence_deg", F64, "deg", "the angle between the beam and a plane through neighbouring kept echoes "
+                                        "(null: no plane)"),
+    Column("backscatter_cross_section_m2", F64, "m2", "sigma = C_cal R^4 E; relative (C_cal = 1) unless calibrated"),
+    Column("backscatter_coefficient", F64, "1", "gamma = 4 sigma / (pi R^2 beta^2); relative unless calibrated"),
+    Column("reflectance", F64, "1", "rho = gamma / (4 cos alpha), alpha 0 without a plane; relative unless calibrated"),
+    Column("radiometry", STR, "", "calibrated | relative | unavailable: what the radiometric columns are"),
+    Column("x", F64, "CRS unit", "the echo's position in the input's CRS (at time_ps plus the file's range offset)"),
+    Column("y", F64, "CRS unit", "as x"),
+    Column("z", F64, "CRS unit", "as x"),
+    Column(GEOMETRY_COLUMN, pa.binary(), "", "x, y, z as a WKB Point Z (GeoParquet 1.1)"),
+    Column("kept", BOOL, "", "false for a spurious echo"),
+    Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept)"),
+    Column("status", STR, "", "'' when decomposed, else why not"),
+    Column("n_samples", I32, "", "samples in the waveform"),
+    Column("sample_spacing_ps", F64, "ps", "time between two samples"),
+    Column("noise_sigma", F64, "DN", "the waveform's noise level"),
+    Column("fit_error", F64, "DN^2", "Eq. 9: the sum of squared residuals against the denoised samples"),
+    Column("fit_error_raw", F64, "DN^2", "the same sum against the raw samples"),
+    Column("rmse", F64, "DN", "root mean square residual against the raw samples"),
+    Column("r2", F64, "1", "coefficient of determination against the raw samples"),
+    Column("n_echoes_initial", I32, "", "echoes of the initial estimate"),
+    Column("n_echoes_dropped", I32, "", "echoes the model-order selection dropped"),
+    Column("n_echoes_added", I32, "", "echoes the model-order selection added"),
+    Column("n_echoes", I32, "", "echoes fitted"),
+    Column("n_echoes_kept", I32, "", "echoes kept"),
+    Column("model_evaluations", I64, "", "evaluations of the model"),
+    Column("nit", I32, "", "the optimizer's generations or iterations"),
+    Column("message", STR, "", "how the optimizer ended"),
+    Column("n_system_returns", I32, "", "the returns the input's system recorded for the pulse (LAS points)"),
+    Column("system_pulse_fwhm_ps", F64, "ps", "the file's system pulse width the run used"),
+    Column("shape_tolerance", F64, "1", "the model's relative shape error on the file's pulse"),
+    Column("optimizer", STR, "", "the optimizer"),
+    Column("model", STR, "", "the echo model"),
+    Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
+    Column("reason", STR, "", "why"),
+)}
+_FIT = ("fit_error", "fit_error_raw", "rmse", "r2")
+_COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes", "n_echoes_kept", "model_evaluations",
+           "nit", "message")
+_METHOD = ("optimizer", "model")
+# Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
+TABLES = {
+    "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
+               "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
+               "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
+               "radiometry", "x", "y", "z", GEOMETRY_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
+    "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", "n_samples",
+               "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
+    "rejected": ("source_file", "pulse_id", "stage", "reason"),
+    "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", "energy",
+                   "background", "kept", "reject_reason", *_FIT, *_METHOD),
+    "csv waveforms": ("waveform_id", "status", "n_samples", "noise_sigma", "background", *_FIT, *_COUNTS, *_METHOD),
+}
+
+
+def table_schema(table: str) -> pa.Schema:
+    """A table's Arrow schema, each field with its unit and meaning."""
+    return pa.schema([COLUMNS[name].field for name in TABLES[table]])
+
+
+def _table(table: str, values: dict) -> pa.Table:
+    """A table from its columns' values (every column of its specification, no other)."""
+    schema = table_schema(table)
+    if set(values) != set(schema.names):
+        raise ValueError(f"{table}: values for {sorted(set(values) ^ set(schema.names))} do not match its columns")
+    return pa.table([v if isinstance(v, pa.Array) and v.type == f.type else pa.array(v, f.type, from_pandas=True)
+                     for f, v in ((f, values[f.name]) for f in schema)], schema=schema)
+
+
 def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig) -> pa.Table:
     """One row per echo, spurious ones included; times and widths in samples, amplitudes in digitizer units."""
-    counts = np.diff(result.echo_offsets)
     owner = result.echo_waveform
-    echo_index = np.arange(owner.size) - result.echo_offsets[owner]
-    reasons = np.array(REJECT_REASONS, dtype=object)[result.reject]
-    table = pa.table({
-        "waveform_id": pa.array(waveform_id[owner], pa.int64()),
-        "echo_index": pa.array(echo_index, pa.int32()),
-        "echo_count": pa.array(counts[owner], pa.int32()),
-        "amplitude": result.amplitude,
-        "time": result.position,
-        "sigma": result.sigma,
-        "alpha": result.alpha,
-        "fwhm": result.fwhm,
-        "energy": result.energy,
-        "background": result.background[owner],
-        "kept": pa.array(result.reject == 0),
-        "reject_reason": pa.array(reasons.tolist(), pa.string()),
-        "fit_error": result.fit_error[owner],
-        "fit_error_raw": result.fit_error_raw[owner],
-        "rmse": result.rmse[owner],
-        "r2": result.r2[owner],
-        "optimizer": pa.array([config.optimizer.value] * owner.size, pa.string()),
-        "model": pa.array([config.model.value] * owner.size, pa.string()),
-    })
+    table = _table("csv echoes", {
+        "waveform_id": waveform_id[owner], "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
+        "echo_count": np.diff(result.echo_offsets)[owner], "amplitude": result.amplitude, "time": result.position,
+        "sigma": result.sigma, "alpha": result.alpha, "fwhm": result.fwhm, "energy": result.energy,
+        "background": result.background[owner], **_kept(result), **_fit(result, owner), **_method(config, owner.size)})
     return _with_config(table, config)
 
 
 def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig,
                    n_samples: np.ndarray) -> pa.Table:
     """One row per waveform, whether or not it was decomposed: none is dropped."""
-    counts = np.diff(result.echo_offsets)
-    owner = result.echo_waveform
-    kept = np.bincount(owner[result.reject == 0], minlength=len(result))
-    table = pa.table({
-        "waveform_id": pa.array(waveform_id, pa.int64()),
-        "status": pa.array([STATUS_REASONS[s] for s in result.status], pa.string()),
-        "n_samples": pa.array(n_samples, pa.int32()),
-        "noise_sigma": result.noise_sigma,
-        "background": result.background,
-        "fit_error": result.fit_error,
-        "fit_error_raw": result.fit_error_raw,
-        "rmse": result.rmse,
-        "r2": result.r2,
-        "n_echoes_initial": pa.array(result.n_echoes_initial, pa.int32()),
-        "n_echoes_dropped": pa.array(result.n_echoes_dropped, pa.int32()),
-        "n_echoes_added": pa.array(result.n_echoes_added, pa.int32()),
-        "n_echoes": pa.array(counts, pa.int32()),
-        "n_echoes_kept": pa.array(kept, pa.int32()),
-        "model_evaluations": pa.array(result.nfev, pa.int64()),
-        "nit": pa.array(result.nit, pa.int32()),
-        "message": pa.array([MESSAGES[m] for m in result.message], pa.string()),
-        "optimizer": pa.array([config.optimizer.value] * len(result), pa.string()),
-        "model": pa.array([config.model.value] * len(result), pa.string()),
-    })
+    every = np.arange(len(result))
+    table = _table("csv waveforms", {
+        "waveform_id": waveform_id, "status": [STATUS_REASONS[s] for s in result.status], "n_samples": n_samples,
+        "noise_sigma": result.noise_sigma, "background": result.background, **_fit(result, every),
+        **_counts(result, every), **_method(config, len(result))})
     return _with_config(table, config)
+
+
+def _fit(result: BatchDecomposition, rows: np.ndarray) -> dict:
+    return {name: getattr(result, name)[rows] for name in _FIT}
+
+
+def _counts(result: BatchDecomposition, rows: np.ndarray) -> dict:
+    kept = np.bincount(result.echo_waveform[result.reject == 0], minlength=len(result))
+    return {"n_echoes_initial": result.n_echoes_initial[rows], "n_echoes_dropped": result.n_echoes_dropped[rows],
+            "n_echoes_added": result.n_echoes_added[rows], "n_echoes": np.diff(result.echo_offsets)[rows],
+            "n_echoes_kept": kept[rows], "model_evaluations": result.nfev[rows], "nit": result.nit[rows],
+            "message": [MESSAGES[m] for m in result.message[rows]]}
+
+
+def _kept(result: BatchDecomposition) -> dict:
+    return {"kept": result.reject == 0,
+            "reject_reason": np.array(REJECT_REASONS, dtype=object)[result.reject].tolist()}
+
+
+def _method(config: DecompositionConfig, n: int) -> dict:
+    return {"optimizer": _strings(config.optimizer.value, n), "model": _strings(config.model.value, n)}
 
 
 def _strings(value: str, n: int) -> pa.Array:
@@ -129,13 +227,12 @@ RADIOMETRY_COLUMNS = ("range_m", "incidence_deg", "backscatter_cross_section_m2"
                       "reflectance")
 
 
-def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dict[str, pa.Array]:
+def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dict:
     """fwcore.radiometry.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
     if radiometry is None:
         radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable")}
-    columns = {c: pa.array(radiometry[c], pa.float64(), from_pandas=True) for c in RADIOMETRY_COLUMNS}
-    columns["radiometry"] = pa.array(np.asarray(radiometry["radiometry"], dtype=object).tolist(), pa.string())
-    return columns
+    return {**{c: radiometry[c] for c in RADIOMETRY_COLUMNS},
+            "radiometry": np.asarray(radiometry["radiometry"], dtype=object).tolist()}
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
@@ -145,77 +242,36 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     `ok`."""
     from fwcore.model import sigma_to_time_unit
 
-    counts = np.diff(result.echo_offsets)
     owner = result.echo_waveform
-    echo_index = np.arange(owner.size) - result.echo_offsets[owner]
     spacing = pulses.sample_spacing_ps[owner]
-    gain = pulses.digitizer_gain[owner]
-    echoes = pa.table({
-        "source_file": _strings(source_file, owner.size),
-        "pulse_id": pa.array(pulses.pulse_id[owner], pa.int64()),
-        "channel": pa.array(pulses.channels()[owner], pa.int16()),
-        "segment": pa.array(pulses.segments()[owner], pa.int16()),
-        "gps_time": pulses.gps_time[owner],
-        "echo_index": pa.array(echo_index, pa.int32()),
-        "echo_count": pa.array(counts[owner], pa.int32()),
-        "time_ps": result.position * spacing,
-        "amplitude": result.amplitude,
-        "amplitude_volts": result.amplitude * gain,
-        "sigma_ps": sigma_to_time_unit(result.sigma, result.alpha, spacing),
-        "alpha": result.alpha,
-        "fwhm_ps": result.fwhm * spacing,
-        "energy": result.energy * spacing,
-        "background": result.background[owner],
+    echoes = _table("echoes", {
+        "source_file": _strings(source_file, owner.size), "pulse_id": pulses.pulse_id[owner],
+        "channel": pulses.channels()[owner], "segment": pulses.segments()[owner], "gps_time": pulses.gps_time[owner],
+        "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
+        "echo_count": np.diff(result.echo_offsets)[owner], "time_ps": result.position * spacing,
+        "amplitude": result.amplitude, "amplitude_volts": result.amplitude * pulses.digitizer_gain[owner],
+        "sigma_chauve": sigma_to_time_unit(result.sigma, result.alpha, spacing), "alpha": result.alpha,
+        "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing, "background": result.background[owner],
         **_radiometry_columns(radiometry, owner.size),
-        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
-        GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
-        "kept": pa.array(result.reject == 0),
-        "reject_reason": pa.array(np.array(REJECT_REASONS, dtype=object)[result.reject].tolist(), pa.string()),
-        "fit_error": result.fit_error[owner],
-        "fit_error_raw": result.fit_error_raw[owner],
-        "rmse": result.rmse[owner],
-        "r2": result.r2[owner],
-        "optimizer": _strings(config.optimizer.value, owner.size),
-        "model": _strings(config.model.value, owner.size),
-    })
-    kept = np.bincount(owner[result.reject == 0], minlength=len(result))
+        "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
+        **_kept(result), **_fit(result, owner), **_method(config, owner.size)})
     sel = np.flatnonzero(ok)
-    table = pa.table({
-        "source_file": _strings(source_file, sel.size),
-        "pulse_id": pa.array(pulses.pulse_id[sel], pa.int64()),
-        "channel": pa.array(pulses.channels()[sel], pa.int16()),
-        "segment": pa.array(pulses.segments()[sel], pa.int16()),
-        "packet_offset": pa.array(pulses.packet_offset[sel], pa.int64()),
-        "gps_time": pulses.gps_time[sel],
-        "n_samples": pa.array(np.diff(pulses.sample_offsets)[sel], pa.int32()),
-        "sample_spacing_ps": pulses.sample_spacing_ps[sel],
-        "noise_sigma": result.noise_sigma[sel],
-        "background": result.background[sel],
+    table = _table("pulses", {
+        "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],
+        "channel": pulses.channels()[sel], "segment": pulses.segments()[sel],
+        "packet_offset": pulses.packet_offset[sel], "gps_time": pulses.gps_time[sel],
+        "n_samples": np.diff(pulses.sample_offsets)[sel], "sample_spacing_ps": pulses.sample_spacing_ps[sel],
+        "noise_sigma": result.noise_sigma[sel], "background": result.background[sel],
         "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
-        "fit_error": result.fit_error[sel],
-        "fit_error_raw": result.fit_error_raw[sel],
-        "rmse": result.rmse[sel],
-        "r2": result.r2[sel],
-        "n_echoes_initial": pa.array(result.n_echoes_initial[sel], pa.int32()),
-        "n_echoes_dropped": pa.array(result.n_echoes_dropped[sel], pa.int32()),
-        "n_echoes_added": pa.array(result.n_echoes_added[sel], pa.int32()),
-        "n_echoes": pa.array(counts[sel], pa.int32()),
-        "n_echoes_kept": pa.array(kept[sel], pa.int32()),
-        "model_evaluations": pa.array(result.nfev[sel], pa.int64()),
-        "nit": pa.array(result.nit[sel], pa.int32()),
-        "message": pa.array([MESSAGES[m] for m in result.message[sel]], pa.string()),
-        "n_system_returns": pa.array(np.diff(pulses.return_offsets)[sel], pa.int32()),
+        **_fit(result, sel), **_counts(result, sel),
+        "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
-        "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0),
-        "optimizer": _strings(config.optimizer.value, sel.size),
-        "model": _strings(config.model.value, sel.size),
-    })
+        "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], file_crs_projjson(str(pulses.source_file)))
     return _with_config(echoes, config, geo), _with_config(table, config)
 
 
-REJECTED_SCHEMA = pa.schema([("source_file", pa.string()), ("pulse_id", pa.int64()), ("stage", pa.string()),
-                             ("reason", pa.string())])
+REJECTED_SCHEMA = table_schema("rejected")
 
 
 def rejected_table(rows) -> pa.Table:

@@ -23,7 +23,7 @@ LOG = logging.getLogger("fwl")
 EXTRA_DIMENSIONS = (
     ("amplitude", "peak above background [DN]"),
     ("echo_width", "echo FWHM [ps]"),
-    ("alpha", "gen. Gaussian shape [1], 2=Gauss"),
+    ("alpha", "shape alpha [1], 1.414 = Gauss"),
     ("echo_energy", "area under echo [DN x ps]"),
     ("fit_error", "pulse fit error, Eq. 9 [1]"),
     ("channel", "waveform channel (PulseWaves)"),

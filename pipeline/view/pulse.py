@@ -122,7 +122,7 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
         a, u, s, al = (float(v[k]) for v in (result.amplitude, result.position, result.sigma, result.alpha))
         echoes.append({
             "echo_index": k, "amplitude": a, "time_ps": u * spacing,
-            "sigma_ps": float(sigma_to_time_unit(np.array([s]), np.array([al]), np.array([spacing]))[0]),
+            "sigma_chauve": float(sigma_to_time_unit(np.array([s]), np.array([al]), np.array([spacing]))[0]),
             "alpha": al, "fwhm_ps": float(result.fwhm[k]) * spacing, "energy": float(result.energy[k]) * spacing,
             "kept": result.reject_reason[k] == "", "reject_reason": result.reject_reason[k],
             "curve": result.background + generalized_gaussian(fine, a, u, s, al),

@@ -15,7 +15,7 @@ from fwcore.io import read_pulses
 from fwcore.pulses import pulse_waveforms
 from pipeline.cli import main
 
-ECHO_COLUMNS = ["source_file", "pulse_id", "gps_time", "echo_index", "echo_count", "time_ps", "amplitude", "sigma_ps",
+ECHO_COLUMNS = ["source_file", "pulse_id", "gps_time", "echo_index", "echo_count", "time_ps", "amplitude", "sigma_chauve",
                 "alpha", "fwhm_ps", "energy", "background", "x", "y", "z", "kept", "reject_reason", "fit_error",
                 "rmse", "r2", "optimizer", "model"]
 PULSE_COLUMNS = ["source_file", "pulse_id", "gps_time", "n_samples", "sample_spacing_ps", "noise_sigma", "background",

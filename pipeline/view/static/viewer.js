@@ -308,11 +308,11 @@ function metricsTable(fit, extra = []) {
 // the run's rows carry radiometry (fwcore.radiometry); a refit's echoes do not, and show "–"
 function echoTable(rows) {
   const relative = rows.some((e) => e.radiometry === "relative") ? " (relative)" : "";
-  const head = "<tr><th>#</th><th>kept / reason</th><th>amplitude</th><th>time (ns)</th><th>σ (ps)</th><th>α</th><th>FWHM (ps)</th><th>energy</th>" +
+  const head = "<tr><th>#</th><th>kept / reason</th><th>amplitude</th><th>time (ns)</th><th title=\"Chauve's sigma, in ps^(α²/2): its unit depends on α\">σ (Chauve)</th><th>α</th><th>FWHM (ps)</th><th>energy</th>" +
     `<th>range (m)</th><th>incidence (°)</th><th>reflectance${relative}</th></tr>`;
   return head + rows.map((e) => `<tr class="echo-row ${e.kept ? "kept" : "spurious"}"><td>${e.echo_index}</td>` +
     `<td>${e.kept ? "kept" : e.reject_reason}</td><td>${fmt(e.amplitude, 2)}</td><td>${fmt(e.time_ps / NS, 3)}</td>` +
-    `<td>${fmt(e.sigma_ps, 1)}</td><td>${fmt(e.alpha, 3)}</td><td>${fmt(e.fwhm_ps, 1)}</td><td>${fmt(e.energy, 1)}</td>` +
+    `<td>${fmt(e.sigma_chauve, 3)}</td><td>${fmt(e.alpha, 3)}</td><td>${fmt(e.fwhm_ps, 1)}</td><td>${fmt(e.energy, 1)}</td>` +
     `<td class="radiometry">${fmt(e.range_m, 3)}</td><td>${fmt(e.incidence_deg, 1)}</td><td>${fmt(e.reflectance, 3)}</td></tr>`).join("");
 }
 

@@ -85,7 +85,7 @@ def test_a_pulse_is_re_read_and_its_decomposition_reproduced(viewed, which):
     fit = p["fit"]
     assert p["reproduced"] and len(fit["echoes"]) == len(table) == len(p["echo_rows"])
     for got, want in zip(fit["echoes"], table.itertuples()):
-        for name in ("amplitude", "time_ps", "sigma_ps", "alpha", "fwhm_ps", "energy"):
+        for name in ("amplitude", "time_ps", "sigma_chauve", "alpha", "fwhm_ps", "energy"):
             assert got[name] == pytest.approx(getattr(want, name), rel=1e-9, abs=1e-9), name
         assert got["kept"] == want.kept and got["reject_reason"] == want.reject_reason
     row = pulses[pulses.pulse_id == pulse_id].iloc[0]
