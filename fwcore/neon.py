@@ -31,6 +31,9 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such waveform CSV")
     ids, samples, valid = [], [], []
+    from fwcore.io.formats import file_kind, wrong_kind
+    if not file_kind(path).startswith(("a NEON", "a text")):
+        raise ValueError(wrong_kind(path, "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"))
     with open(path, newline="") as f:
         reader = csv.reader(f)
         header = next(reader, None)

@@ -47,28 +47,46 @@ class ResumeError(OutputFolderError):
 
 # ---------------------------------------------------------------- inputs
 
-def expand_inputs(inputs: list[str]) -> list[str]:
-    """Files, glob patterns and folders (their *.las, *.laz and *.pls, not recursive) -> sorted distinct paths.
+@dataclasses.dataclass(frozen=True)
+class MatchedInputs:
+    """What the inputs given name: the files to run, and each match that is not one, with why."""
 
-    Local paths are resolved; anything that matches nothing is an error naming it.
-    """
+    paths: list[str]
+    not_taken: list[tuple[str, str]]  # (the match, why it is not an input)
+
+
+def match_inputs(inputs: list[str]) -> MatchedInputs:
+    """Files, glob patterns and folders (their *.las, *.laz and *.pls, not recursive) -> sorted distinct paths;
+    a folder (given or matched by a pattern) that holds none of those is named with why. Local paths are
+    resolved; a pattern that matches nothing, or inputs that leave no file to run, are an error naming them."""
     paths: list[str] = []
+    not_taken: list[tuple[str, str]] = []
     for item in inputs:
         if "://" in item:
             from apache_beam.io.filesystems import FileSystems
             found = [m.path for r in FileSystems.match([item]) for m in r.metadata_list]
-        elif Path(item).is_dir():
-            found = [str(p) for p in Path(item).iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES]
-            if not found:
-                raise FileNotFoundError(f"{item}: folder holds no .las or .laz file (nor .pls)")
-        elif glob.has_magic(item):
-            found = [p for p in glob.glob(item) if Path(p).is_file()]
         else:
-            found = [item] if Path(item).is_file() else []
-        if not found:
-            raise FileNotFoundError(f"{item}: no file matches this input")
+            matched = glob.glob(item) if glob.has_magic(item) else [item] if Path(item).exists() else []
+            found = []
+            for m in sorted(matched):
+                if Path(m).is_dir():
+                    inside = [str(p) for p in Path(m).iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES]
+                    if not inside:
+                        not_taken.append((m, "a folder that holds no .las, .laz or .pls file"))
+                    found += inside
+                elif Path(m).is_file():
+                    found.append(m)
+            if not found and not matched:
+                raise FileNotFoundError(f"{item}: no file matches this input")
         paths.extend(p if "://" in p else str(Path(p).resolve()) for p in found)
-    return sorted(set(paths))
+    if not paths:
+        raise FileNotFoundError("; ".join(f"{m}: {why}" for m, why in not_taken) or "no input file")
+    return MatchedInputs(sorted(set(paths)), not_taken)
+
+
+def expand_inputs(inputs: list[str]) -> list[str]:
+    """The files the inputs name (match_inputs), without what is not taken."""
+    return match_inputs(inputs).paths
 
 
 @dataclasses.dataclass(frozen=True)

@@ -2,8 +2,8 @@
 
 Everything Beam, Dask and the workers log goes to logs/ under the output
 folder. The terminal gets our start line, a progress bar and the summary;
-of the rest only warnings and errors that signal a real problem (with
---verbose, everything).
+of the rest only our warnings and anyone's errors (with --verbose,
+everything).
 """
 
 from __future__ import annotations
@@ -27,6 +27,17 @@ class _Harmless(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         message = record.getMessage()
         return not any(h in message for h in HARMLESS)
+
+
+OURS = ("pipeline", "fwcore", "fwl")  # the loggers whose warnings are the user's business
+
+
+class _OursOrErrors(logging.Filter):
+    """On the terminal: our warnings and anyone's errors; a library's warnings (laspy's about a damaged file,
+    Beam's about its workers, forwarded in 300-character lines) stay in logs/."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.ERROR or record.name.split(".", 1)[0] in OURS
 
 
 def quiet_imports() -> None:
@@ -69,6 +80,7 @@ def watched_logs(output: Path, verbose: bool):
     console.setLevel(logging.INFO if verbose else logging.WARNING)
     if not verbose:
         console.addFilter(_Harmless())
+        console.addFilter(_OursOrErrors())
     root.addHandler(file_handler)
     root.addHandler(console)
     root.setLevel(logging.INFO)

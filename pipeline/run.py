@@ -31,7 +31,7 @@ from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_fl
 from fwcore.radiometry import RadiometryConfig, RadiometryError
 from pipeline.options import check_beam_args, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
-                              expand_inputs, input_identity, is_complete, list_outputs, mark_inputs_done,
+                              input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files,
                               resume_output_folder, take_output_folder, write_run_json)
 from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, plan_path, planned_pulses, read_plans
@@ -333,10 +333,13 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
-    paths = expand_inputs(inputs or [str(BUNDLED_SAMPLE)])
+    matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
+    paths = matched.paths
     settings = run_settings(config, formats, limit, points_per_range, laz, radiometry)
     check_radiometry(paths, radiometry)
     names, taken = claim_folder(output, paths, settings, resume, add)
+    for match, why in matched.not_taken:  # on the terminal and in run.json: nothing given goes unaccounted
+        LOG.warning("not an input: %s: %s", match, why)
     if taken == "complete":  # its run.json stays as it is
         return {**read_run(output), "taken": taken}
     began = time.perf_counter()
@@ -348,7 +351,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
                         radiometry)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry)
+                     taken, radiometry, matched.not_taken)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -448,7 +451,7 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
 
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
-              radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
+              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = ()) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -460,12 +463,14 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
                                          calibration_source=calibration["source"])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
+    counts["files_rejected"] += len(not_taken)  # a match given as an input that holds none
     status = status_of(counts)
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
         "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
                     "counts": per_input[e["name"]], **e.get("planned", {})} for e in entries],
+        "not_inputs": [{"path": match, "reason": why} for match, why in not_taken],
         "output": str(output),
         "formats": sorted(formats),
         "limit": limit,

@@ -27,6 +27,46 @@ def is_pulsewaves(path: str | Path) -> bool:
         return False
 
 
+# What a file is, by its first bytes (or name): a command given the wrong kind says which kind it got.
+KINDS = ((b"LASF", "a LAS/LAZ file"), (PULSEWAVES_SIGNATURE, "a PulseWaves pulse file (.pls)"),
+         (b"PulseWavesWaves", "a PulseWaves waves file (.wvs: the samples of the .pls beside it)"),
+         (b"waveform_id,n_samples", "a NEON-layout waveform CSV"))
+PACKET_SUFFIXES = {".wdp": "a LAS waveform packet file (.wdp: the samples of the .las beside it)",
+                   ".wdz": "a LASzip waveform packet file (.wdz: the samples of the .laz beside it)"}
+
+
+def file_kind(path: str | Path) -> str:
+    """What a file is, in words ("a LAS/LAZ file", "a NEON-layout waveform CSV", ...; "an unknown kind of file")."""
+    path = Path(path)
+    if path.suffix.lower() in PACKET_SUFFIXES:
+        return PACKET_SUFFIXES[path.suffix.lower()]
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64)
+    except OSError:
+        return "an unreadable file"
+    for signature, kind in KINDS:
+        if head.startswith(signature):
+            return kind
+    if not head:
+        return "an empty file"
+    try:
+        head.decode("utf-8")
+        return "a text file" + (" (CSV)" if b"," in head else "")
+    except UnicodeDecodeError:
+        return "an unknown kind of file"
+
+
+def wrong_kind(path: str | Path, wanted: str) -> str:
+    """ "PATH is a NEON-layout waveform CSV, not WANTED" with the command that reads it, where one does."""
+    kind = file_kind(path)
+    reader = {"a LAS/LAZ file": "fwl run reads it", "a PulseWaves pulse file (.pls)": "fwl run reads it",
+              "a NEON-layout waveform CSV": "fwl decompose-csv reads it"}.get(kind)
+    if kind.startswith(("a PulseWaves waves", "a LAS waveform", "a LASzip waveform")):
+        reader = "give the file beside it"
+    return f"{path} is {kind}, not {wanted}" + (f" ({reader})" if reader else "")
+
+
 LAS_GLOBAL_ENCODING_AT = 6  # uint16 in the public header block; bit 2 (value 4): waveform packets external
 LAS_EXTERNAL_PACKETS = 4
 

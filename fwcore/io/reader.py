@@ -97,6 +97,9 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
         with laspy.open(path) as reader:
             header = reader.header
     except Exception as err:  # laspy raises several types for a damaged header
+        from fwcore.io.formats import file_kind, wrong_kind
+        if file_kind(path) not in ("a LAS/LAZ file", "an unknown kind of file"):  # a known other kind: say which
+            raise WaveformFileError(wrong_kind(path, "a LAS/LAZ or PulseWaves file")) from None
         raise WaveformFileError(f"{path}: not a readable LAS/LAZ file ({err})") from None
     fmt = header.point_format.id
     if fmt not in WAVEFORM_POINT_FORMATS:

@@ -100,3 +100,33 @@ def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_p
     assert f"250 pulses, {len(points.points)} system returns" in out and f"{truth.num_rows} true echoes" in out
     assert points.header.global_encoding.waveform_data_packets_internal and points.header.number_of_evlrs == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.las", "sim.trajectory.csv", "sim.truth.parquet"]  # no scratch
+
+
+@pytest.mark.parametrize("command, given, said", [
+    (["decompose-csv", "{leica}", "--output", "{out}"], "leica_a.las",
+     "is a LAS/LAZ file, not a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...) (fwl run reads it)"),
+    (["info", "{neon}"], "return_waveforms.csv",
+     "is a NEON-layout waveform CSV, not a LAS/LAZ or PulseWaves file (fwl decompose-csv reads it)"),
+    (["info", "{wdp}"], "leica_a.wdp", "is a LAS waveform packet file (.wdp: the samples of the .las beside it)"),
+])
+def test_a_file_of_the_wrong_kind_is_named_with_what_it_is(command, given, said, leica_dir, neon_dir, tmp_path,
+                                                          capsys):
+    files = {"leica": leica_dir / "leica_a.las", "neon": neon_dir / "return_waveforms.csv",
+             "wdp": leica_dir / "leica_a.wdp", "out": tmp_path / "out.parquet"}
+    assert main([part.format(**files) for part in command]) == 2
+    err = capsys.readouterr().err
+    assert given in err and said in err and "codec" not in err
+
+
+def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(leica_copy, tmp_path, capfd):
+    (tmp_path / "dir.las").mkdir()  # a folder named like a flight line, empty
+    out = tmp_path / "out"
+    code = main(["run", str(tmp_path / "*.las"), "--output", str(out), "--limit", "20", "--preset", "fast",
+                 "--formats", "parquet", "--direct_num_workers=1", "--direct_running_mode=in_memory"])
+    summary = json.loads((out / "run.json").read_text())
+    assert code == 3 and summary["status"] == "partial"
+    assert summary["not_inputs"] == [{"path": str(tmp_path / "dir.las"),
+                                      "reason": "a folder that holds no .las, .laz or .pls file"}]
+    assert summary["counts"]["files_rejected"] == 1 and summary["counts"]["pulses_decomposed"] == 20
+    said = capfd.readouterr()
+    assert "dir.las: a folder that holds no .las, .laz or .pls file" in said.err + said.out
