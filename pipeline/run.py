@@ -299,7 +299,9 @@ def _planned(plan: FilePlan) -> dict:
     s = plan.source
     if s is None:
         return {}
-    return {"system_pulse_fwhm_ps": s.system_pulse_fwhm_ps, "system_pulse_fwhm_source": s.pulse_width_source,
+    # the pulses its plan found (its packet keys): counted apart from what the ranges wrote, which must add up to it
+    return {"pulses_planned": sum(planned_pulses(t) for t in plan.tasks),
+            "system_pulse_fwhm_ps": s.system_pulse_fwhm_ps, "system_pulse_fwhm_source": s.pulse_width_source,
             "shape_tolerance": s.shape_tolerance, "shape_tolerance_source": s.shape_tolerance_source,
             "range_offset_ps": s.range_offset_ps, "range_offset_source": s.range_offset_source}
 
