@@ -42,7 +42,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fwcore.compare import (ABOVE, BELOW, BETWEEN, compare_to_system, extra_points,  # noqa: E402
+from fwcore.studies.methods import (ABOVE, BELOW, BETWEEN, compare_to_system, extra_points,  # noqa: E402
                             height_among_returns, system_dead_zone)
 from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
 from fwcore.engine import decompose_batch  # noqa: E402

@@ -1,6 +1,6 @@
 """`fwl compare`: every optimizer on the same waveforms, as tables, figures and point-cloud statistics.
 
-Reads a full-waveform LAS/LAZ file or a NEON-layout CSV, runs fwcore.compare,
+Reads a full-waveform LAS/LAZ file or a NEON-layout CSV, runs fwcore.studies.methods,
 and writes into the output directory:
     compare.csv, compare.md      one row per optimizer and model (the method's Table 1 + ours)
     points.csv                   (LAS input) decomposed points against the system's returns
@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fwcore.compare import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
+from fwcore.studies.methods import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
                             compare_to_system)
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.records import WaveformBatch

@@ -5,7 +5,7 @@ import csv
 import numpy as np
 import pytest
 
-from fwcore.compare import (ABOVE, BELOW, BETWEEN, NO_RETURN_NEAR, budget_settings, choose_fast_preset,
+from fwcore.studies.methods import (ABOVE, BELOW, BETWEEN, NO_RETURN_NEAR, budget_settings, choose_fast_preset,
                             compare_points, compare_to_system, height_among_returns, omitted_returns_found,
                             system_dead_zone)
 from fwcore.io import read_pulses
