@@ -39,14 +39,22 @@ def positive_int(text: str) -> int:
     return value
 
 
-def output_formats(text: str) -> list[str]:
-    """A comma-separated list of formats, checked and sorted (a list: Beam sends its options to workers as JSON)."""
-    formats = set(f.strip() for f in text.split(",") if f.strip())
+def check_formats(formats) -> frozenset[str]:
+    """The output formats asked for, checked (ValueError naming the unknown ones): the one check, for the
+    command line and for callers of pipeline.run.run alike."""
+    formats = frozenset(formats)
     unknown = sorted(formats - set(FORMATS))
     if unknown or not formats:
-        raise argparse.ArgumentTypeError(f"unknown output format(s) {', '.join(unknown) or '(none)'}; "
-                                         f"choose from {', '.join(FORMATS)}")
-    return sorted(formats)
+        raise ValueError(f"unknown output format(s) {', '.join(unknown) or '(none)'}; choose from {', '.join(FORMATS)}")
+    return formats
+
+
+def output_formats(text: str) -> list[str]:
+    """A comma-separated list of formats, checked and sorted (a list: Beam sends its options to workers as JSON)."""
+    try:
+        return sorted(check_formats(f.strip() for f in text.split(",") if f.strip()))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def add_method_arguments(parser, compare: bool = False) -> None:

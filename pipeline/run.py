@@ -29,7 +29,7 @@ import fwcore
 from fwcore.config import DecompositionConfig
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
-from pipeline.options import check_beam_args, is_dask, pipeline_runner
+from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files,
@@ -46,7 +46,6 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "
 
 LOG = logging.getLogger(__name__)  # the driver's: to driver.log and, for warnings, the terminal
 EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
-FORMATS = frozenset({"parquet", "las", "mcap"})
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "problems", "echoes_kept",
           "echoes_spurious")
@@ -160,11 +159,7 @@ def _quiet_after_interrupt():
 
 
 def check_run_arguments(formats, limit: int | None, points_per_range: int) -> frozenset[str]:
-    formats = frozenset(formats)
-    unknown = formats - FORMATS
-    if unknown or not formats:
-        raise ValueError(f"unknown output formats {sorted(unknown)}; choose from {sorted(FORMATS)}" if unknown
-                         else f"no output format; choose from {sorted(FORMATS)}")
+    formats = check_formats(formats)
     if not isinstance(points_per_range, int) or points_per_range < 1:
         raise ValueError(f"--points-per-range must be a whole number >= 1, not {points_per_range}")
     if limit is not None and (not isinstance(limit, int) or limit < 1):

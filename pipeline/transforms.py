@@ -1,25 +1,22 @@
-"""The Beam transforms: each stage a few lines over a fwcore function. A run is three jobs:
+"""The Beam transforms: a thin layer over plain functions (pipeline.stages, pipeline.plan). A run is three jobs:
 
     plan:   inputs -> Spread -> PlanFile -> parts/plans/<stem>.json          (pipeline.plan)
-    ranges: ReadTasks -> Spread -> RangeStages(ReadRange -> Decompose -> Geolocate -> WriteRange)
-            -> the range's parts, and its mark parts/<stem>-<range>.json, written last
+    ranges: ReadTasks -> Spread -> RangeStages: stages.run_range (read -> decompose -> geolocate -> write)
+            -> the range's parts, its rejected/<stem>-<range>.parquet, and its mark parts/<stem>-<range>.json,
+            written last
     files:  written_parts -> AssembleFiles -> las/<stem>.las, mcap/<stem>.mcap
-    any stage -> Rejection -> (the range's end, in RangeStages) rejected/<stem>-<range>.parquet
 
-One dead-letter path: a stage hands on its record or Rejections, and an
-exception in a stage turns its range into Rejections with the reason. Beam
-2.77's Dask runner hands the consumer of a tagged output every output of the
-ParDo (its ParDo collects all tags into one bag, and a tagged PCollection maps
-to its producer's bag), so Rejections travel in the main stream: `_Stage`,
-the base of every stage, passes them on, and `RangeStages` splits them off
-once, by type, at the range's end. The four stages of a range run in one
-ParDo, `RangeStages`, so that only the small record that leaves a range (its
-RangePart) is a ParDo's output: that runner keeps every output of a ParDo in
-the task that made it until the whole job ends (8 MB a range otherwise). A
-range's rejections are all made in that one call, so they are written there,
-one file per range, without a GroupByKey (on that runner a task shuffle whose
-tasks grow as ranges x log(ranges), kept by the scheduler and workers); for
-the same reason the files are assembled in a job of their own.
+One dead-letter path: a stage hands on its record and Rejections, and an
+exception in a stage turns what its range still holds into Rejections with
+the stage and the reason (stages.run_range). The four stages of a range run
+in one ParDo, `RangeStages`, so that only the small record that leaves a
+range (its RangePart) is a ParDo's output: Beam 2.77's Dask runner keeps
+every output of a ParDo in the task that made it until the whole job ends
+(8 MB a range otherwise). A range's rejections are all made in that one call,
+so they are written there, one file per range, without a GroupByKey (on that
+runner a task shuffle whose tasks grow as ranges x log(ranges), kept by the
+scheduler and workers); for the same reason the files are assembled in a job
+of their own.
 
 A range's mark is the last thing it writes, and lists its files: a resumed
 run keeps a range whose mark and files are there, and redoes every other
@@ -35,33 +32,20 @@ import os
 import socket
 import time
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import apache_beam as beam
-import numpy as np
 from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
-from fwcore.flight_radiometry import file_radiometry, range_radiometry
-from fwcore.io import read_pulses
-from fwcore.io.writer import write_point_cloud
-from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry import RadiometryConfig
-from fwcore.records import STATUS_REASONS
-from fwcore.survey import model_samples
 from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
-from pipeline.records import (DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection)
-from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_mcap, write_part
-from pipeline.tables import pulse_tables, rejected_table
+from pipeline.records import RangePart, ReadTask, Rejection
+from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_part
+from pipeline.stages import PARTS, RangeSettings, part_name, run_range, warm_up
+from pipeline.tables import rejected_table
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
-PARTS = "parts"  # under the output folder: range parts and progress marks, removed once the files are assembled
-
-
-def part_name(stem: str, range_start: int) -> str:
-    return f"{stem}-{range_start:012d}"
 
 
 def progress_mark(output: str | Path, stem: str, range_start: int) -> Path:
@@ -118,193 +102,6 @@ def _log_to_file(output: str) -> None:
     logger.propagate = False  # not to the runner's logging, which a terminal may show
 
 
-# ---------------------------------------------------------------- the stage base
-
-def _pulse_rejections(task: ReadTask, pulse_ids: Iterable[int], stage: str, reason: str) -> list[Rejection]:
-    s = task.source
-    return [Rejection(s.name, s.stem, task.start, int(p), stage, reason) for p in pulse_ids]
-
-
-class _Stage(beam.DoFn):
-    """A stage of a range: Rejections pass through untouched; an exception rejects the range with its reason."""
-
-    stage = ""
-
-    def __init__(self, output: str):
-        self.output = output
-        self.rejected = Metrics.counter(NAMESPACE, "pulses_rejected")
-        self.problems = Metrics.counter(NAMESPACE, "problems")  # a whole range, or missing point records
-
-    def setup(self):
-        _log_to_file(self.output)
-
-    def process(self, element):
-        if isinstance(element, Rejection):  # the one place where the dead letter is told from work
-            yield element
-            return
-        try:
-            outputs = list(self.run(element))
-        except Exception as err:  # noqa: BLE001  any failure of one range must not stop the others
-            LOG.exception("%s: %s failed", self.stage, element.task if hasattr(element, "task") else element)
-            outputs = self.reject_range(element, f"{type(err).__name__}: {err}")
-        self.rejected.inc(sum(1 for o in outputs if isinstance(o, Rejection) and o.pulse_id >= 0))
-        self.problems.inc(sum(1 for o in outputs if isinstance(o, Rejection) and o.pulse_id < 0))
-        yield from outputs
-
-    def run(self, element) -> Iterator:
-        raise NotImplementedError
-
-    def reject_range(self, element, reason: str) -> list[Rejection]:
-        """Every pulse of a failed range as a Rejection (one for the range when its pulses are unknown)."""
-        task = element if isinstance(element, ReadTask) else element.task
-        ids = None
-        if isinstance(element, PulseRange):
-            ids = element.pulses.pulse_id
-        elif isinstance(element, DecomposedRange):  # those the engine rejected are Rejections already
-            ids = element.pulses.pulse_id[element.result.status == 0]
-        elif isinstance(element, GeolocatedRange):
-            ids = element.pulses.column("pulse_id").to_numpy()
-        where = f"points {task.point_range.start}-{task.point_range.stop}"
-        if ids is None:
-            return [Rejection(task.source.name, task.source.stem, task.start, -1, self.stage,
-                              f"{where} ({planned_pulses(task)} pulses): {reason}")]
-        return _pulse_rejections(task, ids, self.stage, f"{where}: {reason}")
-
-
-# ---------------------------------------------------------------- read
-
-class ReadRange(_Stage):
-    """ReadTask -> PulseRange; a pulse whose packet cannot be read -> Rejection."""
-
-    stage = "read"
-
-    def __init__(self, output: str):
-        super().__init__(output)
-        self.read = Metrics.counter(NAMESPACE, "pulses_read")
-
-    def run(self, task: ReadTask):
-        pulses = read_pulses(task.point_range)
-        self.read.inc(len(pulses) + sum(1 for pulse_id, _ in pulses.rejected if pulse_id >= 0))
-        for pulse_id, reason in pulses.rejected:
-            yield Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), self.stage, reason)
-        if len(pulses):  # else nothing left to decompose: the range ends here
-            yield PulseRange(task, pulses)
-
-
-# ---------------------------------------------------------------- decompose
-
-class Decompose(_Stage):
-    """PulseRange -> DecomposedRange: the batched numba engine, one call per range.
-
-    setup() compiles the kernels once per worker (from numba's cache when warm).
-    """
-
-    stage = "decompose"
-
-    def __init__(self, output: str, config: DecompositionConfig):
-        super().__init__(output)
-        self.config = config
-
-    def setup(self):
-        super().setup()
-        from fwcore.records import WaveformBatch
-        warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
-        decompose_batch(warm, self.config.replace(generations=1), threads=1)
-
-    def run(self, item: PulseRange):
-        config = self.config.replace(system_pulse_fwhm_ps=item.task.source.system_pulse_fwhm_ps,
-                                     shape_tolerance=item.task.source.shape_tolerance)
-        began = time.perf_counter()
-        # one thread per worker: Beam's workers are the parallelism; results do not depend on it
-        result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
-        ok = result.status == 0
-        for i in np.flatnonzero(~ok):
-            yield Rejection(item.task.source.name, item.task.source.stem, item.task.start,
-                            int(item.pulses.pulse_id[i]), self.stage, STATUS_REASONS[result.status[i]])
-        LOG.info("%s points %d+: %d pulses decomposed, %d rejected, %.1f pulses/s", item.task.source.name,
-                 item.task.start, ok.sum(), (~ok).sum(), len(item.pulses) / max(time.perf_counter() - began, 1e-9))
-        yield DecomposedRange(item.task, item.pulses, config, result)
-
-
-# ---------------------------------------------------------------- geolocate
-
-def _waveform_views(pulses, result) -> dict[str, np.ndarray]:
-    """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing)."""
-    owner = result.echo_waveform
-    spacing = pulses.sample_spacing_ps
-    return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
-            "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32),
-            "model": model_samples(result, pulses.sample_offsets),
-            "echo_offsets": result.echo_offsets, "echo_time_ps": result.position * spacing[owner],
-            "echo_amplitude": result.amplitude, "echo_fwhm_ps": result.fwhm * spacing[owner],
-            "echo_reject": result.reject}
-
-
-class Geolocate(_Stage):
-    """DecomposedRange -> GeolocatedRange: every echo placed along its beam, its range and radiometry computed,
-    the range's tables built."""
-
-    stage = "geolocate"
-
-    def __init__(self, output: str, with_views: bool, radiometry: RadiometryConfig = RadiometryConfig()):
-        super().__init__(output)
-        self.with_views, self.radiometry = with_views, radiometry
-
-    def run(self, item: DecomposedRange):
-        pulses, result, source = item.pulses, item.result, item.task.source
-        xyz = echo_positions(pulses, result, source.range_offset_ps)
-        file = file_radiometry(source.path, source.adjusted_standard_gps_time, self.radiometry)
-        radiometry = range_radiometry(pulses, result, xyz, source.range_offset_ps, file, self.radiometry)
-        echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, radiometry)
-        cloud = decomposed_echoes(pulses, result, xyz)
-        kept = result.reject == 0
-        cloud.update({name: values[kept] for name, values in radiometry.items()})
-        yield GeolocatedRange(item.task, echoes, table, cloud,
-                              _waveform_views(pulses, result) if self.with_views else None)
-
-
-# ---------------------------------------------------------------- write a range
-
-class WriteRange(_Stage):
-    """GeolocatedRange -> RangePart: the range's Parquet parts, and its LAS and MCAP parts under parts/."""
-
-    stage = "write"
-
-    def __init__(self, output: str, formats: frozenset[str], calibrated: bool = False):
-        super().__init__(output)
-        self.formats, self.calibrated = formats, calibrated
-        # counted once written, so that a range rejected on the way is not also counted as decomposed
-        self.decomposed = Metrics.counter(NAMESPACE, "pulses_decomposed")
-        self.kept = Metrics.counter(NAMESPACE, "echoes_kept")
-        self.spurious = Metrics.counter(NAMESPACE, "echoes_spurious")
-
-    def _paths(self, task: ReadTask) -> dict[str, Path]:
-        name, out = part_name(task.source.stem, task.start), Path(self.output)
-        return {"echoes": out / "echoes" / f"{name}.parquet", "pulses": out / "pulses" / f"{name}.parquet",
-                "las": out / PARTS / f"{name}.las", "mcap": out / PARTS / f"{name}.mcap"}
-
-    def run(self, item: GeolocatedRange):
-        task, paths = item.task, self._paths(item.task)
-        try:
-            if "parquet" in self.formats:
-                write_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
-                write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
-            if "las" in self.formats:
-                write_point_cloud(paths["las"], task.source.path, item.cloud, self.calibrated)
-            if "mcap" in self.formats:
-                write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time)
-        except Exception:
-            remove_parts(list(paths.values()))  # a range is written whole or not at all
-            raise
-        n_kept = int(np.count_nonzero(item.echoes.column("kept").to_numpy(zero_copy_only=False)))
-        self.decomposed.inc(item.pulses.num_rows)
-        self.kept.inc(n_kept)
-        self.spurious.inc(item.echoes.num_rows - n_kept)
-        yield RangePart(task.source.stem, task.source.path, task.start,
-                        str(paths["las"]) if "las" in self.formats else "",
-                        str(paths["mcap"]) if "mcap" in self.formats else "", task.source.adjusted_standard_gps_time)
-
-
 # ---------------------------------------------------------------- a range, all stages
 
 def write_rejections(output: str, task: ReadTask, rows: list[Rejection]) -> Path:
@@ -319,8 +116,8 @@ def write_file_rejection(output: str | Path, rejection: Rejection) -> Path:
 
 
 class RangeStages(beam.DoFn):
-    """ReadTask -> RangePart: each range through the stages in turn, in one ParDo; its Rejections to rejected/,
-    then its mark.
+    """ReadTask -> RangePart: the range through stages.run_range; its Rejections to rejected/, then its mark;
+    Beam's counters from its outcome.
 
     Beam 2.77's Dask runner collects a ParDo's outputs in a receiver that is an argument of the
     partition's task, and a worker keeps the arguments of a finished task until every task after it,
@@ -328,26 +125,29 @@ class RangeStages(beam.DoFn):
     stayed in the workers for the whole run. Here they are released as soon as the range is written.
     """
 
-    def __init__(self, output: str, *stages: _Stage):
-        self.output, self.stages = output, stages
+    COUNTERS = ("pulses_read", "pulses_rejected", "problems", "pulses_decomposed", "echoes_kept", "echoes_spurious")
+
+    def __init__(self, settings: RangeSettings):
+        self.settings = settings
+        self.counters = {name: Metrics.counter(NAMESPACE, name) for name in self.COUNTERS}
 
     def setup(self):
-        for stage in self.stages:
-            stage.setup()
+        _log_to_file(self.settings.output)
+        warm_up(self.settings.config)
 
     def process(self, task: ReadTask):
-        items = [task]
-        for stage in self.stages:
-            items = [out for item in items for out in stage.process(item)]
-        rejected = [e for e in items if isinstance(e, Rejection)]  # the one place where the dead letter leaves
-        if rejected:
-            write_rejections(self.output, task, rejected)
-        mark_range_done(self.output, task, rejected)  # the one place where a range's end is recorded
-        yield from (e for e in items if not isinstance(e, Rejection))
+        outcome = run_range(task, self.settings)
+        if outcome.rejected:  # the one place where the dead letter leaves
+            write_rejections(self.settings.output, task, outcome.rejected)
+        mark_range_done(self.settings.output, task, outcome.rejected)  # the one place where a range's end is recorded
+        for name, counter in self.counters.items():
+            counter.inc(getattr(outcome, name))
+        if outcome.part is not None:
+            yield outcome.part
 
     def teardown(self):
-        for stage in self.stages:
-            stage.teardown()
+        for handler in logging.getLogger("fwl").handlers:  # the worker's log file, complete
+            handler.flush()
 
 
 # ---------------------------------------------------------------- per file
@@ -423,7 +223,7 @@ class PlanFiles(beam.PTransform):
 
 @dataclasses.dataclass
 class DecomposeFlight(beam.PTransform):
-    """Planned ranges -> each range read, decomposed, geolocated and written, with its mark."""
+    """Planned ranges -> each range read, decomposed, geolocated and written (stages.run_range), with its mark."""
 
     config: DecompositionConfig
     output: str
@@ -434,12 +234,8 @@ class DecomposeFlight(beam.PTransform):
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        return tasks | "RangeStages" >> beam.ParDo(RangeStages(
-            self.output,
-            ReadRange(self.output),
-            Decompose(self.output, self.config),
-            Geolocate(self.output, "mcap" in self.formats, self.radiometry),
-            WriteRange(self.output, self.formats, self.radiometry.calibrated)))
+        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry)
+        return tasks | "RangeStages" >> beam.ParDo(RangeStages(settings))
 
 
 @dataclasses.dataclass

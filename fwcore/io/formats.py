@@ -51,6 +51,8 @@ def file_kind(path: str | Path) -> str:
     if not head:
         return "an empty file"
     try:
+        if b"\0" in head:  # binary: a damaged header of some format, not text
+            return "an unknown kind of file"
         head.decode("utf-8")
         return "a text file" + (" (CSV)" if b"," in head else "")
     except UnicodeDecodeError:

@@ -13,9 +13,8 @@ import functools
 import glob
 from pathlib import Path
 
-from pipeline.outputs import is_complete, read_run
+from pipeline.outputs import INPUT_SUFFIXES, is_complete, read_run
 
-INPUT_SUFFIXES = (".las", ".laz", ".pls")
 RUN_PARTS = ("echoes", "pulses", "rejected", "las", "mcap")
 
 

@@ -11,8 +11,9 @@ from apache_beam.testing.util import assert_that, equal_to
 from fwcore.config import DecompositionConfig
 from pipeline.outputs import InputNames
 from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses
-from pipeline.records import DecomposedRange, RangePart, Rejection
-from pipeline.transforms import (Decompose, Geolocate, RangeStages, ReadRange, WriteRange, assemble_file,
+from pipeline.records import RangePart
+from pipeline.stages import RangeSettings, decompose_range, read_range, run_range
+from pipeline.transforms import (RangeStages, assemble_file,
                                  written_parts)
 
 
@@ -43,64 +44,66 @@ def test_limit_caps_the_pulses_of_a_file(leica_dir):
     assert [planned_pulses(t) for t in tasks] == [342, 158]
 
 
-def test_read_and_decompose_count_every_pulse(tmp_path, leica_dir):
+def test_read_and_decompose_count_every_pulse(leica_dir):
     config = DecompositionConfig(generations=3)
     tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 600)
-    with TestPipeline() as p:
-        results = (p | beam.Create(tasks) | beam.ParDo(ReadRange(str(tmp_path)))
-                   | beam.ParDo(Decompose(str(tmp_path), config)))
-        counts = results | beam.Map(lambda r: int((r.result.status == 0).sum()) if isinstance(r, DecomposedRange)
-                                    else 0)
-        assert_that(counts | beam.CombineGlobally(sum), equal_to([924]))
+    decomposed = 0
+    for task in tasks:
+        pulses, rejected = read_range(task)
+        result, not_decomposed = decompose_range(pulses, config)
+        assert rejected == not_decomposed == []
+        decomposed += int((result.result.status == 0).sum())
+        assert result.config.system_pulse_fwhm_ps == task.source.system_pulse_fwhm_ps  # the file's pulse
+    assert decomposed == 924
 
 
-def test_rejections_pass_through_every_stage(tmp_path):
-    rejected = Rejection("a.las", "a", 0, 7, "read", "packet beyond the end")
-    with TestPipeline() as p:
-        out = (p | beam.Create([rejected]) | beam.ParDo(ReadRange(str(tmp_path)))
-               | beam.ParDo(Decompose(str(tmp_path), DecompositionConfig())))
-        assert_that(out, equal_to([rejected]))
-
-
-def test_a_failing_range_becomes_a_rejection_with_its_reason(tmp_path, leica_dir):
+def test_a_range_that_cannot_be_read_becomes_one_rejection_with_its_reason(tmp_path, leica_dir):
     for suffix in (".las", ".wdp"):
         shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"gone{suffix}")
     tasks, _ = plan_inputs([str(tmp_path / "gone.las")], DecompositionConfig(), 600)
     (tmp_path / "gone.wdp").unlink()  # after planning: reading the range fails
-    with TestPipeline() as p:
-        out = p | beam.Create(tasks) | beam.ParDo(ReadRange(str(tmp_path / "out")))
-        assert_that(out | beam.Map(lambda r: (type(r).__name__, r.source_file, r.pulse_id, r.stage,
-                                              r.reason.split(":")[0], "gone.wdp" in r.reason)),
-                    equal_to([("Rejection", "gone.las", -1, "read", "points 0-600 (500 pulses)", True),
-                              ("Rejection", "gone.las", -1, "read", "points 600-1125 (424 pulses)", True)]))
+    settings = RangeSettings(str(tmp_path / "out"), DecompositionConfig(), frozenset({"parquet"}))
+    outcomes = [run_range(task, settings) for task in tasks]
+    assert [[(r.source_file, r.pulse_id, r.stage, r.reason.split(":")[0], "gone.wdp" in r.reason)
+             for r in o.rejected] for o in outcomes] == \
+        [[("gone.las", -1, "read", "points 0-600 (500 pulses)", True)],
+         [("gone.las", -1, "read", "points 600-1125 (424 pulses)", True)]]
+    assert [(o.part, o.pulses_read, o.problems, o.pulses_rejected) for o in outcomes] == [(None, 0, 1, 0)] * 2
 
 
-def _stages(output, config):
-    return [ReadRange(output), Decompose(output, config), Geolocate(output, False),
-            WriteRange(output, frozenset({"parquet", "las"}))]
+def test_a_stage_that_fails_rejects_every_pulse_the_range_holds_with_the_stage(tmp_path, leica_dir):
+    config = DecompositionConfig(optimizer="lm", lm_iterations=5)
+    task = plan_inputs([str(leica_dir / "leica_a.las")], config, 300)[0][0]
+    (tmp_path / "out").write_text("a file where the output folder should be")  # writing the parts fails
+    outcome = run_range(task, RangeSettings(str(tmp_path / "out"), config, frozenset({"parquet"})))
+    assert outcome.part is None and outcome.pulses_read == planned_pulses(task)
+    assert len(outcome.rejected) == outcome.pulses_rejected == planned_pulses(task)
+    assert {r.stage for r in outcome.rejected} == {"write"} and outcome.pulses_decomposed == 0
+    assert all(r.reason.startswith("points 0-300: ") for r in outcome.rejected)
+
+
+def _settings(output, config):
+    return RangeSettings(output, config, frozenset({"parquet", "las"}))
 
 
 def _summary(e):
     return (type(e).__name__, e.range_start, Path(e.las).name if isinstance(e, RangePart) else e.pulse_id)
 
 
-def test_range_stages_in_one_pardo_give_what_the_four_pardos_give(tmp_path, leica_dir):
+def test_the_range_stages_dofn_gives_what_the_plain_functions_give(tmp_path, leica_dir):
     config = DecompositionConfig(generations=3)
     tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 400)
-    chained, one = str(tmp_path / "chained"), str(tmp_path / "one")
+    plain, beamed = str(tmp_path / "plain"), str(tmp_path / "beam")
     expected = [("RangePart", start, f"leica_a-{start:012d}.las") for start in (0, 400, 800)]
+    assert [_summary(run_range(t, _settings(plain, config)).part) for t in tasks] == expected
     with TestPipeline() as p:
-        out = p | "Tasks" >> beam.Create(tasks)
-        for i, stage in enumerate(_stages(chained, config)):
-            out = out | f"Stage{i}" >> beam.ParDo(stage)
-        assert_that(out | "Chained" >> beam.Map(_summary), equal_to(expected), label="chained")
-        together = p | "Tasks2" >> beam.Create(tasks) | beam.ParDo(RangeStages(one, *_stages(one, config)))
-        assert_that(together | "One" >> beam.Map(_summary), equal_to(expected), label="one")
+        parts = p | beam.Create(tasks) | beam.ParDo(RangeStages(_settings(beamed, config)))
+        assert_that(parts | beam.Map(_summary), equal_to(expected))
     for start in (0, 400, 800):
         name = f"leica_a-{start:012d}.parquet"
-        a, b = pq.read_table(Path(chained) / "echoes" / name), pq.read_table(Path(one) / "echoes" / name)
+        a, b = pq.read_table(Path(plain) / "echoes" / name), pq.read_table(Path(beamed) / "echoes" / name)
         assert a.num_rows > 0 and a.equals(b)
-    assert sum(pq.read_table(p).num_rows for p in (Path(one) / "pulses").glob("*.parquet")) == 924
+    assert sum(pq.read_table(p).num_rows for p in (Path(beamed) / "pulses").glob("*.parquet")) == 924
 
 
 def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_path, leica_dir):
@@ -108,10 +111,10 @@ def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_pa
         shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"gone{suffix}")
     config = DecompositionConfig(generations=3)
     tasks, _ = plan_inputs([str(tmp_path / "gone.las")], config, 600)
-    (tmp_path / "gone.wdp").unlink()  # after planning: reading the range fails, the later stages pass it on
+    (tmp_path / "gone.wdp").unlink()  # after planning: reading the range fails
     out = str(tmp_path / "out")
     with TestPipeline() as p:
-        parts = p | beam.Create(tasks) | beam.ParDo(RangeStages(out, *_stages(out, config)))
+        parts = p | beam.Create(tasks) | beam.ParDo(RangeStages(_settings(out, config)))
         assert_that(parts, equal_to([]))  # nothing of these ranges was written but their rejections
     written = sorted((tmp_path / "out" / "rejected").glob("*.parquet"))
     assert [f.name for f in written] == ["gone-000000000000.parquet", "gone-000000000600.parquet"]
@@ -128,7 +131,7 @@ def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, 
     tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 400)
     out = str(tmp_path / "out")
     with TestPipeline() as p:  # the middle range is not written: it must not be looked for
-        p | beam.Create([tasks[2], tasks[0]]) | beam.ParDo(RangeStages(out, *_stages(out, config)))
+        p | beam.Create([tasks[2], tasks[0]]) | beam.ParDo(RangeStages(_settings(out, config)))
     files = written_parts(out, tasks, frozenset({"parquet", "las"}))
     assert [(stem, [(r.range_start, Path(r.las).name, r.mcap) for r in parts]) for stem, parts in files] == \
         [("leica_a", [(0, "leica_a-000000000000.las", ""), (800, "leica_a-000000000800.las", "")])]

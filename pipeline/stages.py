@@ -1,0 +1,201 @@
+"""A range's work as plain functions, without Beam: the ranges job's one DoFn (transforms.RangeStages) calls
+`run_range`, and tests call each stage on arrays.
+
+    read_range(task)              -> PulseRange (or None: nothing readable) + Rejections of unreadable pulses
+    decompose_range(item, ...)    -> DecomposedRange + Rejections of pulses not decomposed
+    geolocate_range(item, ...)    -> GeolocatedRange: positions, radiometry, the range's tables
+    write_range(item, ...)        -> RangePart: the Parquet parts, and the LAS and MCAP parts under parts/
+    run_range(task, settings)     -> RangeOutcome: all four in turn; a stage that fails rejects the range
+                                     (every pulse it still holds) with the stage and the reason
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.config import DecompositionConfig
+from fwcore.engine import decompose_batch
+from fwcore.flight_radiometry import file_radiometry, range_radiometry
+from fwcore.io import read_pulses
+from fwcore.io.writer import write_point_cloud
+from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
+from fwcore.radiometry import RadiometryConfig
+from fwcore.records import STATUS_REASONS, WaveformBatch
+from fwcore.survey import model_samples
+from pipeline.plan import planned_pulses
+from pipeline.records import DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection
+from pipeline.sinks import remove_parts, write_mcap, write_part
+from pipeline.tables import pulse_tables
+
+LOG = logging.getLogger("fwl")
+PARTS = "parts"  # under the output folder: range parts and progress marks, removed once the files are assembled
+
+
+def part_name(stem: str, range_start: int) -> str:
+    return f"{stem}-{range_start:012d}"
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeSettings:
+    """What every range of a run shares: one object, from the driver to the DoFn to these functions."""
+
+    output: str
+    config: DecompositionConfig
+    formats: frozenset[str]
+    radiometry: RadiometryConfig = RadiometryConfig()
+
+
+@dataclasses.dataclass
+class RangeOutcome:
+    """What a range gave: its part (None when nothing was written), its Rejections, and its counts."""
+
+    part: RangePart | None = None
+    rejected: list[Rejection] = dataclasses.field(default_factory=list)
+    pulses_read: int = 0
+    pulses_decomposed: int = 0
+    echoes_kept: int = 0
+    echoes_spurious: int = 0
+
+    @property
+    def pulses_rejected(self) -> int:
+        return sum(1 for r in self.rejected if r.pulse_id >= 0)
+
+    @property
+    def problems(self) -> int:  # a range lost whole, or point records the file lacks
+        return sum(1 for r in self.rejected if r.pulse_id < 0)
+
+
+def _rejections(task: ReadTask, pulse_ids, stage: str, reason: str) -> list[Rejection]:
+    s = task.source
+    return [Rejection(s.name, s.stem, task.start, int(p), stage, reason) for p in pulse_ids]
+
+
+# ---------------------------------------------------------------- the four stages
+
+def read_range(task: ReadTask) -> tuple[PulseRange | None, list[Rejection]]:
+    """A range's pulses; a pulse whose packet cannot be read is a Rejection (pulse_id -1: the file's problems)."""
+    pulses = read_pulses(task.point_range)
+    rejected = [Rejection(task.source.name, task.source.stem, task.start, int(pulse_id), "read", reason)
+                for pulse_id, reason in pulses.rejected]
+    return (PulseRange(task, pulses) if len(pulses) else None), rejected
+
+
+def warm_up(config: DecompositionConfig) -> None:
+    """Compile the engine's kernels once per worker (from numba's cache when warm)."""
+    warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
+    decompose_batch(warm, config.replace(generations=1), threads=1)
+
+
+def decompose_range(item: PulseRange, config: DecompositionConfig) -> tuple[DecomposedRange, list[Rejection]]:
+    """The batched engine, one call a range, with the file's system pulse; a pulse the engine cannot decompose
+    (no valid sample, non-finite samples) is a Rejection."""
+    source = item.task.source
+    config = config.replace(system_pulse_fwhm_ps=source.system_pulse_fwhm_ps, shape_tolerance=source.shape_tolerance)
+    began = time.perf_counter()
+    # one thread per worker: the workers are the parallelism; results do not depend on it
+    result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
+    ok = result.status == 0
+    rejected = [Rejection(source.name, source.stem, item.task.start, int(item.pulses.pulse_id[i]), "decompose",
+                          STATUS_REASONS[result.status[i]]) for i in np.flatnonzero(~ok)]
+    LOG.info("%s points %d+: %d pulses decomposed, %d rejected, %.1f pulses/s", source.name, item.task.start,
+             ok.sum(), (~ok).sum(), len(item.pulses) / max(time.perf_counter() - began, 1e-9))
+    return DecomposedRange(item.task, item.pulses, config, result), rejected
+
+
+def waveform_views(pulses, result) -> dict[str, np.ndarray]:
+    """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing)."""
+    owner = result.echo_waveform
+    spacing = pulses.sample_spacing_ps
+    return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
+            "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32),
+            "model": model_samples(result, pulses.sample_offsets),
+            "echo_offsets": result.echo_offsets, "echo_time_ps": result.position * spacing[owner],
+            "echo_amplitude": result.amplitude, "echo_fwhm_ps": result.fwhm * spacing[owner],
+            "echo_reject": result.reject}
+
+
+def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
+    """Every echo placed along its beam, its range and radiometry computed, the range's tables built."""
+    pulses, result, source = item.pulses, item.result, item.task.source
+    xyz = echo_positions(pulses, result, source.range_offset_ps)
+    file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
+    columns = range_radiometry(pulses, result, xyz, source.range_offset_ps, file, radiometry)
+    echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, columns)
+    cloud = decomposed_echoes(pulses, result, xyz)
+    kept = result.reject == 0
+    cloud.update({name: values[kept] for name, values in columns.items()})
+    return GeolocatedRange(item.task, echoes, table, cloud, waveform_views(pulses, result) if with_views else None)
+
+
+def part_paths(output: str | Path, task: ReadTask) -> dict[str, Path]:
+    name, out = part_name(task.source.stem, task.start), Path(output)
+    return {"echoes": out / "echoes" / f"{name}.parquet", "pulses": out / "pulses" / f"{name}.parquet",
+            "las": out / PARTS / f"{name}.las", "mcap": out / PARTS / f"{name}.mcap"}
+
+
+def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], calibrated: bool) -> RangePart:
+    """The range's Parquet parts, and its LAS and MCAP parts under parts/: all of them or none."""
+    task, paths = item.task, part_paths(output, item.task)
+    try:
+        if "parquet" in formats:
+            write_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
+            write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
+        if "las" in formats:
+            write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated)
+        if "mcap" in formats:
+            write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time)
+    except Exception:
+        remove_parts(list(paths.values()))  # a range is written whole or not at all
+        raise
+    return RangePart(task.source.stem, task.source.path, task.start, str(paths["las"]) if "las" in formats else "",
+                     str(paths["mcap"]) if "mcap" in formats else "", task.source.adjusted_standard_gps_time)
+
+
+# ---------------------------------------------------------------- a range, all four
+
+def reject_range(task: ReadTask, held, stage: str, reason: str) -> list[Rejection]:
+    """Every pulse a failed range still held as a Rejection (those already rejected are not again); one
+    Rejection for the range when its pulses are not known yet."""
+    where = f"points {task.point_range.start}-{task.point_range.stop}"
+    if isinstance(held, PulseRange):
+        ids = held.pulses.pulse_id
+    elif isinstance(held, DecomposedRange):
+        ids = held.pulses.pulse_id[held.result.status == 0]
+    elif isinstance(held, GeolocatedRange):
+        ids = held.pulses.column("pulse_id").to_numpy()
+    else:
+        return [Rejection(task.source.name, task.source.stem, task.start, -1, stage,
+                          f"{where} ({planned_pulses(task)} pulses): {reason}")]
+    return _rejections(task, ids, stage, f"{where}: {reason}")
+
+
+def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
+    """One range through read, decompose, geolocate and write; an exception in a stage rejects what the range
+    still holds, with the stage and the reason, and the other ranges go on."""
+    outcome, held, stage = RangeOutcome(), task, "read"
+    try:
+        held, rejected = read_range(task)
+        outcome.rejected += rejected
+        outcome.pulses_read = (len(held.pulses) if held else 0) + sum(1 for r in rejected if r.pulse_id >= 0)
+        if held is None:  # nothing left to decompose: the range ends here
+            return outcome
+        stage = "decompose"
+        held, rejected = decompose_range(held, settings.config)
+        outcome.rejected += rejected
+        stage = "geolocate"
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats)
+        stage = "write"
+        outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated)
+    except Exception as err:  # noqa: BLE001  any failure of one range must not stop the others
+        LOG.exception("%s: %s failed", stage, task)
+        outcome.rejected += reject_range(task, None if held is task else held, stage, f"{type(err).__name__}: {err}")
+        return outcome
+    kept = int(np.count_nonzero(held.echoes.column("kept").to_numpy(zero_copy_only=False)))
+    outcome.pulses_decomposed, outcome.echoes_kept = held.pulses.num_rows, kept
+    outcome.echoes_spurious = held.echoes.num_rows - kept
+    return outcome
