@@ -49,7 +49,8 @@ from fwcore.engine import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.geolocate import geolocate  # noqa: E402
 from fwcore.io.writer import write_waveform_las  # noqa: E402
-from fwcore.neon import pulse_fwhm_ps, read_neon_csv  # noqa: E402
+from fwcore.io.neon import read_neon_csv  # noqa: E402
+from fwcore.pulses import csv_pulse_fwhm_ps  # noqa: E402
 from fwcore.preprocess import estimate_pulse_fwhm  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
 from fwcore.records import WaveformBatch  # noqa: E402
@@ -209,7 +210,7 @@ def held_out(samples, valid, config, seeds):
 
 def neon_rows() -> None:
     returns = read_neon_csv(DATA / "neon_harvard" / "return_waveforms.csv")
-    outgoing = pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
+    outgoing = csv_pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
     estimated = estimate_pulse_fwhm(returns.samples, returns.valid).fwhm_samples * 1000.0
     seeds = [pulse_seed(0, int(i)) for i in returns.waveform_id]
     batch = WaveformBatch.from_waveforms(returns.samples, 1000.0, seeds, returns.valid)

@@ -16,7 +16,8 @@ import numpy as np
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
-from fwcore.io import PointRange, crs_wkt, is_pulsewaves, read_pulses
+from fwcore.io import PointRange, crs_wkt, read_pulses
+from fwcore.io.formats import PULSEWAVES, format_of
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.radiometry import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
@@ -72,7 +73,7 @@ def _file_radiometry(path: str, adjusted_standard_gps_time: bool, config: Radiom
     divergence, divergence_source = config.beam_divergence_mrad, "option"
     system = "adjusted" if adjusted_standard_gps_time else "week"
     source, why = "", ""
-    if is_pulsewaves(path):
+    if format_of(path) is PULSEWAVES:
         from fwcore.io.pulsewaves import open_pulsewaves
 
         pw = open_pulsewaves(path)
@@ -103,7 +104,7 @@ def _file_radiometry(path: str, adjusted_standard_gps_time: bool, config: Radiom
 
 def _gps_time_span(path: str) -> np.ndarray:
     """The first and last GPS time of a file's pulses, read a chunk of points at a time."""
-    if is_pulsewaves(path):
+    if format_of(path) is PULSEWAVES:
         from fwcore.io.pulsewaves import open_pulsewaves
 
         pw = open_pulsewaves(path)

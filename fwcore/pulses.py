@@ -43,6 +43,14 @@ def system_pulse_fwhm_ps(pulses: PulseBatch) -> float:
     return width * float(np.median(pulses.sample_spacing_ps[single]))
 
 
+def csv_pulse_fwhm_ps(outgoing, spacing_ps: float | None = None) -> float:
+    """The system pulse FWHM (ps) of a NEON-layout CSV's outgoing pulses (fwcore.io.neon.CsvWaveforms): the
+    median half-height width of the valid samples."""
+    from fwcore.io.neon import NEON_SAMPLE_SPACING_PS
+    spacing = NEON_SAMPLE_SPACING_PS if spacing_ps is None else spacing_ps
+    return median_pulse_fwhm([y[v] for y, v in zip(outgoing.samples, outgoing.valid)]) * spacing
+
+
 def echo_times_ps(pulses: PulseBatch, result: BatchDecomposition, range_offset_ps: float = 0.0) -> np.ndarray:
     """Every echo's time within its packet (ps), in the result's echo order, on the system's range
     reference: its centre's time plus the file's range offset (fwcore.survey.SystemPulse: where the

@@ -33,7 +33,8 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
     from fwcore.engine import decompose_batch
     from fwcore.records import WaveformBatch
-    from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+    from fwcore.io.neon import read_neon_csv
+    from fwcore.pulses import csv_pulse_fwhm_ps
     from fwcore.preprocess import estimate_pulse_fwhm
     from fwcore.rng import pulse_seed
     from pipeline.tables import echo_table, waveform_table
@@ -42,8 +43,8 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     waveforms = read_neon_csv(args.input)
     width_source = "configured"
     if config.system_pulse_fwhm_ps is None and args.outgoing:
-        config = config.replace(system_pulse_fwhm_ps=pulse_fwhm_ps(read_neon_csv(args.outgoing),
-                                                                   args.sample_spacing_ps))
+        config = config.replace(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(args.outgoing),
+                                                                       args.sample_spacing_ps))
         width_source = f"median of the outgoing pulses of {args.outgoing}"
     elif config.system_pulse_fwhm_ps is None:  # nothing says it: measured on the returns, and said so
         estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)

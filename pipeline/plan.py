@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from fwcore.config import DecompositionConfig
-from fwcore.io import input_summary, plan_point_ranges
+from fwcore.io import input_summary, open_input, plan_point_ranges
 from fwcore.io.records import PointRange
 from fwcore.survey import file_system_pulse
 from pipeline.outputs import InputNames
@@ -68,8 +68,9 @@ def plan_path(output: str | Path, stem: str) -> Path:
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
               limit: int | None) -> list[ReadTask]:
-    ranges = plan_point_ranges(path, points_per_range)
-    summary = input_summary(path)  # LAS or PulseWaves
+    opened = open_input(path)  # the header, read once for the ranges and the summary
+    ranges = plan_point_ranges(path, points_per_range, opened)
+    summary = input_summary(path, opened)  # LAS or PulseWaves
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
     source = InputFile(path, name, stem, pulse.fwhm_ps, adjusted, pulse.shape_tolerance, pulse.fwhm_source,

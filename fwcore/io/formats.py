@@ -1,7 +1,10 @@
-"""The reading entry points, dispatching on the file's format: LAS/LAZ or PulseWaves.
+"""The formats read, as a table: one entry per format (LAS/LAZ, PulseWaves, NEON CSV) with what it can do,
+and the entry points that look a file's format up in it instead of branching on it.
 
+    format_of(path)          -> Format         by the file's first bytes (and name)
     plan_point_ranges(path)  -> [PointRange]   every pulse in exactly one range
     read_pulses(range)       -> PulseBatch     the same record whatever the format
+    input_summary(path)      -> InputSummary   what a run needs before reading
     describe_file(path)      -> dict           `fwl info`: headers and indexes only
 """
 
@@ -9,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any, Callable
 
 from fwcore.io.records import PointRange, PulseBatch
 
@@ -76,10 +80,9 @@ LAS_EXTERNAL_PACKETS = 4
 def packet_file(path: str | Path) -> Path | None:
     """The file beside `path` that holds its samples, if one is there: a LAS file's .wdp/.wdz, a PulseWaves
     file's .wvs (found as their readers find them)."""
-    from fwcore.io.packets import external_packet_file
-    from fwcore.io.pulsewaves import waves_file
+    beside = format_of(path).samples_beside
     try:
-        return waves_file(Path(path)) if is_pulsewaves(path) else external_packet_file(Path(path))
+        return beside(Path(path)) if beside else None
     except FileNotFoundError:
         return None
 
@@ -99,15 +102,6 @@ def needs_packet_file(path: str | Path) -> bool:
     return bool(int.from_bytes(head[LAS_GLOBAL_ENCODING_AT:], "little") & LAS_EXTERNAL_PACKETS)
 
 
-def open_input(path: str | Path):
-    """The opened header of either format (WaveformFile or PulseWavesFile); errors name the file."""
-    if is_pulsewaves(path):
-        from fwcore.io.pulsewaves import open_pulsewaves
-        return open_pulsewaves(path)
-    from fwcore.io.reader import open_waveform_file
-    return open_waveform_file(path)
-
-
 @dataclasses.dataclass(frozen=True)
 class InputSummary:
     """What a run needs to know of a file before reading it."""
@@ -116,53 +110,168 @@ class InputSummary:
     adjusted_standard_gps_time: bool  # LAS global encoding bit: GPS time - 1e9 s; otherwise week seconds or absolute
 
 
-def input_summary(path: str | Path) -> InputSummary:
-    """Record count and GPS time type of either format, from its header."""
-    opened = open_input(path)
-    if is_pulsewaves(path):
-        return InputSummary(opened.point_count, False)
-    import laspy
-    with laspy.open(path) as reader:
-        adjusted = int(reader.header.global_encoding.gps_time_type) == 1
-    return InputSummary(opened.point_count, adjusted)
+@dataclasses.dataclass(frozen=True)
+class Format:
+    """One input format: its name, the files it spans, and what each entry point does with it (None: it cannot).
+
+    open(path) -> the opened header; plan(path, points_per_range, opened) -> [PointRange];
+    read(range_or_path, opened) -> PulseBatch; summary(path, opened) -> InputSummary;
+    crs(path, opened) -> WKT or None; describe(path) -> dict; samples_beside(path) -> the file holding its samples.
+    """
+
+    name: str
+    reads_with: str  # the command that takes it
+    open: Callable[[Path], Any]
+    describe: Callable[[Path], dict]
+    plan: Callable[..., list[PointRange]] | None = None
+    read: Callable[..., PulseBatch] | None = None
+    summary: Callable[..., InputSummary] | None = None
+    crs: Callable[..., str | None] | None = None
+    samples_beside: Callable[[Path], Path | None] | None = None
 
 
-def crs_wkt(path: str | Path) -> str | None:
-    """The file's coordinate reference system as OGC WKT (LAS: WKT record or GeoTIFF keys; PulseWaves: keys,
-    or Earth-centred by magnitude), None when it names none."""
-    if is_pulsewaves(path):
-        from fwcore.io.pulsewaves import open_pulsewaves
-        return open_pulsewaves(path).crs_wkt
+def _las_open(path):
+    from fwcore.io.las import open_waveform_file
+    return open_waveform_file(path)
+
+
+def _las_plan(path, points_per_range, opened=None):
+    from fwcore.io.las import plan_point_ranges as plan_las
+    return plan_las(path, points_per_range, wf=opened)
+
+
+def _las_read(point_range, opened=None):
+    from fwcore.io.las import read_pulses as read_las
+    return read_las(point_range, opened)
+
+
+def _las_summary(path, opened=None):
+    opened = opened or _las_open(path)
+    return InputSummary(opened.point_count, opened.adjusted_standard_gps_time)
+
+
+def _las_crs(path, opened=None):
+    if opened is not None:
+        return opened.crs[0]
     import laspy
 
     from fwcore.io.crs import las_crs_wkt
-    with laspy.open(path) as reader:
+    with laspy.open(path) as reader:  # the header alone: a file that is not a full-waveform file has one too
         return las_crs_wkt(reader.header)[0]
 
 
-def plan_point_ranges(path: str | Path, points_per_range: int = 10_000) -> list[PointRange]:
-    """Ranges of a file's records (LAS points, PulseWaves pulses), each pulse in exactly one."""
+def _las_describe(path):
+    from fwcore.io.info import describe_las
+    return describe_las(path)
+
+
+def _las_samples_beside(path):
+    from fwcore.io.packets import external_packet_file
+    return external_packet_file(Path(path))
+
+
+def _pw_open(path):
+    from fwcore.io.pulsewaves import open_pulsewaves
+    return open_pulsewaves(path)
+
+
+def _pw_plan(path, points_per_range, opened=None):
+    from fwcore.io.pulsewaves import plan_pulse_ranges
+    return plan_pulse_ranges(path, points_per_range, pw=opened)
+
+
+def _pw_read(point_range, opened=None):
+    from fwcore.io.pulsewaves import read_pulsewaves
+    return read_pulsewaves(point_range, opened)
+
+
+def _pw_summary(path, opened=None):
+    return InputSummary((opened or _pw_open(path)).point_count, False)
+
+
+def _pw_crs(path, opened=None):
+    return (opened or _pw_open(path)).crs_wkt
+
+
+def _pw_describe(path):
+    from fwcore.io.info import describe_pulsewaves
+    return describe_pulsewaves(path)
+
+
+def _pw_samples_beside(path):
+    from fwcore.io.pulsewaves import waves_file
+    return waves_file(Path(path))
+
+
+def _neon_open(path):
+    from fwcore.io.neon import read_neon_csv
+    return read_neon_csv(path)
+
+
+def _neon_describe(path):
+    waveforms = _neon_open(path)
+    lengths = [len(s) for s in waveforms.samples]
+    return {"file": str(path), "format": "NEON waveform CSV", "waveforms": len(lengths),
+            "samples": {"min": min(lengths), "max": max(lengths)}, "problems": []}
+
+
+LAS = Format("LAS/LAZ", "fwl run", _las_open, _las_describe, _las_plan, _las_read, _las_summary, _las_crs,
+             _las_samples_beside)
+PULSEWAVES = Format("PulseWaves", "fwl run", _pw_open, _pw_describe, _pw_plan, _pw_read, _pw_summary, _pw_crs,
+                    _pw_samples_beside)
+NEON_CSV = Format("NEON waveform CSV", "fwl decompose-csv", _neon_open, _neon_describe)
+FORMATS = (LAS, PULSEWAVES, NEON_CSV)
+
+
+def format_of(path: str | Path) -> Format:
+    """The format of a file by its first bytes (a .pls by its name too); LAS otherwise, whose opener names
+    what else a file is."""
     if is_pulsewaves(path):
-        from fwcore.io.pulsewaves import plan_pulse_ranges
-        return plan_pulse_ranges(path, points_per_range)
-    from fwcore.io.reader import plan_point_ranges as plan_las
-    return plan_las(path, points_per_range)
+        return PULSEWAVES
+    return NEON_CSV if file_kind(path) == "a NEON-layout waveform CSV" else LAS
+
+
+def _able(fmt: Format, path, what: str):
+    action = getattr(fmt, what)
+    if action is None:
+        raise ValueError(f"{path} is {file_kind(path)}, not a flight line of full waveforms: give it to "
+                         f"{fmt.reads_with}")
+    return action
+
+
+def open_input(path: str | Path):
+    """The opened header of either flight-line format (WaveformFile or PulseWavesFile); errors name the file."""
+    fmt = format_of(path)
+    _able(fmt, path, "plan")
+    return fmt.open(path)
+
+
+def input_summary(path: str | Path, opened=None) -> InputSummary:
+    """Record count and GPS time type, from the header (`opened`, when the caller has it open)."""
+    fmt = format_of(path)
+    return _able(fmt, path, "summary")(path, opened)
+
+
+def crs_wkt(path: str | Path, opened=None) -> str | None:
+    """The file's coordinate reference system as OGC WKT (LAS: WKT record or GeoTIFF keys; PulseWaves: keys,
+    or Earth-centred by magnitude), None when it names none."""
+    fmt = format_of(path)
+    return _able(fmt, path, "crs")(path, opened)
+
+
+def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, opened=None) -> list[PointRange]:
+    """Ranges of a file's records (LAS points, PulseWaves pulses), each pulse in exactly one."""
+    fmt = format_of(path)
+    return _able(fmt, path, "plan")(path, points_per_range, opened)
 
 
 def read_pulses(point_range: PointRange | str | Path, wf=None) -> PulseBatch:
     """The pulses of a range (or of a whole file, given its path)."""
     path = point_range.path if isinstance(point_range, PointRange) else point_range
-    if is_pulsewaves(path):
-        from fwcore.io.pulsewaves import read_pulsewaves
-        return read_pulsewaves(point_range, wf)
-    from fwcore.io.reader import read_pulses as read_las
-    return read_las(point_range, wf)
+    fmt = format_of(path)
+    return _able(fmt, path, "read")(point_range, wf)
 
 
 def describe_file(path: str | Path) -> dict:
     """What `fwl info` prints: format, counts, descriptors and their use, packets, CRS, bounds, times."""
-    if is_pulsewaves(path):
-        from fwcore.io.pulsewaves import describe_pulsewaves
-        return describe_pulsewaves(path)
-    from fwcore.io.info import describe_las
-    return describe_las(path)
+    return format_of(path).describe(path)

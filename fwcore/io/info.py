@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
+from fwcore.io.las import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
 from fwcore.io.ownership import pulse_ownership
-from fwcore.io.reader import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
+from fwcore.io.pulsewaves import VARIES, open_pulsewaves
 
 
 def crs_name(wkt: str | None) -> str | None:
@@ -85,8 +87,55 @@ def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
     }
 
 
+def describe_pulsewaves(path: str | Path) -> dict:
+    """Header, descriptors (composition and samplings) and their use, lookup tables, CRS, bounds, times."""
+    pw = open_pulsewaves(path)
+    h = pw.header
+    records = pw.records()
+    used = dict(zip(*[a.tolist() for a in np.unique(np.asarray(records["descriptor"]), return_counts=True)])) \
+        if records.size else {}
+    descriptors = [{
+        "index": d.index, "pulses": int(used.get(d.index, 0)), "problem": d.problem, "description": d.description,
+        "sample_units_ns": d.sample_units_ns, "optical_center_to_anchor":
+            "varies" if d.optical_center_to_anchor == VARIES - (1 << 32) or d.optical_center_to_anchor == VARIES
+            else d.optical_center_to_anchor,
+        "scanner": d.scanner_index,
+        "samplings": [{"kind": s.kind, "channel": s.channel, "bits": s.bits_per_sample,
+                       "samples": "variable" if s.bits_for_samples else s.number_of_samples,
+                       "segments": "variable" if s.bits_for_segments else s.number_of_segments,
+                       "sample_units_ns": s.sample_units_ns, "lookup_table": s.lookup_table,
+                       "duration_bits": s.bits_for_duration} for s in d.samplings]}
+        for d in sorted(pw.descriptors.values(), key=lambda d: d.index)]
+    t = np.asarray([h.t_min, h.t_max], np.float64) * h.t_scale + h.t_offset
+    return {
+        "file": str(pw.path),
+        "format": "PulseWaves",
+        "version": h.version,
+        "system_identifier": h.system_identifier,
+        "generating_software": h.generating_software,
+        "pulses": h.n_pulses,
+        "pulses_present": pw.point_count,
+        "descriptors": descriptors,
+        "descriptors_missing": [{"index": int(i), "pulses": int(n)} for i, n in used.items()
+                                if i not in pw.descriptors],
+        "scanners": [dataclasses.asdict(s) for s in pw.scanners.values()],
+        "lookup_tables": [{"index": t_.index, "entries": int(t_.entries.size), "description": t_.description}
+                          for t_ in pw.lookup_tables.values()],
+        "packets": f"{pw.waves_path.name} ({pw.waves_path.stat().st_size} bytes, uncompressed)",
+        "crs": {"name": crs_name(pw.crs_wkt), "source": pw.crs_source},
+        "bounds": {"min": list(h.bounds_min), "max": list(h.bounds_max)},
+        "gps_time": {"min": float(t[0]), "max": float(t[1]),
+                     "type": "no time stamps (T = 0)" if h.t_min == h.t_max == 0 else
+                     ("standard GPS time" if h.t_offset >= 1e8 else "GPS week seconds")},
+        "problems": list(pw.problems),
+    }
+
+
 def format_info(info: dict) -> str:
     """The human-readable form of describe_file's dictionary."""
+    if "waveforms" in info:  # a NEON-layout CSV: waveforms, no header
+        return (f"{info['file']}: {info['format']}\n  waveforms: {info['waveforms']}, "
+                f"{info['samples']['min']}-{info['samples']['max']} samples each (fwl decompose-csv reads it)")
     lines = [f"{info['file']}: {info['format']} {info['version']}"
              + (f", point format {info['point_format']}" if "point_format" in info else "")]
     for key in ("system_identifier", "generating_software"):

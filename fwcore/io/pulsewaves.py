@@ -29,7 +29,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.io.crs import epsg_from_geokeys, geokeys_from_bytes, looks_earth_centred, wkt_from_epsg
-from fwcore.io.reader import WaveformFileError
+from fwcore.io.las import WaveformFileError
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 LOG = logging.getLogger("fwl")
@@ -525,9 +525,10 @@ def _gather_kernel(data, at, nbytes, offsets, out):
 
 # ---------------------------------------------------------------- plan and read
 
-def plan_pulse_ranges(path: str | Path, pulses_per_range: int = 10_000) -> list[PointRange]:
+def plan_pulse_ranges(path: str | Path, pulses_per_range: int = 10_000,
+                      pw: PulseWavesFile | None = None) -> list[PointRange]:
     """Ranges of pulse records; a pulse's waves are all in its own record, so ranges never share pulses."""
-    pw = open_pulsewaves(path)
+    pw = pw or open_pulsewaves(path)
     if pulses_per_range < 1:
         raise ValueError(f"pulses per range must be at least 1, not {pulses_per_range}")
     _warn_unusable(pw)
@@ -706,48 +707,3 @@ def _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_coun
 
 
 # ---------------------------------------------------------------- fwl info
-
-def describe_pulsewaves(path: str | Path) -> dict:
-    """Header, descriptors (composition and samplings) and their use, lookup tables, CRS, bounds, times."""
-    from fwcore.io.info import crs_name
-
-    pw = open_pulsewaves(path)
-    h = pw.header
-    records = pw.records()
-    used = dict(zip(*[a.tolist() for a in np.unique(np.asarray(records["descriptor"]), return_counts=True)])) \
-        if records.size else {}
-    descriptors = [{
-        "index": d.index, "pulses": int(used.get(d.index, 0)), "problem": d.problem, "description": d.description,
-        "sample_units_ns": d.sample_units_ns, "optical_center_to_anchor":
-            "varies" if d.optical_center_to_anchor == VARIES - (1 << 32) or d.optical_center_to_anchor == VARIES
-            else d.optical_center_to_anchor,
-        "scanner": d.scanner_index,
-        "samplings": [{"kind": s.kind, "channel": s.channel, "bits": s.bits_per_sample,
-                       "samples": "variable" if s.bits_for_samples else s.number_of_samples,
-                       "segments": "variable" if s.bits_for_segments else s.number_of_segments,
-                       "sample_units_ns": s.sample_units_ns, "lookup_table": s.lookup_table,
-                       "duration_bits": s.bits_for_duration} for s in d.samplings]}
-        for d in sorted(pw.descriptors.values(), key=lambda d: d.index)]
-    t = np.asarray([h.t_min, h.t_max], np.float64) * h.t_scale + h.t_offset
-    return {
-        "file": str(pw.path),
-        "format": "PulseWaves",
-        "version": h.version,
-        "system_identifier": h.system_identifier,
-        "generating_software": h.generating_software,
-        "pulses": h.n_pulses,
-        "pulses_present": pw.point_count,
-        "descriptors": descriptors,
-        "descriptors_missing": [{"index": int(i), "pulses": int(n)} for i, n in used.items()
-                                if i not in pw.descriptors],
-        "scanners": [dataclasses.asdict(s) for s in pw.scanners.values()],
-        "lookup_tables": [{"index": t_.index, "entries": int(t_.entries.size), "description": t_.description}
-                          for t_ in pw.lookup_tables.values()],
-        "packets": f"{pw.waves_path.name} ({pw.waves_path.stat().st_size} bytes, uncompressed)",
-        "crs": {"name": crs_name(pw.crs_wkt), "source": pw.crs_source},
-        "bounds": {"min": list(h.bounds_min), "max": list(h.bounds_max)},
-        "gps_time": {"min": float(t[0]), "max": float(t[1]),
-                     "type": "no time stamps (T = 0)" if h.t_min == h.t_max == 0 else
-                     ("standard GPS time" if h.t_offset >= 1e8 else "GPS week seconds")},
-        "problems": list(pw.problems),
-    }

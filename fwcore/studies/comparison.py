@@ -23,8 +23,8 @@ from fwcore.studies.methods import (MethodRun, budget_settings, budget_study, ch
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
-from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
-from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.pulses import csv_pulse_fwhm_ps, echo_positions, echo_times_ps, pulse_waveforms
+from fwcore.io.neon import read_neon_csv
 from fwcore.preprocess import estimate_pulse_fwhm
 from fwcore.rng import pulse_seed
 from fwcore.survey import file_system_pulse
@@ -50,7 +50,7 @@ def load_input(path: str | Path, config: DecompositionConfig, limit: int | None 
         waveforms = read_neon_csv(path)
         n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
         if config.system_pulse_fwhm_ps is None and outgoing:
-            config = config.replace(system_pulse_fwhm_ps=pulse_fwhm_ps(read_neon_csv(outgoing)))
+            config = config.replace(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(outgoing)))
         elif config.system_pulse_fwhm_ps is None:
             estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)
             config = config.replace(system_pulse_fwhm_ps=estimate.fwhm_samples * 1000.0)

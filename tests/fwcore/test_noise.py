@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from fwcore.model import waveform_model
-from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.io.neon import read_neon_csv
+from fwcore.pulses import csv_pulse_fwhm_ps
 from fwcore.preprocess import estimate_noise, estimate_pulse_fwhm, initial_echoes
 
 DATA = "examples/data/"
@@ -68,7 +69,7 @@ def test_baseline_is_the_background_not_the_undershoot_after_a_return():
 
 def test_pulse_width_of_neon_from_its_returns_alone_is_near_the_outgoing_pulses():
     returns = read_neon_csv(DATA + "neon_harvard/return_waveforms.csv")
-    outgoing = pulse_fwhm_ps(read_neon_csv(DATA + "neon_harvard/outgoing_pulses.csv")) / 1000.0
+    outgoing = csv_pulse_fwhm_ps(read_neon_csv(DATA + "neon_harvard/outgoing_pulses.csv")) / 1000.0
     estimate = estimate_pulse_fwhm(returns.samples, returns.valid)
     assert estimate.n_waveforms >= 50
     # returns are the outgoing pulse through the receiver (impulse response 15.9 ns) and the target

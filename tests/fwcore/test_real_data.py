@@ -6,7 +6,8 @@ import pytest
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.records import WaveformBatch
-from fwcore.neon import pulse_fwhm_ps, read_neon_csv
+from fwcore.io.neon import read_neon_csv
+from fwcore.pulses import csv_pulse_fwhm_ps
 from fwcore.rng import pulse_seed
 
 # DE at the MDE paper's comparison settings
@@ -16,7 +17,7 @@ PAPER_DE = dict(optimizer="de", population=100, generations=100)
 @pytest.fixture(scope="module")
 def neon(neon_dir):
     waveforms = read_neon_csv(neon_dir / "return_waveforms.csv")
-    config = DecompositionConfig(system_pulse_fwhm_ps=pulse_fwhm_ps(read_neon_csv(neon_dir / "outgoing_pulses.csv")))
+    config = DecompositionConfig(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(neon_dir / "outgoing_pulses.csv")))
     batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
                                          [pulse_seed(0, i) for i in waveforms.waveform_id], waveforms.valid)
     return batch, config

@@ -6,7 +6,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from fwcore.neon import read_neon_csv
+from fwcore.io.neon import read_neon_csv
 from pipeline.cli import main
 
 
@@ -105,17 +105,31 @@ def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_p
 @pytest.mark.parametrize("command, given, said", [
     (["decompose-csv", "{leica}", "--output", "{out}"], "leica_a.las",
      "is a LAS/LAZ file, not a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...) (fwl run reads it)"),
-    (["info", "{neon}"], "return_waveforms.csv",
-     "is a NEON-layout waveform CSV, not a LAS/LAZ or PulseWaves file (fwl decompose-csv reads it)"),
+    (["run", "{neon}", "--output", "{out}", "--direct_num_workers=1", "--direct_running_mode=in_memory"],
+     "return_waveforms.csv", "is a NEON-layout waveform CSV, not a flight line of full waveforms: give it to "
+                             "fwl decompose-csv"),
+    (["info", "{wvs}"], "riegl_example3.wvs", "is a PulseWaves waves file (.wvs: the samples of the .pls beside it)"),
     (["info", "{wdp}"], "leica_a.wdp", "is a LAS waveform packet file (.wdp: the samples of the .las beside it)"),
 ])
-def test_a_file_of_the_wrong_kind_is_named_with_what_it_is(command, given, said, leica_dir, neon_dir, tmp_path,
-                                                          capsys):
+def test_a_file_of_the_wrong_kind_is_named_with_what_it_is(command, given, said, leica_dir, neon_dir, pulsewaves_dir,
+                                                          tmp_path, capfd):
     files = {"leica": leica_dir / "leica_a.las", "neon": neon_dir / "return_waveforms.csv",
-             "wdp": leica_dir / "leica_a.wdp", "out": tmp_path / "out.parquet"}
-    assert main([part.format(**files) for part in command]) == 2
-    err = capsys.readouterr().err
+             "wdp": leica_dir / "leica_a.wdp", "wvs": pulsewaves_dir / "riegl_example3.wvs",
+             "out": tmp_path / "out"}
+    code = main([part.format(**files) for part in command])
+    if command[0] == "run":  # the file is rejected with its reason, the run says so
+        assert code == 4
+        rejected = pq.read_table(tmp_path / "out" / "rejected").to_pylist()
+        assert len(rejected) == 1 and said in rejected[0]["reason"] and given in rejected[0]["reason"]
+        return
+    assert code == 2
+    err = capfd.readouterr().err
     assert given in err and said in err and "codec" not in err
+
+
+def test_info_describes_a_neon_csv(neon_dir, capsys):
+    assert main(["info", str(neon_dir / "return_waveforms.csv")]) == 0
+    assert "NEON waveform CSV\n  waveforms: 250, 72-184 samples each" in capsys.readouterr().out
 
 
 def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(leica_copy, tmp_path, capfd):

@@ -6,7 +6,7 @@ import laspy
 import numpy as np
 import pytest
 
-from fwcore.io.reader import plan_point_ranges
+from fwcore.io.las import plan_point_ranges
 from fwcore.io.ownership import pulse_ownership
 
 

@@ -5,7 +5,7 @@ import pytest
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.reader import plan_point_ranges
+from fwcore.io.las import plan_point_ranges
 from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
 from fwcore.survey import file_system_pulse

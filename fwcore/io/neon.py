@@ -13,8 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.preprocess import median_pulse_fwhm
-
 NEON_SAMPLE_SPACING_PS = 1000.0
 
 
@@ -56,8 +54,3 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
     if not ids:
         raise ValueError(f"{path}: no waveforms")
     return CsvWaveforms(np.array(ids, dtype=np.int64), samples, valid)
-
-
-def pulse_fwhm_ps(outgoing: CsvWaveforms, spacing_ps: float = NEON_SAMPLE_SPACING_PS) -> float:
-    """The system pulse FWHM (ps): the median half-height width of the outgoing pulses."""
-    return median_pulse_fwhm([y[v] for y, v in zip(outgoing.samples, outgoing.valid)]) * spacing_ps

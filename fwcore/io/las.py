@@ -15,10 +15,12 @@ promises is read or reported missing (`WaveformFile.problems`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import laspy
 import numpy as np
@@ -68,6 +70,14 @@ class WaveformFile:
     header_point_count: int = -1  # what the header promises
     compressed: bool = False  # LAZ
     problems: tuple[str, ...] = ()  # file-level findings that lose points, each naming the file
+    adjusted_standard_gps_time: bool = False  # global encoding bit 0: GPS time - 1e9 s, else week seconds
+    header: Any = dataclasses.field(default=None, repr=False, compare=False)  # laspy's, read once
+
+    @functools.cached_property
+    def crs(self) -> tuple[str | None, str]:
+        """The header's CRS as WKT and where it came from (fwcore.io.crs.las_crs_wkt), when first asked."""
+        from fwcore.io.crs import las_crs_wkt
+        return las_crs_wkt(self.header) if self.header is not None else (None, "")
 
     @property
     def quirks(self) -> PointFormat:
@@ -141,7 +151,7 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
             LOG.warning("%s: the header promises %d point records but the file holds %d; reading all %d",
                         path, promised, present, present)
     return WaveformFile(path, f"{header.version.major}.{header.version.minor}", fmt, present, descriptors, store,
-                        promised, laz, tuple(problems))
+                        promised, laz, tuple(problems), int(encoding.gps_time_type) == 1, header)
 
 
 def unusable_descriptors(wf: WaveformFile) -> dict[int, str]:
@@ -217,7 +227,7 @@ def _packet_keys(points) -> np.ndarray:
 # ---------------------------------------------------------------- plan
 
 def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, chunk_points: int = 1_000_000,
-                      bucket_points: int = BUCKET_POINTS) -> list[PointRange]:
+                      bucket_points: int = BUCKET_POINTS, wf: WaveformFile | None = None) -> list[PointRange]:
     """Split a file into point ranges so that every pulse belongs to exactly one.
 
     One streaming pass reads the packet keys; `pulse_ownership` finds each pulse's owner in memory bounded
@@ -225,7 +235,7 @@ def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, chunk_po
     promises but the file lacks) travel with the first range, which reports them.
     """
     path = Path(path)
-    wf = open_waveform_file(path)
+    wf = wf or open_waveform_file(path)
     if points_per_range < 1:
         raise ValueError(f"points per range must be at least 1, not {points_per_range}")
     n = wf.point_count
