@@ -136,12 +136,12 @@ def _las_open(path):
 
 
 def _las_plan(path, points_per_range, opened=None):
-    from fwcore.io.las import plan_point_ranges as plan_las
+    from fwcore.io.las import plan_las_ranges as plan_las
     return plan_las(path, points_per_range, wf=opened)
 
 
 def _las_read(point_range, opened=None):
-    from fwcore.io.las import read_pulses as read_las
+    from fwcore.io.las import read_las_pulses as read_las
     return read_las(point_range, opened)
 
 

@@ -2,7 +2,7 @@
 
 A pulse is the set of points sharing one packet (same descriptor, same byte
 offset): its samples are read once and its points are kept as the system's
-returns. A file is read in ranges of points; `plan_point_ranges` makes every
+returns. A file is read in ranges of points; `plan_las_ranges` makes every
 pulse belong to exactly one range (the range of its first point), also when
 its points lie far apart, and tells each range which outside points to add
 and which of its points to leave to another range.
@@ -226,8 +226,8 @@ def _packet_keys(points) -> np.ndarray:
 
 # ---------------------------------------------------------------- plan
 
-def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, chunk_points: int = 1_000_000,
-                      bucket_points: int = BUCKET_POINTS, wf: WaveformFile | None = None) -> list[PointRange]:
+def plan_las_ranges(path: str | Path, points_per_range: int = 10_000, chunk_points: int = 1_000_000,
+                    bucket_points: int = BUCKET_POINTS, wf: WaveformFile | None = None) -> list[PointRange]:
     """Split a file into point ranges so that every pulse belongs to exactly one.
 
     One streaming pass reads the packet keys; `pulse_ownership` finds each pulse's owner in memory bounded
@@ -291,7 +291,7 @@ def _field(points, name: str, dtype=np.float64) -> np.ndarray:
         return np.asarray(points[name]).astype(dtype)
 
 
-def read_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = None) -> PulseBatch:
+def read_las_pulses(point_range: PointRange | str | Path, wf: WaveformFile | None = None) -> PulseBatch:
     """The pulses a range owns, with their samples and system returns.
 
     A pulse that cannot be read (its descriptor unusable, its packet lost,

@@ -6,7 +6,7 @@ import laspy
 import numpy as np
 import pytest
 
-from fwcore.io.las import plan_point_ranges
+from fwcore.io.las import plan_las_ranges
 from fwcore.io.ownership import pulse_ownership
 
 
@@ -60,8 +60,8 @@ def test_planning_in_buckets_gives_the_same_ranges(tmp_path, leica_dir, monkeypa
     scratch = tmp_path / "tmp"
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
-    one = plan_point_ranges(path, 100)
-    many = plan_point_ranges(path, 100, chunk_points=250, bucket_points=len(las.points) // 64)
+    one = plan_las_ranges(path, 100)
+    many = plan_las_ranges(path, 100, chunk_points=250, bucket_points=len(las.points) // 64)
     assert many == one
     assert sum(r.n_pulses for r in one) == 924
     index, offset = (np.asarray(las[f]).astype(np.int64) for f in ("wavepacket_index", "wavepacket_offset"))

@@ -5,7 +5,7 @@ import pytest
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.las import plan_point_ranges
+from fwcore.io.las import plan_las_ranges
 from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
 from fwcore.survey import file_system_pulse
@@ -100,7 +100,7 @@ def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica
 
 @pytest.mark.parametrize("layout, mixed", [("las13-wdp", False), ("las14-wdp", True), ("las14-internal", True)])
 def test_written_batch_by_batch_the_file_is_the_same_bytes(tmp_path, leica_dir, leica, layout, mixed):
-    ranges = plan_point_ranges(leica_dir / "leica_a.las", 400)
+    ranges = plan_las_ranges(leica_dir / "leica_a.las", 400)
     assert len(ranges) == 3
     batches = [read_pulses(r) for r in ranges]
 
@@ -121,7 +121,7 @@ def test_written_batch_by_batch_the_file_is_the_same_bytes(tmp_path, leica_dir, 
 
 
 def test_a_later_batch_with_a_new_descriptor_is_refused_and_the_partial_file_removed(tmp_path, leica_dir):
-    first, second = (read_pulses(r) for r in plan_point_ranges(leica_dir / "leica_a.las", 400)[:2])
+    first, second = (read_pulses(r) for r in plan_las_ranges(leica_dir / "leica_a.las", 400)[:2])
     with pytest.raises(ValueError, match="kind the first batch did not"):
         with WaveformLasWriter(tmp_path / "x.las", "las14-internal") as writer:
             writer.write(first, 8)
