@@ -31,7 +31,8 @@ def cli_reference() -> str:
         out += ["| argument | default | meaning |", "|---|---|---|"]
         for a in rows:
             flag = ", ".join(f"`{s}`" for s in a.option_strings) or f"`{a.dest}`"
-            default = "" if a.default in (None, argparse.SUPPRESS, False) else f"`{a.default}`"
+            hidden = a.default is None or a.default is False or a.default == argparse.SUPPRESS
+            default = "" if hidden else f"`{a.default}`"
             out.append(f"| {flag} | {default} | {_cell(a.help or '')} |")
         if sub.epilog:
             out += ["", _cell(sub.epilog)]
@@ -41,7 +42,7 @@ def cli_reference() -> str:
 
 def output_columns() -> str:
     from fwcore.io.writer import EXTRA_DIMENSIONS, RADIOMETRY_DIMENSIONS, RADIOMETRY_FLAG
-    from pipeline.tables import COLUMNS, TABLES
+    from pipeline.tables import TABLES, table_column
 
     where = {"echoes": "`echoes/*.parquet` (one row per echo, kept and spurious)",
              "pulses": "`pulses/*.parquet` (one row per decomposed pulse)",
@@ -52,8 +53,8 @@ def output_columns() -> str:
            "its metadata.", ""]
     for table, names in TABLES.items():
         out += [f"### {where[table]}", "", "| column | type | unit | meaning |", "|---|---|---|---|"]
-        out += [f"| `{n}` | {COLUMNS[n].type} | {_cell(COLUMNS[n].unit)} | {_cell(COLUMNS[n].meaning)} |"
-                for n in names]
+        out += [f"| `{c.name}` | {c.type} | {_cell(c.unit)} | {_cell(c.meaning)} |"
+                for c in map(table_column, names)]
         out.append("")
     out += ["### `las/*.las`: Extra Bytes beside the standard point fields", "",
             "| name | description (unit) |", "|---|---|"]

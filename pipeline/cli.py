@@ -104,9 +104,9 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
           f"files rejected {c['files_rejected']}{problems}; echoes kept {c['echoes_kept']}, "
           f"spurious {c['echoes_spurious']}")
     print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
-    for entry in summary.get("not_inputs", []):
+    for entry in summary.get("not_inputs", []):  # nothing given goes unaccounted
         print(f"not an input: {entry['path']}: {entry['reason']}")
-    if c["pulses_rejected"] or c["files_rejected"] or c.get("problems"):
+    if c["pulses_rejected"] or c["files_rejected"] or c.get("problems") or summary.get("not_inputs"):
         print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
     return summary["exit_code"]
 

@@ -65,6 +65,8 @@ def match_inputs(inputs: list[str]) -> MatchedInputs:
         if "://" in item:
             from apache_beam.io.filesystems import FileSystems
             found = [m.path for r in FileSystems.match([item]) for m in r.metadata_list]
+            if not found:
+                raise FileNotFoundError(f"{item}: no file matches this input")
         else:
             matched = glob.glob(item) if glob.has_magic(item) else [item] if Path(item).exists() else []
             found = []

@@ -334,9 +334,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     paths = matched.paths
     settings = run_settings(config, formats, limit, points_per_range, laz, radiometry)
     check_radiometry(paths, radiometry)
-    names, taken = claim_folder(output, paths, settings, resume, add)
-    for match, why in matched.not_taken:  # on the terminal and in run.json: nothing given goes unaccounted
-        LOG.warning("not an input: %s: %s", match, why)
+    names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
         return {**read_run(output), "taken": taken}
     began = time.perf_counter()
@@ -460,8 +458,8 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
                                          calibration_source=calibration["source"])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
-    counts["files_rejected"] += len(not_taken)  # a match given as an input that holds none
-    status = status_of(counts)
+    # a match given as an input that holds none makes the run partial; the counts stay the files'
+    status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],

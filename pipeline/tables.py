@@ -102,7 +102,7 @@ COLUMNS = {c.name: c for c in (
     Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top"),
     Column("fwhm_ps", F64, "ps", "the echo's full width at half maximum"),
     Column("fwhm", F64, "sample", "the echo's full width at half maximum"),
-    Column("energy", F64, "DN ps", "the area under the echo (DN sample in decompose-csv's tables)"),
+    Column("energy", F64, "DN ps", "the area under the echo"),
     Column("background", F64, "DN", "the waveform's background level"),
     Column("background_volts", F64, "V", "the background through the descriptor's gain and offset"),
     Column("range_m", F64, "m", "the echo's range to the scanner (null: no trajectory or scanner position)"),
@@ -142,6 +142,7 @@ COLUMNS = {c.name: c for c in (
     Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
     Column("reason", STR, "", "why"),
 )}
+CSV_ENERGY = Column("energy", F64, "DN sample", "the area under the echo")  # decompose-csv's tables are in samples
 _FIT = ("fit_error", "fit_error_raw", "rmse", "r2")
 _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes", "n_echoes_kept", "model_evaluations",
            "nit", "message")
@@ -156,7 +157,7 @@ TABLES = {
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
-    "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", "energy",
+    "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", CSV_ENERGY,
                    "background", "kept", "reject_reason", *_FIT, *_METHOD),
     "csv waveforms": ("waveform_id", "status", "n_samples", "noise_sigma", "background", *_FIT, *_COUNTS, *_METHOD),
 }
@@ -164,7 +165,12 @@ TABLES = {
 
 def table_schema(table: str) -> pa.Schema:
     """A table's Arrow schema, each field with its unit and meaning."""
-    return pa.schema([COLUMNS[name].field for name in TABLES[table]])
+    return pa.schema([table_column(c).field for c in TABLES[table]])
+
+
+def table_column(column: str | Column) -> Column:
+    """A table's column: by name from COLUMNS, or its own where its unit differs (CSV_ENERGY)."""
+    return COLUMNS[column] if isinstance(column, str) else column
 
 
 def _table(table: str, values: dict) -> pa.Table:
@@ -172,7 +178,7 @@ def _table(table: str, values: dict) -> pa.Table:
     schema = table_schema(table)
     if set(values) != set(schema.names):
         raise ValueError(f"{table}: values for {sorted(set(values) ^ set(schema.names))} do not match its columns")
-    return pa.table([v if isinstance(v, pa.Array) and v.type == f.type else pa.array(v, f.type, from_pandas=True)
+    return pa.table([v if isinstance(v, pa.Array) and v.type == f.type else pa.array(v, f.type)
                      for f, v in ((f, values[f.name]) for f in schema)], schema=schema)
 
 
@@ -231,7 +237,8 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
     """fwcore.radiometry.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
     if radiometry is None:
         radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable")}
-    return {**{c: radiometry[c] for c in RADIOMETRY_COLUMNS},
+    # NaN is null here: unavailable, not a number gone wrong
+    return {**{c: pa.array(radiometry[c], pa.float64(), from_pandas=True) for c in RADIOMETRY_COLUMNS},
             "radiometry": np.asarray(radiometry["radiometry"], dtype=object).tolist()}
 
 

@@ -8,6 +8,7 @@ it are rejected with that reason.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import struct
 
@@ -88,3 +89,28 @@ def read_descriptors(vlrs, lastools_compressed: bool = False) -> dict[int, Wavef
             found[descriptor.index] = descriptor.check(lastools_compressed) if descriptor.problem is None \
                 else descriptor
     return found
+
+
+def warn_unusable(file_name: str, problems: dict[int, str], used, unit: str) -> None:
+    """Once per unusable descriptor that records use (how many of `unit` are rejected), one line for the unusable
+    ones none uses; never once per pulse. `problems`: index -> why; `used`: records per descriptor index."""
+    log = logging.getLogger("fwl")
+    for index, problem in sorted(problems.items()):
+        if used[index]:
+            log.warning("%s: %s: its %d %s are rejected", file_name, problem, used[index], unit)
+    unused = sorted(i for i in problems if not used[i])
+    if unused:
+        log.warning("%s: %d unusable waveform descriptors are not used by any %s (%s)", file_name, len(unused),
+                    unit.split()[0].rstrip("'").rstrip("s"), ranges_text(unused))
+
+
+def ranges_text(values: list[int]) -> str:
+    """1, 2, 3, 5 -> '1-3, 5'."""
+    out, start = [], None
+    for i, v in enumerate(values):
+        if start is None:
+            start = v
+        if i + 1 == len(values) or values[i + 1] != v + 1:
+            out.append(f"{start}" if start == v else f"{start}-{v}")
+            start = None
+    return ", ".join(out)

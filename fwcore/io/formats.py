@@ -49,6 +49,7 @@ def file_kind(path: str | Path) -> str:
             head = f.read(64)
     except OSError:
         return "an unreadable file"
+    head = head.removeprefix(b"\xef\xbb\xbf")  # a CSV saved with a byte-order mark
     for signature, kind in KINDS:
         if head.startswith(signature):
             return kind
@@ -57,7 +58,7 @@ def file_kind(path: str | Path) -> str:
     try:
         if b"\0" in head:  # binary: a damaged header of some format, not text
             return "an unknown kind of file"
-        head.decode("utf-8")
+        head.decode("utf-8", errors="ignore")  # a character cut at byte 64 is still text
         return "a text file" + (" (CSV)" if b"," in head else "")
     except UnicodeDecodeError:
         return "an unknown kind of file"
@@ -151,8 +152,6 @@ def _las_summary(path, opened=None):
 
 
 def _las_crs(path, opened=None):
-    if opened is not None:
-        return opened.crs[0]
     import laspy
 
     from fwcore.io.crs import las_crs_wkt

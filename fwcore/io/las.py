@@ -15,17 +15,14 @@ promises is read or reported missing (`WaveformFile.problems`).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import logging
-import math
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import laspy
 import numpy as np
 
-from fwcore.io.descriptors import WaveformDescriptor, read_descriptors
+from fwcore.io.descriptors import WaveformDescriptor, read_descriptors, warn_unusable
 from fwcore.io.ownership import BUCKET_POINTS, KEY_SHIFT, pulse_ownership
 from fwcore.io.packets import PacketStore, external_packet_file, lastools_compression
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
@@ -71,13 +68,6 @@ class WaveformFile:
     compressed: bool = False  # LAZ
     problems: tuple[str, ...] = ()  # file-level findings that lose points, each naming the file
     adjusted_standard_gps_time: bool = False  # global encoding bit 0: GPS time - 1e9 s, else week seconds
-    header: Any = dataclasses.field(default=None, repr=False, compare=False)  # laspy's, read once
-
-    @functools.cached_property
-    def crs(self) -> tuple[str | None, str]:
-        """The header's CRS as WKT and where it came from (fwcore.io.crs.las_crs_wkt), when first asked."""
-        from fwcore.io.crs import las_crs_wkt
-        return las_crs_wkt(self.header) if self.header is not None else (None, "")
 
     @property
     def quirks(self) -> PointFormat:
@@ -151,12 +141,7 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
             LOG.warning("%s: the header promises %d point records but the file holds %d; reading all %d",
                         path, promised, present, present)
     return WaveformFile(path, f"{header.version.major}.{header.version.minor}", fmt, present, descriptors, store,
-                        promised, laz, tuple(problems), int(encoding.gps_time_type) == 1, header)
-
-
-def unusable_descriptors(wf: WaveformFile) -> dict[int, str]:
-    """index -> reason of the descriptors whose packets we cannot read."""
-    return {i: f"{wf.path.name}: {d.problem}" for i, d in wf.descriptors.items() if d.problem}
+                        promised, laz, tuple(problems), int(encoding.gps_time_type) == 1)
 
 
 # ---------------------------------------------------------------- points
@@ -244,7 +229,8 @@ def plan_las_ranges(path: str | Path, points_per_range: int = 10_000, chunk_poin
     with _Points(wf) as points:
         key_chunks = ((at, _packet_keys(rows)) for at, rows in points.chunks(chunk_points))
         owned = pulse_ownership(key_chunks, n, points_per_range, bucket_points)
-    _warn_unusable(wf, owned.descriptor_points)
+    warn_unusable(wf.path.name, {i: d.problem for i, d in wf.descriptors.items() if d.problem},
+                  owned.descriptor_points, "points' pulses")
     straying, stray_owner = owned.straying, owned.stray_owner
     by_owner = np.argsort(stray_owner, kind="stable")  # each range's extra points, in point order
     owner_bounds = np.searchsorted(stray_owner[by_owner], np.arange(len(owned.pulses_per_range) + 1))
@@ -256,32 +242,6 @@ def plan_las_ranges(path: str | Path, points_per_range: int = 10_000, chunk_poin
         ranges.append(PointRange(str(path), start, stop, extra, foreign, int(owned.pulses_per_range[r]),
                                  problems=wf.problems if r == 0 else ()))
     return ranges
-
-
-def _warn_unusable(wf: WaveformFile, descriptor_points: np.ndarray) -> None:
-    """One warning per unusable descriptor that pulses use, one line for all the unused ones."""
-    bad = unusable_descriptors(wf)
-    if not bad:
-        return
-    for d, reason in bad.items():
-        if descriptor_points[d]:
-            LOG.warning("%s: its %d points' pulses are rejected", reason, descriptor_points[d])
-    unused = [d for d in bad if not descriptor_points[d]]
-    if unused:
-        LOG.warning("%s: %d unusable waveform descriptors are not used by any point (%s)", wf.path.name,
-                    len(unused), _ranges_text(unused))
-
-
-def _ranges_text(values: list[int]) -> str:
-    """1, 2, 3, 5 -> '1-3, 5'."""
-    out, start = [], None
-    for i, v in enumerate(values):
-        if start is None:
-            start = v
-        if i + 1 == len(values) or values[i + 1] != v + 1:
-            out.append(f"{start}" if start == v else f"{start}-{v}")
-            start = None
-    return ", ".join(out)
 
 
 # ---------------------------------------------------------------- read

@@ -32,7 +32,7 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
     from fwcore.io.formats import file_kind, wrong_kind
     if not file_kind(path).startswith(("a NEON", "a text")):
         raise ValueError(wrong_kind(path, "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"))
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(f)
         header = next(reader, None)
         if not header or header[:3] != ["waveform_id", "n_samples", "s0"]:

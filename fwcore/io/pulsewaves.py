@@ -20,7 +20,6 @@ batch's LAS terms: direction x_t = -direction / unit_ps and L0 = -d * unit_ps.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import struct
 from pathlib import Path
 
@@ -29,10 +28,10 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.io.crs import epsg_from_geokeys, geokeys_from_bytes, looks_earth_centred, wkt_from_epsg
+from fwcore.io.descriptors import warn_unusable
 from fwcore.io.las import WaveformFileError
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
-LOG = logging.getLogger("fwl")
 PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"
 WAVES_HEADER_BYTES = 60
 VLR_HEADER_BYTES = 96
@@ -544,9 +543,7 @@ def _warn_unusable(pw: PulseWavesFile, chunk_pulses: int = 1_000_000) -> None:
     used = np.zeros(256, np.int64)  # pulses per descriptor index, a chunk at a time: memory bounded
     for at in range(0, pw.point_count, chunk_pulses):
         used += np.bincount(np.asarray(pw.records(at, at + chunk_pulses)["descriptor"]), minlength=256)[:256]
-    for d in sorted(pw.descriptors.values(), key=lambda d: d.index):
-        if d.problem and used[d.index]:
-            LOG.warning("%s: %s: its %d pulses are rejected", pw.path.name, d.problem, used[d.index])
+    warn_unusable(pw.path.name, {d.index: d.problem for d in pw.descriptors.values() if d.problem}, used, "pulses")
 
 
 def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | None = None) -> PulseBatch:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from pipeline.cli import build_parser
-from pipeline.tables import TABLES
+from pipeline.tables import TABLES, table_column
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -29,8 +29,8 @@ def test_the_site_builds_strictly_with_every_command_and_column(tmp_path):
                 assert f"<code>{flag}</code>" in cli, (name, flag)
     outputs = (site / "outputs" / "index.html").read_text()
     for table in TABLES.values():
-        for column in table:
-            assert f"<code>{column}</code>" in outputs, column
+        for column in map(table_column, table):
+            assert f"<code>{column.name}</code>" in outputs, column.name
     assert "ps^(alpha^2/2)" in outputs and "sigma_chauve" in outputs
     api = (site / "api" / "index.html").read_text()
     assert "echo_radiometry" in api and "decompose_batch" in api  # from the docstrings
