@@ -53,8 +53,14 @@ class FileRadiometry:
                 "beam_divergence_source": self.beam_divergence_source}
 
 
-def _sample(path: str, n: int = CHECK_PULSES) -> PulseBatch:
-    return read_pulses(PointRange(str(path), 0, n, max_pulses=n))
+def _sample(path: str) -> PulseBatch:
+    """A file's first pulses, read once per version of the file (the range source and the trajectory's check)."""
+    return _cached_sample(str(path), file_stamp(path))
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_sample(path: str, stamp: tuple[int, int]) -> PulseBatch:
+    return read_pulses(PointRange(path, 0, CHECK_PULSES, max_pulses=CHECK_PULSES))
 
 
 def file_radiometry(path: str, adjusted_standard_gps_time: bool, config: RadiometryConfig) -> FileRadiometry:

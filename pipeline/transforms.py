@@ -41,7 +41,7 @@ from fwcore.radiometry import RadiometryConfig
 from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
 from pipeline.records import RangePart, ReadTask, Rejection
 from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_part
-from pipeline.stages import PARTS, RangeSettings, part_name, run_range, warm_up
+from pipeline.stages import PARTS, RangeSettings, part_name, part_paths, run_range, warm_up
 from pipeline.tables import rejected_table
 
 LOG = logging.getLogger("fwl")
@@ -54,10 +54,10 @@ def progress_mark(output: str | Path, stem: str, range_start: int) -> Path:
 
 
 def range_files(output: str | Path, task: ReadTask) -> list[Path]:
-    """Every file a range may write, by its deterministic names."""
-    name, out = part_name(task.source.stem, task.start), Path(output)
-    return [out / "echoes" / f"{name}.parquet", out / "pulses" / f"{name}.parquet",
-            out / "rejected" / f"{name}.parquet", out / PARTS / f"{name}.las", out / PARTS / f"{name}.mcap"]
+    """Every file a range may write, by its deterministic names: its parts (stages.part_paths) and rejections."""
+    parts = part_paths(output, task)
+    rejected = Path(output) / "rejected" / f"{part_name(task.source.stem, task.start)}.parquet"
+    return [parts["echoes"], parts["pulses"], rejected, parts["las"], parts["mcap"]]
 
 
 def mark_range_done(output: str | Path, task: ReadTask, rejected: list[Rejection]) -> Path:

@@ -11,6 +11,7 @@ and the entry points that look a file's format up in it instead of branching on 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -131,23 +132,19 @@ class Format:
     samples_beside: Callable[[Path], Path | None] | None = None
 
 
-def _las_open(path):
-    from fwcore.io.las import open_waveform_file
-    return open_waveform_file(path)
+def _lazy(module: str, name: str) -> Callable:
+    """A format's function, imported when first called: the formats' modules load only for the files read."""
+    def call(*args, **kwargs):
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+    return call
 
 
 def _las_plan(path, points_per_range, opened=None):
-    from fwcore.io.las import plan_las_ranges as plan_las
-    return plan_las(path, points_per_range, wf=opened)
-
-
-def _las_read(point_range, opened=None):
-    from fwcore.io.las import read_las_pulses as read_las
-    return read_las(point_range, opened)
+    return _lazy("fwcore.io.las", "plan_las_ranges")(path, points_per_range, wf=opened)
 
 
 def _las_summary(path, opened=None):
-    opened = opened or _las_open(path)
+    opened = opened or LAS.open(path)
     return InputSummary(opened.point_count, opened.adjusted_standard_gps_time)
 
 
@@ -159,66 +156,29 @@ def _las_crs(path, opened=None):
         return las_crs_wkt(reader.header)[0]
 
 
-def _las_describe(path):
-    from fwcore.io.info import describe_las
-    return describe_las(path)
-
-
-def _las_samples_beside(path):
-    from fwcore.io.packets import external_packet_file
-    return external_packet_file(Path(path))
-
-
-def _pw_open(path):
-    from fwcore.io.pulsewaves import open_pulsewaves
-    return open_pulsewaves(path)
-
-
-def _pw_plan(path, points_per_range, opened=None):
-    from fwcore.io.pulsewaves import plan_pulse_ranges
-    return plan_pulse_ranges(path, points_per_range, pw=opened)
-
-
-def _pw_read(point_range, opened=None):
-    from fwcore.io.pulsewaves import read_pulsewaves
-    return read_pulsewaves(point_range, opened)
-
-
 def _pw_summary(path, opened=None):
-    return InputSummary((opened or _pw_open(path)).point_count, False)
+    return InputSummary((opened or PULSEWAVES.open(path)).point_count, False)
 
 
 def _pw_crs(path, opened=None):
-    return (opened or _pw_open(path)).crs_wkt
-
-
-def _pw_describe(path):
-    from fwcore.io.info import describe_pulsewaves
-    return describe_pulsewaves(path)
-
-
-def _pw_samples_beside(path):
-    from fwcore.io.pulsewaves import waves_file
-    return waves_file(Path(path))
-
-
-def _neon_open(path):
-    from fwcore.io.neon import read_neon_csv
-    return read_neon_csv(path)
+    return (opened or PULSEWAVES.open(path)).crs_wkt
 
 
 def _neon_describe(path):
-    waveforms = _neon_open(path)
+    waveforms = NEON_CSV.open(path)
     lengths = [len(s) for s in waveforms.samples]
     return {"file": str(path), "format": "NEON waveform CSV", "waveforms": len(lengths),
             "samples": {"min": min(lengths), "max": max(lengths)}, "problems": []}
 
 
-LAS = Format("LAS/LAZ", "fwl run", _las_open, _las_describe, _las_plan, _las_read, _las_summary, _las_crs,
-             _las_samples_beside)
-PULSEWAVES = Format("PulseWaves", "fwl run", _pw_open, _pw_describe, _pw_plan, _pw_read, _pw_summary, _pw_crs,
-                    _pw_samples_beside)
-NEON_CSV = Format("NEON waveform CSV", "fwl decompose-csv", _neon_open, _neon_describe)
+LAS = Format("LAS/LAZ", "fwl run", _lazy("fwcore.io.las", "open_waveform_file"),
+             _lazy("fwcore.io.info", "describe_las"), _las_plan, _lazy("fwcore.io.las", "read_las_pulses"),
+             _las_summary, _las_crs, lambda path: _lazy("fwcore.io.packets", "external_packet_file")(Path(path)))
+PULSEWAVES = Format("PulseWaves", "fwl run", _lazy("fwcore.io.pulsewaves", "open_pulsewaves"),
+                    _lazy("fwcore.io.info", "describe_pulsewaves"), _lazy("fwcore.io.pulsewaves", "plan_pulse_ranges"),
+                    _lazy("fwcore.io.pulsewaves", "read_pulsewaves"), _pw_summary, _pw_crs,
+                    lambda path: _lazy("fwcore.io.pulsewaves", "waves_file")(Path(path)))
+NEON_CSV = Format("NEON waveform CSV", "fwl decompose-csv", _lazy("fwcore.io.neon", "read_neon_csv"), _neon_describe)
 FORMATS = (LAS, PULSEWAVES, NEON_CSV)
 
 

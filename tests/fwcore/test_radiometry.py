@@ -3,6 +3,9 @@ per-echo flags and the calibration on a reference patch of known reflectance."""
 
 import json
 import math
+import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pyproj
@@ -179,15 +182,23 @@ def test_sbet_is_transformed_into_the_files_utm_crs(tmp_path):
 
 
 def test_sbet_against_orthometric_heights_it_cannot_reach_is_refused(tmp_path):
-    """UTM 33N + EGM96 heights: without the geoid grid (offline) pyproj would keep ellipsoidal heights."""
+    """UTM 33N + EGM96 heights with PROJ's database and no geoid grid (a PROJ_DATA of proj.db alone, the network
+    off): pyproj would keep the ellipsoidal heights, tens of metres off, so the SBET is refused."""
+    import shutil
+    import subprocess
+    import sys
+
     path = write_sbet(tmp_path / "sbet.out", [10.0, 11.0], [0.8, 0.8], [0.26, 0.26], [300.0, 300.0])
-    compound = pyproj.CRS.from_user_input("EPSG:32633+5773")
-    transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(4979), compound, always_xy=True)
-    if "ballpark" not in transformer.description.lower():
-        pytest.skip("this machine's pyproj has the EGM96 grid: the heights are converted")
-    with pytest.raises(RadiometryError, match="a.las: its heights are in a vertical datum .*EGM96.*give the "
-                                              "trajectory as a CSV"):
-        load_trajectory(path, compound.to_wkt(), "a.las")
+    bare = tmp_path / "proj"
+    bare.mkdir()
+    shutil.copy(Path(pyproj.datadir.get_data_dir()) / "proj.db", bare / "proj.db")
+    code = ("import pyproj\nfrom fwcore.radiometry import RadiometryError, load_trajectory\n"
+            f"wkt = pyproj.CRS.from_user_input('EPSG:32633+5773').to_wkt()\n"
+            f"try:\n    load_trajectory({str(path)!r}, wkt, 'a.las')\nexcept RadiometryError as err:\n    print(err)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env={**os.environ, "PROJ_DATA": str(bare), "PROJ_LIB": str(bare), "PROJ_NETWORK": "OFF"})
+    assert re.search(r"a.las: its heights are in a vertical datum .*EGM96.*give the trajectory as a CSV", done.stdout), \
+        done.stdout + done.stderr
 
 
 def test_sbet_against_an_unreadable_crs_is_refused(tmp_path):
