@@ -14,6 +14,8 @@ import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple, get_type_hints
 
+from fwcore.instrument import SystemResponse, gaussian_response
+
 
 class Optimizer(str, enum.Enum):
     NONE = "none"  # the initial estimate as is
@@ -26,10 +28,53 @@ class Optimizer(str, enum.Enum):
     MDE_LM = "mde-lm"  # MDE, then LM polish of its best individual
     GA_ITERATIVE = "ga-iterative"  # the patent: binary GA, echoes added until R^2 is reached
     LM_MDE = "lm-mde"  # LM; MDE around it where its fit fails the noise model (the default)
+    GOLD = "gold"  # Gold deconvolution with the system response, echoes from the recovered profile
+    RICHARDSON_LUCY = "richardson-lucy"  # Richardson-Lucy deconvolution, likewise
+
+
+# The catalogue: each optimizer's kernel code and kind (the kernels: fwcore.optimizers).
+(OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE, OPT_LM_MDE, OPT_GOLD,
+ OPT_RICHARDSON_LUCY) = range(12)
+# Per-waveform messages (records.MESSAGES spells them out).
+MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_OPTIMIZED = range(5)
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizerSpec:
+    """A catalogue entry: its kernel code, and what kind of search it is."""
+
+    code: int
+    population: bool  # a population of individuals on Eq. 9, or not
+    local: bool  # ends with (or is) a least-squares local optimizer on the valid samples
+    description: str
+    own_echoes: bool = False  # finds its own echoes (not the initial estimate's); no selection after it
+
+
+OPTIMIZERS: dict[Optimizer, OptimizerSpec] = {
+    Optimizer.NONE: OptimizerSpec(OPT_NONE, False, False, "the initial estimate as is"),
+    Optimizer.DE: OptimizerSpec(OPT_DE, True, False, "differential evolution, DE/rand/1 (the method's Eq. 4)"),
+    Optimizer.MDE: OptimizerSpec(OPT_MDE, True, False, "modified DE with chaotic scale factors"),
+    Optimizer.GA: OptimizerSpec(OPT_GA, True, False, "real-coded genetic algorithm"),
+    Optimizer.PSO: OptimizerSpec(OPT_PSO, True, False, "global-best particle swarm"),
+    Optimizer.LM: OptimizerSpec(OPT_LM, False, True, "Levenberg-Marquardt from the initial estimate"),
+    Optimizer.LBFGS: OptimizerSpec(OPT_LBFGS, False, True, "projected L-BFGS from the initial estimate"),
+    Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, True, True, "MDE, then an LM polish of its best individual"),
+    Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, False, True,
+                                          "the patent's binary GA, adding echoes until R^2 is reached", True),
+    Optimizer.LM_MDE: OptimizerSpec(OPT_LM_MDE, True, True,
+                                    "LM; where its fit fails the noise model's chi^2 test, MDE around it, "
+                                    "polished by LM, kept when clearly better"),
+    Optimizer.GOLD: OptimizerSpec(OPT_GOLD, False, False, "Gold deconvolution with the system response, echoes "
+                                  "from the recovered profile's lobes", True),
+    Optimizer.RICHARDSON_LUCY: OptimizerSpec(OPT_RICHARDSON_LUCY, False, False, "Richardson-Lucy deconvolution "
+                                             "with the system response, echoes from the profile's lobes", True),
+}
+
 
 
 class Model(str, enum.Enum):
-    GENERALIZED = "generalized"
+    SYSTEM = "system"  # the instrument's measured response, shifted, scaled and broadened (fwcore.instrument)
+    GENERALIZED = "generalized"  # the method's generalized Gaussian
     GAUSSIAN = "gaussian"
 
 
@@ -74,6 +119,9 @@ class DecompositionConfig:
     # (from outgoing pulses) or falls back to `default_pulse_fwhm_ps`.
     system_pulse_fwhm_ps: float | None = None
     default_pulse_fwhm_ps: float = 4000.0
+    # The instrument's response (fwcore.instrument), for the system model: measured per file by the
+    # caller (fwcore.survey); None: the Gaussian of the system pulse FWHM, said so in the result.
+    system_response: SystemResponse | None = None
     # Denoising: Gaussian filter sigma = smoothing_factor * system pulse sigma,
     # unless smoothing_sigma_ps is given (0 turns smoothing off).
     smoothing_factor: float = 0.25
@@ -136,6 +184,8 @@ class DecompositionConfig:
     # ga-iterative (the patent): add echoes while R^2 is below this; generations per GA fit.
     ga_iterative_r2: float = 0.98
     ga_iterative_generations: int = 1000
+    # gold, richardson-lucy: multiplicative iterations of the deconvolution
+    deconvolution_iterations: int = 200
     # lm-mde: MDE searches where the LM fit's chi^2 per degree of freedom on the raw samples,
     # under the noise model with its Poisson-like term, exceeds this.
     mde_gate: float = 2.0
@@ -179,6 +229,7 @@ class DecompositionConfig:
         self._check(0.0 <= self.ga_mutation_rate <= 1.0, "ga_mutation_rate must lie in [0, 1]")
         self._check(0.0 < self.ga_iterative_r2 <= 1.0, "ga_iterative_r2 must lie in (0, 1]")
         self._check(self.ga_iterative_generations >= 1, "ga_iterative_generations must be >= 1")
+        self._check(self.deconvolution_iterations >= 1, "deconvolution_iterations must be >= 1")
         self._check(0 <= self.init_spread <= 1, "init_spread must lie in [0, 1]")
         self._check(self.mde_gate >= 0, "mde_gate must be >= 0")
 
@@ -197,10 +248,9 @@ class DecompositionConfig:
 
     def kernel_params(self) -> "KernelParams":
         """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
-        from fwcore.optimizers import OPTIMIZERS
-
         return KernelParams.typed(
-            method=OPTIMIZERS[self.optimizer].code, gaussian=self.model is Model.GAUSSIAN,
+            method=OPTIMIZERS[self.optimizer].code, own_echoes=OPTIMIZERS[self.optimizer].own_echoes,
+            deconvolution_iterations=self.deconvolution_iterations, gaussian=self.model is not Model.GENERALIZED,
             fit_denoised=self.fit_target is FitTarget.DENOISED,
             robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
             population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
@@ -229,8 +279,12 @@ class DecompositionConfig:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if getattr(self, f.name) != getattr(default, f.name)}
 
+    def response(self) -> SystemResponse:
+        """The echoes' response under the system model: the configured one, or the Gaussian of the pulse FWHM."""
+        return self.system_response or gaussian_response(self.pulse_fwhm_ps())
+
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: (v.value if isinstance(v, enum.Enum) else v)
+        return {f.name: (v.value if isinstance(v, enum.Enum) else v.to_dict() if isinstance(v, SystemResponse) else v)
                 for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
 
     @classmethod
@@ -239,6 +293,8 @@ class DecompositionConfig:
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown decomposition settings {unknown}; known: {sorted(known)}")
+        if isinstance(values.get("system_response"), dict):
+            values = {**values, "system_response": SystemResponse.from_dict(values["system_response"])}
         return cls(**values)
 
     @classmethod
@@ -256,6 +312,8 @@ class KernelParams(NamedTuple):
     """DecompositionConfig as the kernels see it: enums as codes and flags, nothing else."""
 
     method: int
+    own_echoes: bool
+    deconvolution_iterations: int
     gaussian: bool
     fit_denoised: bool
     robust_noise: bool

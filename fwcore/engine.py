@@ -20,10 +20,13 @@ from numba import njit, prange
 
 from fwcore._jit import JIT, PARALLEL_JIT
 from fwcore.bounds import parameter_bounds
-from fwcore.config import DecompositionConfig
 from fwcore.filter import mark_spurious
-from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model
-from fwcore.optimizers import OPT_GA_ITERATIVE, OPT_NONE, OPTIMIZERS, MSG_CONVERGED, run_optimizer
+from fwcore.instrument import EchoShape, analytic_shape, echo_shape
+from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_area
+from fwcore.config import (MSG_CONVERGED, OPT_GA_ITERATIVE, OPT_GOLD, OPT_NONE, OPTIMIZERS, DecompositionConfig,
+                           Model, Optimizer)
+from fwcore.optimizers import run_optimizer
+from fwcore.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
 from fwcore.optimizers.ga_iterative import ga_iterative
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import initial_estimate
@@ -56,11 +59,11 @@ def _valid_arrays(samples, smoothed, valid, fit_denoised):
 
 
 @njit(**JIT)
-def _measure(best, n_echoes, samples, smoothed, valid, out):
+def _measure(best, n_echoes, samples, smoothed, valid, shape, out):
     """The reported metrics, exact (float64, libm), against the denoised (Eq. 9) and raw samples."""
     n = samples.size
     model = np.empty(n)
-    individual_model(best, n_echoes, np.arange(n).astype(np.float64), model)
+    individual_model(best, n_echoes, np.arange(n).astype(np.float64), shape, model)
     m = 0
     mean = 0.0
     for i in range(n):
@@ -86,8 +89,9 @@ def _measure(best, n_echoes, samples, smoothed, valid, out):
 
 
 @njit(**JIT)
-def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes):
-    """The echoes sorted by position, in Chauve's parameters, each with the filter's reason."""
+def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echoes):
+    """The echoes sorted by position, in Chauve's parameters (an echo of the tabulated response: its
+    equal-FWHM sigma, alpha NaN), each with the filter's reason."""
     order = np.argsort(np.array([best[2 + PARAMS_PER_ECHO * k] for k in range(n_echoes)]))
     widths = np.empty(n_echoes)
     for j in range(n_echoes):
@@ -96,8 +100,12 @@ def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes):
         h = s * SQRT_2LN2
         echoes[j].amplitude = a
         echoes[j].position = u
-        echoes[j].sigma = math.sqrt(h ** (alpha * alpha) / (2.0 * _LN2))
-        echoes[j].alpha = alpha
+        if shape.tabulated:
+            echoes[j].sigma = s
+            echoes[j].alpha = np.nan
+        else:
+            echoes[j].sigma = math.sqrt(h ** (alpha * alpha) / (2.0 * _LN2))
+            echoes[j].alpha = alpha
         widths[j] = 2.0 * h
     reasons = np.zeros(n_echoes, dtype=np.int8)
     mark_spurious(echoes.amplitude[:n_echoes].copy(), echoes.position[:n_echoes].copy(), widths, first, last,
@@ -108,7 +116,7 @@ def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes):
 
 
 @njit(**JIT)
-def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local, out, echoes):
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape, local, out, echoes):
     """One waveform end to end into its result record `out` and echo records `echoes`."""
     n = samples.size
     first = 0
@@ -125,7 +133,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
     sig0 = np.zeros(p.max_echoes)
     noise, background, n_echoes = initial_estimate(
         samples, valid, smoothing_sigma, pulse_sigma, p.robust_noise, p.min_noise_sigma, p.shape_tolerance,
-        p.noise_threshold, p.max_echoes, smoothed, amp0, pos0, sig0)
+        p.noise_threshold, p.max_echoes, shape, smoothed, amp0, pos0, sig0)
     n_initial = n_echoes
     times, fit_target, raw = _valid_arrays(samples, smoothed, valid, p.fit_denoised)
     variance = np.empty(times.size)
@@ -146,7 +154,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
     upper = np.empty(d)
     local_upper = np.empty(d)
     parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed, first, last,
-                     p.gaussian, p.alpha_min, p.alpha_max, scale, x0, lower, upper, local_upper)
+                     p.gaussian, p.alpha_min, p.alpha_max, shape, scale, x0, lower, upper, local_upper)
 
     if p.method == OPT_GA_ITERATIVE:
         best, n_echoes, n_initial, nfev = ga_iterative(
@@ -154,36 +162,46 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
             raw, p.ga_iterative_r2, p.population, p.ga_iterative_generations, seed)
         nit = 0
         message = MSG_CONVERGED
+    elif p.own_echoes:  # deconvolution: the echoes are the recovered profile's lobes
+        best, n_echoes = deconvolution_echoes(samples, valid, background, noise, p.noise_threshold, p.max_echoes,
+                                              first, last, shape, pulse_sigma, p.method == OPT_GOLD,
+                                              p.deconvolution_iterations)
+        nfev = p.deconvolution_iterations + fit_amplitudes(best, n_echoes, times, shape, raw, weights,
+                                                           p.lm_iterations, p.lm_tolerance)
+        nit = p.deconvolution_iterations
+        message = MSG_CONVERGED
     else:
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples
-        best, nfev, nit, message = run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
+        best, nfev, nit, message = run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
                                                  times, fit_target, raw, signal, variance, eps, seed)
 
     dropped = 0
     added = 0
-    if p.select_echoes and p.method != OPT_NONE and p.method != OPT_GA_ITERATIVE:
+    if p.select_echoes and p.method != OPT_NONE and not p.own_echoes:
         if not local:  # a population's best is not at the least-squares optimum the refits compare with
-            _, used, _ = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+            _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
                                              p.lm_iterations, p.lm_tolerance)
             nfev += used
         if p.signal_dependent_noise:
-            add_shot_noise(best, n_echoes, times, raw, signal, variance)
+            add_shot_noise(best, n_echoes, times, shape, raw, signal, variance)
             weights = 1.0 / np.sqrt(variance)
         best, lower, local_upper, n_echoes, dropped, used = drop_unneeded_echoes(
-            p, best, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm, noise)
+            p, shape, best, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm,
+            noise)
         nfev += used
         best, lower, local_upper, n_echoes, added, used = add_missing_echoes(
-            p, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,
+            p, shape, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,
             pulse_sigma, noise)
         nfev += used
 
     if (p.raw_polish and p.fit_denoised and n_echoes > 0 and p.method != OPT_NONE
-            and p.method != OPT_GA_ITERATIVE):
+            and not p.own_echoes):
         # the smoothing bends steep rises (NEON): where the fit to the denoised target fails the noise
         # model on the raw samples, LM refits it to them from where it is, with the same echoes
-        if squared_error(best, n_echoes, times, raw, weights) / max(times.size - best.size, 1) > p.raw_polish_gate:
-            _, used, _ = levenberg_marquardt(best, n_echoes, times, raw, weights, lower, local_upper,
+        chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+        if chi2 / max(times.size - best.size, 1) > p.raw_polish_gate:
+            _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, raw, weights, lower, local_upper,
                                              p.lm_iterations, p.lm_tolerance)
             nfev += used
     out.background = best[0]
@@ -195,18 +213,19 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, local,
     out.n_echoes_dropped = dropped
     out.n_echoes_added = added
     out.n_echoes = n_echoes
-    _measure(best, n_echoes, samples, smoothed, valid, out)
-    _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, echoes)
+    _measure(best, n_echoes, samples, smoothed, valid, shape, out)
+    _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echoes)
 
 
 @njit(**PARALLEL_JIT)
-def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, local, out, echoes):
+def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, shape, local, out,
+                    echoes):
     for w in prange(offsets.size - 1):
         if status[w] != 0:
             continue
         lo, hi = offsets[w], offsets[w + 1]
-        _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], seeds[w], p, local,
-                       out[w], echoes[w])
+        _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], seeds[w], p, shape,
+                       local, out[w], echoes[w])
 
 
 # ---------------------------------------------------------------- Python API
@@ -242,7 +261,8 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     """Decompose every waveform of the batch in one parallel call.
 
     A waveform with non-finite valid samples, or with no valid sample, is not
-    decomposed: its status says why and it has no echoes.
+    decomposed: its status says why and it has no echoes. Under the system model the echoes have the
+    shape of config.response() at each waveform's sample spacing (one table per spacing).
     """
     n = len(batch)
     status = waveform_status(batch)
@@ -250,14 +270,18 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     echoes = np.zeros((n, config.max_echoes), dtype=ECHO_RESULT)
     samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
     samples[~np.isfinite(samples)] = 0.0
+    shapes = echo_shapes(config, batch.sample_spacing_ps)
     previous_threads = numba.get_num_threads()
     if threads is not None:
         numba.set_num_threads(threads)
     try:
-        _decompose_many(samples, batch.valid, batch.offsets, status,
-                        smoothing_sigma_samples(config, batch.sample_spacing_ps),
-                        pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds, config.kernel_params(),
-                        OPTIMIZERS[config.optimizer].local, out, echoes)
+        for spacing, shape in shapes.items():
+            # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
+            group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
+            _decompose_many(samples, batch.valid, batch.offsets, group.astype(np.int8),
+                            smoothing_sigma_samples(config, batch.sample_spacing_ps),
+                            pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds,
+                            config.kernel_params(), shape, OPTIMIZERS[config.optimizer].local, out, echoes)
     finally:
         numba.set_num_threads(previous_threads)
     counts = out["n_echoes"]
@@ -265,14 +289,36 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     np.cumsum(counts, out=echo_offsets[1:])
     flat = echoes[np.arange(config.max_echoes)[None, :] < counts[:, None]]
     sigma, alpha = flat["sigma"], flat["alpha"]
+    if uses_response(config):
+        shape = [shapes[s] for s in batch.sample_spacing_ps[np.repeat(np.arange(n), counts)]]
+        width = sigma * _FWHM_PER_SIGMA  # a tabulated echo's sigma is that of the Gaussian of equal FWHM
+        energy = flat["amplitude"] * np.array([tabulated_area(sh, s) for sh, s in zip(shape, sigma)])
+    else:
+        width = fwhm(sigma, alpha)
+        energy = echo_energy(flat["amplitude"], sigma, alpha)
     return BatchDecomposition(
         status=status, background=out["background"], noise_sigma=out["noise_sigma"], fit_error=out["fit_error"],
         fit_error_raw=out["fit_error_raw"], rmse=out["rmse"], r2=out["r2"], nfev=out["nfev"], nit=out["nit"],
         message=out["message"].astype(np.int8), n_echoes_initial=out["n_echoes_initial"],
         n_echoes_dropped=out["n_echoes_dropped"], n_echoes_added=out["n_echoes_added"],
         echo_offsets=echo_offsets, amplitude=flat["amplitude"], position=flat["position"], sigma=sigma,
-        alpha=alpha, fwhm=fwhm(sigma, alpha), energy=echo_energy(flat["amplitude"], sigma, alpha),
-        reject=flat["reason"])
+        alpha=alpha, fwhm=width, energy=energy, reject=flat["reason"],
+        shapes=shapes if uses_response(config) else None, sample_spacing_ps=batch.sample_spacing_ps)
+
+
+def uses_response(config: DecompositionConfig) -> bool:
+    """Whether echoes take the system response's shape: the system model, except in the patent's GA,
+    whose method is defined on Gaussians."""
+    return config.model is Model.SYSTEM and config.optimizer is not Optimizer.GA_ITERATIVE
+
+
+def echo_shapes(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> dict[float, EchoShape]:
+    """The kernels' echo shape for each distinct sample spacing of a batch."""
+    spacings = [float(s) for s in np.unique(sample_spacing_ps)] or [1000.0]
+    if not uses_response(config):
+        return {s: analytic_shape() for s in spacings}
+    response = config.response()
+    return {s: echo_shape(response, s, config.max_width_factor) for s in spacings}
 
 
 def decompose_waveform(samples, sample_spacing_ps: float = 1000.0, seed: int = 0,

@@ -39,8 +39,65 @@ def echo_value(amplitude, position, s, alpha, t):
     return amplitude * math.exp(-LN2 * (abs(t - position) / (s * SQRT_2LN2)) ** (alpha * alpha))
 
 
+@njit(**JIT_INLINE)
+def _table_coordinates(shape, s, d):
+    """Where width s and time offset d (samples) fall in the table: (row, row weight, column, column weight),
+    column -1 outside the table's support."""
+    last_row = shape.rows.shape[0] - 1
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), last_row - 1e-9)
+    w = int(fw)
+    fg = d / shape.step + shape.origin
+    if fg < 0.0 or fg >= shape.rows.shape[1] - 1:
+        return w, fw - w, -1, 0.0
+    j = int(fg)
+    return w, fw - w, j, fg - j
+
+
+@njit(**JIT_INLINE)
+def _bilinear(table, w, a, j, b):
+    return ((1.0 - a) * ((1.0 - b) * table[w, j] + b * table[w, j + 1])
+            + a * ((1.0 - b) * table[w + 1, j] + b * table[w + 1, j + 1]))
+
+
+@njit(**JIT_INLINE)
+def table_value(shape, amplitude, position, s, t):
+    """One echo of the system response's shape (fwcore.instrument.EchoShape) at time t: A row(s)(t - u)."""
+    w, a, j, b = _table_coordinates(shape, s, t - position)
+    if j < 0:
+        return 0.0
+    return amplitude * _bilinear(shape.rows, w, a, j, b)
+
+
+@njit(**JIT_INLINE)
+def table_derivatives(shape, s, d):
+    """The unit-amplitude tabulated echo at offset d = t - u and its derivatives by t and by s."""
+    w, a, j, b = _table_coordinates(shape, s, d)
+    if j < 0:
+        return 0.0, 0.0, 0.0
+    value = _bilinear(shape.rows, w, a, j, b)
+    slope = _bilinear(shape.slopes, w, a, j, b)
+    below = (1.0 - b) * shape.rows[w, j] + b * shape.rows[w, j + 1]
+    above = (1.0 - b) * shape.rows[w + 1, j] + b * shape.rows[w + 1, j + 1]
+    inside = shape.s_min <= s <= shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
+    return value, slope, (above - below) / shape.s_step if inside else 0.0
+
+
+@njit(**JIT_INLINE)
+def table_reach(shape):
+    """The tabulated echo's support, (before, after) its position, in samples."""
+    return shape.origin * shape.step, (shape.rows.shape[1] - 1 - shape.origin) * shape.step
+
+
+@njit(**JIT_INLINE)
+def shape_value(shape, amplitude, position, s, alpha, t):
+    """One echo of either model at time t."""
+    if shape.tabulated:
+        return table_value(shape, amplitude, position, s, t)
+    return echo_value(amplitude, position, s, alpha, t)
+
+
 @njit(**JIT)
-def individual_model(x, n_echoes, times, out):
+def individual_model(x, n_echoes, times, shape, out):
     """The model of individual x at `times` into `out` (float64), every echo over every sample."""
     for i in range(times.size):
         out[i] = x[0]
@@ -49,7 +106,7 @@ def individual_model(x, n_echoes, times, out):
         if x[base] <= 0.0:
             continue
         for i in range(times.size):
-            out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
+            out[i] += shape_value(shape, x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
 
 
 def model_of_individual(x, t) -> np.ndarray:
@@ -76,6 +133,28 @@ def waveform_model(t, background, amplitude, position, sigma, alpha) -> np.ndarr
                            np.atleast_1d(sigma), np.atleast_1d(alpha)):
         y += generalized_gaussian(t, a, u, s, al)
     return y
+
+
+def tabulated_model(t, background, amplitude, position, s, shape) -> np.ndarray:
+    """The NumPy twin of individual_model for echoes of a tabulated response (fwcore.instrument.EchoShape):
+    background plus A row(s)(t - u), interpolated between rows and grid points."""
+    t = np.asarray(t, dtype=float)
+    y = np.full(t.shape, float(background))
+    grid = (np.arange(shape.rows.shape[1]) - shape.origin) * shape.step
+    for a, u, width in zip(np.atleast_1d(amplitude), np.atleast_1d(position), np.atleast_1d(s)):
+        fw = min(max((width - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
+        w = int(fw)
+        row = (1.0 - (fw - w)) * shape.rows[w] + (fw - w) * shape.rows[w + 1]
+        y += a * np.interp(t - u, grid, row, left=0.0, right=0.0)
+    return y
+
+
+@njit(**JIT)
+def tabulated_area(shape, s):
+    """The area (samples) under a unit-amplitude tabulated echo of width s."""
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.areas.size - 1 - 1e-9)
+    w = int(fw)
+    return (1.0 - (fw - w)) * shape.areas[w] + (fw - w) * shape.areas[w + 1]
 
 
 def half_width(sigma, alpha):

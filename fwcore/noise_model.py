@@ -27,11 +27,11 @@ def noise_variance(smoothed, valid, background, noise, shape_tolerance, out):
 
 
 @njit(**JIT)
-def add_shot_noise(x, n_echoes, times, raw, signal, variance):
+def add_shot_noise(x, n_echoes, times, shape, raw, signal, variance):
     """Add the Poisson-like term g x signal to `variance`, g >= 0 fitted by least squares to the
     squared residuals of x that the variance does not explain; returns g."""
     model = np.empty(times.size)
-    individual_model(x, n_echoes, times, model)
+    individual_model(x, n_echoes, times, shape, model)
     num = 0.0
     den = 0.0
     for i in range(times.size):

@@ -14,6 +14,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
+from fwcore.instrument import analytic_shape
+from fwcore.model import table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -260,10 +262,11 @@ def _echo_sigma(residual, valid, peak, fallback):
 
 
 @njit(**JIT)
-def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma,
+def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma, shape,
                         amplitude, position, sigma):
     """Extract echoes one by one from the largest remaining peak that rises above its sample's
-    threshold; returns how many were found."""
+    threshold, each subtracted in the model's shape (a tabulated response takes its tail and
+    afterpulse with it); returns how many were found."""
     n = smoothed.size
     residual = smoothed - background
     count = 0
@@ -277,10 +280,16 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
         if peak < 0:
             break
         s = _echo_sigma(residual, valid, peak, fallback_sigma)
+        if shape.tabulated:
+            s = min(max(s, shape.s_min), shape.s_min + shape.s_step * (shape.rows.shape[0] - 1))
         amplitude[count] = height
         position[count] = peak
         sigma[count] = s
         count += 1
+        if shape.tabulated:
+            for i in range(n):
+                residual[i] -= table_value(shape, height, peak, s, i)
+            continue
         inv = 1.0 / (2.0 * s * s)
         for i in range(n):
             d = i - peak
@@ -290,7 +299,7 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
 
 @njit(**JIT)
 def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, robust, min_noise_sigma, shape_tolerance,
-                     noise_threshold, max_echoes, smoothed, amplitude, position, sigma):
+                     noise_threshold, max_echoes, shape, smoothed, amplitude, position, sigma):
     """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
     noise and background, then peel echoes off. Returns (noise sigma, background, echo count).
 
@@ -309,7 +318,7 @@ def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, robust, min_n
         background = _valid_min(smoothed, valid)
     threshold = np.empty(samples.size)
     _noise_threshold(smoothed, valid, background, noise, shape_tolerance, noise_threshold, threshold)
-    n = _progressive_echoes(smoothed, valid, background, threshold, max_echoes, pulse_sigma,
+    n = _progressive_echoes(smoothed, valid, background, threshold, max_echoes, pulse_sigma, shape,
                             amplitude, position, sigma)
     return noise, background, n
 
@@ -363,10 +372,12 @@ def estimate_noise(samples, smoothing_sigma: float, valid=None, robust: bool = T
 
 def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid=None,
                    noise_threshold: float = 3.0, max_echoes: int = 12, robust: bool = True,
-                   min_noise_sigma: float = 1.0 / math.sqrt(12.0), shape_tolerance: float = 0.0) -> InitialEstimate:
+                   min_noise_sigma: float = 1.0 / math.sqrt(12.0), shape_tolerance: float = 0.0,
+                   shape=None) -> InitialEstimate:
     """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
     one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
-    above the background (the smoothed minimum)."""
+    above the background (the smoothed minimum), each peeled off in `shape`'s form
+    (fwcore.instrument.EchoShape; None: a Gaussian)."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)
@@ -374,8 +385,20 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     sigma = np.zeros(max_echoes)
     noise, background, n = initial_estimate(
         samples, valid, float(smoothing_sigma), float(fallback_sigma), bool(robust), float(min_noise_sigma),
-        float(shape_tolerance), float(noise_threshold), int(max_echoes), smoothed, amplitude, position, sigma)
+        float(shape_tolerance), float(noise_threshold), int(max_echoes),
+        analytic_shape() if shape is None else shape, smoothed, amplitude, position, sigma)
     return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
+
+
+def noise_and_background(samples, valid=None, smoothing_sigma: float = 1.0) -> tuple[float, float]:
+    """A waveform's robust white-noise sigma (floored at the quantisation's) and its robust baseline."""
+    samples, valid = _as_waveform(samples, valid)
+    smoothed = np.empty_like(samples)
+    _smooth(samples, valid, float(smoothing_sigma), smoothed)
+    attenuation = np.empty_like(samples)
+    _residual_attenuation(valid, float(smoothing_sigma), attenuation)
+    noise = max(float(_robust_noise_sigma(samples, smoothed, valid, attenuation)), 1.0 / math.sqrt(12.0))
+    return noise, float(_baseline(samples, valid, noise))
 
 
 def half_height_width(samples) -> float:

@@ -11,11 +11,12 @@ from typing import Sequence
 import numpy as np
 
 from fwcore.filter import REJECT_REASONS
-from fwcore.model import waveform_model
+from fwcore.instrument import EchoShape
+from fwcore.model import generalized_gaussian, tabulated_model, waveform_model
 
 STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
 STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")
-# How the optimizer ended, per waveform (codes of fwcore.optimizers: MSG_*).
+# How the optimizer ended, per waveform (codes of fwcore.config: MSG_*).
 MESSAGES = ("no_echoes", "converged", "max_generations", "max_iterations", "not_optimized")
 
 # The kernel's per-waveform result, one record per waveform (named fields, not columns by position).
@@ -80,17 +81,26 @@ class Decomposition:
     n_echoes_added: int
     amplitude: np.ndarray
     position: np.ndarray
-    sigma: np.ndarray  # Chauve's sigma, samples**(alpha**2 / 2)
-    alpha: np.ndarray
+    sigma: np.ndarray  # Chauve's sigma, samples**(alpha**2 / 2); of a tabulated echo its equal-FWHM sigma
+    alpha: np.ndarray  # NaN for echoes of the system response
     fwhm: np.ndarray
     energy: np.ndarray  # area under each echo, digitizer units x samples
     reject_reason: tuple[str, ...]  # "" for kept echoes
+    shape: EchoShape | None = None  # the echoes' tabulated response (system model), None: generalized Gaussians
 
     @property
     def kept(self) -> np.ndarray:
         return np.array([r == "" for r in self.reject_reason], dtype=bool)
 
+    def echo(self, k: int, t) -> np.ndarray:
+        """Echo k alone at times t (no background)."""
+        if self.shape is not None:
+            return tabulated_model(t, 0.0, self.amplitude[k], self.position[k], self.sigma[k], self.shape)
+        return generalized_gaussian(t, self.amplitude[k], self.position[k], self.sigma[k], self.alpha[k])
+
     def model(self, t) -> np.ndarray:
+        if self.shape is not None:
+            return tabulated_model(t, self.background, self.amplitude, self.position, self.sigma, self.shape)
         return waveform_model(t, self.background, self.amplitude, self.position, self.sigma, self.alpha)
 
 
@@ -119,6 +129,8 @@ class BatchDecomposition:
     fwhm: np.ndarray
     energy: np.ndarray
     reject: np.ndarray  # int8 codes into fwcore.filter.REJECT_REASONS
+    shapes: dict[float, EchoShape] | None = None  # per sample spacing (ps), under the system model
+    sample_spacing_ps: np.ndarray | None = None  # per waveform: which of `shapes` its echoes take
 
     def __len__(self) -> int:
         return self.status.size
@@ -139,4 +151,10 @@ class BatchDecomposition:
             n_echoes_added=int(self.n_echoes_added[i]),
             amplitude=self.amplitude[lo:hi], position=self.position[lo:hi], sigma=self.sigma[lo:hi],
             alpha=self.alpha[lo:hi], fwhm=self.fwhm[lo:hi], energy=self.energy[lo:hi],
-            reject_reason=tuple(REJECT_REASONS[r] for r in self.reject[lo:hi]))
+            reject_reason=tuple(REJECT_REASONS[r] for r in self.reject[lo:hi]), shape=self.shape_of(i))
+
+    def shape_of(self, i: int) -> EchoShape | None:
+        """The tabulated shape of waveform i's echoes (None: generalized Gaussians)."""
+        if self.shapes is None:
+            return None
+        return self.shapes[float(self.sample_spacing_ps[i])]

@@ -62,12 +62,12 @@ def _with_room(x, extra):
 
 
 @njit(**JIT)
-def drop_unneeded_echoes(p, best, lower, upper, n_echoes, times, target, raw, weights, first, last, pulse_fwhm,
-                         noise):
+def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, raw, weights, first, last,
+                         pulse_fwhm, noise):
     """Drop flagged echoes, weakest first, while a refit without one raises chi^2 by no more than
     the BIC's price of an echo. Returns (best, lower, upper, n_echoes, dropped, Jacobians)."""
     penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
-    chi2 = squared_error(best, n_echoes, times, raw, weights)
+    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
     dropped = 0
     n_jacobians = 0
     while n_echoes > 0:
@@ -80,10 +80,10 @@ def drop_unneeded_echoes(p, best, lower, upper, n_echoes, times, target, raw, we
         for k in flagged[np.argsort(amplitude)]:
             reduced = _without_echo(best, k)
             reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
-            _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, target, weights, reduced_lower,
+            _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, shape, target, weights, reduced_lower,
                                              reduced_upper, p.lm_iterations, p.lm_tolerance)
             n_jacobians += used
-            reduced_chi2 = squared_error(reduced, n_echoes - 1, times, raw, weights)
+            reduced_chi2 = squared_error(reduced, n_echoes - 1, times, shape, raw, weights)
             if reduced_chi2 - chi2 <= penalty:
                 best, lower, upper, chi2 = reduced, reduced_lower, reduced_upper, reduced_chi2
                 n_echoes -= 1
@@ -96,13 +96,13 @@ def drop_unneeded_echoes(p, best, lower, upper, n_echoes, times, target, raw, we
 
 
 @njit(**JIT)
-def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, target, raw, weights, first, last,
+def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times, target, raw, weights, first, last,
                        pulse_sigma, noise):
     """Where the residual, matched-filtered with the system pulse, rises above the noise threshold,
     try one more echo there; keep it when chi^2 falls by more than its BIC price. At most
     p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
     penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
-    chi2 = squared_error(best, n_echoes, times, raw, weights)
+    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
     n = samples.size
     model = np.empty(times.size)
     residual = np.zeros(n)
@@ -115,7 +115,7 @@ def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, t
     added = 0
     n_jacobians = 0
     while added < p.max_added_echoes and n_echoes < p.max_echoes:
-        individual_model(best, n_echoes, times, model)
+        individual_model(best, n_echoes, times, shape, model)
         for j in range(times.size):
             i = int(times[j])
             residual[i] = raw[j] - model[j]
@@ -138,11 +138,11 @@ def add_missing_echoes(p, best, lower, upper, n_echoes, samples, valid, times, t
         trial_upper = _with_room(upper, PARAMS_PER_ECHO)
         scratch = np.empty(d + PARAMS_PER_ECHO)
         echo_bounds(amplitude, float(peak), pulse_sigma, amplitude, noise, first, last, p.gaussian, p.alpha_min,
-                    p.alpha_max, d, trial, trial_lower, scratch, trial_upper)
-        _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, target, weights, trial_lower, trial_upper,
+                    p.alpha_max, shape, d, trial, trial_lower, scratch, trial_upper)
+        _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, shape, target, weights, trial_lower, trial_upper,
                                          p.lm_iterations, p.lm_tolerance)
         n_jacobians += used
-        trial_chi2 = squared_error(trial, n_echoes + 1, times, raw, weights)
+        trial_chi2 = squared_error(trial, n_echoes + 1, times, shape, raw, weights)
         if chi2 - trial_chi2 <= penalty:
             break
         best, lower, upper, chi2 = trial, trial_lower, trial_upper, trial_chi2

@@ -34,7 +34,8 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.io.records import PulseBatch
 from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
-from fwcore.model import LN2
+from fwcore.instrument import SystemResponse, echo_shape
+from fwcore.model import LN2, tabulated_area, tabulated_model
 
 LIGHT_M_PER_PS = 299792458.0e-12
 RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range
@@ -43,6 +44,8 @@ MAX_RETURNS = 5
 # Pulses simulated at a time. The flight's bytes depend on it (each chunk draws from its own stream), so it
 # is fixed, not an option; a flight of at most one chunk is the flight simulated before there were chunks.
 CHUNK_PULSES = 100_000
+RESPONSE_WIDEST = 3.0  # x the response's FWHM: the widest echo a response's table holds
+_FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * LN2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,8 +63,13 @@ class SensorConfig:
     bits: int = 8
     detection_threshold: float = 6.0  # x noise_sigma above background: the online detector
     pre_trigger_ps: float = 15000.0  # the packet starts this long before the first surface
+    # The instrument's response (fwcore.instrument): echoes are it broadened by their targets, FWHM
+    # pulse_fwhm_ps x the target's width factor. None: the generalized Gaussians of the method's model.
+    response: SystemResponse | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.response, dict):  # read back from a truth table's metadata
+            object.__setattr__(self, "response", SystemResponse.from_dict(self.response))
         if self.bits not in (8, 16):
             raise ValueError("bits must be 8 or 16")
         if self.samples_per_packet < 20 or self.sample_spacing_ps <= 0 or self.pulse_fwhm_ps <= 0:
@@ -270,12 +278,13 @@ def _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width, alpha,
 
 @njit(**JIT)
 def _render(time_ps, amplitude, sigma_ps, alpha, count, n_samples, spacing, background, noise, shot, top,
-            normal, out):
-    """Waveforms (pulse-major) with noise from `normal` (standard normal draws), quantised and saturated."""
+            normal, shaped, out):
+    """Waveforms (pulse-major) with noise from `normal` (standard normal draws), quantised and saturated;
+    `shaped` holds the signal of echoes of a response (pulse-major; zeros where the echoes are analytic)."""
     for p in range(count.size):
         for i in range(n_samples):
             t = i * spacing
-            signal = 0.0
+            signal = shaped[p * n_samples + i]
             for k in range(count[p]):
                 z = abs(t - time_ps[p, k])
                 signal += amplitude[p, k] * math.exp(-z ** (alpha[p, k] ** 2) / (2.0 * sigma_ps[p, k] ** 2))
@@ -357,9 +366,24 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
     n_samples = sensor.samples_per_packet
     top = float((1 << sensor.bits) - 1)
     samples = np.empty(n_pulses * n_samples)
-    _render(time_ps, np.where(has, amplitude, 0.0), sigma_ps, np.where(has, alpha, 1.0), count, n_samples,
-            sensor.sample_spacing_ps, sensor.background, sensor.noise_sigma, sensor.shot_noise, top,
-            rng.standard_normal(n_pulses * n_samples), samples)
+    shaped = np.zeros(n_pulses * n_samples)
+    energy = amplitude * echo_area(fwhm_ps, np.where(has, alpha, np.sqrt(2.0)))
+    if sensor.response is not None:
+        # echoes of the response: rendered here, the analytic ones given no amplitude
+        shape = echo_shape(sensor.response, sensor.sample_spacing_ps, RESPONSE_WIDEST)
+        s = fwhm_ps / _FWHM_PER_SIGMA / sensor.sample_spacing_ps  # each echo's equal-FWHM sigma, samples
+        t = np.arange(n_samples, dtype=float)
+        for p_, k in zip(*np.nonzero(has)):
+            shaped[p_ * n_samples:(p_ + 1) * n_samples] += tabulated_model(
+                t, 0.0, amplitude[p_, k], time_ps[p_, k] / sensor.sample_spacing_ps, s[p_, k], shape)
+        area = np.array([[tabulated_area(shape, w) for w in row] for row in s]) * sensor.sample_spacing_ps
+        energy = np.where(has, amplitude * area, 0.0)
+        alpha = np.full(alpha.shape, np.nan)
+        sigma_ps = fwhm_ps / _FWHM_PER_SIGMA
+    _render(time_ps, np.where(has & (sensor.response is None), amplitude, 0.0), sigma_ps,
+            np.where(has & np.isfinite(alpha), alpha, 1.0), count, n_samples, sensor.sample_spacing_ps,
+            sensor.background, sensor.noise_sigma, sensor.shot_noise, top, rng.standard_normal(n_pulses * n_samples),
+            shaped, samples)
     return_index = np.zeros((n_pulses, MAX_RETURNS), dtype=np.int64)
     return_count = np.zeros(n_pulses, dtype=np.int64)
     threshold = sensor.background + sensor.detection_threshold * sensor.noise_sigma
@@ -413,7 +437,7 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         "x": e_xyz[:, 0], "y": e_xyz[:, 1], "z": e_xyz[:, 2],
         "range_m": ranges[has], "reflectance": reflectance[has], "incidence_deg": incidence[has],
         "extended": np.repeat(count == 1, count),  # the one surface fills the footprint
-        "energy": amplitude[has] * echo_area(fwhm_ps[has], alpha[has]),
+        "energy": energy[has],
     }
     return SimulatedFlight(pulses, truth, sensor.bits)
 
@@ -435,14 +459,22 @@ def _concatenate(chunks: list[SimulatedFlight]) -> SimulatedFlight:
     return SimulatedFlight(PulseBatch(**fields), truth, chunks[0].bits)
 
 
-def render_truth(truth: dict[str, np.ndarray], n_samples: int, spacing_ps: float, background: float) -> np.ndarray:
-    """The noiseless waveform of each pulse in the truth (pulse order of first appearance), (pulses, samples)."""
+def render_truth(truth: dict[str, np.ndarray], n_samples: int, spacing_ps: float, background: float,
+                 response: SystemResponse | None = None) -> np.ndarray:
+    """The noiseless waveform of each pulse in the truth (pulse order of first appearance), (pulses, samples);
+    echoes of `response` where the flight was simulated with one."""
     ids, first, owner = np.unique(truth["pulse_id"], return_index=True, return_inverse=True)
     rank = np.empty(ids.size, dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(ids.size)  # pulse ids are hashes: keep pulse order
     owner = rank[owner]
     t = np.arange(n_samples) * spacing_ps
     out = np.full((ids.size, n_samples), background, dtype=float)
+    if response is not None:
+        shape = echo_shape(response, spacing_ps, RESPONSE_WIDEST)
+        for k in range(owner.size):
+            out[owner[k]] += tabulated_model(np.arange(n_samples), 0.0, truth["amplitude"][k],
+                                             truth["time_ps"][k] / spacing_ps, truth["sigma_ps"][k] / spacing_ps, shape)
+        return out
     for k in range(owner.size):
         out[owner[k]] += truth["amplitude"][k] * np.exp(
             -np.abs(t - truth["time_ps"][k]) ** (truth["alpha"][k] ** 2) / (2 * truth["sigma_ps"][k] ** 2))

@@ -1,4 +1,5 @@
-"""What a run derives around the decomposition: a file's system pulse width, the fitted model's samples.
+"""What a run derives around the decomposition: a file's system pulse (its response, width, the model's
+shape error, where it places returns), and the fitted model's samples.
 
 Plain functions over the reader's and the engine's records, so that the
 pipeline's stages only call them.
@@ -12,18 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import DecompositionConfig
+from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_batch
 from fwcore.io import PointRange, read_pulses
-from fwcore.model import waveform_model
-from fwcore.preprocess import estimate_pulse_fwhm
-from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
+from fwcore.instrument import SystemResponse, measure_response
+from fwcore.preprocess import estimate_pulse_fwhm, noise_and_background
+from fwcore.pulses import csv_pulse_fwhm_ps, pulse_waveforms, system_pulse_fwhm_ps
 from fwcore.records import BatchDecomposition, WaveformBatch
 
 LOG = logging.getLogger("fwl")
 
 PULSE_WIDTH_POINTS = 5000  # the head of a file that measures its pulse width: fixed by the file, not the range size
 RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range offset
+RESPONSE_PULSES = 3000  # candidates for the response: a few hundred strong single returns among them
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,6 +38,70 @@ class SystemPulse:
     shape_source: str  # configured | single returns | none measured
     range_offset_ps: float = 0.0  # added to an echo's time to place it where the system places its returns
     range_offset_source: str = "none measured"  # single returns (how many) | none measured
+    response: SystemResponse | None = None  # the measured response (fwcore.instrument); None: not measurable
+
+    def configure(self, config: DecompositionConfig) -> DecompositionConfig:
+        """The file's decomposition settings: the run's, with what was measured on the file."""
+        return config.replace(system_pulse_fwhm_ps=self.fwhm_ps, shape_tolerance=self.shape_tolerance,
+                              system_response=self.response)
+
+    @property
+    def response_source(self) -> str:
+        return self.response.source if self.response is not None else "none measured"
+
+    def to_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "response": self.response.to_dict() if self.response else None}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SystemPulse":
+        response = d.get("response")
+        return cls(**{**d, "response": SystemResponse.from_dict(response) if response else None})
+
+
+def response_of_waveforms(waveforms, spacing_ps: float, source: str) -> SystemResponse | None:
+    """The system response from waveforms (float arrays of valid samples): their strong single returns
+    aligned and averaged (fwcore.instrument.measure_response), or None where too few are strong and single."""
+    waveforms = [np.asarray(w, dtype=float) for w in waveforms[:RESPONSE_PULSES]]
+    noise_background = [noise_and_background(w) if w.size >= 12 else (np.inf, 0.0) for w in waveforms]
+    try:
+        return measure_response(waveforms, spacing_ps, source, [n for n, _ in noise_background],
+                                [b for _, b in noise_background])
+    except ValueError:
+        return None
+
+
+def measure_file_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | None:
+    """The system response from pulses[rows] (response_of_waveforms)."""
+    rows = rows[:RESPONSE_PULSES]
+    return response_of_waveforms([pulses.pulse_samples(i) for i in rows],
+                                 float(np.median(pulses.sample_spacing_ps[rows])), source)
+
+
+def csv_system_pulse(samples, valid, spacing_ps: float, config: DecompositionConfig,
+                     response: SystemResponse | None = None, outgoing=None) -> SystemPulse:
+    """A NEON-layout CSV's system pulse: the response given (`--system-response`), else measured on the
+    outgoing pulses (`--outgoing`), else on the returns' strong single echoes; its FWHM configured, else the
+    response's (system model) or the outgoing pulses' median, else estimated from the returns' isolated echoes."""
+    if response is None and config.system_response is not None:
+        response = config.system_response
+    if response is None and config.model is Model.SYSTEM:
+        if outgoing is not None:
+            response = response_of_waveforms([y[v] for y, v in zip(outgoing.samples, outgoing.valid)], spacing_ps,
+                                             "outgoing pulses")
+        if response is None:
+            response = response_of_waveforms([y[v] for y, v in zip(samples, valid)], spacing_ps, "isolated echoes")
+    fwhm, source = config.system_pulse_fwhm_ps, "configured"
+    if fwhm is None and response is not None and config.model is Model.SYSTEM:
+        fwhm, source = response.fwhm_ps, f"system response: {response.source}"
+    elif fwhm is None and outgoing is not None:
+        fwhm, source = csv_pulse_fwhm_ps(outgoing, spacing_ps), "median of the outgoing pulses"
+    elif fwhm is None:
+        estimate = estimate_pulse_fwhm(samples, valid)
+        fwhm = estimate.fwhm_samples * spacing_ps
+        source = f"estimated from {estimate.n_waveforms} isolated echoes of {estimate.n_candidates} waveforms"
+    tolerance = config.shape_tolerance if config.shape_tolerance is not None else 0.0
+    shape_source = "configured" if config.shape_tolerance is not None else "none measured"
+    return SystemPulse(float(fwhm), source, float(tolerance), shape_source, response=response)
 
 
 def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig) -> float:
@@ -86,6 +152,17 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
     tolerance, shape_source = config.shape_tolerance, "configured"
     pulses = read_pulses(PointRange(str(path), 0, min(point_count, head_points))) if point_count > 0 else None
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
+    response = config.system_response
+    if response is None and pulses is not None and config.model is Model.SYSTEM:
+        # the system's own single returns where the file has them; otherwise its strongest isolated echoes
+        response = measure_file_response(pulses, single, "single returns") if single.size else None
+        if response is None:
+            response = measure_file_response(pulses, np.arange(len(pulses)), "isolated echoes")
+        if response is None:
+            LOG.warning("%s: too few strong single returns to measure the system response; echoes are "
+                        "Gaussians of the pulse width", Path(path).name)
+    if fwhm is None and response is not None:
+        fwhm, fwhm_source = response.fwhm_ps, f"system response: {response.source}"
     if fwhm is None:
         try:
             fwhm = system_pulse_fwhm_ps(pulses)
@@ -112,17 +189,19 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
                                                 pulses.sample_spacing_ps[rows], seeds[rows])
 
         if tolerance is None:
-            tolerance = measure_shape_tolerance(waveforms(single), config.replace(system_pulse_fwhm_ps=fwhm))
+            tolerance = measure_shape_tolerance(waveforms(single), config.replace(system_pulse_fwhm_ps=fwhm,
+                                                                                   system_response=response))
             shape_source = "single returns"
         head = single[:RANGE_OFFSET_PULSES]  # enough for a median within millimetres, cheap for any preset
         offset, n = measure_range_offset(waveforms(head), config.replace(system_pulse_fwhm_ps=fwhm,
-                                                                         shape_tolerance=tolerance),
+                                                                         shape_tolerance=tolerance,
+                                                                         system_response=response),
                                          pulses.return_location_ps[pulses.return_offsets[head]])
         if n:
             offset_source = f"single returns ({n})"
     if tolerance is None:
         tolerance, shape_source = 0.0, "none measured"
-    return SystemPulse(float(fwhm), fwhm_source, float(tolerance), shape_source, offset, offset_source)
+    return SystemPulse(float(fwhm), fwhm_source, float(tolerance), shape_source, offset, offset_source, response)
 
 
 def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:
@@ -130,7 +209,5 @@ def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.
     model = np.zeros(int(sample_offsets[-1]), dtype=np.float32)
     for i in np.flatnonzero(result.status == 0):
         lo, hi = sample_offsets[i], sample_offsets[i + 1]
-        e_lo, e_hi = result.echo_offsets[i], result.echo_offsets[i + 1]
-        model[lo:hi] = waveform_model(np.arange(hi - lo), result.background[i], result.amplitude[e_lo:e_hi],
-                                      result.position[e_lo:e_hi], result.sigma[e_lo:e_hi], result.alpha[e_lo:e_hi])
+        model[lo:hi] = result.waveform(int(i)).model(np.arange(hi - lo))
     return model

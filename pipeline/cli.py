@@ -34,24 +34,23 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     from fwcore.engine import decompose_batch
     from fwcore.records import WaveformBatch
     from fwcore.io.neon import read_neon_csv
-    from fwcore.pulses import csv_pulse_fwhm_ps
-    from fwcore.preprocess import estimate_pulse_fwhm
+    from fwcore.instrument import load_response
+    from fwcore.survey import csv_system_pulse
     from fwcore.rng import pulse_seed
     from pipeline.tables import echo_table, waveform_table
 
     config = _config_from_args(args)
     waveforms = read_neon_csv(args.input)
-    width_source = "configured"
-    if config.system_pulse_fwhm_ps is None and args.outgoing:
-        config = config.replace(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(args.outgoing),
-                                                                       args.sample_spacing_ps))
-        width_source = f"median of the outgoing pulses of {args.outgoing}"
-    elif config.system_pulse_fwhm_ps is None:  # nothing says it: measured on the returns, and said so
-        estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)
-        config = config.replace(system_pulse_fwhm_ps=estimate.fwhm_samples * args.sample_spacing_ps)
-        width_source = (f"estimated from {estimate.n_waveforms} isolated echoes of {estimate.n_candidates} "
-                        f"waveforms (no --outgoing)")
+    response = load_response(args.system_response, args.sample_spacing_ps) if args.system_response else None
+    system = csv_system_pulse(waveforms.samples, waveforms.valid, args.sample_spacing_ps, config, response,
+                              read_neon_csv(args.outgoing) if args.outgoing else None)
+    config = system.configure(config)
+    width_source = system.fwhm_source
+    if width_source.startswith("estimated"):  # nothing says it: measured on the returns, and said so
         print(f"{args.input}: no --outgoing: system pulse FWHM {config.pulse_fwhm_ps():.0f} ps {width_source}")
+    if config.model.value == "system":
+        print(f"{args.input}: system response {system.response_source}"
+              if system.response else f"{args.input}: no system response measured: echoes are Gaussians")
     ids = waveforms.waveform_id
     batch = WaveformBatch.from_waveforms(waveforms.samples, args.sample_spacing_ps,
                                          [pulse_seed(config.seed, i) for i in ids], waveforms.valid)
@@ -160,6 +159,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
+    from fwcore.instrument import load_response
     from fwcore.studies.comparison import run_comparison
 
     config = _config_from_args(args)
@@ -168,8 +168,9 @@ def _compare(args: argparse.Namespace) -> int:
     pulses = [int(p) for p in args.pulses.split(",")] if args.pulses else None
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")
+    response = load_response(args.system_response) if args.system_response else None
     summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
-                             args.distance, args.budget, args.threads, args.outgoing)
+                             args.distance, args.budget, args.threads, args.outgoing, response)
     for row in summary["rows"]:
         print(f"  {row['optimizer']:13} {row['model']:11} fit error {row['fit_error']:8.1f}  R2 {row['r2']:.4f}  "
               f"{row['waveforms_per_second']:9.1f} waveforms/s")
@@ -182,14 +183,19 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from fwcore.instrument import SHIPPED_SPACING_PS, named_response
     from fwcore.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import write_flight
 
-    sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps,
+    response = named_response(args.system_response, args.pulse_fwhm_ps) if args.system_response else None
+    if response is not None:  # the instrument's own pulse width and, unless given, its digitizer's spacing
+        args.pulse_fwhm_ps = response.fwhm_ps
+        args.sample_spacing_ps = args.sample_spacing_ps or SHIPPED_SPACING_PS.get(args.system_response, 1000.0)
+    sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps or 1000.0,
                           samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
                           background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
                           bits=args.bits or (16 if args.radiometry else 8),
-                          detection_threshold=args.detection_threshold)
+                          detection_threshold=args.detection_threshold, response=response)
     scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
                         canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
                         weak_echo_fraction=args.weak_fraction, radiometry=args.radiometry,
@@ -284,6 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="CSV with columns waveform_id, n_samples, s0, s1, ...")
     p.add_argument("--output", required=True, help="echo table (.parquet); waveforms go beside it")
     p.add_argument("--outgoing", help="CSV of outgoing pulses (same layout): measures the system pulse FWHM")
+    p.add_argument("--system-response", dest="system_response",
+                   help="the instrument's response: a CSV whose first column holds it (NEON's system_impulse.csv) "
+                        "or the JSON fwl info --json gives")
     p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     _add_method_options(p)
@@ -321,13 +330,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--optimizers", default=",".join(o.value for o in Optimizer),
                    help="comma-separated (default: all)")
     c.add_argument("--model", dest="models", default="generalized",
-                   help="comma-separated models: gaussian, generalized")
+                   help="comma-separated models: system, generalized, gaussian")
     c.add_argument("--limit", type=int, help="the first N waveforms only")
     c.add_argument("--pulses", help="comma-separated pulse ids to plot (default: the 3 most complex)")
     c.add_argument("--distance", type=float, default=0.5, help="point match distance, metres (default 0.5)")
     c.add_argument("--budget", action="store_true", help="also run the evaluation budget study")
     c.add_argument("--threads", type=int, default=1, help="numba threads (default 1: per-core speeds)")
     c.add_argument("--outgoing", help="CSV input: outgoing pulses CSV that measures the system pulse FWHM")
+    c.add_argument("--system-response", dest="system_response",
+                   help="CSV input: the instrument's response (NEON's system_impulse.csv, or a response JSON)")
     c.add_argument("--output", required=True, help="output directory")
     _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)
@@ -340,7 +351,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     sensor = s.add_argument_group("sensor")
     sensor.add_argument("--pulse-fwhm-ps", dest="pulse_fwhm_ps", type=float, default=4000.0)
-    sensor.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
+    sensor.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float,
+                        help="default 1000; with --system-response leica 2000 (its digitizer's)")
+    sensor.add_argument("--system-response", dest="system_response",
+                        help="echoes of an instrument's response broadened by their targets: gaussian (of "
+                             "--pulse-fwhm-ps), leica, riegl (measured, shipped) or a response file; default: the "
+                             "method's generalized Gaussians")
     sensor.add_argument("--samples", type=int, default=200, help="samples per packet")
     sensor.add_argument("--gain", type=float, default=0.01, help="digitizer gain, volts per DN")
     sensor.add_argument("--offset", type=float, default=0.0, help="digitizer offset, volts")

@@ -49,7 +49,7 @@ class FilePlan:
         return [ReadTask(self.source, r) for r in self.ranges]
 
     def to_json(self) -> dict:
-        return {"source": dataclasses.asdict(self.source) if self.source else None,
+        return {"source": self.source.to_dict() if self.source else None,
                 "ranges": [dataclasses.asdict(r) for r in self.ranges],
                 "rejection": self.rejection._asdict() if self.rejection else None}
 
@@ -57,7 +57,7 @@ class FilePlan:
     def from_json(cls, value: dict) -> "FilePlan":
         def point_range(r: dict) -> PointRange:
             return PointRange(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
-        return cls(InputFile(**value["source"]) if value["source"] else None,
+        return cls(InputFile.from_dict(value["source"]) if value["source"] else None,
                    tuple(point_range(r) for r in value["ranges"]),
                    Rejection(**value["rejection"]) if value["rejection"] else None)
 
@@ -73,8 +73,7 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     summary = input_summary(path, opened)  # LAS or PulseWaves
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
-    source = InputFile(path, name, stem, pulse.fwhm_ps, adjusted, pulse.shape_tolerance, pulse.fwhm_source,
-                       pulse.shape_source, pulse.range_offset_ps, pulse.range_offset_source)
+    source = InputFile(path, name, stem, pulse, adjusted)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:

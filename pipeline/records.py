@@ -15,6 +15,7 @@ import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
 from fwcore.records import BatchDecomposition
+from fwcore.survey import SystemPulse
 from fwcore.io import PulseBatch
 from fwcore.io.records import PointRange
 
@@ -27,13 +28,15 @@ class InputFile:
     path: str
     name: str  # the input's file name, as the tables' source_file
     stem: str  # unique among the run's inputs: names its part files and per-file outputs
-    system_pulse_fwhm_ps: float
+    system: SystemPulse  # what the plan measured of the file's system pulse (fwcore.survey)
     adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
-    shape_tolerance: float = 0.0  # the model's relative shape error on this file's pulse (fwcore.survey)
-    pulse_width_source: str = "configured"
-    shape_tolerance_source: str = "configured"
-    range_offset_ps: float = 0.0  # added to echo times when placing echoes (fwcore.survey.SystemPulse)
-    range_offset_source: str = "none measured"
+
+    def to_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "system": self.system.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "InputFile":
+        return cls(**{**d, "system": SystemPulse.from_dict(d["system"])})
 
 
 @dataclasses.dataclass(frozen=True)

@@ -265,9 +265,8 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
     the radiometry the ranges then use, and the calibration for run.json."""
     if radiometry.calibration_reference is None:
         return radiometry, None
-    files = [PatchFile(s.path, plan.ranges, config.replace(system_pulse_fwhm_ps=s.system_pulse_fwhm_ps,
-                                                           shape_tolerance=s.shape_tolerance),
-                       s.range_offset_ps, s.adjusted_standard_gps_time)
+    files = [PatchFile(s.path, plan.ranges, s.system.configure(config), s.system.range_offset_ps,
+                       s.adjusted_standard_gps_time)
              for plan in plans.values() if (s := plan.source) is not None]
     found = calibrate_on_reference(files, radiometry)
     say.write(f"fwl run: calibration constant {found.constant:.6g} from {found.n} single returns of the reference "
@@ -296,9 +295,10 @@ def _planned(plan: FilePlan) -> dict:
         return {}
     # the pulses its plan found (its packet keys): counted apart from what the ranges wrote, which must add up to it
     return {"pulses_planned": sum(planned_pulses(t) for t in plan.tasks),
-            "system_pulse_fwhm_ps": s.system_pulse_fwhm_ps, "system_pulse_fwhm_source": s.pulse_width_source,
-            "shape_tolerance": s.shape_tolerance, "shape_tolerance_source": s.shape_tolerance_source,
-            "range_offset_ps": s.range_offset_ps, "range_offset_source": s.range_offset_source}
+            "system_pulse_fwhm_ps": s.system.fwhm_ps, "system_pulse_fwhm_source": s.system.fwhm_source,
+            "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
+            "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
+            "system_response": s.system.response.to_dict() if s.system.response else None}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
@@ -431,9 +431,9 @@ def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
     workers that planned them said so in their own logs only)."""
     for plan in plans.values():
         s = plan.source
-        if s is not None and s.pulse_width_source.startswith(("estimated", "default")):
+        if s is not None and s.system.fwhm_source.startswith(("estimated", "default")):
             LOG.warning("%s: system pulse FWHM %.0f ps %s (no single-return pulse measured it; set "
-                        "--system-pulse-fwhm-ps to give it)", s.name, s.system_pulse_fwhm_ps, s.pulse_width_source)
+                        "--system-pulse-fwhm-ps to give it)", s.name, s.system.fwhm_ps, s.system.fwhm_source)
 
 
 def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:

@@ -95,7 +95,7 @@ def decompose_range(item: PulseRange, config: DecompositionConfig) -> tuple[Deco
     """The batched engine, one call a range, with the file's system pulse; a pulse the engine cannot decompose
     (no valid sample, non-finite samples) is a Rejection."""
     source = item.task.source
-    config = config.replace(system_pulse_fwhm_ps=source.system_pulse_fwhm_ps, shape_tolerance=source.shape_tolerance)
+    config = source.system.configure(config)
     began = time.perf_counter()
     # one thread per worker: the workers are the parallelism; results do not depend on it
     result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
@@ -122,9 +122,9 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
     """Every echo placed along its beam, its range and radiometry computed, the range's tables built."""
     pulses, result, source = item.pulses, item.result, item.task.source
-    xyz = echo_positions(pulses, result, source.range_offset_ps)
+    xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
-    columns = range_radiometry(pulses, result, xyz, source.range_offset_ps, file, radiometry)
+    columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
     echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, columns)
     cloud = decomposed_echoes(pulses, result, xyz)
     kept = result.reject == 0

@@ -1,20 +1,23 @@
-"""The optimizer catalogue: a registry from name to kernel, like SciPy's strategy table.
+"""The optimizer kernels behind the catalogue (fwcore.config.OPTIMIZERS), like SciPy's strategy table.
 
 Every method starts from the same initial estimate and bounds and hands back the
 same things: the best individual, model evaluations, iterations and a message.
-`run_optimizer` is the one place the kernels branch on the method's code.
+`run_optimizer` is the one place the kernels branch on the method's code; the
+methods that choose their own echoes (the patent's GA, deconvolution) are
+`own_echoes` in fwcore.engine.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.config import Optimizer
+from fwcore.config import (MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NO_ECHOES,
+                           MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_LBFGS, OPT_LM, OPT_LM_MDE, OPT_MDE,
+                           OPT_MDE_LM, OPT_NONE, OPT_PSO)
 from fwcore.optimizers.evolution import evolve, init_population
 from fwcore.optimizers.ga import evolve_ga
 from fwcore.optimizers.local import lbfgs, levenberg_marquardt, squared_error
@@ -22,40 +25,8 @@ from fwcore.optimizers.objective import LANES, fit_error
 from fwcore.optimizers.pso import swarm
 from fwcore.noise_model import add_shot_noise
 
-OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE, OPT_LM_MDE = range(10)
-# Per-waveform messages (records.MESSAGES spells them out).
-MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_OPTIMIZED = range(5)
-
-
-@dataclasses.dataclass(frozen=True)
-class OptimizerSpec:
-    """A catalogue entry: its kernel code, and what kind of search it is."""
-
-    code: int
-    population: bool  # a population of individuals on Eq. 9, or not
-    local: bool  # ends with (or is) a least-squares local optimizer on the valid samples
-    description: str
-
-
-OPTIMIZERS: dict[Optimizer, OptimizerSpec] = {
-    Optimizer.NONE: OptimizerSpec(OPT_NONE, False, False, "the initial estimate as is"),
-    Optimizer.DE: OptimizerSpec(OPT_DE, True, False, "differential evolution, DE/rand/1 (the method's Eq. 4)"),
-    Optimizer.MDE: OptimizerSpec(OPT_MDE, True, False, "modified DE with chaotic scale factors"),
-    Optimizer.GA: OptimizerSpec(OPT_GA, True, False, "real-coded genetic algorithm"),
-    Optimizer.PSO: OptimizerSpec(OPT_PSO, True, False, "global-best particle swarm"),
-    Optimizer.LM: OptimizerSpec(OPT_LM, False, True, "Levenberg-Marquardt from the initial estimate"),
-    Optimizer.LBFGS: OptimizerSpec(OPT_LBFGS, False, True, "projected L-BFGS from the initial estimate"),
-    Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, True, True, "MDE, then an LM polish of its best individual"),
-    Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, False, True,
-                                          "the patent's binary GA, adding echoes until R^2 is reached"),
-    Optimizer.LM_MDE: OptimizerSpec(OPT_LM_MDE, True, True,
-                                    "LM; where its fit fails the noise model's chi^2 test, MDE around it, "
-                                    "polished by LM, kept when clearly better"),
-}
-
-
 @njit(**JIT)
-def _population_search(p, method, start, lower, upper, n_echoes, fit_samples, valid, eps, seed):
+def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samples, valid, eps, seed):
     """A population method (p.method's kind) on Eq. 9 over `fit_samples`, its population seeded
     around `start`. Returns (best individual, model evaluations, generations, converged)."""
     n = fit_samples.size
@@ -72,38 +43,38 @@ def _population_search(p, method, start, lower, upper, n_echoes, fit_samples, va
     init_population(start, lower, upper, p.init_spread, state, pop)
     fitness = np.empty(p.population)
     for i in range(p.population):
-        fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, eps, model)
+        fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
     nfev = p.population
     done = True
     if method == OPT_GA:
         nfev += evolve_ga(pop, fitness, lower, upper, p.generations, p.crossover_rate, p.ga_mutation_rate,
-                          state, n_echoes, tpos, target, weight, p.gaussian, eps)
+                          state, n_echoes, tpos, target, weight, p.gaussian, shape, eps)
         nit = p.generations
     elif method == OPT_PSO:
         nfev += swarm(pop, fitness, lower, upper, p.generations, state, n_echoes, tpos, target, weight,
-                      p.gaussian, eps)
+                      p.gaussian, shape, eps)
         nit = p.generations
     else:
         used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
                                  p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
                                  p.de_scale_factor, p.tol, p.atol, state, n_echoes, tpos, target, weight,
-                                 p.gaussian, eps)
+                                 p.gaussian, shape, eps)
         nfev += used
     return pop[np.argmin(fitness)].copy(), nfev, nit, done
 
 
 @njit(**JIT)
-def reduced_chi2(x, n_echoes, times, raw, signal, variance):
+def reduced_chi2(x, n_echoes, times, shape, raw, signal, variance):
     """chi^2 per degree of freedom of x on the raw samples under the noise model, with the
     Poisson-like term fitted to x's residual (noise_model.add_shot_noise) added to `variance`."""
     shot = variance.copy()
-    add_shot_noise(x, n_echoes, times, raw, signal, shot)
-    chi2 = squared_error(x, n_echoes, times, raw, 1.0 / np.sqrt(shot))
+    add_shot_noise(x, n_echoes, times, shape, raw, signal, shot)
+    chi2 = squared_error(x, n_echoes, times, shape, raw, 1.0 / np.sqrt(shot))
     return chi2 / max(times.size - x.size, 1)
 
 
 @njit(**JIT)
-def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, raw, signal,
+def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, raw, signal,
                   variance, eps, seed):
     """Optimise individual x0 of n_echoes echoes with method p.method.
 
@@ -125,32 +96,32 @@ def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid
     nit = 0
     message = MSG_CONVERGED
     if method == OPT_LM_MDE:
-        _, used, done = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+        _, used, done = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
                                             p.lm_iterations, p.lm_tolerance)
         nfev += used
         message = MSG_CONVERGED if done else MSG_MAX_ITERATIONS
-        if reduced_chi2(best, n_echoes, times, raw, signal, variance) <= p.mde_gate:
+        if reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
             return best, nfev, 0, message
-        searched, used, nit, done = _population_search(p, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
+        searched, used, nit, done = _population_search(p, shape, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
                                                        valid, eps, seed)
         nfev += used
-        _, used, polished = levenberg_marquardt(searched, n_echoes, times, fit_target, weights, lower, local_upper,
-                                                p.lm_iterations, p.lm_tolerance)
+        _, used, polished = levenberg_marquardt(searched, n_echoes, times, shape, fit_target, weights, lower,
+                                                local_upper,                                                 p.lm_iterations, p.lm_tolerance)
         nfev += used
-        chi2 = squared_error(best, n_echoes, times, raw, weights)
-        if squared_error(searched, n_echoes, times, raw, weights) < chi2 - math.log(times.size):
+        chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+        if squared_error(searched, n_echoes, times, shape, raw, weights) < chi2 - math.log(times.size):
             best = searched
             message = MSG_CONVERGED if done and polished else (MSG_MAX_GENERATIONS if not done else
                                                                 MSG_MAX_ITERATIONS)
         return best, nfev, nit, message
     if method in (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM):
-        best, used, nit, done = _population_search(p, method, x0, lower, upper, n_echoes, fit_samples, valid,
+        best, used, nit, done = _population_search(p, shape, method, x0, lower, upper, n_echoes, fit_samples, valid,
                                                    eps, seed)
         nfev += used
         if not done:
             message = MSG_MAX_GENERATIONS
     if method == OPT_LM or method == OPT_MDE_LM:
-        _, used, done = levenberg_marquardt(best, n_echoes, times, fit_target, weights, lower, local_upper,
+        _, used, done = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
                                             p.lm_iterations, p.lm_tolerance)
         nfev += used
         if method == OPT_LM:
@@ -158,7 +129,8 @@ def run_optimizer(p, x0, lower, upper, local_upper, n_echoes, fit_samples, valid
         if not done and message == MSG_CONVERGED:
             message = MSG_MAX_ITERATIONS
     elif method == OPT_LBFGS:
-        _, used, done = lbfgs(best, n_echoes, times, fit_target, lower, local_upper, 4 * p.lm_iterations, 10, 1e-9)
+        _, used, done = lbfgs(best, n_echoes, times, shape, fit_target, lower, local_upper, 4 * p.lm_iterations, 10,
+                              1e-9)
         nfev += used
         nit = used
         if not done:

@@ -119,7 +119,7 @@ def converged(fitness, tol, atol):
 @njit(**JIT)
 def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
            chaos_seeds, chaos_iterations, scale_min, scale_max, de_scale, tol, atol,
-           state, n_echoes, tpos, target, weight, gaussian, eps):
+           state, n_echoes, tpos, target, weight, gaussian, shape, eps):
     """Run MDE (chaotic=True) or DE until converged or for `generations`; pop and fitness are
     updated in place. Returns (model evaluations, generations run, converged).
 
@@ -162,7 +162,7 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
                 best_candidate = np.inf
                 for c in range(n_candidates):
                     _mde_candidate(best_x, diff1, diff2, f1s[c], f2s[c], lower, upper, candidate)
-                    err = fit_error(candidate, n_echoes, tpos, target, weight, gaussian, eps, model)
+                    err = fit_error(candidate, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
                     nfev += 1
                     if err < best_candidate:
                         best_candidate = err
@@ -171,7 +171,7 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
                 _distinct_partners(state, np_, i, 3, partners)
                 mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], de_scale, lower, upper, mutant)
             binomial_crossover(pop[i], mutant, cr, state, trial)
-            err = fit_error(trial, n_echoes, tpos, target, weight, gaussian, eps, model)
+            err = fit_error(trial, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 next_pop[i] = trial

@@ -36,7 +36,7 @@ def _tournament(state, fitness):
 
 @njit(**JIT)
 def evolve_ga(pop, fitness, lower, upper, generations, crossover_rate, mutation_rate, state,
-              n_echoes, tpos, target, weight, gaussian, eps):
+              n_echoes, tpos, target, weight, gaussian, shape, eps):
     """Real-coded GA: binary tournaments, BLX-0.5 blend crossover (rate crossover_rate),
     Gaussian mutation of each parameter with probability mutation_rate, one elite. Returns evaluations."""
     np_, d = pop.shape
@@ -60,7 +60,7 @@ def evolve_ga(pop, fitness, lower, upper, generations, crossover_rate, mutation_
                 if uniform(state) < mutation_rate:
                     v += _GA_MUTATION_SCALE * (upper[j] - lower[j]) * _normal(state)
                 child[j] = min(max(v, lower[j]), upper[j])
-            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, gaussian, eps, model)
+            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
             nfev += 1
         pop[:] = next_pop
         fitness[:] = next_fit

@@ -26,7 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.model import PARAMS_PER_ECHO, echo_value
+from fwcore.instrument import analytic_shape
+from fwcore.model import PARAMS_PER_ECHO, echo_value, table_derivatives, table_reach, table_value
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
@@ -34,9 +35,10 @@ _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplit
 
 
 @njit(**JIT)
-def model_and_jacobian(x, n_echoes, times, model, jac, windows):
+def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
-    windows[k] = [lo, hi): the samples where echo k's columns may be non-zero."""
+    windows[k] = [lo, hi): the samples where echo k's columns may be non-zero. A tabulated shape
+    (fwcore.instrument.EchoShape) differentiates its table: d/du = -A slope, d/ds across its rows."""
     m = times.size
     for i in range(m):
         model[i] = x[0]
@@ -46,6 +48,19 @@ def model_and_jacobian(x, n_echoes, times, model, jac, windows):
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+        if shape.tabulated:
+            before, after = table_reach(shape)
+            lo = np.searchsorted(times, u - before)
+            hi = np.searchsorted(times, u + after, side="right")
+            windows[k, 0] = lo
+            windows[k, 1] = hi
+            for i in range(lo, hi):
+                e, slope, by_width = table_derivatives(shape, s, times[i] - u)
+                model[i] += a * e
+                jac[i, base] = e
+                jac[i, base + 1] = -a * slope
+                jac[i, base + 2] = a * by_width
+            continue
         h = s * _SQRT_2LN2
         p = alpha * alpha
         # only the samples where the echo is above 1e-12 of its amplitude (times are ascending)
@@ -75,12 +90,17 @@ def model_and_jacobian(x, n_echoes, times, model, jac, windows):
 
 
 @njit(**JIT)
-def squared_error(x, n_echoes, times, target, weights):
+def squared_error(x, n_echoes, times, shape, target, weights):
     """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows."""
     model = np.full(times.size, x[0])
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+        if shape.tabulated:
+            before, after = table_reach(shape)
+            for i in range(np.searchsorted(times, u - before), np.searchsorted(times, u + after, side="right")):
+                model[i] += table_value(shape, a, u, s, times[i])
+            continue
         reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
         for i in range(np.searchsorted(times, u - reach), np.searchsorted(times, u + reach, side="right")):
             model[i] += echo_value(a, u, s, alpha, times[i])
@@ -155,7 +175,7 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad):
 
 
 @njit(**JIT)
-def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_iterations, tolerance):
+def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance):
     """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
     (weights: 1 / the noise sigma of each sample, or ones).
 
@@ -177,7 +197,7 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
     grad = np.empty(d)
     step = np.empty(d)
     trial = np.empty(d)
-    model_and_jacobian(x, n_echoes, times, model, jac, windows)
+    model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for i in range(m):
         residual[i] = weights[i] * (model[i] - target[i])
@@ -195,7 +215,7 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
             continue
         for j in range(d):
             trial[j] = min(max(x[j] + step[j], lower[j]), upper[j])
-        model_and_jacobian(trial, n_echoes, times, trial_model, trial_jac, trial_windows)
+        model_and_jacobian(trial, n_echoes, times, shape, trial_model, trial_jac, trial_windows)
         n_jacobians += 1
         trial_ssr = 0.0
         for i in range(m):
@@ -223,9 +243,9 @@ def levenberg_marquardt(x, n_echoes, times, target, weights, lower, upper, max_i
 
 
 @njit(**JIT)
-def _ssr_and_gradient(x, n_echoes, times, target, free, model, jac, grad):
+def _ssr_and_gradient(x, n_echoes, times, shape, target, free, model, jac, grad):
     windows = np.empty((n_echoes, 2), dtype=np.int64)
-    model_and_jacobian(x, n_echoes, times, model, jac, windows)
+    model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for j in range(x.size):
         grad[j] = 0.0
@@ -241,7 +261,7 @@ def _ssr_and_gradient(x, n_echoes, times, target, free, model, jac, grad):
 
 
 @njit(**JIT)
-def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tolerance):
+def lbfgs(x, n_echoes, times, shape, target, lower, upper, max_iterations, memory, tolerance):
     """Projected L-BFGS on sum (model - target)**2 inside [lower, upper], x updated in place.
 
     The two-loop recursion gives the direction; parameters held at a bound with the
@@ -264,7 +284,7 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
     alpha_hist = np.zeros(memory)
     stored = 0
     head = 0
-    ssr = _ssr_and_gradient(x, n_echoes, times, target, free, model, jac, grad)
+    ssr = _ssr_and_gradient(x, n_echoes, times, shape, target, free, model, jac, grad)
     n_gradients = 1
     done = False
     for _ in range(max_iterations):
@@ -303,7 +323,7 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
         for _ in range(30):
             for j in range(d):
                 trial[j] = min(max(x[j] + step * direction[j], lower[j]), upper[j])
-            new_ssr = _ssr_and_gradient(trial, n_echoes, times, target, free, model, jac, new_grad)
+            new_ssr = _ssr_and_gradient(trial, n_echoes, times, shape, target, free, model, jac, new_grad)
             n_gradients += 1
             if new_ssr <= ssr + 1e-4 * np.dot(grad, trial - x):
                 accepted = True
@@ -333,8 +353,9 @@ def lbfgs(x, n_echoes, times, target, lower, upper, max_iterations, memory, tole
 # ---------------------------------------------------------------- Python API
 
 def fit_levenberg_marquardt(x0, n_echoes: int, times, target, lower, upper, max_iterations: int = 50,
-                            tolerance: float = 1e-8) -> tuple[np.ndarray, float, int]:
-    """LM from x0 inside the bounds: (best individual, sum of squares, Jacobians evaluated)."""
+                            tolerance: float = 1e-8, shape=None) -> tuple[np.ndarray, float, int]:
+    """LM from x0 inside the bounds: (best individual, sum of squares, Jacobians evaluated); echoes of
+    `shape` (fwcore.instrument.EchoShape; None: the generalized Gaussian)."""
     x = np.array(x0, dtype=np.float64)
     lower = np.ascontiguousarray(lower, dtype=np.float64)
     upper = np.ascontiguousarray(upper, dtype=np.float64)
@@ -342,17 +363,20 @@ def fit_levenberg_marquardt(x0, n_echoes: int, times, target, lower, upper, max_
         raise ValueError(f"an individual of {n_echoes} echoes has {1 + PARAMS_PER_ECHO * n_echoes} parameters")
     x = np.clip(x, lower, upper)
     times = np.ascontiguousarray(times, dtype=np.float64)
-    ssr, n_jacobians, _ = levenberg_marquardt(x, int(n_echoes), times, np.ascontiguousarray(target, dtype=np.float64),
+    shape = analytic_shape() if shape is None else shape
+    ssr, n_jacobians, _ = levenberg_marquardt(x, int(n_echoes), times, shape,
+                                              np.ascontiguousarray(target, dtype=np.float64),
                                               np.ones(times.size), lower, upper, int(max_iterations),
                                               float(tolerance))
     return x, float(ssr), int(n_jacobians)
 
 
 def fit_lbfgs(x0, n_echoes: int, times, target, lower, upper, max_iterations: int = 200, memory: int = 10,
-              tolerance: float = 1e-9) -> tuple[np.ndarray, float, int]:
+              tolerance: float = 1e-9, shape=None) -> tuple[np.ndarray, float, int]:
     """Projected L-BFGS from x0 inside the bounds: (best individual, sum of squares, gradients evaluated)."""
     x = np.clip(np.array(x0, dtype=np.float64), lower, upper)
-    ssr, n_gradients, _ = lbfgs(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64),
+    shape = analytic_shape() if shape is None else shape
+    ssr, n_gradients, _ = lbfgs(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64), shape,
                              np.ascontiguousarray(target, dtype=np.float64),
                              np.ascontiguousarray(lower, dtype=np.float64),
                              np.ascontiguousarray(upper, dtype=np.float64), int(max_iterations), int(memory),

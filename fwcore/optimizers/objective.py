@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT_INLINE, SIMD_JIT, _bits_of_f32, fast_exp2, fast_log2
-from fwcore.model import PARAMS_PER_ECHO
+from fwcore.model import PARAMS_PER_ECHO, table_reach, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 _F32 = np.float32
@@ -42,9 +42,10 @@ def padded_length(n: int) -> int:
 
 
 @njit(**SIMD_JIT)
-def fill_model(x, n_echoes, tpos, gaussian, eps, model):
+def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
     """Write the model of individual x into `model` (float32, padded to whole blocks),
-    evaluating each echo only over the aligned blocks where it exceeds eps."""
+    evaluating each echo only over the aligned blocks where it exceeds eps (a tabulated shape over
+    its table's support, scalar: a gather does not vectorise)."""
     n = model.size
     b = _F32(x[0])
     for i in range(n):
@@ -55,6 +56,13 @@ def fill_model(x, n_echoes, tpos, gaussian, eps, model):
         if amplitude <= 0.0:
             continue
         u = x[base + 1]
+        if shape.tabulated:
+            before, after = table_reach(shape)
+            lo = max(0, int(math.floor(u - before)))
+            hi = min(n, int(math.ceil(u + after)) + 1)
+            for i in range(lo, hi):
+                model[i] += _F32(table_value(shape, amplitude, u, x[base + 2], np.float64(tpos[i])))
+            continue
         h = x[base + 2] * _SQRT_2LN2
         p = x[base + 3] * x[base + 3]
         reach = _echo_reach(amplitude, h, p, eps)
@@ -80,9 +88,9 @@ def fill_model(x, n_echoes, tpos, gaussian, eps, model):
 
 
 @njit(**SIMD_JIT)
-def fit_error(x, n_echoes, tpos, target, weight, gaussian, eps, model):
+def fit_error(x, n_echoes, tpos, target, weight, gaussian, shape, eps, model):
     """Eq. 9: sum of |model - target| over valid samples (weight 1, else 0). `model` is scratch."""
-    fill_model(x, n_echoes, tpos, gaussian, eps, model)
+    fill_model(x, n_echoes, tpos, gaussian, shape, eps, model)
     acc = _ZERO32
     for i in range(model.size):
         acc += weight[i] * abs(model[i] - target[i])

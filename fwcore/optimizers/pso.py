@@ -17,7 +17,7 @@ _PSO_MAX_SPEED = 0.2
 
 
 @njit(**JIT)
-def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target, weight, gaussian, eps):
+def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target, weight, gaussian, shape, eps):
     """Global-best PSO: v <- w v + c1 r1 (personal best - x) + c2 r2 (global best - x), speed limited
     to a fraction of each range, positions kept in the box. On return pop and fitness hold the
     personal bests. Returns evaluations."""
@@ -40,7 +40,7 @@ def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target
                 v = min(max(v, -limit), limit)
                 velocity[i, j] = v
                 x[i, j] = min(max(x[i, j] + v, lower[j]), upper[j])
-            err = fit_error(x[i], n_echoes, tpos, target, weight, gaussian, eps, model)
+            err = fit_error(x[i], n_echoes, tpos, target, weight, gaussian, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 fitness[i] = err

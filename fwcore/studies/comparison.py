@@ -23,11 +23,11 @@ from fwcore.studies.methods import (MethodRun, budget_settings, budget_study, ch
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.records import WaveformBatch
 from fwcore.io import read_pulses
-from fwcore.pulses import csv_pulse_fwhm_ps, echo_positions, echo_times_ps, pulse_waveforms
+from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.io.neon import read_neon_csv
-from fwcore.preprocess import estimate_pulse_fwhm
 from fwcore.rng import pulse_seed
-from fwcore.survey import file_system_pulse
+from fwcore.instrument import SystemResponse
+from fwcore.survey import csv_system_pulse, file_system_pulse
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,18 +42,15 @@ class ComparisonInput:
 
 
 def load_input(path: str | Path, config: DecompositionConfig, limit: int | None = None,
-               outgoing: str | Path | None = None) -> ComparisonInput:
-    """A LAS/LAZ file (pulse width and shape from its single-return pulses, as `fwl run`) or a NEON CSV
-    (pulse width from --outgoing, else estimated from the returns)."""
+               outgoing: str | Path | None = None, response: SystemResponse | None = None) -> ComparisonInput:
+    """A LAS/LAZ file (system pulse measured on its single-return pulses, as `fwl run`) or a NEON CSV
+    (the response given, else from --outgoing, else from the returns: fwcore.survey.csv_system_pulse)."""
     path = Path(path)
     if path.suffix.lower() == ".csv":
         waveforms = read_neon_csv(path)
         n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
-        if config.system_pulse_fwhm_ps is None and outgoing:
-            config = config.replace(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(outgoing)))
-        elif config.system_pulse_fwhm_ps is None:
-            estimate = estimate_pulse_fwhm(waveforms.samples, waveforms.valid)
-            config = config.replace(system_pulse_fwhm_ps=estimate.fwhm_samples * 1000.0)
+        config = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, config, response,
+                                  read_neon_csv(outgoing) if outgoing else None).configure(config)
         ids = waveforms.waveform_id[:n]
         batch = WaveformBatch.from_waveforms(waveforms.samples[:n], 1000.0,
                                              [pulse_seed(config.seed, int(i)) for i in ids], waveforms.valid[:n])
@@ -62,7 +59,7 @@ def load_input(path: str | Path, config: DecompositionConfig, limit: int | None 
     if limit is not None and limit < len(pulses):
         pulses = _first_pulses(pulses, limit)
     pulse = file_system_pulse(path, len(pulses.return_xyz), config)  # as fwl run measures it
-    config = config.replace(system_pulse_fwhm_ps=pulse.fwhm_ps, shape_tolerance=pulse.shape_tolerance)
+    config = pulse.configure(config)
     return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, config, pulses,
                            pulse.range_offset_ps)
 
@@ -198,11 +195,12 @@ def plot_budget(path: Path, rows: Sequence[dict]) -> None:
 def run_comparison(input_path: str | Path, output: str | Path, base: DecompositionConfig,
                    optimizers: Sequence[Optimizer], models: Sequence[Model], limit: int | None = None,
                    pulses: Sequence[int] | None = None, distance: float = 0.5, budget: bool = False,
-                   threads: int = 1, outgoing: str | Path | None = None) -> dict:
+                   threads: int = 1, outgoing: str | Path | None = None,
+                   response: SystemResponse | None = None) -> dict:
     """The whole `fwl compare`; returns what it wrote and the rows."""
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
-    data = load_input(input_path, base, limit, outgoing)
+    data = load_input(input_path, base, limit, outgoing, response)
     runs = compare_methods(data.batch, data.config, optimizers, models, threads)
     rows = [run.row() for run in runs]
     write_csv(output / "compare.csv", rows)

@@ -19,7 +19,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from fwcore.simulate import RANGE_M_PER_PS, SensorConfig
+from fwcore.instrument import echo_shape
+from fwcore.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
 from fwcore.studies.truth import TRUTH_METADATA_KEY
 
 SNR_BANDS = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 50.0), (50.0, np.inf))
@@ -61,9 +62,12 @@ def match_echoes(true_pulse, true_time, found_pulse, found_time, match_ps: float
 
 
 def range_crlb_cm(amplitude, sigma_ps, alpha, sensor: SensorConfig) -> np.ndarray:
-    """Cramer-Rao bound (cm) of the range of one generalized Gaussian echo of known shape in the
-    sensor's noise (Gaussian + signal-dependent + quantisation), sampled on the packet's grid."""
+    """Cramer-Rao bound (cm) of the range of one echo of known shape in the sensor's noise (Gaussian +
+    signal-dependent + quantisation), sampled on the packet's grid: a generalized Gaussian, or the
+    sensor's response broadened to the echo's width where the flight was simulated with one."""
     amplitude, sigma_ps, alpha = (np.asarray(a, float) for a in (amplitude, sigma_ps, alpha))
+    if sensor.response is not None:
+        return _response_crlb_cm(amplitude, sigma_ps, sensor)
     out = np.empty(amplitude.size)
     # the echo centred mid-sample and on a sample average out the grid phase: use both
     offsets = np.arange(-40, 41) * sensor.sample_spacing_ps
@@ -78,6 +82,28 @@ def range_crlb_cm(amplitude, sigma_ps, alpha, sensor: SensorConfig) -> np.ndarra
             var = sensor.noise_sigma ** 2 + sensor.shot_noise * f + 1.0 / 12.0
             info = info + 0.5 * (slope ** 2 / var).sum(axis=1)
         out[lo:lo + 20000] = _CM_PER_PS / np.sqrt(info)
+    return out
+
+
+def _response_crlb_cm(amplitude: np.ndarray, sigma_ps: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """range_crlb_cm for echoes of the sensor's response: A row(s)(t - u), its slope from the echo table."""
+    spacing = sensor.sample_spacing_ps
+    shape = echo_shape(sensor.response, spacing, RESPONSE_WIDEST)
+    grid = (np.arange(shape.rows.shape[1]) - shape.origin) * shape.step
+    offsets = np.arange(-60, 61, dtype=float)
+    out = np.empty(amplitude.size)
+    for e, (a, s) in enumerate(zip(amplitude, sigma_ps / spacing)):
+        fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
+        w, frac = int(fw), fw - int(fw)
+        row = (1 - frac) * shape.rows[w] + frac * shape.rows[w + 1]
+        slope_row = (1 - frac) * shape.slopes[w] + frac * shape.slopes[w + 1]
+        info = 0.0
+        for phase in (0.0, 0.5):
+            f = a * np.interp(offsets + phase, grid, row, left=0.0, right=0.0)
+            slope = a * np.interp(offsets + phase, grid, slope_row, left=0.0, right=0.0) / spacing  # per ps
+            var = sensor.noise_sigma ** 2 + sensor.shot_noise * np.maximum(f, 0.0) + 1.0 / 12.0
+            info += 0.5 * float((slope ** 2 / var).sum())
+        out[e] = _CM_PER_PS / np.sqrt(info)
     return out
 
 

@@ -20,7 +20,8 @@ from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.engine import decompose_batch, smoothing_sigma_samples
 from fwcore.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
-from fwcore.model import generalized_gaussian, sigma_to_time_unit
+from fwcore.instrument import SystemResponse
+from fwcore.model import sigma_to_time_unit
 from fwcore.preprocess import gaussian_smooth
 from fwcore.pulses import pulse_waveforms
 from pipeline.view import queries
@@ -84,6 +85,9 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
         config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
     if row.get("shape_tolerance") is not None:  # measured per file, like the pulse width
         config = config.replace(shape_tolerance=float(row["shape_tolerance"]))
+    response = input_response(summary, source_file)
+    if response is not None:
+        config = config.replace(system_response=response)
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
     seed = int(pulse_waveforms(pulses, config.seed).seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
@@ -91,6 +95,14 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
                    pulses.return_intensity[lo:hi].astype(int))
     return raw, config, row
+
+
+def input_response(summary: dict, source_file: str) -> SystemResponse | None:
+    """The system response the run measured on an input (run.json's inputs[].system_response), if any."""
+    for entry in summary.get("inputs", []):
+        if isinstance(entry, dict) and entry.get("name") == source_file and entry.get("system_response"):
+            return SystemResponse.from_dict(entry["system_response"])
+    return None
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
@@ -101,7 +113,7 @@ def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> 
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
         config = DecompositionConfig(**PRESETS[preset]).replace(
-            system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed,
+            system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed, system_response=base.system_response,
             shape_tolerance=PRESETS[preset].get("shape_tolerance", base.shape_tolerance))
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
@@ -125,7 +137,7 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
             "sigma_chauve": float(sigma_to_time_unit(np.array([s]), np.array([al]), np.array([spacing]))[0]),
             "alpha": al, "fwhm_ps": float(result.fwhm[k]) * spacing, "energy": float(result.energy[k]) * spacing,
             "kept": result.reject_reason[k] == "", "reject_reason": result.reject_reason[k],
-            "curve": result.background + generalized_gaussian(fine, a, u, s, al),
+            "curve": result.background + result.echo(k, fine),
         })
     return {
         "config": config.to_dict(),

@@ -157,3 +157,33 @@ def chi2_without_echo(x, k, times, raw, sigma, lower, upper):
     keep = np.ones(x.size, bool)
     keep[1 + 4 * k:5 + 4 * k] = False
     return fit(x[keep], lower[keep], upper[keep]), fit(x, lower, upper)
+
+
+def response_echo(times_ps: np.ndarray, values: np.ndarray, spacing_ps: float, amplitude: float, position: float,
+                  s: float, t: np.ndarray) -> np.ndarray:
+    """An echo of a measured response, from its definition: the response (ps grid) convolved with the
+    Gaussian whose broadening gives an FWHM of s x 2 sqrt(2 ln 2) samples (found by bisection), peak scaled
+    to `amplitude`, its time 0 at `position` (samples), on a 1/64-sample grid."""
+    step = 1.0 / 64.0
+    grid = np.arange((times_ps[0] / spacing_ps) - 6 * s - 1, (times_ps[-1] / spacing_ps) + 6 * s + 1, step)
+    base = np.interp(grid, times_ps / spacing_ps, values, left=0.0, right=0.0)
+
+    def broadened(b: float) -> np.ndarray:
+        if b < 1e-6:
+            return base
+        half = int(np.ceil(6 * b / step))
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * step / b) ** 2)
+        return np.convolve(base, kernel / kernel.sum(), mode="same")
+
+    def width(y: np.ndarray) -> float:
+        above = grid[y >= 0.5 * y.max()]
+        return above[-1] - above[0]
+
+    target = s * 2.0 * SQRT_2LN2
+    lo, hi = 0.0, 3.0 * s
+    if width(base) < target:
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if width(broadened(mid)) < target else (lo, mid)
+    y = broadened(0.5 * (lo + hi) if width(base) < target else 0.0)
+    return amplitude * np.interp(np.asarray(t, float) - position, grid, y / y.max(), left=0.0, right=0.0)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from fwcore.instrument import analytic_shape
 from fwcore.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
 from tests.fwcore.naive import model_of_individual
 
@@ -17,7 +18,7 @@ def test_jacobian_matches_central_differences():
     model = np.empty(T.size)
     jac = np.empty((T.size, START.size))
     windows = np.empty((2, 2), dtype=np.int64)
-    model_and_jacobian(START, 2, T, model, jac, windows)
+    model_and_jacobian(START, 2, T, analytic_shape(), model, jac, windows)
     np.testing.assert_allclose(model, model_of_individual(START, T), rtol=1e-12)
     for k, (lo, hi) in enumerate(windows):  # outside its window an echo's columns are zero
         columns = jac[:, 1 + 4 * k:5 + 4 * k]

@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 
+from fwcore.instrument import analytic_shape
 from fwcore.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
                           sigma_from_equivalent, sigma_to_time_unit, waveform_model)
 from fwcore.optimizers.objective import fill_model, padded_length
@@ -60,7 +61,7 @@ def test_fast_float32_model_matches_float64_reference(gaussian):
     x = np.array(x)
     model = np.empty(n_pad, np.float32)
     eps = 1e-4
-    fill_model(x, 5, np.arange(n_pad, dtype=np.float32), gaussian, eps, model)
+    fill_model(x, 5, np.arange(n_pad, dtype=np.float32), gaussian, analytic_shape(), eps, model)
     reference = model_of_individual(x, np.arange(n))
     # float32 with approximate exp2/log2 (1e-4 each): within 2e-4 of the echoes' height plus the
     # truncation eps per echo

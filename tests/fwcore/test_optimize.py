@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 
+from fwcore.instrument import analytic_shape
 from fwcore.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
                                         mutate_de, mutate_mde)
 from fwcore.optimizers.objective import fit_error, padded_length
@@ -93,7 +94,8 @@ def _problem(seed=0):
     model = np.empty(n_pad, np.float32)
 
     def objective(x):
-        return fit_error(np.ascontiguousarray(x), 3, tpos, target, weight, False, 1e-3, model)
+        return fit_error(np.ascontiguousarray(x), 3, tpos, target, weight, False, analytic_shape(), 1e-3,
+                         model)
 
     fitness = np.array([objective(x) for x in pop])
     return pop, fitness, lower, upper, tpos, target, weight, objective
@@ -105,7 +107,7 @@ def test_one_mde_generation_matches_the_numpy_reference():
                                                       SplitMix64(2024), objective)
     state = np.array([2024], dtype=np.uint64)
     nfev, nit, _ = evolve(pop, fitness, lower, upper, 1, 0.9, True, False, 2, 3, 0.2, 1.0, 0.5, 0.0, 0.0, state,
-                          3, tpos, target, weight, False, 1e-3)
+                          3, tpos, target, weight, False, analytic_shape(), 1e-3)
     assert (nfev, nit) == (8 * (2 * 3 + 1), 1)  # k x t candidates plus the trial, per individual
     # same draws, same decisions; values differ only by FMA contraction (1e-16)
     np.testing.assert_allclose(pop, expected_pop, rtol=1e-13)
@@ -117,7 +119,7 @@ def test_evolution_never_worsens_the_best_and_stays_in_bounds():
     start = fitness.min()
     state = np.array([5], dtype=np.uint64)
     evolve(pop, fitness, lower, upper, 30, 0.9, True, False, 1, 5, 0.2, 1.0, 0.5, 0.0, 0.0, state,
-           3, tpos, target, weight, False, 1e-3)
+           3, tpos, target, weight, False, analytic_shape(), 1e-3)
     assert fitness.min() < start
     assert (pop >= lower).all() and (pop <= upper).all()
     assert math.isfinite(fitness.min())

@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 
+from fwcore.instrument import analytic_shape
 from fwcore.model import waveform_model
 from fwcore.optimizers.ga_iterative import patent_peak_ranges
 from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes
@@ -78,7 +79,8 @@ def test_progressive_estimate_matches_the_naive_reference():
     smoothed = gaussian_smooth(y, 0.8)
     threshold = np.full(t.size, 3.0)
     amplitude, position, sigma = np.zeros(12), np.zeros(12), np.zeros(12)
-    n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, amplitude, position, sigma)
+    n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(), amplitude,
+                            position, sigma)
     expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0)
     assert n == len(expected) >= 3
     np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)

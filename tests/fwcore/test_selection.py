@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from fwcore.instrument import analytic_shape
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.model import model_of_individual, waveform_model
@@ -31,8 +32,8 @@ def test_drop_decision_matches_a_scipy_refit(flank_amplitude, needed):
     upper = np.array([25, 400, 55, 9, SQ2, 100, 60, 9, SQ2], float)
     p = CONFIG.replace(model="gaussian").kernel_params()
     weights = np.full(times.size, 1 / sigma)
-    best, _, _, n, dropped, _ = drop_unneeded_echoes(p, start.copy(), lower, upper, 2, times, raw, raw, weights,
-                                                     0.0, 119.0, PULSE_SIGMA * 2.3548, sigma)
+    best, _, _, n, dropped, _ = drop_unneeded_echoes(p, analytic_shape(), start.copy(), lower, upper, 2, times, raw,
+                                                     raw, weights, 0.0, 119.0, PULSE_SIGMA * 2.3548, sigma)
     without, with_ = naive.chi2_without_echo(start, 1, times, raw, sigma, lower, upper)
     assert (without - with_ > 3 * math.log(times.size)) == needed  # the reference's verdict
     assert (n == 2) == needed and dropped == (0 if needed else 1)

@@ -1,5 +1,6 @@
 """Simulated flights: the truth renders to the stored samples, the file reads back as written, chunk by chunk."""
 
+import dataclasses
 import json
 
 import laspy
@@ -126,3 +127,27 @@ def test_a_flight_that_fails_after_chunks_were_written_leaves_no_partial_files(t
     with pytest.raises(ValueError, match="packet is too short"):
         write_flight(tmp_path / "sim.las", 400, short, SceneConfig(), seed=1)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.las", "ok.trajectory.csv", "ok.truth.parquet", "ok.wdp"]
+
+
+@pytest.mark.parametrize("name", ["riegl", "leica"])
+def test_a_flight_of_a_measured_response_renders_its_echoes_in_that_shape(name):
+    from fwcore.instrument import SHIPPED_SPACING_PS, named_response
+    from fwcore.survey import measure_file_response
+
+    response = named_response(name)
+    sensor = SensorConfig(pulse_fwhm_ps=response.fwhm_ps, sample_spacing_ps=SHIPPED_SPACING_PS[name],
+                          noise_sigma=0.0, shot_noise=0.0, response=response)
+    flight = simulate_flight(300, sensor, seed=3)
+    rendered = render_truth(flight.truth, sensor.samples_per_packet, sensor.sample_spacing_ps, sensor.background,
+                            response)
+    stored = flight.pulses.samples.reshape(300, -1)
+    unsaturated = rendered < 255
+    assert np.abs(stored - rendered)[unsaturated].max() <= 0.5 + 1e-9
+    assert np.isnan(flight.truth["alpha"]).all()
+    # the simulated returns, measured as a run measures a file, give back the response, widened a little by
+    # the targets (the narrowest returns of the scene are up to 15% wider than the response)
+    noisy = simulate_flight(2000, dataclasses.replace(sensor, noise_sigma=0.6, shot_noise=0.02), seed=4)
+    measured = measure_file_response(noisy.pulses, np.arange(2000), "simulated")
+    assert 0.98 * response.fwhm_ps <= measured.fwhm_ps <= 1.15 * response.fwhm_ps
+    if name == "riegl":
+        assert measured.afterpulse()[0] == pytest.approx(response.afterpulse()[0], abs=1000)

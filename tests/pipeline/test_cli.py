@@ -1,3 +1,4 @@
+import csv as csv_module
 import json
 import subprocess
 import sys
@@ -144,3 +145,38 @@ def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(lei
     assert summary["counts"]["files_rejected"] == 0 and summary["counts"]["pulses_decomposed"] == 20
     said = capfd.readouterr()
     assert "dir.las: a folder that holds no .las, .laz or .pls file" in said.err + said.out
+
+
+def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_path, small_csv, neon_dir, capsys):
+    from fwcore.instrument import SystemResponse, echo_shape
+    from fwcore.model import tabulated_model
+
+    out = tmp_path / "echoes.parquet"
+    assert main(["decompose-csv", str(small_csv), "--output", str(out), "--model", "system",
+                 "--system-response", str(neon_dir / "system_impulse.csv")]) == 0
+    assert "system response system_impulse.csv" in capsys.readouterr().out
+    table = pq.read_table(out)
+    config = json.loads(table.schema.metadata[b"fwlidar.config"])
+    assert config["model"] == "system" and config["system_response"]["source"] == "system_impulse.csv"
+    shape = echo_shape(SystemResponse.from_dict(config["system_response"]), 1000.0)
+    echoes = table.to_pandas()
+    assert echoes.alpha.isna().all()  # the generalized Gaussian's shape factor means nothing here
+    csv = read_neon_csv(small_csv)
+    for wid, samples, valid in zip(csv.waveform_id, csv.samples, csv.valid):
+        rows = echoes[echoes.waveform_id == wid]
+        t = np.arange(samples.size)[valid]
+        # the config in the table's metadata and its rows reproduce the fitted model
+        model = tabulated_model(t, rows.background.iloc[0], rows.amplitude, rows.time, rows.sigma, shape)
+        # (the response in the metadata is rounded to 1e-6 of its peak)
+        assert np.abs(model - samples[valid]).sum() == pytest.approx(rows.fit_error_raw.iloc[0], rel=1e-5)
+
+
+def test_compare_lists_the_deconvolution_methods_beside_the_optimizers(tmp_path, small_csv, neon_dir):
+    out = tmp_path / "compare"
+    assert main(["compare", str(small_csv), "--output", str(out), "--optimizers", "lm,gold,richardson-lucy",
+                 "--model", "system", "--system-response", str(neon_dir / "system_impulse.csv")]) == 0
+    rows = list(csv_module.DictReader((out / "compare.csv").open()))
+    assert [r["optimizer"] for r in rows] == ["lm", "gold", "richardson-lucy"]
+    errors = {r["optimizer"]: float(r["fit_error"]) for r in rows}
+    assert all(np.isfinite(v) and v > 0 for v in errors.values())
+    assert errors["lm"] < min(errors["gold"], errors["richardson-lucy"])  # a fit beats a deconvolution's lobes

@@ -26,7 +26,7 @@ def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
     assert rejected == []
     assert [(t.point_range.start, t.point_range.stop, t.point_range.n_pulses) for t in tasks] == \
         [(0, 400, 342), (400, 800, 310), (800, 1125, 272)]  # 342 + 310 + 272 = 924
-    assert {round(t.source.system_pulse_fwhm_ps) for t in tasks} == {10980}
+    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10980}
     assert not tasks[0].source.adjusted_standard_gps_time  # the Leica sample stores GPS week time
 
 
@@ -53,7 +53,7 @@ def test_read_and_decompose_count_every_pulse(leica_dir):
         result, not_decomposed = decompose_range(pulses, config)
         assert rejected == not_decomposed == []
         decomposed += int((result.result.status == 0).sum())
-        assert result.config.system_pulse_fwhm_ps == task.source.system_pulse_fwhm_ps  # the file's pulse
+        assert result.config.system_pulse_fwhm_ps == task.source.system.fwhm_ps  # the file's pulse
     assert decomposed == 924
 
 

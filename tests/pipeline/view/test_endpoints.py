@@ -249,8 +249,10 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
         server.server_close()
 
 
-def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
-    """A .pls+.wvs input, picked in the viewer: its pulses come back from the PulseWaves reader."""
+@pytest.mark.parametrize("stem, model", [("las13fwf_example1", "generalized"), ("riegl_example3", "system")])
+def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path, stem, model):
+    """A .pls+.wvs input, picked in the viewer: its pulses come back from the PulseWaves reader, refitted with
+    the response the run measured on the file where echoes take its shape."""
     import shutil
     from pathlib import Path
 
@@ -260,21 +262,23 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path):
 
     samples = Path(__file__).resolve().parents[3] / "examples" / "data" / "pulsewaves"
     for suffix in (".pls", ".wvs"):
-        shutil.copy(samples / f"las13fwf_example1{suffix}", tmp_path / f"las13fwf_example1{suffix}")
+        shutil.copy(samples / f"{stem}{suffix}", tmp_path / f"{stem}{suffix}")
     runs = tmp_path / "runs"
-    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, run_args(20), 10))
+    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, run_args(20) + ["--model", model], 10))
     serve_in_thread(server)
     try:
-        v = Viewed(url_of(server), tmp_path, runs / "las13fwf_example1", "", "", [])
+        v = Viewed(url_of(server), tmp_path, runs / stem, "", "", [])
         (listed,) = v.get("/api/catalog")["inputs"]
-        assert listed["name"] == "las13fwf_example1.pls" and listed["run"] is None
+        assert listed["name"] == f"{stem}.pls" and listed["run"] is None
         listed = v.decompose(listed["id"])
-        assert listed["job"]["status"] == "done", (runs / "las13fwf_example1.log").read_text()
+        assert listed["job"]["status"] == "done", (runs / f"{stem}.log").read_text()
         echoes, pulses = v.echoes(), v.pulses()
         assert len(pulses) == 20
         for pulse_id in pulses.sort_values("gps_time").pulse_id.iloc[[0, -1]]:
-            p = v.get(f"/api/pulse?run={listed['run']}&file=las13fwf_example1.pls&pulse={int(pulse_id)}")
+            p = v.get(f"/api/pulse?run={listed['run']}&file={stem}.pls&pulse={int(pulse_id)}")
             assert p["reproduced"] and len(p["fit"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
+            assert p["fit"]["config"]["model"] == model
+            assert (p["fit"]["config"]["system_response"] is not None) == (model == "system")
     finally:
         server.viewer.jobs.stop_all()
         server.shutdown()

@@ -1,0 +1,225 @@
+"""The system-response benchmark: the instrument issue's targets, measured side by side in one run.
+
+    python bench/bench_instrument.py [--skip-simulation] [--pulses N]
+
+One thread each, after compilation, Sylva (PyPI sylva-rs, Rust Gaussian LM,
+RAYON_NUM_THREADS=1) beside us in the same process:
+- RIEGL Q680 (riegl_example3.pls): ghost echoes (a kept echo 7-14 ns behind a kept
+  echo of its pulse at least 12x stronger: the afterpulse fitted as an echo),
+  echoes per pulse, pulses/s of the default and `fast`, with echoes of the measured
+  response (`system`) and of the generalized Gaussian;
+- Leica sample: the system's returns with a kept echo within 0.5 m, extra kept echoes
+  per system return, spurious (filtered) echoes per pulse, raw error, pulses/s;
+- NEON: raw error and the held-out ratio (every 3rd valid sample blanked) with the
+  system impulse response, and the held-out error with the response measured on the
+  returns alone; Gold and Richardson-Lucy beside LM and MDE;
+- simulated flights drawn with the Gaussian, Leica and RIEGL responses (and the
+  method's generalized Gaussians): recall, precision, range RMSE / CRLB of the default;
+- peak memory (RSS).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("RAYON_NUM_THREADS", "1")  # Sylva's thread pool, read when it is first imported
+
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
+from fwcore.engine import decompose_batch  # noqa: E402
+from fwcore.instrument import load_response  # noqa: E402
+from fwcore.io import read_pulses  # noqa: E402
+from fwcore.io.neon import read_neon_csv  # noqa: E402
+from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
+from fwcore.records import BatchDecomposition, WaveformBatch  # noqa: E402
+from fwcore.rng import pulse_seed  # noqa: E402
+from fwcore.studies.methods import compare_to_system  # noqa: E402
+from fwcore.survey import csv_system_pulse, file_system_pulse  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "examples" / "data"
+LEICA = DATA / "leica_als" / "leica_a.las"
+RIEGL = DATA / "pulsewaves" / "riegl_example3.pls"
+NEON = DATA / "neon_harvard"
+MODELS = ("system", "generalized")
+
+
+def config_of(preset: str, model: str) -> DecompositionConfig:
+    return DecompositionConfig(**PRESETS.get(preset, {})).replace(model=model)
+
+
+def timed(batch: WaveformBatch, config: DecompositionConfig) -> tuple[BatchDecomposition, float]:
+    """(result, waveforms/s) on one thread, compiled outside the timed call."""
+    first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
+                          batch.sample_spacing_ps[:1], batch.seeds[:1])
+    decompose_batch(first, config, threads=1)
+    start = time.perf_counter()
+    result = decompose_batch(batch, config, threads=1)
+    return result, len(batch) / (time.perf_counter() - start)
+
+
+def ghost_share(result: BatchDecomposition, spacing_ns: float) -> float:
+    """Share of pulses with a kept echo 7-14 ns behind a kept echo of the pulse at least 12x stronger."""
+    kept = result.reject == 0
+    ghosts = 0
+    for i in range(len(result)):
+        lo, hi = result.echo_offsets[i], result.echo_offsets[i + 1]
+        a = result.amplitude[lo:hi][kept[lo:hi]]
+        u = result.position[lo:hi][kept[lo:hi]] * spacing_ns
+        delay = u[None, :] - u[:, None]
+        ghosts += bool(((delay >= 7) & (delay <= 14) & (a[:, None] >= 12 * a[None, :])).any())
+    return ghosts / max(len(result), 1)
+
+
+def sylva_rate(path: Path) -> tuple[float, float] | None:
+    """Sylva's (pulses/s, echoes per pulse) on a file, one thread; None when it is not installed."""
+    try:
+        import sylva
+    except ImportError:
+        return None
+    waveforms = sylva.waveform.read(str(path))
+    sylva.waveform.decompose(waveforms)  # warm-up
+    start = time.perf_counter()
+    echoes = sylva.waveform.decompose(waveforms)
+    seconds = time.perf_counter() - start
+    return len(waveforms) / seconds, len(echoes) / len(waveforms)
+
+
+def riegl_rows() -> None:
+    pulses = read_pulses(RIEGL)
+    sylva = sylva_rate(RIEGL)
+    print(f"\nRIEGL Q680 ({RIEGL.name}, {len(pulses)} pulses)")
+    if sylva:
+        print(f"  Sylva (Rust LM, 1 thread): {sylva[0]:,.0f} pulses/s, {sylva[1]:.2f} echoes per pulse")
+    print(f"  {'model':12} {'preset':8} {'pulses/s':>9} {'x Sylva':>8} {'ghosts':>7} {'echoes/pulse':>12}  (targets: "
+          "ghosts <= 1%; default >= 0.5x Sylva, fast >= 1x)")
+    for model in MODELS:
+        system = file_system_pulse(RIEGL, len(pulses), config_of("default", model))  # as fwl run measures it
+        if model == "system":
+            t, height = system.response.afterpulse()
+            print(f"  response: {system.response_source}; FWHM {system.fwhm_ps / 1000:.2f} ns, afterpulse "
+                  f"{t / 1000:.1f} ns behind the peak at {100 * height:.1f}%")
+        for preset in ("default", "fast"):
+            result, rate = timed(pulse_waveforms(pulses, 0), system.configure(config_of(preset, model)))
+            ratio = f"{rate / sylva[0]:8.3f}" if sylva else f"{'-':>8}"
+            print(f"  {model:12} {preset:8} {rate:9.0f} {ratio} {100 * ghost_share(result, 1.0):6.1f}% "
+                  f"{(result.reject == 0).sum() / len(result):12.2f}", flush=True)
+
+
+def leica_rows() -> None:
+    pulses = read_pulses(LEICA)
+    n_system = pulses.return_xyz.shape[0]
+    sylva = sylva_rate(LEICA)
+    print(f"\nLeica sample ({len(pulses)} pulses, {n_system} system returns)")
+    if sylva:
+        print(f"  Sylva (Rust LM, 1 thread): {sylva[0]:,.0f} pulses/s, {sylva[1]:.2f} echoes per pulse")
+    print(f"  {'model':12} {'preset':8} {'pulses/s':>9} {'x Sylva':>8} {'returns':>8} {'extra':>6} "
+          f"{'spur/pulse':>10} {'raw err':>8} {'median d':>8}  (targets: returns >= 0.985, extra <= 0.25, "
+          "spur <= 1; default >= 1.5x Sylva, fast >= 3x)")
+    for model in MODELS:
+        system = file_system_pulse(LEICA, n_system, config_of("default", model))
+        for preset in ("default", "fast"):
+            result, rate = timed(pulse_waveforms(pulses, 0), system.configure(config_of(preset, model)))
+            kept = result.reject == 0
+            xyz = echo_positions(pulses, result, system.range_offset_ps)[kept]
+            times = echo_times_ps(pulses, result, system.range_offset_ps)[kept]
+            points = compare_to_system(pulses, xyz, times, result.echo_waveform[kept])
+            extra = points.new_points - points.new_at_omitted_returns
+            ratio = f"{rate / sylva[0]:8.3f}" if sylva else f"{'-':>8}"
+            print(f"  {model:12} {preset:8} {rate:9.0f} {ratio} {points.matched_system / n_system:8.3f} "
+                  f"{extra / n_system:6.3f} {(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
+                  f"{points.median_distance:8.3f}", flush=True)
+
+
+def held_out_error(waveforms, config: DecompositionConfig) -> tuple[float, float]:
+    """(mean |model - sample| at held-out samples, the same at fitted ones), every 3rd valid sample held out."""
+    held, fitted = [], []
+    masks = []
+    for v in waveforms.valid:
+        idx = np.flatnonzero(v)
+        out = np.zeros(v.size, bool)
+        out[idx[1::3]] = True
+        masks.append(out)
+    batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
+                                         [pulse_seed(config.seed, int(i)) for i in waveforms.waveform_id],
+                                         [v & ~m for v, m in zip(waveforms.valid, masks)])
+    result = decompose_batch(batch, config, threads=1)
+    for i, (y, v, m) in enumerate(zip(waveforms.samples, waveforms.valid, masks)):
+        if result.status[i]:
+            continue
+        model = result.waveform(i).model(np.arange(y.size))
+        held.append(np.abs(model - y)[m].mean())
+        fitted.append(np.abs(model - y)[v & ~m].mean())
+    return float(np.mean(held)), float(np.mean(fitted))
+
+
+def neon_rows() -> None:
+    waveforms = read_neon_csv(NEON / "return_waveforms.csv")
+    outgoing = read_neon_csv(NEON / "outgoing_pulses.csv")
+    impulse = load_response(NEON / "system_impulse.csv")
+    batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
+                                         [pulse_seed(0, int(i)) for i in waveforms.waveform_id], waveforms.valid)
+    print(f"\nNEON ({len(batch)} waveforms; system impulse FWHM {impulse.fwhm_ps / 1000:.2f} ns)")
+    print(f"  {'model, response':44} {'optimizer':16} {'waveforms/s':>11} {'raw err':>8} {'held-out':>8} "
+          f"{'ratio':>6}  (targets: impulse raw <= 240, ratio <= 1.03; from the returns held-out <= 3.0)")
+    cases = [("generalized, outgoing pulses' width", "generalized", None, outgoing),
+             ("system, system_impulse.csv", "system", impulse, None),
+             ("system, measured on the returns", "system", None, None)]
+    for label, model, response, out in cases:
+        for optimizer in ("lm-mde", "lm", "gold", "richardson-lucy"):
+            if optimizer in ("gold", "richardson-lucy") and model != "system":
+                continue
+            base = DecompositionConfig(model=model, optimizer=optimizer)
+            config = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, base, response, out).configure(base)
+            result, rate = timed(batch, config)
+            held, fitted = held_out_error(waveforms, config)
+            print(f"  {label:44} {optimizer:16} {rate:11.1f} {result.fit_error_raw.mean():8.1f} {held:8.2f} "
+                  f"{held / fitted:6.3f}", flush=True)
+
+
+def simulation_rows(n_pulses: int) -> None:
+    print(f"\nSimulated flights ({n_pulses} pulses, seed 7), the default configuration (fwl run, fwl evaluate): "
+          "targets recall >= 0.97, precision >= 0.98, RMSE/CRLB <= 1.25")
+    with tempfile.TemporaryDirectory() as tmp:
+        for response in ("generalized", "gaussian", "riegl", "leica"):
+            flight = Path(tmp) / f"{response}.las"
+            extra = [] if response == "generalized" else ["--system-response", response]
+            subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--pulses", str(n_pulses), "--seed", "7",
+                            "--output", str(flight), *extra], check=True, capture_output=True)
+            for model in MODELS:
+                out = Path(tmp) / f"{response}-{model}"
+                subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(flight), "--output", str(out),
+                                "--model", model, "--formats", "parquet"], check=True, capture_output=True)
+                table = subprocess.run([sys.executable, "-m", "pipeline.cli", "evaluate", str(out), "--truth",
+                                        str(flight.with_suffix(".truth.parquet"))], check=True, capture_output=True,
+                                       text=True).stdout
+                row = next(line for line in table.splitlines() if "| all |" in line).split("|")
+                print(f"  echoes of {response:12} model {model:12} recall {row[5].strip()} precision "
+                      f"{row[6].strip()} RMSE/CRLB {row[10].strip()}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--skip-simulation", action="store_true")
+    parser.add_argument("--pulses", type=int, default=5000, help="pulses per simulated flight (default 5000)")
+    args = parser.parse_args()
+    riegl_rows()
+    leica_rows()
+    neon_rows()
+    if not args.skip_simulation:
+        simulation_rows(args.pulses)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"\npeak memory (RSS) of the benchmark process: {peak:.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,183 @@
+"""The instrument's response: measured on real files against facts read off them, the echo shape built from
+it against a naive reference, and what it changes in the engine (an afterpulse is not an echo)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fwcore.config import DecompositionConfig
+from fwcore.engine import decompose_waveform
+from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, load_response, named_response,
+                               response_from_samples)
+from fwcore.io import PointRange, read_pulses
+from fwcore.model import tabulated_area, tabulated_model
+from fwcore.optimizers.local import model_and_jacobian
+from fwcore.survey import file_system_pulse, measure_file_response
+from tests.fwcore import naive
+
+DATA = Path(__file__).resolve().parents[2] / "examples" / "data"
+LEICA = DATA / "leica_als" / "leica_a.las"
+RIEGL = DATA / "pulsewaves" / "riegl_example3.pls"
+NEON_IMPULSE = DATA / "neon_harvard" / "system_impulse.csv"
+
+
+@pytest.fixture(scope="module")
+def leica_response() -> SystemResponse:
+    pulses = read_pulses(LEICA)
+    return measure_file_response(pulses, np.flatnonzero(np.diff(pulses.return_offsets) == 1), "single returns")
+
+
+@pytest.fixture(scope="module")
+def riegl_response() -> SystemResponse:
+    pulses = read_pulses(PointRange(str(RIEGL), 0, 5000))
+    return measure_file_response(pulses, np.arange(len(pulses)), "isolated echoes")
+
+
+def test_leica_response_rises_slowly_falls_fast_with_a_tail_and_an_undershoot(leica_response):
+    r = leica_response
+    assert r.n_pulses > 200  # the narrower half of the strong single returns
+    assert r.fwhm_ps == pytest.approx(10300, abs=700)
+    rise = -np.interp(0.1, r.response[:np.argmax(r.response)], r.times[:np.argmax(r.response)])
+    assert 7000 <= rise <= 10000  # 10% to the peak over about 8 ns
+    assert r.at(4000) == pytest.approx(0.52, abs=0.08)  # half the peak 4 ns behind it
+    np.testing.assert_allclose(r.at([6000, 8000, 10000]), [0.37, 0.25, 0.13], atol=0.05)  # the tail
+    undershoot = r.at(np.arange(18000, 28001, 1000))
+    assert (undershoot < 0).all() and undershoot.mean() == pytest.approx(-0.02, abs=0.01)
+
+
+def test_riegl_response_has_its_afterpulse_10_ns_behind_at_4_percent(riegl_response):
+    r = riegl_response
+    assert r.fwhm_ps == pytest.approx(4100, abs=300)
+    delay, height = r.afterpulse()
+    assert 9500 <= delay <= 11500
+    assert 0.025 <= height <= 0.05
+
+
+def test_neon_impulse_response_from_its_csv():
+    r = load_response(NEON_IMPULSE)
+    # read off the file: background 195 DN, peak 2018 DN at sample 30; half height crossed near 23.0 and 38.2
+    assert r.fwhm_ps == pytest.approx(15100, abs=250)
+    assert r.source == "system_impulse.csv"
+    assert r.at(0.0) == pytest.approx(1.0, abs=0.01)
+    assert r.at(-8000) < r.at(8000)  # it rises faster than it falls: asymmetric
+
+
+def test_response_round_trips_and_rides_in_the_config(tmp_path, riegl_response):
+    path = tmp_path / "riegl.json"
+    riegl_response.save(path)
+    again = load_response(path)
+    np.testing.assert_allclose(again.response, riegl_response.response, atol=1e-6)
+    config = DecompositionConfig(model="system", system_response=again)
+    assert DecompositionConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+
+
+def test_bad_response_files_are_named(tmp_path):
+    with pytest.raises(ValueError, match="missing.csv: cannot read"):
+        load_response(tmp_path / "missing.csv")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    with pytest.raises(ValueError, match="bad.json: not a system response"):
+        load_response(bad)
+    flat = tmp_path / "flat.csv"
+    flat.write_text("system_impulse\n5\n5\n5\n5\n5\n5\n")
+    with pytest.raises(ValueError, match="flat.csv"):
+        load_response(flat)
+
+
+@pytest.mark.parametrize("s", [1.75, 2.4, 3.9])
+def test_tabulated_echo_matches_the_naive_reference(riegl_response, s):
+    shape = echo_shape(riegl_response, 1000.0)
+    t = np.linspace(10.0, 50.0, 401)
+    expected = naive.response_echo(riegl_response.times, riegl_response.response, 1000.0, 80.0, 21.3, s, t)
+    got = tabulated_model(t, 0.0, 80.0, 21.3, s, shape)
+    np.testing.assert_allclose(got, expected, atol=80.0 * 1e-2)  # rows interpolated in width: within 1% of the peak
+    # the area is the echo's integral
+    assert tabulated_area(shape, s) == pytest.approx(np.trapezoid(got / 80.0, t), rel=2e-3)
+
+
+def test_tabulated_jacobian_matches_central_differences(leica_response):
+    shape = echo_shape(leica_response, 2000.0)
+    x = np.array([13.0, 120.0, 40.3, 2.9, math.sqrt(2), 45.0, 47.6, 3.6, math.sqrt(2)])
+    t = np.arange(0.0, 90.0)
+    model, jac = np.empty(t.size), np.empty((t.size, x.size))
+    model_and_jacobian(x, 2, t, shape, model, jac, np.empty((2, 2), dtype=np.int64))
+    np.testing.assert_allclose(model, tabulated_model(t, 13.0, [120.0, 45.0], [40.3, 47.6], [2.9, 3.6], shape),
+                               atol=1e-9)
+    for j in (0, 1, 2, 3, 5, 6, 7):
+        h = 1e-4 if j in (2, 6) else 1e-3
+        up, down = x.copy(), x.copy()
+        up[j] += h
+        down[j] -= h
+        numeric = (tabulated_model(t, up[0], up[[1, 5]], up[[2, 6]], up[[3, 7]], shape)
+                   - tabulated_model(t, down[0], down[[1, 5]], down[[2, 6]], down[[3, 7]], shape)) / (2 * h)
+        np.testing.assert_allclose(jac[:, j], numeric, atol=2e-2 * max(1.0, np.abs(numeric).max()))
+
+
+def test_an_afterpulse_is_not_an_echo_under_the_system_model():
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    rng = np.random.default_rng(3)
+    y = tabulated_model(t, 3.0, 180.0, 25.4, shape.s_min, shape) + rng.normal(0, 0.6, t.size)
+    system = DecompositionConfig(model="system", system_response=riegl, system_pulse_fwhm_ps=riegl.fwhm_ps)
+    d = decompose_waveform(np.round(y), 1000.0, 0, system)
+    assert d.amplitude.size == 1
+    assert d.position[0] == pytest.approx(25.4, abs=0.05)
+    # the generalized Gaussian cannot take the afterpulse: it needs a second echo behind the first
+    generalized = DecompositionConfig(system_pulse_fwhm_ps=riegl.fwhm_ps)
+    g = decompose_waveform(np.round(y), 1000.0, 0, generalized)
+    assert g.amplitude.size >= 2 and g.position.max() > 27.0
+
+
+@pytest.mark.parametrize("method", ["gold", "richardson-lucy"])
+def test_deconvolution_finds_two_overlapping_echoes(method):
+    leica = named_response("leica")
+    shape = echo_shape(leica, 2000.0)
+    t = np.arange(120.0)
+    y = tabulated_model(t, 12.0, [150.0, 90.0], [40.0, 46.5], [shape.s_min, shape.s_min], shape)
+    y = np.round(y + np.random.default_rng(1).normal(0, 0.5, t.size))
+    config = DecompositionConfig(model="system", optimizer=method, system_response=leica,
+                                 system_pulse_fwhm_ps=leica.fwhm_ps, deconvolution_iterations=500)
+    d = decompose_waveform(y, 2000.0, 0, config)
+    strong = np.sort(d.position[np.argsort(d.amplitude)[-2:]])
+    np.testing.assert_allclose(strong, [40.0, 46.5], atol=0.6)
+
+
+def test_a_gaussian_response_gives_the_gaussian_model():
+    response = gaussian_response(4000.0)
+    assert response.fwhm_ps == pytest.approx(4000.0, rel=1e-3)
+    t = np.arange(60.0)
+    y = 10 + 100 * np.exp(-0.5 * ((t - 30.2) / (4.0 / 2.3548)) ** 2)
+    config = DecompositionConfig(model="system", system_pulse_fwhm_ps=4000.0, fit_target="raw")
+    d = decompose_waveform(y, 1000.0, 0, config)
+    assert d.amplitude.size == 1
+    assert d.position[0] == pytest.approx(30.2, abs=0.01) and d.amplitude[0] == pytest.approx(100.0, rel=1e-3)
+    assert d.fwhm[0] == pytest.approx(4.0, rel=5e-3) and np.isnan(d.alpha[0])
+
+
+def test_a_run_measures_the_response_on_the_files_own_returns():
+    system = file_system_pulse(LEICA, 1125, DecompositionConfig(model="system"))
+    assert system.response is not None and system.response.source.startswith("single returns")
+    assert system.fwhm_ps == pytest.approx(system.response.fwhm_ps)
+    assert system.shape_tolerance < 0.05  # the measured shape leaves less unexplained than the Gaussian's 0.05
+    assert file_system_pulse(LEICA, 1125, DecompositionConfig()).response is None  # generalized: not measured
+
+
+def test_shipped_responses_are_the_measured_ones(leica_response, riegl_response):
+    for name, measured in (("leica", leica_response), ("riegl", riegl_response)):
+        shipped = named_response(name)
+        assert shipped.fwhm_ps == pytest.approx(measured.fwhm_ps, rel=0.03)
+        grid = np.arange(-8000, 20001, 1000)
+        np.testing.assert_allclose(shipped.at(grid), measured.at(grid), atol=0.03)
+
+
+def test_response_from_samples_puts_the_peak_at_zero():
+    t = np.arange(40.0)
+    r = response_from_samples(5 + 100 * np.exp(-0.5 * ((t - 17.3) / 2.0) ** 2), 1000.0, "test")
+    assert r.times[np.argmax(r.response)] == pytest.approx(0.0, abs=300)
+    assert r.fwhm_ps == pytest.approx(2.0 * 2.3548 * 1000, rel=0.02)
