@@ -24,6 +24,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_pipeline.py
 	$(BIN)/python bench/bench_survey.py
 	$(BIN)/python bench/bench_radiometry.py
+	$(BIN)/python bench/bench_instrument.py
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict

@@ -279,9 +279,9 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
                 peak = i
         if peak < 0:
             break
-        s = _echo_sigma(residual, valid, peak, fallback_sigma)
-        if shape.tabulated:
-            s = min(max(s, shape.s_min), shape.s_min + shape.s_step * (shape.rows.shape[0] - 1))
+        # a tabulated echo starts as the response itself: the narrowest echo there is, so a shoulder beside
+        # it is left as a peak of its own (the optimizer widens the echo where the data asks)
+        s = shape.s_min if shape.tabulated else _echo_sigma(residual, valid, peak, fallback_sigma)
         amplitude[count] = height
         position[count] = peak
         sigma[count] = s

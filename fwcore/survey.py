@@ -15,7 +15,9 @@ import numpy as np
 
 from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_batch
-from fwcore.io import PointRange, read_pulses
+from fwcore.io import PointRange, input_summary, read_pulses
+from fwcore.io.formats import NEON_CSV, format_of
+from fwcore.io.neon import read_neon_csv
 from fwcore.instrument import SystemResponse, measure_response
 from fwcore.preprocess import estimate_pulse_fwhm, noise_and_background
 from fwcore.pulses import csv_pulse_fwhm_ps, pulse_waveforms, system_pulse_fwhm_ps
@@ -75,6 +77,18 @@ def measure_file_response(pulses, rows: np.ndarray, source: str) -> SystemRespon
     rows = rows[:RESPONSE_PULSES]
     return response_of_waveforms([pulses.pulse_samples(i) for i in rows],
                                  float(np.median(pulses.sample_spacing_ps[rows])), source)
+
+
+def measure_input_response(path: str | Path) -> SystemResponse | None:
+    """The response `fwl run --model system` measures on an input (LAS/LAZ, PulseWaves: its first records'
+    single returns, else isolated echoes) or on a NEON-layout CSV's isolated echoes; None where too few qualify."""
+    if format_of(path) is NEON_CSV:
+        waveforms = read_neon_csv(path)
+        return csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0,
+                                DecompositionConfig(model=Model.SYSTEM)).response
+    count = input_summary(path).records
+    return file_system_pulse(path, count, DecompositionConfig(model=Model.SYSTEM, system_pulse_fwhm_ps=1.0,
+                                                              shape_tolerance=0.0)).response
 
 
 def csv_system_pulse(samples, valid, spacing_ps: float, config: DecompositionConfig,

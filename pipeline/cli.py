@@ -238,6 +238,7 @@ def _info(args: argparse.Namespace) -> int:
 
     from fwcore.io import describe_file
     from fwcore.io.info import format_info
+    from fwcore.survey import measure_input_response
 
     described, failed = [], 0
     for path in args.files:
@@ -249,11 +250,28 @@ def _info(args: argparse.Namespace) -> int:
             if not args.json:
                 print(f"fwl: error: {err}", file=sys.stderr)
             continue
+        if args.system_response:  # reads the file's first records' samples, as fwl run --model system does
+            response = measure_input_response(path)
+            described[-1]["system_response"] = response.to_dict() if response else None
         if not args.json:
             print(format_info(described[-1]))
+            if args.system_response:
+                print(_response_line(described[-1]["system_response"]))
     if args.json:
         print(json.dumps(described if len(described) > 1 else described[0], indent=2, default=str))
     return 2 if failed else 0
+
+
+def _response_line(response: dict | None) -> str:
+    from fwcore.instrument import SystemResponse
+
+    if response is None:
+        return "  system response: too few strong single returns to measure it"
+    r = SystemResponse.from_dict(response)
+    delay, height = r.afterpulse()
+    after = (f", afterpulse {delay / 1000:.1f} ns behind the peak at {100 * height:.1f}%" if height >= 0.01
+             else ", no afterpulse above 1%")
+    return f"  system response: FWHM {r.fwhm_ps / 1000:.2f} ns{after}; from {r.source}"
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -396,6 +414,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "full-waveform files (LAS/LAZ, PulseWaves), from headers and indexes only")
     i.add_argument("files", nargs="+", help="LAS/LAZ or PulseWaves (.pls) files")
     i.add_argument("--json", action="store_true", help="print JSON (a list for several files)")
+    i.add_argument("--system-response", dest="system_response", action="store_true",
+                   help="also measure the instrument's response on the file's first records, as fwl run --model "
+                        "system does (reads samples); --json gives the JSON --system-response FILE accepts")
     i.set_defaults(handler=_info)
 
     v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")

@@ -97,9 +97,12 @@ COLUMNS = {c.name: c for c in (
     Column("amplitude", F64, "DN", "the echo's peak above the background, in digitizer counts"),
     Column("amplitude_volts", F64, "V", "amplitude times the descriptor's digitizer gain"),
     Column("sigma_chauve", F64, "ps^(alpha^2/2)", "Chauve's sigma: the echo is A exp(-|t - u|^(alpha^2) / (2 sigma^2)) "
-                                                  "with t in ps; its unit depends on alpha"),
-    Column("sigma", F64, "sample^(alpha^2/2)", "Chauve's sigma with t in samples"),
-    Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top"),
+                                                  "with t in ps; its unit depends on alpha; NaN under --model "
+                                                  "system (echoes of the measured response)"),
+    Column("sigma", F64, "sample^(alpha^2/2)", "Chauve's sigma with t in samples; under --model system the sigma "
+                                               "(samples) of the Gaussian of the echo's FWHM"),
+    Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top; NaN under "
+                              "--model system"),
     Column("fwhm_ps", F64, "ps", "the echo's full width at half maximum"),
     Column("fwhm", F64, "sample", "the echo's full width at half maximum"),
     Column("energy", F64, "DN ps", "the area under the echo"),

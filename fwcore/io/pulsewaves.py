@@ -378,6 +378,7 @@ class _Layout:
     duration_scale: np.ndarray
     duration_offset: np.ndarray
     optical_center: np.ndarray  # its composition's optical centre to anchor (sampling units)
+    lookup_table: np.ndarray  # the sampling's lookup table index (0: none)
 
 
 def _layout(descriptors: dict[int, PulseDescriptor]) -> _Layout:
@@ -399,7 +400,8 @@ def _layout(descriptors: dict[int, PulseDescriptor]) -> _Layout:
                    col(lambda s: s.sample_units_ns * 1000.0, np.float64),
                    np.array([d.sample_units_ns * 1000.0 for d in owners], np.float64),
                    col(lambda s: s.duration_scale, np.float64), col(lambda s: s.duration_offset, np.float64),
-                   np.array([d.optical_center_to_anchor for d in owners], np.int64))
+                   np.array([d.optical_center_to_anchor for d in owners], np.int64),
+                   col(lambda s: s.lookup_table))
 
 
 @njit(**JIT)
@@ -618,6 +620,7 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
     duration = layout.duration_scale[r] * seg_duration[rows] + layout.duration_offset[r]
     bits = layout.bits[r].astype(np.int16)
     samples, sample_offsets = _gather(data, seg_at[rows], seg_count[rows], layout.sample_bytes[r])
+    samples = linear_samples(samples, sample_offsets, layout.lookup_table[r], pw.lookup_tables)
     # segment number within the pulse (0, 1, ...)
     segment = np.zeros(rows.size, np.int16)
     if rows.size:
@@ -674,6 +677,28 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
         outgoing=outgoing, outgoing_offsets=outgoing_offsets, outgoing_spacing_ps=outgoing_spacing,
         rejected=tuple(rejected),
     )
+
+
+def linear_samples(samples: np.ndarray, offsets: np.ndarray, table_of_segment: np.ndarray,
+                   tables: dict[int, LookupTable]) -> np.ndarray:
+    """Samples through their sampling's lookup table, where it has one (the spec: the table maps a sample to the
+    physical value measured); a table in dB (its description says so) gives back power, 10^(dB / 10), so
+    that every model sees a signal proportional to power. A code beyond the table is NaN (its pulse is then
+    not decomposed, and says why)."""
+    out = samples
+    for index in np.unique(table_of_segment[table_of_segment != 0]):
+        table = tables.get(int(index))
+        if table is None or table.entries.size == 0:
+            continue  # fwl info lists the sampling's missing table; the codes stay
+        values = table.entries
+        if "db" in table.description.lower().replace("dbm", "db"):
+            values = 10.0 ** (values / 10.0)
+        segments = np.flatnonzero(table_of_segment == index)
+        at = np.concatenate([np.arange(offsets[s], offsets[s + 1]) for s in segments])
+        codes = samples[at].astype(np.int64)
+        out = out.copy() if out is samples else out
+        out[at] = np.where(codes < values.size, values[np.minimum(codes, values.size - 1)], np.nan)
+    return out
 
 
 def _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_count, seg_end, kind, sample_bytes):

@@ -106,7 +106,7 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
                                                        valid, eps, seed)
         nfev += used
         _, used, polished = levenberg_marquardt(searched, n_echoes, times, shape, fit_target, weights, lower,
-                                                local_upper,                                                 p.lm_iterations, p.lm_tolerance)
+                                                local_upper, p.lm_iterations, p.lm_tolerance)
         nfev += used
         chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
         if squared_error(searched, n_echoes, times, shape, raw, weights) < chi2 - math.log(times.size):

@@ -151,7 +151,20 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
         "fit_error": result.fit_error, "fit_error_raw": result.fit_error_raw, "rmse": result.rmse, "r2": result.r2,
         "model_evaluations": result.nfev, "n_echoes_initial": result.n_echoes_initial,
         "echoes": echoes,
+        "response": _response_curve(config, result, spacing),
     }
+
+
+def _response_curve(config: DecompositionConfig, result, spacing: float) -> dict | None:
+    """Under the system model, the instrument's response (unbroadened) at the strongest echo, on the background:
+    what every echo's shape is made of."""
+    if config.model.value != "system" or result.status or result.amplitude.size == 0:
+        return None
+    response = config.response()
+    k = int(np.argmax(result.amplitude))
+    return {"time_ps": (result.position[k] * spacing + response.times).tolist(),
+            "counts": (result.background + result.amplitude[k] * response.response).tolist(),
+            "source": response.source}
 
 
 def system_returns(raw: RawPulse) -> list[dict]:

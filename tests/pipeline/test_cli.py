@@ -180,3 +180,15 @@ def test_compare_lists_the_deconvolution_methods_beside_the_optimizers(tmp_path,
     errors = {r["optimizer"]: float(r["fit_error"]) for r in rows}
     assert all(np.isfinite(v) and v > 0 for v in errors.values())
     assert errors["lm"] < min(errors["gold"], errors["richardson-lucy"])  # a fit beats a deconvolution's lobes
+
+
+def test_info_measures_the_system_response_and_its_json_is_a_response_file(tmp_path, pulsewaves_dir, capsys):
+    from fwcore.instrument import load_response
+
+    assert main(["info", str(pulsewaves_dir / "riegl_example3.pls"), "--system-response"]) == 0
+    assert "system response: FWHM 4.06 ns, afterpulse 10.4 ns behind the peak at 3.4%" in capsys.readouterr().out
+    assert main(["info", str(pulsewaves_dir / "riegl_example3.pls"), "--system-response", "--json"]) == 0
+    saved = tmp_path / "riegl.json"
+    saved.write_text(capsys.readouterr().out)
+    response = load_response(saved)
+    assert response.fwhm_ps == pytest.approx(4062, abs=5) and response.source.startswith("isolated echoes")

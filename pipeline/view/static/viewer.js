@@ -269,6 +269,9 @@ function waveformTraces(fit, withRaw = true) {
   }));
   traces.push({ type: "scatter", mode: "lines", name: "model", meta: "model", x: ns(fit.fine_time_ps), y: fit.model,
     line: { color: "#111", width: 2 } });
+  if (fit.response) traces.push({ type: "scatter", mode: "lines", name: `system response (${fit.response.source})`,
+    meta: "response", x: ns(fit.response.time_ps), y: fit.response.counts, visible: "legendonly",
+    line: { color: "#666", width: 1, dash: "dot" } });
   return traces;
 }
 

@@ -126,3 +126,20 @@ def test_describe_reads_headers_only(pulsewaves_dir, name):
     assert info["format"] == "PulseWaves" and info["pulses"] == SAMPLES[name][0]
     used = {d["index"]: d["pulses"] for d in info["descriptors"] if d["pulses"]}
     assert sum(used.values()) == SAMPLES[name][0]
+
+
+def test_lookup_tables_turn_codes_into_linear_values(pulsewaves_dir):
+    from fwcore.io.pulsewaves import LookupTable, linear_samples
+
+    samples = np.array([0.0, 1.0, 2.0, 3.0, 5.0, 6.0, 1.0, 2.0, 7.0])
+    offsets = np.array([0, 4, 6, 9])
+    tables = {1: LookupTable(1, 0, 8, "volts", np.array([0.0, 0.5, 1.5, 3.5])),
+              2: LookupTable(2, 0, 8, "amplitude [dB]", np.array([0.0, 10.0, 20.0]))}
+    out = linear_samples(samples, offsets, np.array([1, 0, 2]), tables)
+    np.testing.assert_array_equal(out[:6], [0.0, 0.5, 1.5, 3.5, 5.0, 6.0])  # a table; none: codes stay
+    np.testing.assert_allclose(out[6:8], [10.0, 100.0])  # dB back to power
+    assert np.isnan(out[8])  # a code the table does not hold
+    assert samples[0] == 0.0 and samples[1] == 1.0  # the input is left as it was
+    # the shared RIEGL file carries no table: its samples are its codes
+    pw = open_pulsewaves(pulsewaves_dir / "riegl_example3.pls")
+    assert pw.lookup_tables == {} and all(s.lookup_table == 0 for d in pw.descriptors.values() for s in d.samplings)

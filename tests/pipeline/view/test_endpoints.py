@@ -279,6 +279,8 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path, st
             assert p["reproduced"] and len(p["fit"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
             assert p["fit"]["config"]["model"] == model
             assert (p["fit"]["config"]["system_response"] is not None) == (model == "system")
+            # the page can draw the response the echoes are made of, at the strongest echo
+            assert (p["fit"]["response"] is not None) == (model == "system")
     finally:
         server.viewer.jobs.stop_all()
         server.shutdown()
