@@ -23,11 +23,8 @@ from fwcore.bounds import parameter_bounds
 from fwcore.filter import mark_spurious
 from fwcore.instrument import EchoShape, analytic_shape, echo_shape
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_area
-from fwcore.config import (MSG_CONVERGED, OPT_GA_ITERATIVE, OPT_GOLD, OPT_NONE, OPTIMIZERS, DecompositionConfig,
-                           Model, Optimizer)
-from fwcore.optimizers import run_optimizer
-from fwcore.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
-from fwcore.optimizers.ga_iterative import ga_iterative
+from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
+from fwcore.optimizers import find_own_echoes, run_optimizer
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import initial_estimate
 from fwcore.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
@@ -156,20 +153,10 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed, first, last,
                      p.gaussian, p.alpha_min, p.alpha_max, shape, scale, x0, lower, upper, local_upper)
 
-    if p.method == OPT_GA_ITERATIVE:
-        best, n_echoes, n_initial, nfev = ga_iterative(
-            valid, smoothed, background, noise, p.noise_threshold, p.max_echoes, first, last, times, fit_target,
-            raw, p.ga_iterative_r2, p.population, p.ga_iterative_generations, seed)
-        nit = 0
-        message = MSG_CONVERGED
-    elif p.own_echoes:  # deconvolution: the echoes are the recovered profile's lobes
-        best, n_echoes = deconvolution_echoes(samples, valid, background, noise, p.noise_threshold, p.max_echoes,
-                                              first, last, shape, pulse_sigma, p.method == OPT_GOLD,
-                                              p.deconvolution_iterations)
-        nfev = p.deconvolution_iterations + fit_amplitudes(best, n_echoes, times, shape, raw, weights,
-                                                           p.lm_iterations, p.lm_tolerance)
-        nit = p.deconvolution_iterations
-        message = MSG_CONVERGED
+    if p.own_echoes:  # the patent's GA and deconvolution choose their echoes themselves
+        best, n_echoes, n_initial, nfev, nit, message = find_own_echoes(
+            p, shape, samples, valid, smoothed, background, noise, first, last, times, fit_target, raw, weights,
+            pulse_sigma, seed)
     else:
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples

@@ -17,9 +17,11 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.config import (MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NO_ECHOES,
                            MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_LBFGS, OPT_LM, OPT_LM_MDE, OPT_MDE,
-                           OPT_MDE_LM, OPT_NONE, OPT_PSO)
+                           OPT_GA_ITERATIVE, OPT_GOLD, OPT_MDE_LM, OPT_NONE, OPT_PSO)
+from fwcore.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
 from fwcore.optimizers.evolution import evolve, init_population
 from fwcore.optimizers.ga import evolve_ga
+from fwcore.optimizers.ga_iterative import ga_iterative
 from fwcore.optimizers.local import lbfgs, levenberg_marquardt, squared_error
 from fwcore.optimizers.objective import LANES, fit_error
 from fwcore.optimizers.pso import swarm
@@ -71,6 +73,25 @@ def reduced_chi2(x, n_echoes, times, shape, raw, signal, variance):
     add_shot_noise(x, n_echoes, times, shape, raw, signal, shot)
     chi2 = squared_error(x, n_echoes, times, shape, raw, 1.0 / np.sqrt(shot))
     return chi2 / max(times.size - x.size, 1)
+
+
+@njit(**JIT)
+def find_own_echoes(p, shape, samples, valid, smoothed, background, noise, first, last, times, fit_target, raw,
+                    weights, pulse_sigma, seed):
+    """The methods that choose their own echoes (p.own_echoes): the patent's GA, which adds echoes until R^2
+    is reached, and deconvolution, whose echoes are the recovered profile's lobes. Returns (best, echoes,
+    echoes first estimated, model evaluations, iterations, message)."""
+    if p.method == OPT_GA_ITERATIVE:
+        best, n_echoes, n_initial, nfev = ga_iterative(
+            valid, smoothed, background, noise, p.noise_threshold, p.max_echoes, first, last, times, fit_target,
+            raw, p.ga_iterative_r2, p.population, p.ga_iterative_generations, seed)
+        return best, n_echoes, n_initial, nfev, 0, MSG_CONVERGED
+    best, n_echoes = deconvolution_echoes(samples, valid, background, noise, p.noise_threshold, p.max_echoes,
+                                          first, last, shape, pulse_sigma, p.method == OPT_GOLD,
+                                          p.deconvolution_iterations)
+    nfev = p.deconvolution_iterations + fit_amplitudes(best, n_echoes, times, shape, raw, weights, p.lm_iterations,
+                                                       p.lm_tolerance)
+    return best, n_echoes, n_echoes, nfev, p.deconvolution_iterations, MSG_CONVERGED
 
 
 @njit(**JIT)
