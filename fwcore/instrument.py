@@ -67,10 +67,6 @@ class SystemResponse:
     def fwhm_ps(self) -> float:
         return _half_height_width(self.times, self.response)
 
-    @property
-    def is_gaussian(self) -> bool:
-        return self.source.startswith("Gaussian")
-
     def at(self, t_ps) -> np.ndarray:
         """The response at times t (ps), 0 outside its grid."""
         return np.interp(np.asarray(t_ps, float), self.times, self.response, left=0.0, right=0.0)

@@ -34,16 +34,14 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     from fwcore.engine import decompose_batch
     from fwcore.records import WaveformBatch
     from fwcore.io.neon import read_neon_csv
-    from fwcore.instrument import load_response
     from fwcore.survey import csv_system_pulse
     from fwcore.rng import pulse_seed
     from pipeline.tables import echo_table, waveform_table
 
     config = _config_from_args(args)
     waveforms = read_neon_csv(args.input)
-    response = load_response(args.system_response, args.sample_spacing_ps) if args.system_response else None
-    system = csv_system_pulse(waveforms.samples, waveforms.valid, args.sample_spacing_ps, config, response,
-                              read_neon_csv(args.outgoing) if args.outgoing else None)
+    system = csv_system_pulse(waveforms.samples, waveforms.valid, args.sample_spacing_ps, config,
+                              outgoing=read_neon_csv(args.outgoing) if args.outgoing else None)
     config = system.configure(config)
     width_source = system.fwhm_source
     if width_source.startswith("estimated"):  # nothing says it: measured on the returns, and said so
@@ -159,7 +157,6 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from fwcore.instrument import load_response
     from fwcore.studies.comparison import run_comparison
 
     config = _config_from_args(args)
@@ -168,9 +165,8 @@ def _compare(args: argparse.Namespace) -> int:
     pulses = [int(p) for p in args.pulses.split(",")] if args.pulses else None
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")
-    response = load_response(args.system_response) if args.system_response else None
     summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
-                             args.distance, args.budget, args.threads, args.outgoing, response)
+                             args.distance, args.budget, args.threads, args.outgoing)
     for row in summary["rows"]:
         print(f"  {row['optimizer']:13} {row['model']:11} fit error {row['fit_error']:8.1f}  R2 {row['r2']:.4f}  "
               f"{row['waveforms_per_second']:9.1f} waveforms/s")
@@ -308,9 +304,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="CSV with columns waveform_id, n_samples, s0, s1, ...")
     p.add_argument("--output", required=True, help="echo table (.parquet); waveforms go beside it")
     p.add_argument("--outgoing", help="CSV of outgoing pulses (same layout): measures the system pulse FWHM")
-    p.add_argument("--system-response", dest="system_response",
-                   help="the instrument's response: a CSV whose first column holds it (NEON's system_impulse.csv) "
-                        "or the JSON fwl info --json gives")
     p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     _add_method_options(p)
@@ -355,8 +348,6 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--budget", action="store_true", help="also run the evaluation budget study")
     c.add_argument("--threads", type=int, default=1, help="numba threads (default 1: per-core speeds)")
     c.add_argument("--outgoing", help="CSV input: outgoing pulses CSV that measures the system pulse FWHM")
-    c.add_argument("--system-response", dest="system_response",
-                   help="CSV input: the instrument's response (NEON's system_impulse.csv, or a response JSON)")
     c.add_argument("--output", required=True, help="output directory")
     _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)

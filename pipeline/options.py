@@ -17,6 +17,7 @@ from typing import Any, Iterable
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
+from fwcore.instrument import named_response
 
 FORMATS = ("parquet", "las", "mcap")
 # The runner when the command line names none: the DirectRunner with a worker process per core of a
@@ -74,6 +75,10 @@ def add_method_arguments(parser, compare: bool = False) -> None:
     g.add_argument("--scale-max", dest="scale_max", type=float, help="b")
     g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float,
                    help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
+    g.add_argument("--system-response", dest="system_response",
+                   help="the instrument's response for --model system, instead of measuring it on each file: leica or "
+                        "riegl (shipped), a CSV whose first column holds it at 1 ns a sample (NEON's system_impulse.csv) "
+                        "or the JSON fwl info --system-response --json gives")
     g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
     g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
     g.add_argument("--raw-polish", dest="raw_polish", action=argparse.BooleanOptionalAction,
@@ -108,6 +113,8 @@ def decomposition_config(args: Any) -> DecompositionConfig:
         config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
                  if getattr(args, f.name, None) is not None}
+    if isinstance(overrides.get("system_response"), str):  # a name or a file, read once here
+        overrides["system_response"] = named_response(overrides["system_response"])
     return config.replace(**overrides)
 
 

@@ -192,3 +192,19 @@ def test_info_measures_the_system_response_and_its_json_is_a_response_file(tmp_p
     saved.write_text(capsys.readouterr().out)
     response = load_response(saved)
     assert response.fwhm_ps == pytest.approx(4062, abs=5) and response.source.startswith("isolated echoes")
+
+
+def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewaves_dir):
+    from fwcore.instrument import named_response
+
+    out = tmp_path / "run"
+    assert main(["run", str(pulsewaves_dir / "riegl_example3.pls"), "--output", str(out), "--limit", "40",
+                 "--preset", "fast", "--formats", "parquet", "--model", "system", "--system-response", "riegl",
+                 "--direct_num_workers=1", "--direct_running_mode=in_memory"]) == 0
+    summary = json.loads((out / "run.json").read_text())
+    (entry,) = summary["inputs"]
+    shipped = named_response("riegl")
+    assert entry["system_response"]["source"] == shipped.source == summary["config"]["system_response"]["source"]
+    assert entry["system_pulse_fwhm_ps"] == pytest.approx(shipped.fwhm_ps)
+    assert main(["run", str(pulsewaves_dir / "riegl_example3.pls"), "--output", str(tmp_path / "bad"),
+                 "--model", "system", "--system-response", str(tmp_path / "none.json")]) == 2
