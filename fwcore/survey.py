@@ -87,6 +87,7 @@ def measure_input_response(path: str | Path) -> SystemResponse | None:
         return csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0,
                                 DecompositionConfig(model=Model.SYSTEM)).response
     count = input_summary(path).records
+    # a width and tolerance given, so that only the response is measured
     return file_system_pulse(path, count, DecompositionConfig(model=Model.SYSTEM, system_pulse_fwhm_ps=1.0,
                                                               shape_tolerance=0.0)).response
 
