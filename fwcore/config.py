@@ -220,6 +220,8 @@ class DecompositionConfig:
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")
         self._check(self.min_noise_sigma >= 0, "min_noise_sigma must be >= 0")
         self._check(self.shape_tolerance is None or self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
+        self._check(0 <= self.min_width_factor < self.max_width_factor and self.max_width_factor > 1,
+                    "need 0 <= min_width_factor < max_width_factor and max_width_factor > 1 (x the pulse FWHM)")
         self._check(self.first_echo_ratio >= 0, "first_echo_ratio must be >= 0")
         self._check(self.raw_polish_gate >= 0, "raw_polish_gate must be >= 0")
         self._check(self.max_added_echoes >= 0, "max_added_echoes must be >= 0")

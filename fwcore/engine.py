@@ -305,7 +305,8 @@ def echo_shapes(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> d
     if not uses_response(config):
         return {s: analytic_shape() for s in spacings}
     response = config.response()
-    return {s: echo_shape(response, s, config.max_width_factor) for s in spacings}
+    # rows one FWHM wider than the filter's limit, so that a too-wide echo can show as one
+    return {s: echo_shape(response, s, config.max_width_factor + 1.0) for s in spacings}
 
 
 def decompose_waveform(samples, sample_spacing_ps: float = 1000.0, seed: int = 0,

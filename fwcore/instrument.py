@@ -36,7 +36,9 @@ import numpy as np
 _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 BINS_PER_SAMPLE = 4  # the measured response's resolution: a quarter of the digitizer's sample
 TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation then errs < 1e-4 of the peak
-TABLE_WIDTHS = 48  # rows of the echo table, from the response's own width to the widest echo allowed
+# The echo table's rows step by this share of the response's own equal-FWHM sigma, from it to the widest echo
+# allowed: the same rows whatever the widest, so a table rebuilt from a run's settings gives its echoes again.
+ROW_STEP = 2.0 / 47.0
 MIN_SNR = 30.0  # a return this far above the noise shows the response's tail and afterpulse
 MIN_PULSES = 20  # fewer strong single returns than this measure nothing
 
@@ -149,8 +151,10 @@ def load_response(path: str | Path, spacing_ps: float = 1000.0) -> SystemRespons
     if path.suffix.lower() == ".json":
         try:
             d = json.loads(text)
+            if isinstance(d, list):  # fwl info of several files: the one file's
+                (d,) = d
             return SystemResponse.from_dict(d.get("system_response", d))
-        except (ValueError, KeyError, TypeError) as err:
+        except (ValueError, KeyError, TypeError, AttributeError) as err:
             raise ValueError(f"{path}: not a system response JSON ({err})") from None
     rows = list(csv.reader(text.splitlines()))
     values = []
@@ -307,31 +311,32 @@ def analytic_shape() -> EchoShape:
 @functools.lru_cache(maxsize=64)
 def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
     """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
-    to max_width_factor x it (equal steps of the equal-FWHM sigma), each row's peak 1 and its slope by
+    to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by
     central differences."""
     step = 1.0 / TABLE_STEPS_PER_SAMPLE
     t_resp = response.times / spacing_ps
     f0 = response.fwhm_ps / spacing_ps
     s_min = f0 / _FWHM_PER_SIGMA
-    s_max = max_width_factor * s_min
+    n_rows = int(math.ceil((max_width_factor - 1.0) / ROW_STEP - 1e-9)) + 1
+    s_max = s_min * (1.0 + ROW_STEP * (n_rows - 1))
     widest = math.sqrt(max(s_max ** 2 - s_min ** 2, 0.0))  # the broadening of the widest row, roughly
     lo = math.floor((t_resp[0] - 4.0 * widest) / step)
     hi = math.ceil((t_resp[-1] + 4.0 * widest) / step)
     t = np.arange(lo, hi + 1) * step
     base = np.interp(t, t_resp, response.response, left=0.0, right=0.0)
     # FWHM as a function of the broadening sigma b, on a fine b grid, inverted for each row's width
-    b_grid = np.linspace(0.0, 1.5 * max(widest, step), 97)
+    b_grid = np.arange(0.0, 1.5 * max(widest, step) + s_min / 32.0, s_min / 64.0)  # fixed steps, like the rows
     broadened = [_broaden(base, b / step) for b in b_grid]
     fwhms = np.array([_half_height_width(t, r) for r in broadened])
-    targets = np.linspace(s_min, s_max, TABLE_WIDTHS) * _FWHM_PER_SIGMA
-    rows = np.empty((TABLE_WIDTHS, t.size))
+    targets = np.linspace(s_min, s_max, n_rows) * _FWHM_PER_SIGMA
+    rows = np.empty((n_rows, t.size))
     for w, f in enumerate(targets):
         b = float(np.interp(f, fwhms, b_grid))
         r = _broaden(base, b / step)
         rows[w] = r / r.max()
     slopes = np.gradient(rows, step, axis=1)
     areas = rows.sum(axis=1) * step
-    return EchoShape(True, rows, slopes, areas, step, float(-lo), s_min, (s_max - s_min) / (TABLE_WIDTHS - 1))
+    return EchoShape(True, rows, slopes, areas, step, float(-lo), s_min, s_min * ROW_STEP)
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

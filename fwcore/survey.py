@@ -63,7 +63,7 @@ class SystemPulse:
 def response_of_waveforms(waveforms, spacing_ps: float, source: str) -> SystemResponse | None:
     """The system response from waveforms (float arrays of valid samples): their strong single returns
     aligned and averaged (fwcore.instrument.measure_response), or None where too few are strong and single."""
-    waveforms = [np.asarray(w, dtype=float) for w in waveforms[:RESPONSE_PULSES]]
+    waveforms = [w for w in (np.asarray(w, dtype=float) for w in waveforms[:RESPONSE_PULSES]) if np.isfinite(w).all()]
     noise_background = [noise_and_background(w) if w.size >= 12 else (np.inf, 0.0) for w in waveforms]
     try:
         return measure_response(waveforms, spacing_ps, source, [n for n, _ in noise_background],
@@ -87,7 +87,7 @@ def measure_input_response(path: str | Path) -> SystemResponse | None:
         return csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0,
                                 DecompositionConfig(model=Model.SYSTEM)).response
     count = input_summary(path).records
-    # a width and tolerance given, so that only the response is measured
+    # a width and tolerance given, so that they are not measured (the range offset still is, on 300 pulses)
     return file_system_pulse(path, count, DecompositionConfig(model=Model.SYSTEM, system_pulse_fwhm_ps=1.0,
                                                               shape_tolerance=0.0)).response
 
@@ -176,7 +176,7 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
         if response is None:
             LOG.warning("%s: too few strong single returns to measure the system response; echoes are "
                         "Gaussians of the pulse width", Path(path).name)
-    if fwhm is None and response is not None:
+    if fwhm is None and response is not None and config.model is Model.SYSTEM:
         fwhm, fwhm_source = response.fwhm_ps, f"system response: {response.source}"
     if fwhm is None:
         try:

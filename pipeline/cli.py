@@ -46,7 +46,7 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     width_source = system.fwhm_source
     if width_source.startswith("estimated"):  # nothing says it: measured on the returns, and said so
         print(f"{args.input}: no --outgoing: system pulse FWHM {config.pulse_fwhm_ps():.0f} ps {width_source}")
-    if config.model.value == "system":
+    if config.model is Model.SYSTEM:
         print(f"{args.input}: system response {system.response_source}"
               if system.response else f"{args.input}: no system response measured: echoes are Gaussians")
     ids = waveforms.waveform_id

@@ -77,8 +77,8 @@ def add_method_arguments(parser, compare: bool = False) -> None:
                    help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
     g.add_argument("--system-response", dest="system_response",
                    help="the instrument's response for --model system, instead of measuring it on each file: leica or "
-                        "riegl (shipped), a CSV whose first column holds it at 1 ns a sample (NEON's system_impulse.csv) "
-                        "or the JSON fwl info --system-response --json gives")
+                        "riegl (shipped), gaussian (of --system-pulse-fwhm-ps), a CSV whose first column holds it at "
+                        "1 ns a sample (NEON's system_impulse.csv) or the JSON fwl info --system-response --json gives")
     g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
     g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
     g.add_argument("--raw-polish", dest="raw_polish", action=argparse.BooleanOptionalAction,
@@ -114,7 +114,8 @@ def decomposition_config(args: Any) -> DecompositionConfig:
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
                  if getattr(args, f.name, None) is not None}
     if isinstance(overrides.get("system_response"), str):  # a name or a file, read once here
-        overrides["system_response"] = named_response(overrides["system_response"])
+        fwhm = overrides.get("system_pulse_fwhm_ps") or config.pulse_fwhm_ps()
+        overrides["system_response"] = named_response(overrides["system_response"], fwhm)
     return config.replace(**overrides)
 
 

@@ -20,6 +20,7 @@ batch's LAS terms: direction x_t = -direction / unit_ps and L0 = -d * unit_ps.
 from __future__ import annotations
 
 import dataclasses
+import re
 import struct
 from pathlib import Path
 
@@ -691,7 +692,7 @@ def linear_samples(samples: np.ndarray, offsets: np.ndarray, table_of_segment: n
         if table is None or table.entries.size == 0:
             continue  # fwl info lists the sampling's missing table; the codes stay
         values = table.entries
-        if "db" in table.description.lower().replace("dbm", "db"):
+        if re.search(r"\bdBm?\b", table.description, re.IGNORECASE):
             values = 10.0 ** (values / 10.0)
         segments = np.flatnonzero(table_of_segment == index)
         at = np.concatenate([np.arange(offsets[s], offsets[s + 1]) for s in segments])

@@ -23,7 +23,7 @@ LOG = logging.getLogger("fwl")
 EXTRA_DIMENSIONS = (
     ("amplitude", "peak above background [DN]"),
     ("echo_width", "echo FWHM [ps]"),
-    ("alpha", "shape alpha [1], 1.414 = Gauss"),
+    ("alpha", "alpha [1]; NaN: system model"),
     ("echo_energy", "area under echo [DN x ps]"),
     ("fit_error", "pulse fit error, Eq. 9 [1]"),
     ("channel", "waveform channel (PulseWaves)"),
@@ -85,7 +85,9 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     else:
         LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",
                     path.name, Path(template).name, path.name)
-    header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc) for name, desc in EXTRA_DIMENSIONS]
+    header.add_extra_dims([laspy.ExtraBytesParams(name, "f4", description=desc,
+                                                  no_data=[np.nan] if name == "alpha" else None)  # --model system
+                           for name, desc in EXTRA_DIMENSIONS]
                           + [laspy.ExtraBytesParams(name, "f4", description=cal if calibrated else rel,
                                                     no_data=[np.nan])  # NaN: unavailable, said in the header
                              for name, cal, rel in RADIOMETRY_DIMENSIONS]

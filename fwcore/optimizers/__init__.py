@@ -3,8 +3,8 @@
 Every method starts from the same initial estimate and bounds and hands back the
 same things: the best individual, model evaluations, iterations and a message.
 `run_optimizer` is the one place the kernels branch on the method's code; the
-methods that choose their own echoes (the patent's GA, deconvolution) are
-`own_echoes` in fwcore.engine.
+methods that choose their own echoes (the patent's GA, deconvolution) run in
+`find_own_echoes`.
 """
 
 from __future__ import annotations
@@ -91,7 +91,8 @@ def find_own_echoes(p, shape, samples, valid, smoothed, background, noise, first
                                           p.deconvolution_iterations)
     nfev = p.deconvolution_iterations + fit_amplitudes(best, n_echoes, times, shape, raw, weights, p.lm_iterations,
                                                        p.lm_tolerance)
-    return best, n_echoes, n_echoes, nfev, p.deconvolution_iterations, MSG_CONVERGED
+    message = MSG_CONVERGED if n_echoes else MSG_NO_ECHOES
+    return best, n_echoes, n_echoes, nfev, p.deconvolution_iterations, message
 
 
 @njit(**JIT)

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.model import PARAMS_PER_ECHO, table_reach, table_value, tabulated_area
+from fwcore.model import GAUSSIAN_ALPHA, PARAMS_PER_ECHO, table_reach, table_value, tabulated_area
 from fwcore.optimizers.local import levenberg_marquardt
 
 _FLOOR = 1e-12  # keeps the multiplicative updates off zero divisions
@@ -143,12 +143,13 @@ def deconvolution_echoes(samples, valid, background, noise, noise_threshold, max
     spreads = np.zeros(n)
     count = 0
     i = 0
+    start = 0  # a lobe begins after the previous one ends: the minimum between two belongs to one
     while i < n:
         if profile[i] <= 0.0 or (i > 0 and profile[i - 1] > profile[i]) or (i + 1 < n and profile[i + 1] > profile[i]):
             i += 1
             continue
         lo = i  # a local maximum: its lobe runs down to the minima either side
-        while lo > 0 and profile[lo - 1] <= profile[lo] and profile[lo - 1] > 0.0:
+        while lo > start and profile[lo - 1] <= profile[lo] and profile[lo - 1] > 0.0:
             lo -= 1
         hi = i
         while hi < n - 1 and profile[hi + 1] <= profile[hi] and profile[hi + 1] > 0.0:
@@ -168,6 +169,7 @@ def deconvolution_echoes(samples, valid, background, noise, noise_threshold, max
             spreads[count] = var / mass
             count += 1
         i = hi + 1
+        start = i
     order = np.argsort(-masses[:count])
     n_echoes = min(count, max_echoes)
     x = np.empty(1 + PARAMS_PER_ECHO * n_echoes)
@@ -180,7 +182,7 @@ def deconvolution_echoes(samples, valid, background, noise, noise_threshold, max
         x[base] = masses[k] / _unit_echo_area(shape, s)
         x[base + 1] = centres[k]
         x[base + 2] = s
-        x[base + 3] = math.sqrt(2.0)
+        x[base + 3] = GAUSSIAN_ALPHA
     return x, n_echoes
 
 

@@ -137,9 +137,8 @@ def plot_pulse_fits(path: Path, batch: WaveformBatch, index: int, pulse_id: int,
         if d.status == "":
             ax.plot(fine, d.model(fine), color="C3", lw=1.2, label="model")
             for k in range(d.amplitude.size):
-                echo = d.background + d.amplitude[k] * np.exp(
-                    -np.abs(fine - d.position[k]) ** (d.alpha[k] ** 2) / (2 * d.sigma[k] ** 2))
-                ax.plot(fine, echo, lw=0.8, color="C0", ls="-" if d.reject_reason[k] == "" else "--")
+                ax.plot(fine, d.background + d.echo(k, fine), lw=0.8, color="C0",
+                        ls="-" if d.reject_reason[k] == "" else "--")
         ax.set_title(f"{run.label} ({run.config.model.value}): Eq. 9 {d.fit_error:.0f}, "
                      f"{int(d.kept.sum())}/{d.amplitude.size} kept", fontsize=9)
     for ax in axes.flat[len(runs):]:
@@ -200,7 +199,10 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
     """The whole `fwl compare`; returns what it wrote and the rows."""
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
-    data = load_input(input_path, base, limit, outgoing, response)
+    # the system model's rows need the file's response: measured as fwl run --model system measures it
+    measured = base.replace(model=Model.SYSTEM) if Model.SYSTEM in models else base
+    data = load_input(input_path, measured, limit, outgoing, response)
+    data = dataclasses.replace(data, config=data.config.replace(model=base.model))
     runs = compare_methods(data.batch, data.config, optimizers, models, threads)
     rows = [run.row() for run in runs]
     write_csv(output / "compare.csv", rows)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import PRESETS, DecompositionConfig
+from fwcore.config import PRESETS, DecompositionConfig, Model
 from fwcore.engine import decompose_batch, smoothing_sigma_samples
 from fwcore.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
@@ -158,7 +158,7 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
 def _response_curve(config: DecompositionConfig, result, spacing: float) -> dict | None:
     """Under the system model, the instrument's response (unbroadened) at the strongest echo, on the background:
     what every echo's shape is made of."""
-    if config.model.value != "system" or result.status or result.amplitude.size == 0:
+    if config.model is not Model.SYSTEM or result.status or result.amplitude.size == 0:
         return None
     response = config.response()
     k = int(np.argmax(result.amplitude))

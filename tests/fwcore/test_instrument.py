@@ -181,3 +181,31 @@ def test_response_from_samples_puts_the_peak_at_zero():
     r = response_from_samples(5 + 100 * np.exp(-0.5 * ((t - 17.3) / 2.0) ** 2), 1000.0, "test")
     assert r.times[np.argmax(r.response)] == pytest.approx(0.0, abs=300)
     assert r.fwhm_ps == pytest.approx(2.0 * 2.3548 * 1000, rel=0.02)
+
+
+def test_fwl_info_json_of_one_file_in_a_list_is_a_response_file(tmp_path, riegl_response):
+    path = tmp_path / "described.json"
+    path.write_text(json.dumps([{"file": "riegl_example3.pls", "system_response": riegl_response.to_dict()}]))
+    assert load_response(path).fwhm_ps == pytest.approx(riegl_response.fwhm_ps, rel=1e-4)
+    path.write_text(json.dumps([{"system_response": riegl_response.to_dict()}] * 2))
+    with pytest.raises(ValueError, match="described.json: not a system response"):
+        load_response(path)
+
+
+@pytest.mark.parametrize("method", ["gold", "richardson-lucy"])
+def test_deconvolution_of_noise_alone_finds_no_echo(method):
+    y = 12.0 + np.random.default_rng(5).normal(0.0, 0.5, 100).round()
+    d = decompose_waveform(y, 1000.0, 0, DecompositionConfig(optimizer=method, system_pulse_fwhm_ps=4000.0))
+    assert d.amplitude.size == 0 and d.message == "no_echoes"
+
+
+def test_a_too_wide_echo_is_flagged_under_the_system_model():
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0, 4.0)
+    t = np.arange(120.0)
+    y = tabulated_model(t, 3.0, 80.0, 50.0, 3.6 * shape.s_min, shape)  # 3.6 x the response's FWHM
+    config = DecompositionConfig(model="system", system_response=riegl, system_pulse_fwhm_ps=riegl.fwhm_ps,
+                                 fit_target="raw")
+    d = decompose_waveform(np.round(y + np.random.default_rng(2).normal(0, 0.3, t.size)), 1000.0, 0, config)
+    widest = int(np.argmax(d.fwhm))
+    assert d.fwhm[widest] * 1000.0 > 3.0 * riegl.fwhm_ps and d.reject_reason[widest] == "too_wide"
