@@ -33,7 +33,9 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
-_FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+from fwcore.model import SQRT_2LN2
+
+_FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
 BINS_PER_SAMPLE = 4  # the measured response's resolution: a quarter of the digitizer's sample
 TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation then errs < 1e-4 of the peak
 # The echo table's rows step by this share of the response's own equal-FWHM sigma, from it to the widest echo

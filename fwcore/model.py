@@ -135,16 +135,23 @@ def waveform_model(t, background, amplitude, position, sigma, alpha) -> np.ndarr
     return y
 
 
+def tabulated_row(shape, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A tabulated echo of width s on its table's grid (samples from its position): (times, values, slopes),
+    interpolated between the table's rows."""
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
+    w, a = int(fw), fw - int(fw)
+    grid = (np.arange(shape.rows.shape[1]) - shape.origin) * shape.step
+    return (grid, (1.0 - a) * shape.rows[w] + a * shape.rows[w + 1],
+            (1.0 - a) * shape.slopes[w] + a * shape.slopes[w + 1])
+
+
 def tabulated_model(t, background, amplitude, position, s, shape) -> np.ndarray:
     """The NumPy twin of individual_model for echoes of a tabulated response (fwcore.instrument.EchoShape):
     background plus A row(s)(t - u), interpolated between rows and grid points."""
     t = np.asarray(t, dtype=float)
     y = np.full(t.shape, float(background))
-    grid = (np.arange(shape.rows.shape[1]) - shape.origin) * shape.step
     for a, u, width in zip(np.atleast_1d(amplitude), np.atleast_1d(position), np.atleast_1d(s)):
-        fw = min(max((width - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
-        w = int(fw)
-        row = (1.0 - (fw - w)) * shape.rows[w] + (fw - w) * shape.rows[w + 1]
+        grid, row, _ = tabulated_row(shape, width)
         y += a * np.interp(t - u, grid, row, left=0.0, right=0.0)
     return y
 

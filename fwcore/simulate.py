@@ -35,7 +35,7 @@ from fwcore._jit import JIT
 from fwcore.io.records import PulseBatch
 from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
 from fwcore.instrument import SystemResponse, echo_shape
-from fwcore.model import LN2, tabulated_area, tabulated_model
+from fwcore.model import LN2, SQRT_2LN2, tabulated_area, tabulated_model
 
 LIGHT_M_PER_PS = 299792458.0e-12
 RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range
@@ -45,7 +45,7 @@ MAX_RETURNS = 5
 # is fixed, not an option; a flight of at most one chunk is the flight simulated before there were chunks.
 CHUNK_PULSES = 100_000
 RESPONSE_WIDEST = 3.0  # x the response's FWHM: the widest echo a response's table holds
-_FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * LN2)
+_FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,6 +20,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from fwcore.instrument import echo_shape
+from fwcore.model import tabulated_row
 from fwcore.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
 from fwcore.studies.truth import TRUTH_METADATA_KEY
 
@@ -89,14 +90,10 @@ def _response_crlb_cm(amplitude: np.ndarray, sigma_ps: np.ndarray, sensor: Senso
     """range_crlb_cm for echoes of the sensor's response: A row(s)(t - u), its slope from the echo table."""
     spacing = sensor.sample_spacing_ps
     shape = echo_shape(sensor.response, spacing, RESPONSE_WIDEST)
-    grid = (np.arange(shape.rows.shape[1]) - shape.origin) * shape.step
     offsets = np.arange(-60, 61, dtype=float)
     out = np.empty(amplitude.size)
     for e, (a, s) in enumerate(zip(amplitude, sigma_ps / spacing)):
-        fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
-        w, frac = int(fw), fw - int(fw)
-        row = (1 - frac) * shape.rows[w] + frac * shape.rows[w + 1]
-        slope_row = (1 - frac) * shape.slopes[w] + frac * shape.slopes[w + 1]
+        grid, row, slope_row = tabulated_row(shape, s)
         info = 0.0
         for phase in (0.0, 0.5):
             f = a * np.interp(offsets + phase, grid, row, left=0.0, right=0.0)
