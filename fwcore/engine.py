@@ -20,10 +20,10 @@ from numba import njit, prange
 
 from fwcore._jit import JIT, PARALLEL_JIT
 from fwcore.bounds import parameter_bounds
+from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.filter import mark_spurious
 from fwcore.instrument import EchoShape, analytic_shape, echo_shape
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_area
-from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.optimizers import find_own_echoes, run_optimizer
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import initial_estimate
