@@ -44,6 +44,7 @@ from fwcore.records import BatchDecomposition, WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
 from fwcore.studies.methods import compare_to_system  # noqa: E402
 from fwcore.survey import csv_system_pulse, file_system_pulse  # noqa: E402
+from bench_engine import timed  # noqa: E402  (result, waveforms/s) on one thread, compiled outside the timing
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "examples" / "data"
@@ -55,16 +56,6 @@ MODELS = ("system", "generalized")
 
 def config_of(preset: str, model: str) -> DecompositionConfig:
     return DecompositionConfig(**PRESETS.get(preset, {})).replace(model=model)
-
-
-def timed(batch: WaveformBatch, config: DecompositionConfig) -> tuple[BatchDecomposition, float]:
-    """(result, waveforms/s) on one thread, compiled outside the timed call."""
-    first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
-                          batch.sample_spacing_ps[:1], batch.seeds[:1])
-    decompose_batch(first, config, threads=1)
-    start = time.perf_counter()
-    result = decompose_batch(batch, config, threads=1)
-    return result, len(batch) / (time.perf_counter() - start)
 
 
 def ghost_share(result: BatchDecomposition, spacing_ns: float) -> float:

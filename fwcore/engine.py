@@ -23,7 +23,7 @@ from fwcore.bounds import parameter_bounds
 from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.filter import mark_spurious
 from fwcore.instrument import EchoShape, analytic_shape, echo_shape
-from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_area
+from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_areas
 from fwcore.optimizers import find_own_echoes, run_optimizer
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import initial_estimate
@@ -277,9 +277,12 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     flat = echoes[np.arange(config.max_echoes)[None, :] < counts[:, None]]
     sigma, alpha = flat["sigma"], flat["alpha"]
     if uses_response(config):
-        shape = [shapes[s] for s in batch.sample_spacing_ps[np.repeat(np.arange(n), counts)]]
         width = sigma * _FWHM_PER_SIGMA  # a tabulated echo's sigma is that of the Gaussian of equal FWHM
-        energy = flat["amplitude"] * np.array([tabulated_area(sh, s) for sh, s in zip(shape, sigma)])
+        echo_spacing = batch.sample_spacing_ps[np.repeat(np.arange(n), counts)]
+        energy = np.empty(sigma.size)
+        for spacing, shape in shapes.items():
+            at = echo_spacing == spacing
+            energy[at] = flat["amplitude"][at] * tabulated_areas(shape, sigma[at])
     else:
         width = fwhm(sigma, alpha)
         energy = echo_energy(flat["amplitude"], sigma, alpha)

@@ -210,6 +210,18 @@ class _Return:
     fwhm: float  # samples
 
 
+def main_lobe(signal: np.ndarray, peak: int, fraction: float) -> tuple[int, int]:
+    """The first and last sample of the run around `peak` where signal stays above fraction x its height."""
+    above = signal > fraction * signal[peak]
+    lo = peak
+    while lo > 0 and above[lo - 1]:
+        lo -= 1
+    hi = peak
+    while hi < signal.size - 1 and above[hi + 1]:
+        hi += 1
+    return lo, hi
+
+
 def _strong_single_return(samples: np.ndarray, noise: float, background: float) -> _Return | None:
     """The waveform as one strong return, or None: SNR >= MIN_SNR, not clipped, one local maximum above 10%
     of the peak in its main lobe, nothing above 15% of the peak outside it, and its lobe clear of the edges."""
@@ -220,13 +232,7 @@ def _strong_single_return(samples: np.ndarray, noise: float, background: float) 
         return None
     if v[peak - 1] == height or v[peak + 1] == height:
         return None  # a flat top: the digitizer clipped it
-    above = v > 0.1 * height
-    lo = peak
-    while lo > 0 and above[lo - 1]:
-        lo -= 1
-    hi = peak
-    while hi < v.size - 1 and above[hi + 1]:
-        hi += 1
+    lo, hi = main_lobe(v, peak, 0.1)
     if lo == 0 or hi == v.size - 1:
         return None
     outside = np.concatenate([v[:lo], v[hi + 1:]])

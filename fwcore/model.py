@@ -156,6 +156,12 @@ def tabulated_model(t, background, amplitude, position, s, shape) -> np.ndarray:
     return y
 
 
+def tabulated_areas(shape, s) -> np.ndarray:
+    """The NumPy twin of tabulated_area, over an array of widths s."""
+    widths = shape.s_min + shape.s_step * np.arange(shape.areas.size)
+    return np.interp(np.asarray(s, dtype=float), widths, shape.areas)
+
+
 @njit(**JIT)
 def tabulated_area(shape, s):
     """The area (samples) under a unit-amplitude tabulated echo of width s."""

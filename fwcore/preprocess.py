@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.instrument import analytic_shape
+from fwcore.instrument import analytic_shape, main_lobe
 from fwcore.model import table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -390,15 +390,20 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
 
 
-def noise_and_background(samples, valid=None, smoothing_sigma: float = 1.0) -> tuple[float, float]:
-    """A waveform's robust white-noise sigma (floored at the quantisation's) and its robust baseline."""
-    samples, valid = _as_waveform(samples, valid)
+def _smoothed_noise_baseline(samples: np.ndarray, valid: np.ndarray, smoothing_sigma: float):
+    """(smoothed waveform, robust white-noise sigma floored at the quantisation's, robust baseline)."""
     smoothed = np.empty_like(samples)
     _smooth(samples, valid, float(smoothing_sigma), smoothed)
     attenuation = np.empty_like(samples)
     _residual_attenuation(valid, float(smoothing_sigma), attenuation)
     noise = max(float(_robust_noise_sigma(samples, smoothed, valid, attenuation)), 1.0 / math.sqrt(12.0))
-    return noise, float(_baseline(samples, valid, noise))
+    return smoothed, noise, float(_baseline(samples, valid, noise))
+
+
+def noise_and_background(samples, valid=None, smoothing_sigma: float = 1.0) -> tuple[float, float]:
+    """A waveform's robust white-noise sigma (floored at the quantisation's) and its robust baseline."""
+    _, noise, background = _smoothed_noise_baseline(*_as_waveform(samples, valid), smoothing_sigma)
+    return noise, background
 
 
 def half_height_width(samples) -> float:
@@ -444,24 +449,14 @@ _SINGLE_ECHO_QUANTILE = 20.0
 
 def _single_echo_fwhm(samples: np.ndarray, valid: np.ndarray) -> float | None:
     """The FWHM (samples) of a waveform's echo if it holds one strong, isolated echo, else None."""
-    smoothed = np.empty_like(samples)
-    _smooth(samples, valid, _MEASURE_SMOOTHING, smoothed)
-    attenuation = np.empty_like(samples)
-    _residual_attenuation(valid, _MEASURE_SMOOTHING, attenuation)
-    noise = max(_robust_noise_sigma(samples, smoothed, valid, attenuation), 1.0 / math.sqrt(12.0))
-    level = _baseline(samples, valid, noise)
+    smoothed, noise, level = _smoothed_noise_baseline(samples, valid, _MEASURE_SMOOTHING)
     signal = np.where(valid, smoothed - level, 0.0)
     peak = int(np.argmax(signal))
     height = signal[peak]
     if height < _SINGLE_ECHO_SNR * noise:
         return None
+    lo, hi = main_lobe(signal, peak, _SINGLE_ECHO_FLOOR)
     above = signal > _SINGLE_ECHO_FLOOR * height
-    lo = peak
-    while lo > 0 and above[lo - 1]:
-        lo -= 1
-    hi = peak
-    while hi < samples.size - 1 and above[hi + 1]:
-        hi += 1
     if lo == 0 or hi == samples.size - 1 or above[:lo].any() or above[hi + 1:].any():
         return None  # cut by the record's edge, or another echo elsewhere
     inner = signal[lo:hi + 1]

@@ -35,7 +35,7 @@ from fwcore._jit import JIT
 from fwcore.io.records import PulseBatch
 from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
 from fwcore.instrument import SystemResponse, echo_shape
-from fwcore.model import LN2, SQRT_2LN2, tabulated_area, tabulated_model
+from fwcore.model import LN2, SQRT_2LN2, tabulated_areas, tabulated_model
 
 LIGHT_M_PER_PS = 299792458.0e-12
 RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range
@@ -376,7 +376,7 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         for p_, k in zip(*np.nonzero(has)):
             shaped[p_ * n_samples:(p_ + 1) * n_samples] += tabulated_model(
                 t, 0.0, amplitude[p_, k], time_ps[p_, k] / sensor.sample_spacing_ps, s[p_, k], shape)
-        area = np.array([[tabulated_area(shape, w) for w in row] for row in s]) * sensor.sample_spacing_ps
+        area = tabulated_areas(shape, s) * sensor.sample_spacing_ps
         energy = np.where(has, amplitude * area, 0.0)
         alpha = np.full(alpha.shape, np.nan)
         sigma_ps = fwhm_ps / _FWHM_PER_SIGMA

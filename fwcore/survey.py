@@ -87,9 +87,15 @@ def measure_input_response(path: str | Path) -> SystemResponse | None:
         return csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0,
                                 DecompositionConfig(model=Model.SYSTEM)).response
     count = input_summary(path).records
-    # a width and tolerance given, so that they are not measured (the range offset still is, on 300 pulses)
-    return file_system_pulse(path, count, DecompositionConfig(model=Model.SYSTEM, system_pulse_fwhm_ps=1.0,
-                                                              shape_tolerance=0.0)).response
+    return file_response(read_pulses(PointRange(str(path), 0, min(count, PULSE_WIDTH_POINTS)))) if count else None
+
+
+def file_response(pulses) -> SystemResponse | None:
+    """The response of a file's first pulses: on the system's single returns where the file has them,
+    otherwise on its strongest isolated echoes; None where too few qualify."""
+    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
+    response = measure_file_response(pulses, single, "single returns") if single.size else None
+    return response or measure_file_response(pulses, np.arange(len(pulses)), "isolated echoes")
 
 
 def csv_system_pulse(samples, valid, spacing_ps: float, config: DecompositionConfig,
@@ -169,10 +175,7 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
     response = config.system_response
     if response is None and pulses is not None and config.model is Model.SYSTEM:
-        # the system's own single returns where the file has them; otherwise its strongest isolated echoes
-        response = measure_file_response(pulses, single, "single returns") if single.size else None
-        if response is None:
-            response = measure_file_response(pulses, np.arange(len(pulses)), "isolated echoes")
+        response = file_response(pulses)
         if response is None:
             LOG.warning("%s: too few strong single returns to measure the system response; echoes are "
                         "Gaussians of the pulse width", Path(path).name)

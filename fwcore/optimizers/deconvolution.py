@@ -57,29 +57,30 @@ def response_kernel(shape, pulse_sigma):
 
 
 @njit(**JIT)
-def _convolve(x, kernel, centre, out):
-    """out[i] = sum_j kernel[j] x[i - (j - centre)]: the response placed at each sample of x."""
+def _shift_sum(x, kernel, centre, sign, out):
+    """out[i] = sum_j kernel[j] x[i - sign (j - centre)] over the samples x has: sign 1 places the response
+    at each sample of x (the convolution), sign -1 is its adjoint (the correlation)."""
     n = x.size
     for i in range(n):
+        # the j whose sample i - sign (j - centre) lies in [0, n)
+        if sign > 0:
+            lo, hi = max(0, i + centre - n + 1), min(kernel.size, i + centre + 1)
+        else:
+            lo, hi = max(0, centre - i), min(kernel.size, n - i + centre)
         acc = 0.0
-        for j in range(kernel.size):
-            k = i - (j - centre)
-            if 0 <= k < n:
-                acc += kernel[j] * x[k]
+        for j in range(lo, hi):
+            acc += kernel[j] * x[i - sign * (j - centre)]
         out[i] = acc
 
 
 @njit(**JIT)
+def _convolve(x, kernel, centre, out):
+    _shift_sum(x, kernel, centre, 1, out)
+
+
+@njit(**JIT)
 def _correlate(x, kernel, centre, out):
-    """The adjoint of _convolve: out[k] = sum_j kernel[j] x[k + (j - centre)]."""
-    n = x.size
-    for k in range(n):
-        acc = 0.0
-        for j in range(kernel.size):
-            i = k + (j - centre)
-            if 0 <= i < n:
-                acc += kernel[j] * x[i]
-        out[k] = acc
+    _shift_sum(x, kernel, centre, -1, out)
 
 
 @njit(**JIT)
