@@ -41,6 +41,9 @@ TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation 
 # The echo table's rows step by this share of the response's own equal-FWHM sigma, from it to the widest echo
 # allowed: the same rows whatever the widest, so a table rebuilt from a run's settings gives its echoes again.
 ROW_STEP = 2.0 / 47.0
+# A row's support ends where it stays below this share of its peak: a quarter of an 8-bit digitizer's
+# step at full scale, so the kernels need not visit the samples a narrow echo cannot reach.
+SUPPORT_LEVEL = 1e-3
 MIN_SNR = 30.0  # a return this far above the noise shows the response's tail and afterpulse
 MIN_PULSES = 20  # fewer strong single returns than this measure nothing
 
@@ -304,6 +307,7 @@ class EchoShape(NamedTuple):
     rows: np.ndarray  # (widths, grid) float64
     slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
     areas: np.ndarray  # (widths,) integral of each row, samples
+    support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
     step: float  # samples per grid point
     origin: float  # grid index of t = 0 (the response's peak)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
@@ -313,7 +317,7 @@ class EchoShape(NamedTuple):
 def analytic_shape() -> EchoShape:
     """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
     empty = np.zeros((1, 2))
-    return EchoShape(False, empty, empty, np.zeros(1), 1.0, 0.0, 0.0, 1.0)
+    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), 1.0, 0.0, 0.0, 1.0)
 
 
 @functools.lru_cache(maxsize=64)
@@ -342,9 +346,15 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
         b = float(np.interp(f, fwhms, b_grid))
         r = _broaden(base, b / step)
         rows[w] = r / r.max()
+    support = np.empty((n_rows, 2), dtype=np.int64)
+    for w in range(n_rows):
+        above = np.flatnonzero(np.abs(rows[w]) > SUPPORT_LEVEL)
+        support[w] = above[0], above[-1]
+        rows[w, :above[0]] = 0.0  # so that every evaluation, windowed or not, gives the same echo
+        rows[w, above[-1] + 1:] = 0.0
     slopes = np.gradient(rows, step, axis=1)
     areas = rows.sum(axis=1) * step
-    return EchoShape(True, rows, slopes, areas, step, float(-lo), s_min, s_min * ROW_STEP)
+    return EchoShape(True, rows, slopes, areas, support, step, float(-lo), s_min, s_min * ROW_STEP)
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

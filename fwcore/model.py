@@ -83,9 +83,14 @@ def table_derivatives(shape, s, d):
 
 
 @njit(**JIT_INLINE)
-def table_reach(shape):
-    """The tabulated echo's support, (before, after) its position, in samples."""
-    return shape.origin * shape.step, (shape.rows.shape[1] - 1 - shape.origin) * shape.step
+def table_reach(shape, s):
+    """A tabulated echo of width s: its support, (before, after) its position, in samples (of the two rows
+    it is interpolated between)."""
+    w, _, _, _ = _table_coordinates(shape, s, 0.0)
+    first = min(shape.support[w, 0], shape.support[w + 1, 0])
+    last = max(shape.support[w, 1], shape.support[w + 1, 1])
+    # interpolation reaches one grid step past a row's last non-zero value
+    return (shape.origin - first + 1.0) * shape.step, (last + 1.0 - shape.origin) * shape.step
 
 
 @njit(**JIT_INLINE)

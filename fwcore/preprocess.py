@@ -262,6 +262,19 @@ def _echo_sigma(residual, valid, peak, fallback):
 
 
 @njit(**JIT)
+def _vertex(values, valid, peak):
+    """(position, height) of the parabola's vertex through a peak and its two neighbours."""
+    if peak == 0 or peak == values.size - 1 or not (valid[peak - 1] and valid[peak + 1]):
+        return float(peak), values[peak]
+    a, b, c = values[peak - 1], values[peak], values[peak + 1]
+    curvature = a - 2.0 * b + c
+    if curvature >= 0.0:
+        return float(peak), b
+    offset = min(max(0.5 * (a - c) / curvature, -0.5), 0.5)
+    return peak + offset, b - 0.25 * (a - c) * offset
+
+
+@njit(**JIT)
 def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma, shape,
                         amplitude, position, sigma):
     """Extract echoes one by one from the largest remaining peak that rises above its sample's
@@ -279,17 +292,24 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
                 peak = i
         if peak < 0:
             break
-        # a tabulated echo starts as the response itself: the narrowest echo there is, so a shoulder beside
-        # it is left as a peak of its own (the optimizer widens the echo where the data asks)
-        s = shape.s_min if shape.tabulated else _echo_sigma(residual, valid, peak, fallback_sigma)
+        if shape.tabulated:
+            # the response itself, the narrowest echo there is, so that a shoulder beside it is left as a
+            # peak of its own (the optimizer widens the echo where the data asks); at the parabola's vertex
+            # through the peak and its neighbours: an echo subtracted half a sample off leaves a flank that
+            # would be peeled as an echo of its own
+            centre, top = _vertex(residual, valid, peak)
+            amplitude[count] = top
+            position[count] = centre
+            sigma[count] = shape.s_min
+            count += 1
+            for i in range(n):
+                residual[i] -= table_value(shape, top, centre, shape.s_min, i)
+            continue
+        s = _echo_sigma(residual, valid, peak, fallback_sigma)
         amplitude[count] = height
         position[count] = peak
         sigma[count] = s
         count += 1
-        if shape.tabulated:
-            for i in range(n):
-                residual[i] -= table_value(shape, height, peak, s, i)
-            continue
         inv = 1.0 / (2.0 * s * s)
         for i in range(n):
             d = i - peak

@@ -355,7 +355,10 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         _scene_echoes(first, n_pulses, scene, sensor, rng)
     has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
     top_range = ranges[:, 0]
-    time_ps = np.where(has, sensor.pre_trigger_ps + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
+    normal = rng.standard_normal(n_pulses * sensor.samples_per_packet)  # the noise, drawn first as before
+    # the first surface's sub-sample phase: a packet starts at a sample, not at the same point of every pulse
+    pre_trigger = sensor.pre_trigger_ps + rng.uniform(0.0, sensor.sample_spacing_ps, n_pulses)
+    time_ps = np.where(has, pre_trigger[:, None] + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
     window_ps = (sensor.samples_per_packet - 1) * sensor.sample_spacing_ps
     if np.any(time_ps[has] > window_ps - 3 * sensor.pulse_fwhm_ps):
         raise ValueError("the packet is too short for the scene's heights: raise samples_per_packet")
@@ -382,19 +385,19 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         sigma_ps = fwhm_ps / _FWHM_PER_SIGMA
     _render(time_ps, np.where(has & (sensor.response is None), amplitude, 0.0), sigma_ps,
             np.where(has & np.isfinite(alpha), alpha, 1.0), count, n_samples, sensor.sample_spacing_ps,
-            sensor.background, sensor.noise_sigma, sensor.shot_noise, top, rng.standard_normal(n_pulses * n_samples),
+            sensor.background, sensor.noise_sigma, sensor.shot_noise, top, normal,
             shaped, samples)
     return_index = np.zeros((n_pulses, MAX_RETURNS), dtype=np.int64)
     return_count = np.zeros(n_pulses, dtype=np.int64)
     threshold = sensor.background + sensor.detection_threshold * sensor.noise_sigma
     _detect(samples, n_samples, threshold, return_index, return_count)
 
-    # geometry: a point at packet time t lies at P0 + beam (t - pre_trigger) c/2, P0 the first surface
+    # geometry: a point at packet time t lies at P0 + beam (t - pre_trigger) c/2, P0 the first surface (its pulse's)
     first_surface = sensor_xyz + beam * top_range[:, None]
     direction = -beam * RANGE_M_PER_PS  # the reader's X = X0 + (L0 - t) x_t
 
     def position(owner, t_ps):
-        return first_surface[owner] + beam[owner] * ((t_ps - sensor.pre_trigger_ps) * RANGE_M_PER_PS)[:, None]
+        return first_surface[owner] + beam[owner] * ((t_ps - pre_trigger[owner]) * RANGE_M_PER_PS)[:, None]
 
     r_has = np.arange(MAX_RETURNS)[None, :] < return_count[:, None]
     r_owner = np.repeat(np.arange(n_pulses), return_count)

@@ -37,7 +37,7 @@ def response_kernel(shape, pulse_sigma):
     """The response on the sample grid, unit area, and the index of its time 0: the tabulated shape's
     narrowest row, or a Gaussian of pulse_sigma samples."""
     if shape.tabulated:
-        before, after = table_reach(shape)
+        before, after = table_reach(shape, shape.s_min)
         lo = -int(math.floor(before))
         hi = int(math.floor(after))
         kernel = np.empty(hi - lo + 1)

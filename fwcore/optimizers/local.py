@@ -49,7 +49,7 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
-            before, after = table_reach(shape)
+            before, after = table_reach(shape, s)
             lo = np.searchsorted(times, u - before)
             hi = np.searchsorted(times, u + after, side="right")
             windows[k, 0] = lo
@@ -97,7 +97,7 @@ def squared_error(x, n_echoes, times, shape, target, weights):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
-            before, after = table_reach(shape)
+            before, after = table_reach(shape, s)
             for i in range(np.searchsorted(times, u - before), np.searchsorted(times, u + after, side="right")):
                 model[i] += table_value(shape, a, u, s, times[i])
             continue
@@ -204,10 +204,15 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
         ssr += residual[i] * residual[i]
     n_jacobians = 1
     lam = 1e-3
+    growth = 2.0
     done = False
     _normal_equations(jac, residual, weights, windows, jtj, grad)
+    active = free.copy()
     for _ in range(max_iterations):
-        if not _solve_damped(jtj, grad, lam, free, step):
+        # a parameter held at a bound with the descent pushing outwards stays there for the step
+        for j in range(d):
+            active[j] = free[j] and not ((x[j] <= lower[j] and grad[j] > 0.0) or (x[j] >= upper[j] and grad[j] < 0.0))
+        if not _solve_damped(jtj, grad, lam, active, step):
             lam *= 10.0
             if lam > 1e12:
                 done = True
@@ -223,19 +228,30 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             trial_ssr += r * r
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
+            # Nielsen's damping update: by how well the linear model predicted the gain, so that a step into
+            # a curved valley (overlapping echoes trading amplitude) is not followed by a bolder one
+            predicted = 0.0
+            for r in range(d):
+                delta = trial[r] - x[r]
+                predicted -= 2.0 * grad[r] * delta
+                for c in range(d):
+                    predicted -= delta * jtj[r, c] * (trial[c] - x[c])
+            ratio = gain / predicted if predicted > 0.0 else 1.0
+            lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
+            growth = 2.0
             x[:] = trial
             jac, trial_jac = trial_jac, jac  # the trial's Jacobian becomes the current one
             windows, trial_windows = trial_windows, windows
             for i in range(m):
                 residual[i] = weights[i] * (trial_model[i] - target[i])
             ssr = trial_ssr
-            lam = max(lam * 0.3, 1e-9)
             if gain <= tolerance * ssr:
                 done = True
                 break
             _normal_equations(jac, residual, weights, windows, jtj, grad)
         else:
-            lam *= 4.0
+            lam *= growth
+            growth *= 2.0
             if lam > 1e12:
                 done = True
                 break

@@ -57,7 +57,7 @@ def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
             continue
         u = x[base + 1]
         if shape.tabulated:
-            before, after = table_reach(shape)
+            before, after = table_reach(shape, x[base + 2])
             lo = max(0, int(math.floor(u - before)))
             hi = min(n, int(math.ceil(u + after)) + 1)
             for i in range(lo, hi):
