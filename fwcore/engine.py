@@ -161,7 +161,8 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples
         best, nfev, nit, message = run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
-                                                 times, fit_target, raw, signal, variance, eps, seed)
+                                                 times, fit_target, raw, signal, variance, noise, eps,
+                                                 seed)
 
     dropped = 0
     added = 0
@@ -254,6 +255,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     n = len(batch)
     status = waveform_status(batch)
     out = np.zeros(n, dtype=WAVEFORM_RESULT)
+    out["status"] = status
     echoes = np.zeros((n, config.max_echoes), dtype=ECHO_RESULT)
     samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
     samples[~np.isfinite(samples)] = 0.0
@@ -287,11 +289,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
         width = fwhm(sigma, alpha)
         energy = echo_energy(flat["amplitude"], sigma, alpha)
     return BatchDecomposition(
-        status=status, background=out["background"], noise_sigma=out["noise_sigma"], fit_error=out["fit_error"],
-        fit_error_raw=out["fit_error_raw"], rmse=out["rmse"], r2=out["r2"], nfev=out["nfev"], nit=out["nit"],
-        message=out["message"].astype(np.int8), n_echoes_initial=out["n_echoes_initial"],
-        n_echoes_dropped=out["n_echoes_dropped"], n_echoes_added=out["n_echoes_added"],
-        echo_offsets=echo_offsets, amplitude=flat["amplitude"], position=flat["position"], sigma=sigma,
+        out, echo_offsets=echo_offsets, amplitude=flat["amplitude"], position=flat["position"], sigma=sigma,
         alpha=alpha, fwhm=width, energy=energy, reject=flat["reason"],
         shapes=shapes if uses_response(config) else None, sample_spacing_ps=batch.sample_spacing_ps)
 

@@ -275,6 +275,43 @@ def _vertex(values, valid, peak):
 
 
 @njit(**JIT)
+def _half_height_sides(values, valid, peak, centre, height):
+    """(left, right): how far before and after `centre` (indices) the values first fall to half of `height`,
+    walking out from index `peak` over valid samples; -1 for a side that does not fall that far."""
+    half = 0.5 * height
+    left = -1.0
+    i = peak
+    while i > 0 and valid[i - 1]:
+        if values[i - 1] <= half:
+            left = centre - (i - (values[i] - half) / (values[i] - values[i - 1]))
+            break
+        i -= 1
+    right = -1.0
+    i = peak
+    while i < values.size - 1 and valid[i + 1]:
+        if values[i + 1] <= half:
+            right = i + (values[i] - half) / (values[i] - values[i + 1]) - centre
+            break
+        i += 1
+    return left, right
+
+
+@njit(**JIT)
+def _tabulated_width(residual, valid, peak, centre, height, shape, response_left, response_right):
+    """A tabulated echo's starting width: the response broadened by how much wider than the response's the
+    residual's peak is on its narrower side (a neighbour widens one side only); the response itself where
+    neither side falls to half height."""
+    left, right = _half_height_sides(residual, valid, peak, centre, height)
+    ratio = np.inf
+    if left > 0.0:
+        ratio = min(ratio, left / response_left)
+    if right > 0.0:
+        ratio = min(ratio, right / response_right)
+    widest = shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
+    return min(max(shape.s_min * ratio, shape.s_min), widest) if ratio < np.inf else shape.s_min
+
+
+@njit(**JIT)
 def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma, shape,
                         amplitude, position, sigma):
     """Extract echoes one by one from the largest remaining peak that rises above its sample's
@@ -282,6 +319,12 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     afterpulse with it); returns how many were found."""
     n = smoothed.size
     residual = smoothed - background
+    response_left = response_right = 1.0
+    if shape.tabulated:  # the response's own half-height sides, in samples
+        row = shape.rows[0]
+        top = int(np.argmax(row))
+        left, right = _half_height_sides(row, np.ones(row.size, dtype=np.bool_), top, float(top), row[top])
+        response_left, response_right = left * shape.step, right * shape.step
     count = 0
     while count < max_echoes:
         peak = -1
@@ -293,17 +336,16 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
         if peak < 0:
             break
         if shape.tabulated:
-            # the response itself, the narrowest echo there is, so that a shoulder beside it is left as a
-            # peak of its own (the optimizer widens the echo where the data asks); at the parabola's vertex
-            # through the peak and its neighbours: an echo subtracted half a sample off leaves a flank that
-            # would be peeled as an echo of its own
+            # at the parabola's vertex through the peak and its neighbours (an echo subtracted half a sample
+            # off leaves a flank that would be peeled as an echo of its own), as wide as its clean side says
             centre, top = _vertex(residual, valid, peak)
+            s = _tabulated_width(residual, valid, peak, centre, top, shape, response_left, response_right)
             amplitude[count] = top
             position[count] = centre
-            sigma[count] = shape.s_min
+            sigma[count] = s
             count += 1
             for i in range(n):
-                residual[i] -= table_value(shape, top, centre, shape.s_min, i)
+                residual[i] -= table_value(shape, top, centre, s, i)
             continue
         s = _echo_sigma(residual, valid, peak, fallback_sigma)
         amplitude[count] = height

@@ -19,13 +19,19 @@ STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")
 # How the optimizer ended, per waveform (codes of fwcore.config: MSG_*).
 MESSAGES = ("no_echoes", "converged", "max_generations", "max_iterations", "not_optimized")
 
-# The kernel's per-waveform result, one record per waveform (named fields, not columns by position).
+# The per-waveform result, one record per waveform: the one declaration of its fields, which the kernels write by
+# name and BatchDecomposition and Decomposition expose (aligned: int8 codes sit among float64s).
 WAVEFORM_RESULT = np.dtype([
-    ("background", np.float64), ("noise_sigma", np.float64), ("fit_error", np.float64),
-    ("fit_error_raw", np.float64), ("rmse", np.float64), ("r2", np.float64), ("nfev", np.int64),
-    ("nit", np.int64), ("message", np.int64), ("n_echoes_initial", np.int64), ("n_echoes_dropped", np.int64),
-    ("n_echoes_added", np.int64), ("n_echoes", np.int64),
-])
+    ("status", np.int8),  # codes into STATUS_REASONS, set before the kernels: they skip a waveform with one
+    ("background", np.float64), ("noise_sigma", np.float64), ("fit_error", np.float64), ("fit_error_raw", np.float64),
+    ("rmse", np.float64), ("r2", np.float64), ("nfev", np.int64), ("nit", np.int64),
+    ("message", np.int8),  # codes into MESSAGES
+    ("n_echoes_initial", np.int64), ("n_echoes_dropped", np.int64), ("n_echoes_added", np.int64),
+    ("n_echoes", np.int64),  # the kernel's count; public as the batch's echo_offsets
+], align=True)
+WAVEFORM_FIELDS = tuple(name for name in WAVEFORM_RESULT.names if name != "n_echoes")  # the results' attributes
+# The fields whose int8 codes a Decomposition (and a table) spells out as strings.
+WAVEFORM_CODES = {"status": STATUS_REASONS, "message": MESSAGES}
 # One echo in Chauve's parameters (fwcore.model), sorted by position within its waveform.
 ECHO_RESULT = np.dtype([("amplitude", np.float64), ("position", np.float64), ("sigma", np.float64),
                         ("alpha", np.float64), ("reason", np.int8)])
@@ -66,6 +72,7 @@ class WaveformBatch:
 class Decomposition:
     """One waveform's result. Times and widths in samples (time 0 = first sample)."""
 
+    # WAVEFORM_FIELDS in their order, codes as strings (BatchDecomposition.waveform fills them by name)
     status: str  # "" when decomposed, else why not
     background: float
     noise_sigma: float
@@ -106,21 +113,10 @@ class Decomposition:
 
 @dataclasses.dataclass(frozen=True)
 class BatchDecomposition:
-    """A batch's results, columnar: per waveform (n) and per echo (flat, echo_offsets)."""
+    """A batch's results, columnar: per waveform (n records of WAVEFORM_RESULT, whose fields but n_echoes are
+    attributes: result.nfev, result.status) and per echo (flat, echo_offsets)."""
 
-    status: np.ndarray  # int8 codes into STATUS_REASONS
-    background: np.ndarray
-    noise_sigma: np.ndarray
-    fit_error: np.ndarray
-    fit_error_raw: np.ndarray
-    rmse: np.ndarray
-    r2: np.ndarray
-    nfev: np.ndarray
-    nit: np.ndarray
-    message: np.ndarray  # int8 codes into MESSAGES
-    n_echoes_initial: np.ndarray
-    n_echoes_dropped: np.ndarray
-    n_echoes_added: np.ndarray
+    per_waveform: np.ndarray  # WAVEFORM_RESULT, n
     echo_offsets: np.ndarray  # n + 1
     amplitude: np.ndarray
     position: np.ndarray
@@ -132,8 +128,17 @@ class BatchDecomposition:
     shapes: dict[float, EchoShape] | None = None  # per sample spacing (ps), under the system model
     sample_spacing_ps: np.ndarray | None = None  # per waveform: which of `shapes` its echoes take
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        # the per-waveform attributes are the record's fields, not a second list of them
+        if name in WAVEFORM_FIELDS:
+            return self.per_waveform[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __dir__(self) -> list[str]:
+        return [*super().__dir__(), *WAVEFORM_FIELDS]
+
     def __len__(self) -> int:
-        return self.status.size
+        return self.per_waveform.size
 
     @property
     def echo_waveform(self) -> np.ndarray:
@@ -142,13 +147,10 @@ class BatchDecomposition:
 
     def waveform(self, i: int) -> Decomposition:
         lo, hi = self.echo_offsets[i], self.echo_offsets[i + 1]
+        record = self.per_waveform[i]
         return Decomposition(
-            status=STATUS_REASONS[self.status[i]], background=float(self.background[i]),
-            noise_sigma=float(self.noise_sigma[i]), fit_error=float(self.fit_error[i]),
-            fit_error_raw=float(self.fit_error_raw[i]), rmse=float(self.rmse[i]), r2=float(self.r2[i]),
-            nfev=int(self.nfev[i]), nit=int(self.nit[i]), message=MESSAGES[self.message[i]],
-            n_echoes_initial=int(self.n_echoes_initial[i]), n_echoes_dropped=int(self.n_echoes_dropped[i]),
-            n_echoes_added=int(self.n_echoes_added[i]),
+            **{name: WAVEFORM_CODES[name][record[name]] if name in WAVEFORM_CODES else record[name].item()
+               for name in WAVEFORM_FIELDS},
             amplitude=self.amplitude[lo:hi], position=self.position[lo:hi], sigma=self.sigma[lo:hi],
             alpha=self.alpha[lo:hi], fwhm=self.fwhm[lo:hi], energy=self.energy[lo:hi],
             reject_reason=tuple(REJECT_REASONS[r] for r in self.reject[lo:hi]), shape=self.shape_of(i))

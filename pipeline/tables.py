@@ -1,6 +1,7 @@
 """Arrow tables of decomposition results (what the command line and sinks write), each from one column
 specification: a column's name, type, unit and meaning are written once (COLUMNS), the tables list their
-columns by name (TABLES), and every written field carries its unit and meaning in its Parquet metadata.
+columns by name (TABLES), and every written field carries its unit and meaning in its Parquet metadata. The
+columns of the engine's per-waveform record take its fields by name (RECORD_COLUMNS).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
-from fwcore.records import MESSAGES, STATUS_REASONS, BatchDecomposition
+from fwcore.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
@@ -164,6 +165,10 @@ TABLES = {
                    "background", "kept", "reject_reason", *_FIT, *_METHOD),
     "csv waveforms": ("waveform_id", "status", "n_samples", "noise_sigma", "background", *_FIT, *_COUNTS, *_METHOD),
 }
+_RENAMED = {"nfev": "model_evaluations"}  # record fields whose column name says more
+# The columns that are fields of the engine's per-waveform record (fwcore.records.WAVEFORM_RESULT), by column name:
+# the tables take their values from the record by this map, and a test checks that their columns cover it.
+RECORD_COLUMNS = {_RENAMED.get(f, f): f for f in WAVEFORM_FIELDS}
 
 
 def table_schema(table: str) -> pa.Schema:
@@ -192,7 +197,7 @@ def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: Deco
         "waveform_id": waveform_id[owner], "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
         "echo_count": np.diff(result.echo_offsets)[owner], "amplitude": result.amplitude, "time": result.position,
         "sigma": result.sigma, "alpha": result.alpha, "fwhm": result.fwhm, "energy": result.energy,
-        "background": result.background[owner], **_kept(result), **_fit(result, owner), **_method(config, owner.size)})
+        **_record_columns("csv echoes", result, owner), **_kept(result), **_method(config, owner.size)})
     return _with_config(table, config)
 
 
@@ -201,22 +206,26 @@ def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: 
     """One row per waveform, whether or not it was decomposed: none is dropped."""
     every = np.arange(len(result))
     table = _table("csv waveforms", {
-        "waveform_id": waveform_id, "status": [STATUS_REASONS[s] for s in result.status], "n_samples": n_samples,
-        "noise_sigma": result.noise_sigma, "background": result.background, **_fit(result, every),
-        **_counts(result, every), **_method(config, len(result))})
+        "waveform_id": waveform_id, "n_samples": n_samples, **_record_columns("csv waveforms", result, every),
+        **_echo_counts(result, every), **_method(config, len(result))})
     return _with_config(table, config)
 
 
-def _fit(result: BatchDecomposition, rows: np.ndarray) -> dict:
-    return {name: getattr(result, name)[rows] for name in _FIT}
+def _record_columns(table: str, result: BatchDecomposition, rows: np.ndarray) -> dict:
+    """The table's columns of the per-waveform record (RECORD_COLUMNS) at rows, codes as their strings."""
+    columns = {}
+    for column in table_schema(table).names:
+        field = RECORD_COLUMNS.get(column)
+        if field in WAVEFORM_CODES:
+            columns[column] = np.array(WAVEFORM_CODES[field], dtype=object)[result.per_waveform[field][rows]].tolist()
+        elif field is not None:
+            columns[column] = result.per_waveform[field][rows]
+    return columns
 
 
-def _counts(result: BatchDecomposition, rows: np.ndarray) -> dict:
+def _echo_counts(result: BatchDecomposition, rows: np.ndarray) -> dict:
     kept = np.bincount(result.echo_waveform[result.reject == 0], minlength=len(result))
-    return {"n_echoes_initial": result.n_echoes_initial[rows], "n_echoes_dropped": result.n_echoes_dropped[rows],
-            "n_echoes_added": result.n_echoes_added[rows], "n_echoes": np.diff(result.echo_offsets)[rows],
-            "n_echoes_kept": kept[rows], "model_evaluations": result.nfev[rows], "nit": result.nit[rows],
-            "message": [MESSAGES[m] for m in result.message[rows]]}
+    return {"n_echoes": np.diff(result.echo_offsets)[rows], "n_echoes_kept": kept[rows]}
 
 
 def _kept(result: BatchDecomposition) -> dict:
@@ -261,19 +270,18 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "echo_count": np.diff(result.echo_offsets)[owner], "time_ps": result.position * spacing,
         "amplitude": result.amplitude, "amplitude_volts": result.amplitude * pulses.digitizer_gain[owner],
         "sigma_chauve": sigma_to_time_unit(result.sigma, result.alpha, spacing), "alpha": result.alpha,
-        "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing, "background": result.background[owner],
-        **_radiometry_columns(radiometry, owner.size),
+        "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing,
+        **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
-        **_kept(result), **_fit(result, owner), **_method(config, owner.size)})
+        **_kept(result), **_method(config, owner.size)})
     sel = np.flatnonzero(ok)
     table = _table("pulses", {
         "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],
         "channel": pulses.channels()[sel], "segment": pulses.segments()[sel],
         "packet_offset": pulses.packet_offset[sel], "gps_time": pulses.gps_time[sel],
         "n_samples": np.diff(pulses.sample_offsets)[sel], "sample_spacing_ps": pulses.sample_spacing_ps[sel],
-        "noise_sigma": result.noise_sigma[sel], "background": result.background[sel],
         "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
-        **_fit(result, sel), **_counts(result, sel),
+        **_record_columns("pulses", result, sel), **_echo_counts(result, sel),
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
         "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})

@@ -28,10 +28,14 @@ from fwcore.optimizers.pso import swarm
 from fwcore.noise_model import add_shot_noise
 
 @njit(**JIT)
-def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samples, valid, eps, seed):
+def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samples, valid, noise, eps, seed):
     """A population method (p.method's kind) on Eq. 9 over `fit_samples`, its population seeded
-    around `start`. Returns (best individual, model evaluations, generations, converged)."""
+    around `start`; it converges (tol > 0) when its fitness spread is within the noise's too.
+    Returns (best individual, model evaluations, generations, converged)."""
     n = fit_samples.size
+    atol = p.atol
+    if p.tol > 0.0:
+        atol += p.noise_tol * noise * math.sqrt(np.sum(valid) * (1.0 - 2.0 / math.pi))
     state = np.empty(1, dtype=np.uint64)
     state[0] = seed
     n_pad = (n + LANES - 1) // LANES * LANES
@@ -59,7 +63,7 @@ def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samp
     else:
         used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
                                  p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
-                                 p.de_scale_factor, p.tol, p.atol, state, n_echoes, tpos, target, weight,
+                                 p.de_scale_factor, p.tol, atol, state, n_echoes, tpos, target, weight,
                                  p.gaussian, shape, eps)
         nfev += used
     return pop[np.argmin(fitness)].copy(), nfev, nit, done
@@ -97,7 +101,7 @@ def find_own_echoes(p, shape, samples, valid, smoothed, background, noise, first
 
 @njit(**JIT)
 def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, raw, signal,
-                  variance, eps, seed):
+                  variance, noise, eps, seed):
     """Optimise individual x0 of n_echoes echoes with method p.method.
 
     Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
@@ -125,7 +129,7 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
         if reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
             return best, nfev, 0, message
         searched, used, nit, done = _population_search(p, shape, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
-                                                       valid, eps, seed)
+                                                       valid, noise, eps, seed)
         nfev += used
         _, used, polished = levenberg_marquardt(searched, n_echoes, times, shape, fit_target, weights, lower,
                                                 local_upper, p.lm_iterations, p.lm_tolerance)
@@ -138,7 +142,7 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
         return best, nfev, nit, message
     if method in (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM):
         best, used, nit, done = _population_search(p, shape, method, x0, lower, upper, n_echoes, fit_samples, valid,
-                                                   eps, seed)
+                                                   noise, eps, seed)
         nfev += used
         if not done:
             message = MSG_MAX_GENERATIONS

@@ -1,11 +1,13 @@
+import dataclasses
 import math
+import pickle
 
 import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch, decompose_waveform
-from fwcore.records import WaveformBatch
+from fwcore.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
 from fwcore.model import fwhm, waveform_model
 
 SPACING = 1000.0
@@ -122,6 +124,20 @@ def test_bad_waveforms_get_a_status_and_the_rest_are_decomposed():
     assert [r.waveform(i).status for i in range(3)] == ["", "non_finite_samples", "no_valid_samples"]
     assert r.waveform(0).amplitude.size >= 1
     assert r.waveform(1).amplitude.size == 0 and r.waveform(2).amplitude.size == 0
+
+
+def test_both_result_classes_have_every_field_of_the_result_record():
+    # the record's dtype is the one list of per-waveform fields: the batch's attributes and a waveform's follow it
+    batch = WaveformBatch.from_waveforms([synthetic([100.0], [50.0], [3.0], [SQ2], 1.0), np.zeros(5)], SPACING, [1, 2],
+                                         valid=[np.ones(160, bool), np.zeros(5, bool)])
+    r = decompose_batch(batch, CONFIG.replace(generations=5))
+    assert [f.name for f in dataclasses.fields(Decomposition)][:len(WAVEFORM_FIELDS)] == list(WAVEFORM_FIELDS)
+    assert all(getattr(r, name).shape == (2,) for name in WAVEFORM_FIELDS)
+    assert r.status.dtype == r.message.dtype == np.int8 and not hasattr(r, "n_echoes")  # n_echoes: echo_offsets
+    one = r.waveform(1)
+    assert (one.status, one.message, one.nfev) == ("no_valid_samples", "no_echoes", 0)
+    assert type(r.waveform(0).nfev) is int and type(r.waveform(0).rmse) is float
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(r)).nfev, r.nfev)
 
 
 def test_flat_waveform_has_no_echo_and_a_background():
