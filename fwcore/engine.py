@@ -106,8 +106,7 @@ def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echo
         widths[j] = 2.0 * h
     reasons = np.zeros(n_echoes, dtype=np.int8)
     mark_spurious(echoes.amplitude[:n_echoes].copy(), echoes.position[:n_echoes].copy(), widths, first, last,
-                  pulse_fwhm, noise, p.min_snr, p.min_amplitude_ratio, p.min_separation_factor,
-                  p.min_width_factor, p.max_width_factor, p.first_echo_ratio, reasons)
+                  pulse_fwhm, noise, p, reasons)
     for j in range(n_echoes):
         echoes[j].reason = reasons[j]
 
@@ -128,9 +127,8 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     amp0 = np.zeros(p.max_echoes)
     pos0 = np.zeros(p.max_echoes)
     sig0 = np.zeros(p.max_echoes)
-    noise, background, n_echoes = initial_estimate(
-        samples, valid, smoothing_sigma, pulse_sigma, p.robust_noise, p.min_noise_sigma, p.shape_tolerance,
-        p.noise_threshold, p.max_echoes, shape, smoothed, amp0, pos0, sig0)
+    noise, background, n_echoes = initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed,
+                                                   amp0, pos0, sig0)
     n_initial = n_echoes
     times, fit_target, raw = _valid_arrays(samples, smoothed, valid, p.fit_denoised)
     variance = np.empty(times.size)

@@ -10,25 +10,25 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
+from fwcore.config import DecompositionConfig
 
 KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE = range(6)
 REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide")
 
 
 @njit(**JIT)
-def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sigma, min_snr,
-                  min_amplitude_ratio, min_separation_factor, min_width_factor, max_width_factor, first_echo_ratio,
-                  reason):
-    """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions).
+def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sigma, p, reason):
+    """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions), with the
+    filter's settings of p (fwcore.config.KernelParams).
 
-    (1) amplitude below min_amplitude_ratio x the largest, or below min_snr x
+    (1) amplitude below p.min_amplitude_ratio x the largest, or below p.min_snr x
     sigma_noise (a bump of a few counts is not a return); (3) centre outside
-    [first, last]; (4) FWHM below min_width_factor or above max_width_factor x the
-    pulse FWHM; then (2) of two echoes closer than min_separation_factor x the
+    [first, last]; (4) FWHM below p.min_width_factor or above p.max_width_factor x the
+    pulse FWHM; then (2) of two echoes closer than p.min_separation_factor x the
     pulse FWHM one is spurious: the earlier is kept when its amplitude is at
-    least first_echo_ratio x the later's (an unresolved return is reported at its
+    least p.first_echo_ratio x the later's (an unresolved return is reported at its
     first surface), otherwise the weaker, so a weak early bump cannot knock out
-    the strong echo after it. first_echo_ratio = 1 is the method's rule (the
+    the strong echo after it. p.first_echo_ratio = 1 is the method's rule (the
     weaker goes).
     """
     n = amplitude.size
@@ -36,13 +36,13 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sig
     for k in range(n):
         largest = max(largest, amplitude[k])
     for k in range(n):
-        if amplitude[k] < max(min_amplitude_ratio * largest, min_snr * noise_sigma) or amplitude[k] <= 0.0:
+        if amplitude[k] < max(p.min_amplitude_ratio * largest, p.min_snr * noise_sigma) or amplitude[k] <= 0.0:
             reason[k] = WEAK
         elif position[k] < first or position[k] > last:
             reason[k] = OUT_OF_RANGE
-        elif width[k] < min_width_factor * pulse_fwhm:
+        elif width[k] < p.min_width_factor * pulse_fwhm:
             reason[k] = TOO_NARROW
-        elif width[k] > max_width_factor * pulse_fwhm:
+        elif width[k] > p.max_width_factor * pulse_fwhm:
             reason[k] = TOO_WIDE
         else:
             reason[k] = KEPT
@@ -50,8 +50,8 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sig
     for k in range(n):
         if reason[k] != KEPT:
             continue
-        if previous >= 0 and position[k] - position[previous] < min_separation_factor * pulse_fwhm:
-            if first_echo_ratio * amplitude[k] > amplitude[previous]:
+        if previous >= 0 and position[k] - position[previous] < p.min_separation_factor * pulse_fwhm:
+            if p.first_echo_ratio * amplitude[k] > amplitude[previous]:
                 reason[previous] = TOO_CLOSE
                 previous = k
             else:
@@ -70,8 +70,9 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
     if np.any(np.diff(position) < 0):
         raise ValueError("echoes must be sorted by position")
     reason = np.zeros(amplitude.size, dtype=np.int8)
+    settings = DecompositionConfig(min_snr=min_snr, min_amplitude_ratio=min_amplitude_ratio,
+                                   min_separation_factor=min_separation_factor, min_width_factor=min_width_factor,
+                                   max_width_factor=max_width_factor, first_echo_ratio=first_echo_ratio)
     mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
-                  float(pulse_fwhm), float(noise_sigma), float(min_snr), float(min_amplitude_ratio),
-                  float(min_separation_factor), float(min_width_factor), float(max_width_factor),
-                  float(first_echo_ratio), reason)
+                  float(pulse_fwhm), float(noise_sigma), settings.kernel_params(), reason)
     return reason

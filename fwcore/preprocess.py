@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
+from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape, main_lobe
 from fwcore.model import table_value
 
@@ -360,27 +361,27 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
 
 
 @njit(**JIT)
-def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, robust, min_noise_sigma, shape_tolerance,
-                     noise_threshold, max_echoes, shape, smoothed, amplitude, position, sigma):
+def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed, amplitude, position, sigma):
     """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
-    noise and background, then peel echoes off. Returns (noise sigma, background, echo count).
+    noise and background, then peel up to p.max_echoes echoes off (fwcore.config.KernelParams).
+    Returns (noise sigma, background, echo count).
 
-    robust: the noise is the robust white sigma, inflated for the correlation of neighbouring
+    p.robust_noise: the noise is the robust white sigma, inflated for the correlation of neighbouring
     samples (the noise an echo-wide feature sees), and the background the robust baseline;
     otherwise the method's residual formula and the smoothed minimum."""
     _smooth(samples, valid, smoothing_sigma, smoothed)
-    if robust:
+    if p.robust_noise:
         attenuation = np.empty(samples.size)
         _residual_attenuation(valid, smoothing_sigma, attenuation)
-        noise = max(_robust_noise_sigma(samples, smoothed, valid, attenuation), min_noise_sigma)
+        noise = max(_robust_noise_sigma(samples, smoothed, valid, attenuation), p.min_noise_sigma)
         background = _baseline(samples, valid, noise)
         noise *= math.sqrt(_correlation_inflation(samples, smoothed, valid, background, noise))
     else:
-        noise = max(_noise_sigma(samples, smoothed, valid), min_noise_sigma)
+        noise = max(_noise_sigma(samples, smoothed, valid), p.min_noise_sigma)
         background = _valid_min(smoothed, valid)
     threshold = np.empty(samples.size)
-    _noise_threshold(smoothed, valid, background, noise, shape_tolerance, noise_threshold, threshold)
-    n = _progressive_echoes(smoothed, valid, background, threshold, max_echoes, pulse_sigma, shape,
+    _noise_threshold(smoothed, valid, background, noise, p.shape_tolerance, p.noise_threshold, threshold)
+    n = _progressive_echoes(smoothed, valid, background, threshold, p.max_echoes, pulse_sigma, shape,
                             amplitude, position, sigma)
     return noise, background, n
 
@@ -445,9 +446,11 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     amplitude = np.zeros(max_echoes)
     position = np.zeros(max_echoes)
     sigma = np.zeros(max_echoes)
+    settings = DecompositionConfig(noise_threshold=noise_threshold, max_echoes=max_echoes,
+                                   noise_estimator="robust" if robust else "residual", min_noise_sigma=min_noise_sigma,
+                                   shape_tolerance=shape_tolerance)
     noise, background, n = initial_estimate(
-        samples, valid, float(smoothing_sigma), float(fallback_sigma), bool(robust), float(min_noise_sigma),
-        float(shape_tolerance), float(noise_threshold), int(max_echoes),
+        samples, valid, float(smoothing_sigma), float(fallback_sigma), settings.kernel_params(),
         analytic_shape() if shape is None else shape, smoothed, amplitude, position, sigma)
     return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
 

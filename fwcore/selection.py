@@ -38,9 +38,7 @@ def spurious_reasons(x, n_echoes, first, last, pulse_fwhm, noise, p):
         amplitude[j] = x[base]
         width[j] = 2.0 * x[base + 2] * SQRT_2LN2
     sorted_reasons = np.zeros(n_echoes, dtype=np.int8)
-    mark_spurious(amplitude, position[order], width, first, last, pulse_fwhm, noise, p.min_snr,
-                  p.min_amplitude_ratio, p.min_separation_factor, p.min_width_factor, p.max_width_factor,
-                  p.first_echo_ratio, sorted_reasons)
+    mark_spurious(amplitude, position[order], width, first, last, pulse_fwhm, noise, p, sorted_reasons)
     reasons = np.empty(n_echoes, dtype=np.int8)
     for j in range(n_echoes):
         reasons[order[j]] = sorted_reasons[j]

@@ -53,18 +53,14 @@ def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samp
     nfev = p.population
     done = True
     if method == OPT_GA:
-        nfev += evolve_ga(pop, fitness, lower, upper, p.generations, p.crossover_rate, p.ga_mutation_rate,
-                          state, n_echoes, tpos, target, weight, p.gaussian, shape, eps)
+        nfev += evolve_ga(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weight, shape, eps)
         nit = p.generations
     elif method == OPT_PSO:
-        nfev += swarm(pop, fitness, lower, upper, p.generations, state, n_echoes, tpos, target, weight,
-                      p.gaussian, shape, eps)
+        nfev += swarm(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weight, shape, eps)
         nit = p.generations
     else:
-        used, nit, done = evolve(pop, fitness, lower, upper, p.generations, p.crossover_rate, method != OPT_DE,
-                                 p.immediate, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max,
-                                 p.de_scale_factor, p.tol, atol, state, n_echoes, tpos, target, weight,
-                                 p.gaussian, shape, eps)
+        used, nit, done = evolve(pop, fitness, lower, upper, p, method != OPT_DE, atol, state, n_echoes, tpos, target,
+                                 weight, shape, eps)
         nfev += used
     return pop[np.argmin(fitness)].copy(), nfev, nit, done
 

@@ -117,14 +117,13 @@ def converged(fitness, tol, atol):
 
 
 @njit(**JIT)
-def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
-           chaos_seeds, chaos_iterations, scale_min, scale_max, de_scale, tol, atol,
-           state, n_echoes, tpos, target, weight, gaussian, shape, eps):
-    """Run MDE (chaotic=True) or DE until converged or for `generations`; pop and fitness are
-    updated in place. Returns (model evaluations, generations run, converged).
+def evolve(pop, fitness, lower, upper, p, chaotic, atol, state, n_echoes, tpos, target, weight, shape, eps):
+    """Run MDE (chaotic=True) or DE with p's settings (fwcore.config.KernelParams) until converged
+    (p.tol, atol) or for p.generations; pop and fitness are updated in place. Returns (model evaluations,
+    generations run, converged).
 
     Generational update (default): a generation's trials all mutate the same
-    population. immediate=True writes each winner back at once (asynchronous DE).
+    population. p.immediate writes each winner back at once (asynchronous DE).
     """
     np_, d = pop.shape
     model = np.empty(tpos.size, dtype=np.float32)
@@ -132,10 +131,10 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
     candidate = np.empty(d)
     trial = np.empty(d)
     partners = np.empty(4, dtype=np.int64)
-    n_candidates = chaos_seeds * chaos_iterations
+    n_candidates = p.chaos_seeds * p.chaos_iterations
     f1s = np.empty(n_candidates)
     f2s = np.empty(n_candidates)
-    seeds = np.empty(chaos_seeds)
+    seeds = np.empty(p.chaos_seeds)
     diff1 = np.empty(d)
     diff2 = np.empty(d)
     best_x = np.empty(d)
@@ -143,8 +142,8 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
     next_fit = fitness.copy()
     nfev = 0
     nit = 0
-    done = converged(fitness, tol, atol)
-    while nit < generations and not done:
+    done = converged(fitness, p.tol, atol)
+    while nit < p.generations and not done:
         best = 0
         for i in range(1, np_):
             if fitness[i] < fitness[best]:
@@ -152,8 +151,8 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
         for i in range(np_):
             if chaotic:
                 _distinct_partners(state, np_, i, 4, partners)
-                _draw_chaotic_factors(state, chaos_seeds, chaos_iterations, scale_min, scale_max, seeds, f1s)
-                _draw_chaotic_factors(state, chaos_seeds, chaos_iterations, scale_min, scale_max, seeds, f2s)
+                _draw_chaotic_factors(state, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max, seeds, f1s)
+                _draw_chaotic_factors(state, p.chaos_seeds, p.chaos_iterations, p.scale_min, p.scale_max, seeds, f2s)
                 r1, r2, r3, r4 = partners[0], partners[1], partners[2], partners[3]
                 for j in range(d):
                     best_x[j] = pop[best, j]
@@ -162,21 +161,21 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
                 best_candidate = np.inf
                 for c in range(n_candidates):
                     _mde_candidate(best_x, diff1, diff2, f1s[c], f2s[c], lower, upper, candidate)
-                    err = fit_error(candidate, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
+                    err = fit_error(candidate, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
                     nfev += 1
                     if err < best_candidate:
                         best_candidate = err
                         mutant[:] = candidate
             else:
                 _distinct_partners(state, np_, i, 3, partners)
-                mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], de_scale, lower, upper, mutant)
-            binomial_crossover(pop[i], mutant, cr, state, trial)
-            err = fit_error(trial, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
+                mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], p.de_scale_factor, lower, upper, mutant)
+            binomial_crossover(pop[i], mutant, p.crossover_rate, state, trial)
+            err = fit_error(trial, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 next_pop[i] = trial
                 next_fit[i] = err
-                if immediate:
+                if p.immediate:
                     pop[i] = trial
                     fitness[i] = err
                     if err < fitness[best]:
@@ -184,11 +183,11 @@ def evolve(pop, fitness, lower, upper, generations, cr, chaotic, immediate,
             else:
                 next_pop[i] = pop[i]
                 next_fit[i] = fitness[i]
-        if not immediate:
+        if not p.immediate:
             pop[:] = next_pop
             fitness[:] = next_fit
         nit += 1
-        done = converged(fitness, tol, atol)
+        done = converged(fitness, p.tol, atol)
     return nfev, nit, done
 
 

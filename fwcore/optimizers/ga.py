@@ -35,16 +35,15 @@ def _tournament(state, fitness):
 
 
 @njit(**JIT)
-def evolve_ga(pop, fitness, lower, upper, generations, crossover_rate, mutation_rate, state,
-              n_echoes, tpos, target, weight, gaussian, shape, eps):
-    """Real-coded GA: binary tournaments, BLX-0.5 blend crossover (rate crossover_rate),
-    Gaussian mutation of each parameter with probability mutation_rate, one elite. Returns evaluations."""
+def evolve_ga(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weight, shape, eps):
+    """Real-coded GA for p.generations: binary tournaments, BLX-0.5 blend crossover (rate p.crossover_rate),
+    Gaussian mutation of each parameter with probability p.ga_mutation_rate, one elite. Returns evaluations."""
     np_, d = pop.shape
     model = np.empty(tpos.size, dtype=np.float32)
     next_pop = np.empty_like(pop)
     next_fit = np.empty_like(fitness)
     nfev = 0
-    for _ in range(generations):
+    for _ in range(p.generations):
         elite = np.argmin(fitness)
         next_pop[0] = pop[elite]
         next_fit[0] = fitness[elite]
@@ -52,15 +51,15 @@ def evolve_ga(pop, fitness, lower, upper, generations, crossover_rate, mutation_
             p1 = pop[_tournament(state, fitness)]
             p2 = pop[_tournament(state, fitness)]
             child = next_pop[i]
-            blend = uniform(state) < crossover_rate
+            blend = uniform(state) < p.crossover_rate
             for j in range(d):
                 v = p1[j]
                 if blend:
                     v = p1[j] + (uniform(state) * (1.0 + 2.0 * _BLX_ALPHA) - _BLX_ALPHA) * (p2[j] - p1[j])
-                if uniform(state) < mutation_rate:
+                if uniform(state) < p.ga_mutation_rate:
                     v += _GA_MUTATION_SCALE * (upper[j] - lower[j]) * _normal(state)
                 child[j] = min(max(v, lower[j]), upper[j])
-            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, gaussian, shape, eps, model)
+            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
             nfev += 1
         pop[:] = next_pop
         fitness[:] = next_fit

@@ -17,7 +17,7 @@ _PSO_MAX_SPEED = 0.2
 
 
 @njit(**JIT)
-def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target, weight, gaussian, shape, eps):
+def swarm(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weight, shape, eps):
     """Global-best PSO: v <- w v + c1 r1 (personal best - x) + c2 r2 (global best - x), speed limited
     to a fraction of each range, positions kept in the box. On return pop and fitness hold the
     personal bests. Returns evaluations."""
@@ -30,7 +30,7 @@ def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target
             velocity[i, j] = (2.0 * uniform(state) - 1.0) * 0.1 * (upper[j] - lower[j])
     best = np.argmin(fitness)
     nfev = 0
-    for _ in range(generations):
+    for _ in range(p.generations):
         for i in range(np_):
             for j in range(d):
                 limit = _PSO_MAX_SPEED * (upper[j] - lower[j])
@@ -40,7 +40,7 @@ def swarm(pop, fitness, lower, upper, generations, state, n_echoes, tpos, target
                 v = min(max(v, -limit), limit)
                 velocity[i, j] = v
                 x[i, j] = min(max(x[i, j] + v, lower[j]), upper[j])
-            err = fit_error(x[i], n_echoes, tpos, target, weight, gaussian, shape, eps, model)
+            err = fit_error(x[i], n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 fitness[i] = err

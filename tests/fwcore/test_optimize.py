@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 
+from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape
 from fwcore.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
                                         mutate_de, mutate_mde)
@@ -106,8 +107,10 @@ def test_one_mde_generation_matches_the_numpy_reference():
     expected_pop, expected_fit = naive.mde_generation(pop, fitness, lower, upper, 0.9, 2, 3, 0.2, 1.0,
                                                       SplitMix64(2024), objective)
     state = np.array([2024], dtype=np.uint64)
-    nfev, nit, _ = evolve(pop, fitness, lower, upper, 1, 0.9, True, False, 2, 3, 0.2, 1.0, 0.5, 0.0, 0.0, state,
-                          3, tpos, target, weight, False, analytic_shape(), 1e-3)
+    p = DecompositionConfig(generations=1, crossover_rate=0.9, chaos_seeds=2, chaos_iterations=3, scale_min=0.2,
+                            scale_max=1.0, tol=0.0, model="generalized").kernel_params()
+    nfev, nit, _ = evolve(pop, fitness, lower, upper, p, True, 0.0, state, 3, tpos, target, weight, analytic_shape(),
+                          1e-3)
     assert (nfev, nit) == (8 * (2 * 3 + 1), 1)  # k x t candidates plus the trial, per individual
     # same draws, same decisions; values differ only by FMA contraction (1e-16)
     np.testing.assert_allclose(pop, expected_pop, rtol=1e-13)
@@ -118,8 +121,9 @@ def test_evolution_never_worsens_the_best_and_stays_in_bounds():
     pop, fitness, lower, upper, tpos, target, weight, _ = _problem(1)
     start = fitness.min()
     state = np.array([5], dtype=np.uint64)
-    evolve(pop, fitness, lower, upper, 30, 0.9, True, False, 1, 5, 0.2, 1.0, 0.5, 0.0, 0.0, state,
-           3, tpos, target, weight, False, analytic_shape(), 1e-3)
+    p = DecompositionConfig(generations=30, crossover_rate=0.9, chaos_seeds=1, chaos_iterations=5, scale_min=0.2,
+                            scale_max=1.0, tol=0.0, model="generalized").kernel_params()
+    evolve(pop, fitness, lower, upper, p, True, 0.0, state, 3, tpos, target, weight, analytic_shape(), 1e-3)
     assert fitness.min() < start
     assert (pop >= lower).all() and (pop <= upper).all()
     assert math.isfinite(fitness.min())
