@@ -16,8 +16,8 @@ the receiver adds (Leica's slow rise, tail and undershoot; RIEGL's afterpulse
 Its time 0 is its peak. `echo_shape` turns it into the kernels' table: the
 response broadened by Gaussians (a target's depth spreads its return), one row
 per echo width, each row's peak 1, so an echo is A * row(s)(t - u) with A its
-peak amplitude, u the time of the response's peak for an unbroadened echo and
-s the sigma of the Gaussian of equal FWHM: the engine's width parameter means
+peak amplitude, u the time of the centroid of the response's main lobe (above 5% of its peak: where a
+target's broadening leaves it, unlike the peak of a skewed response) and s the sigma of the Gaussian of equal FWHM: the engine's width parameter means
 the same in every model.
 """
 
@@ -46,6 +46,7 @@ ROW_STEP = 2.0 / 47.0
 SUPPORT_LEVEL = 1e-3
 MIN_SNR = 30.0  # a return this far above the noise shows the response's tail and afterpulse
 MIN_PULSES = 20  # fewer strong single returns than this measure nothing
+CENTROID_FRACTION = 0.05  # an echo's position: the centroid of its response's lobe above this share of the peak
 
 
 @dataclasses.dataclass(frozen=True)
@@ -308,6 +309,7 @@ class EchoShape(NamedTuple):
     slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
     areas: np.ndarray  # (widths,) integral of each row, samples
     support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
+    peaks: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (the lobe's centroid)
     step: float  # samples per grid point
     origin: float  # grid index of t = 0 (the response's peak)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
@@ -317,7 +319,8 @@ class EchoShape(NamedTuple):
 def analytic_shape() -> EchoShape:
     """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
     empty = np.zeros((1, 2))
-    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), 1.0, 0.0, 0.0, 1.0)
+    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), 1.0, 0.0, 0.0,
+                     1.0)
 
 
 @functools.lru_cache(maxsize=64)
@@ -326,7 +329,12 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
     to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by
     central differences."""
     step = 1.0 / TABLE_STEPS_PER_SAMPLE
-    t_resp = response.times / spacing_ps
+    # the echo's position is the centroid of the response's main lobe, not its peak: a target's broadening
+    # moves the peak of a skewed response (Leica's) but hardly the lobe's first moment, so a response measured
+    # on returns their targets widened and the instrument's own place an echo at the same time
+    lo, hi = main_lobe(response.response, int(np.argmax(response.response)), CENTROID_FRACTION)
+    lobe = response.response[lo:hi + 1]
+    t_resp = (response.times - float(np.sum(response.times[lo:hi + 1] * lobe) / np.sum(lobe))) / spacing_ps
     f0 = response.fwhm_ps / spacing_ps
     s_min = f0 / _FWHM_PER_SIGMA
     n_rows = int(math.ceil((max_width_factor - 1.0) / ROW_STEP - 1e-9)) + 1
@@ -354,7 +362,8 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
         rows[w, above[-1] + 1:] = 0.0
     slopes = np.gradient(rows, step, axis=1)
     areas = rows.sum(axis=1) * step
-    return EchoShape(True, rows, slopes, areas, support, step, float(-lo), s_min, s_min * ROW_STEP)
+    peaks = (np.argmax(rows, axis=1) + lo) * step
+    return EchoShape(True, rows, slopes, areas, support, peaks, step, float(-lo), s_min, s_min * ROW_STEP)
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

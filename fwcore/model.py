@@ -94,6 +94,17 @@ def table_reach(shape, s):
 
 
 @njit(**JIT_INLINE)
+def table_peak(shape, s):
+    """Where an echo of width s peaks, in samples after its position: 0 for the analytic models; for a
+    tabulated response, its main lobe's centroid is the position and a skewed response peaks before or after."""
+    if not shape.tabulated:
+        return 0.0
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.peaks.size - 1 - 1e-9)
+    w = int(fw)
+    return (1.0 - (fw - w)) * shape.peaks[w] + (fw - w) * shape.peaks[w + 1]
+
+
+@njit(**JIT_INLINE)
 def shape_value(shape, amplitude, position, s, alpha, t):
     """One echo of either model at time t."""
     if shape.tabulated:

@@ -16,7 +16,7 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape, main_lobe
-from fwcore.model import table_value
+from fwcore.model import table_peak, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -342,11 +342,11 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             centre, top = _vertex(residual, valid, peak)
             s = _tabulated_width(residual, valid, peak, centre, top, shape, response_left, response_right)
             amplitude[count] = top
-            position[count] = centre
+            position[count] = centre - table_peak(shape, s)  # an echo's position is its lobe's centroid
             sigma[count] = s
-            count += 1
             for i in range(n):
-                residual[i] -= table_value(shape, top, centre, s, i)
+                residual[i] -= table_value(shape, top, position[count], s, i)
+            count += 1
             continue
         s = _echo_sigma(residual, valid, peak, fallback_sigma)
         amplitude[count] = height

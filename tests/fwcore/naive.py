@@ -163,8 +163,17 @@ def response_echo(times_ps: np.ndarray, values: np.ndarray, spacing_ps: float, a
                   s: float, t: np.ndarray) -> np.ndarray:
     """An echo of a measured response, from its definition: the response (ps grid) convolved with the
     Gaussian whose broadening gives an FWHM of s x 2 sqrt(2 ln 2) samples (found by bisection), peak scaled
-    to `amplitude`, its time 0 at `position` (samples), on a 1/64-sample grid."""
+    to `amplitude`, the centroid of the response's lobe above 5% of its peak at `position` (samples), on a
+    1/64-sample grid."""
     step = 1.0 / 64.0
+    peak = int(np.argmax(values))
+    lo_, hi_ = peak, peak
+    while lo_ > 0 and values[lo_ - 1] > 0.05 * values[peak]:
+        lo_ -= 1
+    while hi_ < values.size - 1 and values[hi_ + 1] > 0.05 * values[peak]:
+        hi_ += 1
+    lobe = values[lo_:hi_ + 1]
+    times_ps = times_ps - np.sum(times_ps[lo_:hi_ + 1] * lobe) / np.sum(lobe)
     grid = np.arange((times_ps[0] / spacing_ps) - 6 * s - 1, (times_ps[-1] / spacing_ps) + 6 * s + 1, step)
     base = np.interp(grid, times_ps / spacing_ps, values, left=0.0, right=0.0)
 
