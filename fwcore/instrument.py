@@ -16,9 +16,10 @@ the receiver adds (Leica's slow rise, tail and undershoot; RIEGL's afterpulse
 Its time 0 is its peak. `echo_shape` turns it into the kernels' table: the
 response broadened by Gaussians (a target's depth spreads its return), one row
 per echo width, each row's peak 1, so an echo is A * row(s)(t - u) with A its
-peak amplitude, u the time of the centroid of the response's main lobe (above 5% of its peak: where a
-target's broadening leaves it, unlike the peak of a skewed response) and s the sigma of the Gaussian of equal FWHM: the engine's width parameter means
-the same in every model.
+peak amplitude, u the time of the centroid of the response's main lobe (above 5%
+of its peak: where a target's broadening leaves it, unlike the peak of a skewed
+response) and s the sigma of the Gaussian of equal FWHM: the engine's width
+parameter means the same in every model.
 """
 
 from __future__ import annotations
@@ -311,7 +312,7 @@ class EchoShape(NamedTuple):
     support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
     peaks: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (the lobe's centroid)
     step: float  # samples per grid point
-    origin: float  # grid index of t = 0 (the response's peak)
+    origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
     s_step: float  # between rows
 
