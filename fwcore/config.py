@@ -181,7 +181,8 @@ class DecompositionConfig:
     atol: float = 0.0
     # With tol > 0, atol grows by noise_tol x the spread that the noise alone gives Eq. 9's fitness,
     # sigma_noise sqrt(m (1 - 2 / pi)): a population that agrees to within the noise has converged
-    # (RIEGL, system model: MDE 2.7x faster, the same echoes).
+    # (RIEGL, system model: MDE 2.7x faster, the same echoes). White noise's figure: the default fits the
+    # denoised samples, whose correlated noise spreads the fitness less, so this stops a little early.
     noise_tol: float = 1.0
     # GA: probability that a parameter mutates (the crossover rate is CR above).
     ga_mutation_rate: float = 0.1

@@ -64,7 +64,8 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
                   noise_sigma: float = 0.0, min_snr: float = 0.0, min_amplitude_ratio: float = 0.2,
                   min_separation_factor: float = 1.0, min_width_factor: float = 1.0,
                   max_width_factor: float = 3.0, first_echo_ratio: float = 1.0) -> np.ndarray:
-    """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position."""
+    """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position; the settings are checked as
+    DecompositionConfig checks them."""
     amplitude = np.ascontiguousarray(amplitude, dtype=np.float64)
     position = np.ascontiguousarray(position, dtype=np.float64)
     if np.any(np.diff(position) < 0):

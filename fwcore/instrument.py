@@ -310,7 +310,7 @@ class EchoShape(NamedTuple):
     slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
     areas: np.ndarray  # (widths,) integral of each row, samples
     support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
-    peaks: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (the lobe's centroid)
+    peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
     step: float  # samples per grid point
     origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
@@ -324,6 +324,14 @@ def analytic_shape() -> EchoShape:
                      1.0)
 
 
+def lobe_centroid_ps(response: SystemResponse) -> float:
+    """The centroid of the response's main lobe (above CENTROID_FRACTION of its peak), ps after its peak:
+    where an echo of it is placed."""
+    first, last = main_lobe(response.response, int(np.argmax(response.response)), CENTROID_FRACTION)
+    lobe = response.response[first:last + 1]
+    return float(np.sum(response.times[first:last + 1] * lobe) / np.sum(lobe))
+
+
 @functools.lru_cache(maxsize=64)
 def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
     """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
@@ -333,9 +341,7 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
     # the echo's position is the centroid of the response's main lobe, not its peak: a target's broadening
     # moves the peak of a skewed response (Leica's) but hardly the lobe's first moment, so a response measured
     # on returns their targets widened and the instrument's own place an echo at the same time
-    lo, hi = main_lobe(response.response, int(np.argmax(response.response)), CENTROID_FRACTION)
-    lobe = response.response[lo:hi + 1]
-    t_resp = (response.times - float(np.sum(response.times[lo:hi + 1] * lobe) / np.sum(lobe))) / spacing_ps
+    t_resp = (response.times - lobe_centroid_ps(response)) / spacing_ps
     f0 = response.fwhm_ps / spacing_ps
     s_min = f0 / _FWHM_PER_SIGMA
     n_rows = int(math.ceil((max_width_factor - 1.0) / ROW_STEP - 1e-9)) + 1
@@ -363,8 +369,8 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
         rows[w, above[-1] + 1:] = 0.0
     slopes = np.gradient(rows, step, axis=1)
     areas = rows.sum(axis=1) * step
-    peaks = (np.argmax(rows, axis=1) + lo) * step
-    return EchoShape(True, rows, slopes, areas, support, peaks, step, float(-lo), s_min, s_min * ROW_STEP)
+    peak_offsets = (np.argmax(rows, axis=1) + lo) * step
+    return EchoShape(True, rows, slopes, areas, support, peak_offsets, step, float(-lo), s_min, s_min * ROW_STEP)
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

@@ -94,14 +94,14 @@ def table_reach(shape, s):
 
 
 @njit(**JIT_INLINE)
-def table_peak(shape, s):
+def table_peak_offset(shape, s):
     """Where an echo of width s peaks, in samples after its position: 0 for the analytic models; for a
     tabulated response, its main lobe's centroid is the position and a skewed response peaks before or after."""
     if not shape.tabulated:
         return 0.0
-    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.peaks.size - 1 - 1e-9)
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.peak_offsets.size - 1 - 1e-9)
     w = int(fw)
-    return (1.0 - (fw - w)) * shape.peaks[w] + (fw - w) * shape.peaks[w + 1]
+    return (1.0 - (fw - w)) * shape.peak_offsets[w] + (fw - w) * shape.peak_offsets[w + 1]
 
 
 @njit(**JIT_INLINE)

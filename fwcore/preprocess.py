@@ -16,7 +16,7 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape, main_lobe
-from fwcore.model import table_peak, table_value
+from fwcore.model import table_peak_offset, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -278,7 +278,8 @@ def _vertex(values, valid, peak):
 @njit(**JIT)
 def _half_height_sides(values, valid, peak, centre, height):
     """(left, right): how far before and after `centre` (indices) the values first fall to half of `height`,
-    walking out from index `peak` over valid samples; -1 for a side that does not fall that far."""
+    walking out from index `peak` over valid samples; -1 for a side that does not fall that far (a side that falls
+    before `centre`, at most half a sample off the peak, gives <= 0: the caller ignores it)."""
     half = 0.5 * height
     left = -1.0
     i = peak
@@ -323,8 +324,8 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     response_left = response_right = 1.0
     if shape.tabulated:  # the response's own half-height sides, in samples
         row = shape.rows[0]
-        top = int(np.argmax(row))
-        left, right = _half_height_sides(row, np.ones(row.size, dtype=np.bool_), top, float(top), row[top])
+        crest = int(np.argmax(row))
+        left, right = _half_height_sides(row, np.ones(row.size, dtype=np.bool_), crest, float(crest), row[crest])
         response_left, response_right = left * shape.step, right * shape.step
     count = 0
     while count < max_echoes:
@@ -342,7 +343,7 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             centre, top = _vertex(residual, valid, peak)
             s = _tabulated_width(residual, valid, peak, centre, top, shape, response_left, response_right)
             amplitude[count] = top
-            position[count] = centre - table_peak(shape, s)  # an echo's position is its lobe's centroid
+            position[count] = centre - table_peak_offset(shape, s)  # an echo's position is its lobe's centroid
             sigma[count] = s
             for i in range(n):
                 residual[i] -= table_value(shape, top, position[count], s, i)
@@ -440,7 +441,7 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
     one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
     above the background (the smoothed minimum), each peeled off in `shape`'s form
-    (fwcore.instrument.EchoShape; None: a Gaussian)."""
+    (fwcore.instrument.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig checks them."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)

@@ -22,7 +22,7 @@ MESSAGES = ("no_echoes", "converged", "max_generations", "max_iterations", "not_
 # The per-waveform result, one record per waveform: the one declaration of its fields, which the kernels write by
 # name and BatchDecomposition and Decomposition expose (aligned: int8 codes sit among float64s).
 WAVEFORM_RESULT = np.dtype([
-    ("status", np.int8),  # codes into STATUS_REASONS, set before the kernels: they skip a waveform with one
+    ("status", np.int8),  # codes into STATUS_REASONS, set before the kernels (which skip a waveform with one)
     ("background", np.float64), ("noise_sigma", np.float64), ("fit_error", np.float64), ("fit_error_raw", np.float64),
     ("rmse", np.float64), ("r2", np.float64), ("nfev", np.int64), ("nit", np.int64),
     ("message", np.int8),  # codes into MESSAGES

@@ -20,7 +20,7 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.bounds import echo_bounds
 from fwcore.filter import KEPT, mark_spurious
-from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak
+from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.preprocess import _smooth, gaussian_weights
 
@@ -135,8 +135,9 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         trial_lower = _with_room(lower, PARAMS_PER_ECHO)
         trial_upper = _with_room(upper, PARAMS_PER_ECHO)
         scratch = np.empty(d + PARAMS_PER_ECHO)
-        # the residual's peak is where the echo peaks; a tabulated echo's position is its lobe's centroid
-        position = peak - table_peak(shape, shape.s_min)
+        # the residual's peak is where the echo, widened by the smoothing, peaks; a tabulated echo's position
+        # is its lobe's centroid
+        position = peak - table_peak_offset(shape, math.hypot(shape.s_min, pulse_sigma))
         echo_bounds(amplitude, position, pulse_sigma, amplitude, noise, first, last, p.gaussian, p.alpha_min,
                     p.alpha_max, shape, d, trial, trial_lower, scratch, trial_upper)
         _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, shape, target, weights, trial_lower, trial_upper,

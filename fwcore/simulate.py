@@ -62,7 +62,7 @@ class SensorConfig:
     shot_noise: float = 0.05  # DN of variance per DN of signal (Poisson-like)
     bits: int = 8
     detection_threshold: float = 6.0  # x noise_sigma above background: the online detector
-    pre_trigger_ps: float = 15000.0  # the packet starts this long before the first surface
+    pre_trigger_ps: float = 15000.0  # the packet starts this long (plus a random fraction of a sample) before the first surface
     # The instrument's response (fwcore.instrument): echoes are it broadened by their targets, FWHM
     # pulse_fwhm_ps x the target's width factor. None: the generalized Gaussians of the method's model.
     response: SystemResponse | None = None
@@ -355,7 +355,7 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         _scene_echoes(first, n_pulses, scene, sensor, rng)
     has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
     top_range = ranges[:, 0]
-    normal = rng.standard_normal(n_pulses * sensor.samples_per_packet)  # the noise, drawn first as before
+    noise_draws = rng.standard_normal(n_pulses * sensor.samples_per_packet)  # drawn first, as before the phase
     # the first surface's sub-sample phase: a packet starts at a sample, not at the same point of every pulse
     pre_trigger = sensor.pre_trigger_ps + rng.uniform(0.0, sensor.sample_spacing_ps, n_pulses)
     time_ps = np.where(has, pre_trigger[:, None] + (ranges - top_range[:, None]) / RANGE_M_PER_PS, 0.0)
@@ -385,7 +385,7 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         sigma_ps = fwhm_ps / _FWHM_PER_SIGMA
     _render(time_ps, np.where(has & (sensor.response is None), amplitude, 0.0), sigma_ps,
             np.where(has & np.isfinite(alpha), alpha, 1.0), count, n_samples, sensor.sample_spacing_ps,
-            sensor.background, sensor.noise_sigma, sensor.shot_noise, top, normal,
+            sensor.background, sensor.noise_sigma, sensor.shot_noise, top, noise_draws,
             shaped, samples)
     return_index = np.zeros((n_pulses, MAX_RETURNS), dtype=np.int64)
     return_count = np.zeros(n_pulses, dtype=np.int64)

@@ -95,7 +95,8 @@ def add_method_arguments(parser, compare: bool = False) -> None:
     g.add_argument("--first-echo-ratio", dest="first_echo_ratio", type=float,
                    help="of two echoes closer than the pulse width, the earlier stays when its amplitude is at "
                         "least this share of the later's (default 1: the weaker goes; 0.35: the first surface)")
-    g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)|")
+    g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)| "
+                   "(with tol > 0, atol grows by noise_tol x the noise's spread of the fitness)")
     g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
     g.add_argument("--lm-tolerance", dest="lm_tolerance", type=float,
                    help="LM stops when a step lowers the sum of squares by less than this share of it")

@@ -117,9 +117,9 @@ def converged(fitness, tol, atol):
 
 
 @njit(**JIT)
-def evolve(pop, fitness, lower, upper, p, chaotic, atol, state, n_echoes, tpos, target, weight, shape, eps):
+def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes, tpos, target, weight, shape, eps):
     """Run MDE (chaotic=True) or DE with p's settings (fwcore.config.KernelParams) until converged
-    (p.tol, atol) or for p.generations; pop and fitness are updated in place. Returns (model evaluations,
+    (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share) or for p.generations; pop and fitness are updated in place. Returns (model evaluations,
     generations run, converged).
 
     Generational update (default): a generation's trials all mutate the same
@@ -142,7 +142,7 @@ def evolve(pop, fitness, lower, upper, p, chaotic, atol, state, n_echoes, tpos, 
     next_fit = fitness.copy()
     nfev = 0
     nit = 0
-    done = converged(fitness, p.tol, atol)
+    done = converged(fitness, p.tol, fitness_atol)
     while nit < p.generations and not done:
         best = 0
         for i in range(1, np_):
@@ -187,7 +187,7 @@ def evolve(pop, fitness, lower, upper, p, chaotic, atol, state, n_echoes, tpos, 
             pop[:] = next_pop
             fitness[:] = next_fit
         nit += 1
-        done = converged(fitness, p.tol, atol)
+        done = converged(fitness, p.tol, fitness_atol)
     return nfev, nit, done
 
 

@@ -236,7 +236,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
                 predicted -= 2.0 * grad[r] * delta
                 for c in range(d):
                     predicted -= delta * jtj[r, c] * (trial[c] - x[c])
-            ratio = gain / predicted if predicted > 0.0 else 1.0
+            ratio = gain / predicted if predicted > 0.0 else 0.5  # 0.5: a clipped step's odd prediction leaves it
             lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
             growth = 2.0
             x[:] = trial

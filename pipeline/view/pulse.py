@@ -20,7 +20,7 @@ from fwcore.config import PRESETS, DecompositionConfig, Model
 from fwcore.engine import decompose_batch, smoothing_sigma_samples
 from fwcore.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
-from fwcore.instrument import SystemResponse
+from fwcore.instrument import SystemResponse, lobe_centroid_ps
 from fwcore.model import sigma_to_time_unit
 from fwcore.preprocess import gaussian_smooth
 from fwcore.pulses import pulse_waveforms
@@ -162,7 +162,8 @@ def _response_curve(config: DecompositionConfig, result, spacing: float) -> dict
         return None
     response = config.response()
     k = int(np.argmax(result.amplitude))
-    return {"time_ps": (result.position[k] * spacing + response.times).tolist(),
+    # an echo's position is its response lobe's centroid, which lies that far after the response's peak
+    return {"time_ps": (result.position[k] * spacing - lobe_centroid_ps(response) + response.times).tolist(),
             "counts": (result.background + result.amplitude[k] * response.response).tolist(),
             "source": response.source}
 

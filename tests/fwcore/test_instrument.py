@@ -12,10 +12,10 @@ import pytest
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_waveform
-from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, load_response, named_response,
+from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, load_response, main_lobe, named_response,
                                response_from_samples)
 from fwcore.io import PointRange, read_pulses
-from fwcore.model import tabulated_area, tabulated_model
+from fwcore.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
 from fwcore.optimizers.local import model_and_jacobian
 from fwcore.survey import file_system_pulse, measure_file_response
 from tests.fwcore import naive
@@ -209,3 +209,26 @@ def test_a_too_wide_echo_is_flagged_under_the_system_model():
     d = decompose_waveform(np.round(y + np.random.default_rng(2).normal(0, 0.3, t.size)), 1000.0, 0, config)
     widest = int(np.argmax(d.fwhm))
     assert d.fwhm[widest] * 1000.0 > 3.0 * riegl.fwhm_ps and d.reject_reason[widest] == "too_wide"
+
+
+@pytest.mark.parametrize("factor", [1.01, 1.37, 2.2, 3.9])  # between rows: both rows weigh
+def test_a_tabulated_echo_is_zero_outside_its_reach_and_not_just_inside(leica_response, factor):
+    shape = echo_shape(leica_response, 2000.0, 4.0)
+    s = shape.s_min * factor
+    before, after = table_reach(shape, s)
+    t = np.arange(-before - 3.0, after + 3.0, 1.0 / 128.0)
+    values = np.array([table_value(shape, 1.0, 0.0, s, x) for x in t])
+    assert not values[(t < -before) | (t > after)].any()
+    inside = (t > -before + 2 * shape.step) & (t < after - 2 * shape.step)
+    assert values[inside][:8].any() and values[inside][-8:].any()
+
+
+def test_an_echo_sits_at_its_response_lobes_centroid(leica_response):
+    shape = echo_shape(leica_response, 2000.0)
+    t = np.arange(-20.0, 30.0, 1.0 / 64.0)
+    echo = tabulated_model(t, 0.0, 1.0, 0.0, shape.s_min, shape)
+    lobe = main_lobe(echo, int(np.argmax(echo)), 0.05)
+    inside = slice(lobe[0], lobe[1] + 1)
+    assert np.sum(t[inside] * echo[inside]) / np.sum(echo[inside]) == pytest.approx(0.0, abs=0.02)
+    # and the shape says where the echo peaks
+    assert t[np.argmax(echo)] == pytest.approx(table_peak_offset(shape, shape.s_min), abs=2 * shape.step)

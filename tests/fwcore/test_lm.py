@@ -62,3 +62,19 @@ def test_bounds_hold_and_fixed_parameters_do_not_move():
 def test_wrong_individual_size_is_refused():
     with pytest.raises(ValueError, match="2 echoes has 9 parameters"):
         fit_levenberg_marquardt(START[:5], 2, T, T, LOWER[:5], UPPER[:5])
+
+
+def test_a_width_held_at_its_bound_fits_as_if_it_were_fixed():
+    # the true first echo is 3 samples wide; its width may not fall below 3.5: the descent pushes it against
+    # the bound, where LM must hold it and fit the rest as it would with the width fixed there
+    lower = LOWER.copy()
+    lower[3] = 3.5
+    held, _, used = fit_levenberg_marquardt(START, 2, T, model_of_individual(TRUE, T), lower, UPPER)
+    fixed_lower, fixed_upper = lower.copy(), UPPER.copy()
+    fixed_upper[3] = fixed_lower[3] = 3.5
+    start = START.copy()
+    start[3] = 3.5
+    fixed, _, _ = fit_levenberg_marquardt(start, 2, T, model_of_individual(TRUE, T), fixed_lower, fixed_upper)
+    assert held[3] == 3.5
+    np.testing.assert_allclose(held, fixed, rtol=1e-4)
+    assert used < 50  # converged, not stopped by the iteration limit
