@@ -62,7 +62,8 @@ class SensorConfig:
     shot_noise: float = 0.05  # DN of variance per DN of signal (Poisson-like)
     bits: int = 8
     detection_threshold: float = 6.0  # x noise_sigma above background: the online detector
-    pre_trigger_ps: float = 15000.0  # the packet starts this long (plus a random fraction of a sample) before the first surface
+    # the packet starts this long (plus a random fraction of a sample) before the first surface
+    pre_trigger_ps: float = 15000.0
     # The instrument's response (fwcore.instrument): echoes are it broadened by their targets, FWHM
     # pulse_fwhm_ps x the target's width factor. None: the generalized Gaussians of the method's model.
     response: SystemResponse | None = None

@@ -119,8 +119,8 @@ def converged(fitness, tol, atol):
 @njit(**JIT)
 def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes, tpos, target, weight, shape, eps):
     """Run MDE (chaotic=True) or DE with p's settings (fwcore.config.KernelParams) until converged
-    (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share) or for p.generations; pop and fitness are updated in place. Returns (model evaluations,
-    generations run, converged).
+    (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share) or for p.generations;
+    pop and fitness are updated in place. Returns (model evaluations, generations run, converged).
 
     Generational update (default): a generation's trials all mutate the same
     population. p.immediate writes each winner back at once (asynchronous DE).

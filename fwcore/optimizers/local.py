@@ -236,7 +236,8 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
                 predicted -= 2.0 * grad[r] * delta
                 for c in range(d):
                     predicted -= delta * jtj[r, c] * (trial[c] - x[c])
-            ratio = gain / predicted if predicted > 0.0 else 0.5  # 0.5: a clipped step's odd prediction leaves it
+            # a clipped step's prediction means little: ratio 0.5 leaves the damping as it is
+            ratio = gain / predicted if predicted > 0.0 else 0.5
             lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
             growth = 2.0
             x[:] = trial
