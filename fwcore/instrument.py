@@ -33,7 +33,9 @@ from pathlib import Path
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
+from numba import njit
 
+from fwcore._jit import JIT
 from fwcore.model import SQRT_2LN2
 
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
@@ -141,9 +143,9 @@ def response_from_samples(samples, spacing_ps: float, source: str, n_pulses: int
     base = float(np.median(y[y <= y.min() + 0.1 * np.ptp(y)]))
     v = y - base
     peak = int(np.argmax(v))
-    shift = _parabola_vertex(v, peak)
+    shift = parabola_vertex(v, peak)
     t = (np.arange(y.size) - peak - shift) * float(spacing_ps)
-    height = _parabola_height(v, peak, shift)
+    height = parabola_height(v, peak, shift)
     return SystemResponse(tuple(t), tuple(v / height), source, n_pulses)
 
 
@@ -178,17 +180,22 @@ def load_response(path: str | Path, spacing_ps: float = 1000.0) -> SystemRespons
         raise ValueError(f"{path}: {err}") from None
 
 
-def _parabola_vertex(v: np.ndarray, i: int) -> float:
+@njit(**JIT)
+def parabola_vertex(v, i):
+    """Where the parabola through v[i - 1], v[i], v[i + 1] peaks, in samples from i (within half a sample;
+    0 at an edge or where v does not bend down there)."""
     if i <= 0 or i >= v.size - 1:
         return 0.0
     den = v[i - 1] - 2.0 * v[i] + v[i + 1]
-    return float(np.clip(0.5 * (v[i - 1] - v[i + 1]) / den, -0.5, 0.5)) if den < 0 else 0.0
+    return min(max(0.5 * (v[i - 1] - v[i + 1]) / den, -0.5), 0.5) if den < 0 else 0.0
 
 
-def _parabola_height(v: np.ndarray, i: int, shift: float) -> float:
+@njit(**JIT)
+def parabola_height(v, i, shift):
+    """That parabola's height `shift` samples from i."""
     if i <= 0 or i >= v.size - 1:
         return float(v[i])
-    return float(v[i] - 0.25 * (v[i - 1] - v[i + 1]) * shift)
+    return v[i] - 0.25 * (v[i - 1] - v[i + 1]) * shift
 
 
 def _half_height_width(t: np.ndarray, v: np.ndarray) -> float:
@@ -247,8 +254,8 @@ def _strong_single_return(samples: np.ndarray, noise: float, background: float) 
     maxima = np.flatnonzero((lobe[1:-1] > lobe[:-2]) & (lobe[1:-1] >= lobe[2:]))
     if maxima.size > 1:
         return None  # a shoulder: two returns in one lobe
-    shift = _parabola_vertex(v, peak)
-    h = _parabola_height(v, peak, shift)
+    shift = parabola_vertex(v, peak)
+    h = parabola_height(v, peak, shift)
     return _Return(v, peak + shift, h, _half_height_width(np.arange(v.size, dtype=float), v))
 
 
@@ -289,8 +296,8 @@ def measure_response(waveforms: Sequence[np.ndarray], spacing_ps: float, source:
     first, last = np.flatnonzero(filled)[[0, -1]]
     t, y = centres[first:last + 1], smooth[first:last + 1]
     peak = int(np.argmax(y))
-    shift = _parabola_vertex(y, peak)
-    height = _parabola_height(y, peak, shift)
+    shift = parabola_vertex(y, peak)
+    height = parabola_height(y, peak, shift)
     t = (t - t[peak] - shift / BINS_PER_SAMPLE) * spacing_ps
     y = y / height
     y[[0, -1]] = 0.0  # the response ends at its grid's edges

@@ -15,7 +15,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.config import DecompositionConfig
-from fwcore.instrument import analytic_shape, main_lobe
+from fwcore.instrument import analytic_shape, main_lobe, parabola_height, parabola_vertex
 from fwcore.model import table_peak_offset, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -217,24 +217,31 @@ def _inflection(residual, valid, peak, step):
 
 
 @njit(**JIT)
-def _half_height_sigma(residual, valid, peak):
-    """sigma from the half-height width (a Gaussian's FWHM = 2.3548 sigma); -1.0 if not bracketed."""
-    n = residual.size
-    half = 0.5 * residual[peak]
+def _half_height_crossings(values, valid, peak, height):
+    """(left, right): where the values first fall to half of `height` walking out from index `peak` over valid
+    samples, interpolated; -1.0 for a side that does not fall that far."""
+    half = 0.5 * height
     left = -1.0
     i = peak
     while i > 0 and valid[i - 1]:
-        if residual[i - 1] <= half:
-            left = (i - 1) + (half - residual[i - 1]) / (residual[i] - residual[i - 1])
+        if values[i - 1] <= half:
+            left = (i - 1) + (half - values[i - 1]) / (values[i] - values[i - 1])
             break
         i -= 1
     right = -1.0
     i = peak
-    while i < n - 1 and valid[i + 1]:
-        if residual[i + 1] <= half:
-            right = i + (residual[i] - half) / (residual[i] - residual[i + 1])
+    while i < values.size - 1 and valid[i + 1]:
+        if values[i + 1] <= half:
+            right = i + (values[i] - half) / (values[i] - values[i + 1])
             break
         i += 1
+    return left, right
+
+
+@njit(**JIT)
+def _half_height_sigma(residual, valid, peak):
+    """sigma from the half-height width (a Gaussian's FWHM = 2.3548 sigma); -1.0 if not bracketed."""
+    left, right = _half_height_crossings(residual, valid, peak, residual[peak])
     if left >= 0.0 and right >= 0.0:
         return (right - left) / (2.0 * _SQRT_2LN2)
     if left >= 0.0:
@@ -264,38 +271,11 @@ def _echo_sigma(residual, valid, peak, fallback):
 
 @njit(**JIT)
 def _vertex(values, valid, peak):
-    """(position, height) of the parabola's vertex through a peak and its two neighbours."""
+    """(position, height) of the parabola's vertex through a peak and its two neighbours, where both are valid."""
     if peak == 0 or peak == values.size - 1 or not (valid[peak - 1] and valid[peak + 1]):
         return float(peak), values[peak]
-    a, b, c = values[peak - 1], values[peak], values[peak + 1]
-    curvature = a - 2.0 * b + c
-    if curvature >= 0.0:
-        return float(peak), b
-    offset = min(max(0.5 * (a - c) / curvature, -0.5), 0.5)
-    return peak + offset, b - 0.25 * (a - c) * offset
-
-
-@njit(**JIT)
-def _half_height_sides(values, valid, peak, centre, height):
-    """(left, right): how far before and after `centre` (indices) the values first fall to half of `height`,
-    walking out from index `peak` over valid samples; -1 for a side that does not fall that far (a side that falls
-    before `centre`, at most half a sample off the peak, gives <= 0: the caller ignores it)."""
-    half = 0.5 * height
-    left = -1.0
-    i = peak
-    while i > 0 and valid[i - 1]:
-        if values[i - 1] <= half:
-            left = centre - (i - (values[i] - half) / (values[i] - values[i - 1]))
-            break
-        i -= 1
-    right = -1.0
-    i = peak
-    while i < values.size - 1 and valid[i + 1]:
-        if values[i + 1] <= half:
-            right = i + (values[i] - half) / (values[i] - values[i + 1]) - centre
-            break
-        i += 1
-    return left, right
+    shift = parabola_vertex(values, peak)
+    return peak + shift, parabola_height(values, peak, shift)
 
 
 @njit(**JIT)
@@ -303,12 +283,12 @@ def _tabulated_width(residual, valid, peak, centre, height, shape, response_left
     """A tabulated echo's starting width: the response broadened by how much wider than the response's the
     residual's peak is on its narrower side (a neighbour widens one side only); the response itself where
     neither side falls to half height."""
-    left, right = _half_height_sides(residual, valid, peak, centre, height)
+    left, right = _half_height_crossings(residual, valid, peak, height)
     ratio = np.inf
-    if left > 0.0:
-        ratio = min(ratio, left / response_left)
-    if right > 0.0:
-        ratio = min(ratio, right / response_right)
+    if left >= 0.0 and centre - left > 0.0:
+        ratio = min(ratio, (centre - left) / response_left)
+    if right >= 0.0 and right - centre > 0.0:
+        ratio = min(ratio, (right - centre) / response_right)
     widest = shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
     return min(max(shape.s_min * ratio, shape.s_min), widest) if ratio < np.inf else shape.s_min
 
@@ -325,8 +305,8 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     if shape.tabulated:  # the response's own half-height sides, in samples
         row = shape.rows[0]
         crest = int(np.argmax(row))
-        left, right = _half_height_sides(row, np.ones(row.size, dtype=np.bool_), crest, float(crest), row[crest])
-        response_left, response_right = left * shape.step, right * shape.step
+        left, right = _half_height_crossings(row, np.ones(row.size, dtype=np.bool_), crest, row[crest])
+        response_left, response_right = (crest - left) * shape.step, (right - crest) * shape.step
     count = 0
     while count < max_echoes:
         peak = -1
