@@ -103,7 +103,8 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
     Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
     within [lower, upper]; local ones least squares over the valid samples (times, fit_target,
     weights 1 / sqrt(variance)) within [lower, local_upper]. lm-mde fits LM first and searches with
-    MDE only where the LM fit's reduced chi^2 on the raw samples exceeds p.mde_gate; MDE's polished
+    MDE only where LM did not converge in p.lm_iterations and its fit's reduced chi^2 on the raw samples
+    exceeds p.mde_gate; MDE's polished
     result replaces LM's only when it lowers chi^2 by more than one parameter's BIC price, ln m.
     Returns (best, model evaluations, iterations, message); lm-mde's iterations are MDE's
     generations (0: the LM fit passed)."""
@@ -122,7 +123,8 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
                                             p.lm_iterations, p.lm_tolerance)
         nfev += used
         message = MSG_CONVERGED if done else MSG_MAX_ITERATIONS
-        if reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
+        # a fit LM settled is where MDE would end too (its misfit is the model's): MDE only where LM could not
+        if done or reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
             return best, nfev, 0, message
         searched, used, nit, done = _population_search(p, shape, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
                                                        valid, noise, eps, seed)

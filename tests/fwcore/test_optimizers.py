@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig
 from fwcore.engine import decompose_batch, decompose_waveform
 from fwcore.records import WaveformBatch
 from tests.fwcore.test_decompose import CONFIG, PULSE_SIGMA, SPACING, SQ2, synthetic
@@ -104,14 +104,28 @@ def test_lm_mde_is_lm_where_the_lm_fit_passes_the_noise_model():
     np.testing.assert_array_equal(gated.amplitude, lm.amplitude)
 
 
-def test_lm_mde_searches_everywhere_at_gate_zero_and_never_keeps_a_worse_fit():
+def test_lm_mde_searches_where_lm_does_not_settle_and_never_keeps_a_worse_fit():
     batch = _batch()
-    config = CONFIG.replace(select_echoes=False)
+    # one LM step settles none of these fits; constant noise on the raw samples: chi^2 is m rmse^2 / sigma^2
+    config = CONFIG.replace(select_echoes=False, lm_iterations=1, fit_target="raw", raw_polish=False,
+                            signal_dependent_noise=False, shape_tolerance=0.0)
     lm = decompose_batch(batch, config.replace(optimizer="lm"))
     searched = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0))
+    assert (lm.message == MSG_MAX_ITERATIONS).all()
     assert (searched.nit > 0).all()
     # MDE's polished fit replaces LM's only when chi^2 falls by more than ln m
     assert (searched.rmse <= lm.rmse + 1e-9).all()
+
+
+def test_lm_mde_leaves_a_fit_lm_settled_to_lm_even_at_gate_zero():
+    # a converged LM fit that fails the noise model is the model's misfit, which MDE would end in too
+    batch = _batch()
+    config = CONFIG.replace(select_echoes=False)
+    lm = decompose_batch(batch, config.replace(optimizer="lm"))
+    gated = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0))
+    assert (lm.message == MSG_CONVERGED).all()
+    assert (gated.nit == 0).all()
+    np.testing.assert_array_equal(gated.position, lm.position)
 
 
 def test_mde_gate_must_not_be_negative():
