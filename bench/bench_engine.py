@@ -2,7 +2,7 @@
 
     python bench/bench_engine.py [--skip-simulation] [--skip-sylva]
 
-Per preset (the default, `fast`, `paper`), one thread, after compilation:
+Per preset (the default, `fast`, `paper`), one thread, after compilation, the fastest of 3 runs:
 - Leica sample: pulses/s, the share of the system's returns with a kept echo
   within 0.5 m, kept echoes matching no return (per system return; an echo where a
   return lies that the system reported but the file omits, clipped to the plot,
@@ -69,14 +69,26 @@ def preset(name: str) -> DecompositionConfig:
     return DecompositionConfig(**PRESETS.get(name, {}))
 
 
+REPEATS = 3  # timed runs per figure; the fastest counts (as timeit's), so other tenants' load moves ratios less
+
+
+def fastest(run):
+    """(run()'s result, the shortest of REPEATS timed calls in seconds)."""
+    best = float("inf")
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        result = run()
+        best = min(best, time.perf_counter() - start)
+    return result, best
+
+
 def timed(batch: WaveformBatch, config: DecompositionConfig):
-    """(result, waveforms/s) on one thread, compiled outside the timed call."""
+    """(result, waveforms/s) on one thread, compiled outside the timed calls, the fastest of REPEATS."""
     first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
                           batch.sample_spacing_ps[:1], batch.seeds[:1])
     decompose_batch(first, config, threads=1)
-    start = time.perf_counter()
-    result = decompose_batch(batch, config, threads=1)
-    return result, len(batch) / (time.perf_counter() - start)
+    result, seconds = fastest(lambda: decompose_batch(batch, config, threads=1))
+    return result, len(batch) / seconds
 
 
 def stable_share(a, b, spacing_ns: float) -> float:
@@ -261,9 +273,7 @@ def sylva_row() -> None:
         return
     waveforms = sylva.waveform.read(str(LEICA))
     sylva.waveform.decompose(waveforms)  # warm-up
-    start = time.perf_counter()
-    echoes = sylva.waveform.decompose(waveforms)
-    seconds = time.perf_counter() - start
+    echoes, seconds = fastest(lambda: sylva.waveform.decompose(waveforms))
     n = len(waveforms)
     print(f"\nSylva {sylva.__version__} (Rust LM, 1 thread) on the Leica sample: {n / seconds:.1f} pulses/s, "
           f"{len(echoes) / n:.2f} echoes per pulse")
