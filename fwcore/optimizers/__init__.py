@@ -103,11 +103,11 @@ def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples
     Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
     within [lower, upper]; local ones least squares over the valid samples (times, fit_target,
     weights 1 / sqrt(variance)) within [lower, local_upper]. lm-mde fits LM first and searches with
-    MDE only where LM did not converge in p.lm_iterations and its fit's reduced chi^2 on the raw samples
-    exceeds p.mde_gate; MDE's polished
-    result replaces LM's only when it lowers chi^2 by more than one parameter's BIC price, ln m.
+    MDE only where LM did not converge in p.lm_iterations and its fit's reduced chi^2 on the raw
+    samples exceeds p.mde_gate; MDE's polished result replaces LM's only when it lowers chi^2 by more
+    than one parameter's BIC price, ln m.
     Returns (best, model evaluations, iterations, message); lm-mde's iterations are MDE's
-    generations (0: the LM fit passed)."""
+    generations (0: LM's fit stands, MDE did not run)."""
     best = x0.copy()
     method = p.method
     if n_echoes == 0:
