@@ -20,6 +20,9 @@ from fwcore.model import table_peak_offset, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
+# A target widens both sides of a return, a neighbour one: where the wider side is within this factor of the
+# narrower (each against the response's own), a tabulated echo starts as wide as its whole half-height width says
+SIDE_BALANCE = 1.15
 
 
 @njit(**JIT)
@@ -281,14 +284,19 @@ def _vertex(values, valid, peak):
 @njit(**JIT)
 def _tabulated_width(residual, valid, peak, centre, height, shape, response_left, response_right):
     """A tabulated echo's starting width: the response broadened by how much wider than the response's the
-    residual's peak is on its narrower side (a neighbour widens one side only); the response itself where
-    neither side falls to half height."""
+    residual's peak is at half height: on both sides where they widened alike (a target), on its narrower
+    side where one widened more (a neighbour widens one side only); the response itself where neither side
+    falls to half height."""
     left, right = _half_height_crossings(residual, valid, peak, height)
     ratio = np.inf
     if left >= 0.0 and centre - left > 0.0:
         ratio = min(ratio, (centre - left) / response_left)
     if right >= 0.0 and right - centre > 0.0:
         ratio = min(ratio, (right - centre) / response_right)
+    if left >= 0.0 and right >= 0.0 and centre - left > 0.0 and right - centre > 0.0:
+        wider = max((centre - left) / response_left, (right - centre) / response_right)
+        if wider <= SIDE_BALANCE * ratio:
+            ratio = (right - left) / (response_left + response_right)
     widest = shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
     return min(max(shape.s_min * ratio, shape.s_min), widest) if ratio < np.inf else shape.s_min
 

@@ -17,6 +17,7 @@ from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, lo
 from fwcore.io import PointRange, read_pulses
 from fwcore.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
 from fwcore.optimizers.local import model_and_jacobian
+from fwcore.preprocess import initial_echoes
 from fwcore.survey import file_system_pulse, measure_file_response
 from tests.fwcore import naive
 
@@ -132,6 +133,32 @@ def test_an_afterpulse_is_not_an_echo_under_the_system_model():
     generalized = DecompositionConfig(system_pulse_fwhm_ps=riegl.fwhm_ps)
     g = decompose_waveform(np.round(y), 1000.0, 0, generalized)
     assert g.amplitude.size >= 2 and g.position.max() > 27.0
+
+
+def test_a_return_a_target_widened_starts_as_wide_as_it_is():
+    # a target widens both sides: the start takes the whole half-height width, so the rising edge is not
+    # left over as an echo of its own
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    y = tabulated_model(t, 3.0, 150.0, 30.3, 1.5 * shape.s_min, shape)
+    y = np.round(y + np.random.default_rng(4).normal(0, 0.5, t.size))
+    est = initial_echoes(y, 0.4, shape.s_min, shape=shape)
+    assert est.n_echoes == 1
+    assert est.sigma[0] == pytest.approx(1.5 * shape.s_min, rel=0.1)
+
+
+def test_a_neighbour_widens_one_side_and_the_start_takes_the_other():
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    y = tabulated_model(t, 3.0, [150.0, 90.0], [30.3, 35.8], [shape.s_min, shape.s_min], shape)
+    y = np.round(y + np.random.default_rng(5).normal(0, 0.5, t.size))
+    est = initial_echoes(y, 0.4, shape.s_min, shape=shape)
+    assert est.n_echoes >= 2
+    first = int(np.argmax(est.amplitude))
+    assert est.sigma[first] < 1.2 * shape.s_min  # its whole half-height width would take in the neighbour
+    assert np.sort(est.position[np.argsort(est.amplitude)[-2:]]) == pytest.approx([30.3, 35.8], abs=0.5)
 
 
 @pytest.mark.parametrize("method", ["gold", "richardson-lucy"])
