@@ -174,8 +174,8 @@ class DecompositionConfig:
     lm_iterations: int = 50  # LM iterations (L-BFGS gets 4x as many)
     # LM stops when an accepted step lowers the weighted sum of squares (chi^2) by less than this share of
     # it: 1e-4 of a chi^2 of m samples is a few hundredths, far below what the data tell apart. 1e-6 kept
-    # the tabulated model's LM creeping over its table's kinks (RIEGL: 11% of fits ran out of iterations)
-    # for the same echoes (Leica returns, RIEGL ghosts, flights alike; NEON raw error within 0.2%).
+    # the tabulated model's LM creeping over its table's kinks (RIEGL: 11% of fits ran out of iterations),
+    # for the same echoes: Leica's returns, RIEGL's ghosts and the flights alike, NEON's raw error within 0.2%.
     lm_tolerance: float = 1e-4
     # Population methods stop when the spread of the population's fitness is small
     # (SciPy's rule: std(fitness) <= atol + tol |mean(fitness)|), at most after `generations`.

@@ -101,7 +101,8 @@ def add_method_arguments(parser, compare: bool = False) -> None:
     g.add_argument("--lm-tolerance", dest="lm_tolerance", type=float,
                    help="LM stops when a step lowers the sum of squares by less than this share of it")
     g.add_argument("--mde-gate", dest="mde_gate", type=float,
-                   help="lm-mde: MDE searches where the LM fit's chi^2 per degree of freedom exceeds this")
+                   help="lm-mde: MDE searches where LM did not converge and its fit's chi^2 per degree of "
+                        "freedom exceeds this")
     g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
     g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
     g.add_argument("--seed", type=int)
