@@ -159,8 +159,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples
         best, nfev, nit, message = run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
-                                                 times, fit_target, raw, signal, variance, noise, eps,
-                                                 seed)
+                                                 times, fit_target, raw, signal, variance, noise, eps, seed)
 
     dropped = 0
     added = 0

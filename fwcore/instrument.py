@@ -198,6 +198,28 @@ def parabola_height(v, i, shift):
     return v[i] - 0.25 * (v[i - 1] - v[i + 1]) * shift
 
 
+@njit(**JIT)
+def half_height_crossings(values, valid, peak, height):
+    """(left, right): where the values first fall to half of `height` walking out from index `peak` over valid
+    samples, interpolated; -1.0 for a side that does not fall that far."""
+    half = 0.5 * height
+    left = -1.0
+    i = peak
+    while i > 0 and valid[i - 1]:
+        if values[i - 1] <= half:
+            left = (i - 1) + (half - values[i - 1]) / (values[i] - values[i - 1])
+            break
+        i -= 1
+    right = -1.0
+    i = peak
+    while i < values.size - 1 and valid[i + 1]:
+        if values[i + 1] <= half:
+            right = i + (values[i] - half) / (values[i] - values[i + 1])
+            break
+        i += 1
+    return left, right
+
+
 def _half_height_width(t: np.ndarray, v: np.ndarray) -> float:
     peak = int(np.argmax(v))
     half = 0.5 * v[peak]
@@ -318,6 +340,7 @@ class EchoShape(NamedTuple):
     areas: np.ndarray  # (widths,) integral of each row, samples
     support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
     peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
+    half_widths: np.ndarray  # (2,) row 0 from its peak to half height before and after it, samples
     step: float  # samples per grid point
     origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
@@ -327,8 +350,8 @@ class EchoShape(NamedTuple):
 def analytic_shape() -> EchoShape:
     """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
     empty = np.zeros((1, 2))
-    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), 1.0, 0.0, 0.0,
-                     1.0)
+    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
+                     0.0, 0.0, 1.0)
 
 
 def lobe_centroid_ps(response: SystemResponse) -> float:
@@ -377,7 +400,11 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
     slopes = np.gradient(rows, step, axis=1)
     areas = rows.sum(axis=1) * step
     peak_offsets = (np.argmax(rows, axis=1) + lo) * step
-    return EchoShape(True, rows, slopes, areas, support, peak_offsets, step, float(-lo), s_min, s_min * ROW_STEP)
+    crest = int(np.argmax(rows[0]))
+    left, right = half_height_crossings(rows[0], np.ones(t.size, dtype=np.bool_), crest, rows[0, crest])
+    half_widths = np.array([(crest - left) * step, (right - crest) * step])
+    return EchoShape(True, rows, slopes, areas, support, peak_offsets, half_widths, step, float(-lo), s_min,
+                     s_min * ROW_STEP)
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

@@ -15,7 +15,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.config import DecompositionConfig
-from fwcore.instrument import analytic_shape, main_lobe, parabola_height, parabola_vertex
+from fwcore.instrument import analytic_shape, half_height_crossings, main_lobe, parabola_height, parabola_vertex
 from fwcore.model import table_peak_offset, table_value
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -220,31 +220,9 @@ def _inflection(residual, valid, peak, step):
 
 
 @njit(**JIT)
-def _half_height_crossings(values, valid, peak, height):
-    """(left, right): where the values first fall to half of `height` walking out from index `peak` over valid
-    samples, interpolated; -1.0 for a side that does not fall that far."""
-    half = 0.5 * height
-    left = -1.0
-    i = peak
-    while i > 0 and valid[i - 1]:
-        if values[i - 1] <= half:
-            left = (i - 1) + (half - values[i - 1]) / (values[i] - values[i - 1])
-            break
-        i -= 1
-    right = -1.0
-    i = peak
-    while i < values.size - 1 and valid[i + 1]:
-        if values[i + 1] <= half:
-            right = i + (values[i] - half) / (values[i] - values[i + 1])
-            break
-        i += 1
-    return left, right
-
-
-@njit(**JIT)
 def _half_height_sigma(residual, valid, peak):
     """sigma from the half-height width (a Gaussian's FWHM = 2.3548 sigma); -1.0 if not bracketed."""
-    left, right = _half_height_crossings(residual, valid, peak, residual[peak])
+    left, right = half_height_crossings(residual, valid, peak, residual[peak])
     if left >= 0.0 and right >= 0.0:
         return (right - left) / (2.0 * _SQRT_2LN2)
     if left >= 0.0:
@@ -282,23 +260,24 @@ def _vertex(values, valid, peak):
 
 
 @njit(**JIT)
-def _tabulated_width(residual, valid, peak, centre, height, shape, response_left, response_right):
+def _tabulated_width(residual, valid, peak, centre, height, shape):
     """A tabulated echo's starting width: the response broadened by how much wider than the response's the
     residual's peak is at half height: on both sides where they widened alike (a target), on its narrower
     side where one widened more (a neighbour widens one side only); the response itself where neither side
     falls to half height."""
-    left, right = _half_height_crossings(residual, valid, peak, height)
-    ratio = np.inf
-    if left >= 0.0 and centre - left > 0.0:
-        ratio = min(ratio, (centre - left) / response_left)
-    if right >= 0.0 and right - centre > 0.0:
-        ratio = min(ratio, (right - centre) / response_right)
-    if left >= 0.0 and right >= 0.0 and centre - left > 0.0 and right - centre > 0.0:
-        wider = max((centre - left) / response_left, (right - centre) / response_right)
-        if wider <= SIDE_BALANCE * ratio:
-            ratio = (right - left) / (response_left + response_right)
+    left, right = half_height_crossings(residual, valid, peak, height)
+    response_left, response_right = shape.half_widths[0], shape.half_widths[1]
+    has_left = left >= 0.0 and centre - left > 0.0
+    has_right = right >= 0.0 and right - centre > 0.0
+    if not (has_left or has_right):
+        return shape.s_min
+    left_ratio = (centre - left) / response_left if has_left else np.inf
+    right_ratio = (right - centre) / response_right if has_right else np.inf
+    ratio = min(left_ratio, right_ratio)
+    if has_left and has_right and max(left_ratio, right_ratio) <= SIDE_BALANCE * ratio:
+        ratio = (right - left) / (response_left + response_right)
     widest = shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
-    return min(max(shape.s_min * ratio, shape.s_min), widest) if ratio < np.inf else shape.s_min
+    return min(max(shape.s_min * ratio, shape.s_min), widest)
 
 
 @njit(**JIT)
@@ -309,12 +288,6 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     afterpulse with it); returns how many were found."""
     n = smoothed.size
     residual = smoothed - background
-    response_left = response_right = 1.0
-    if shape.tabulated:  # the response's own half-height sides, in samples
-        row = shape.rows[0]
-        crest = int(np.argmax(row))
-        left, right = _half_height_crossings(row, np.ones(row.size, dtype=np.bool_), crest, row[crest])
-        response_left, response_right = (crest - left) * shape.step, (right - crest) * shape.step
     count = 0
     while count < max_echoes:
         peak = -1
@@ -329,7 +302,7 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             # at the parabola's vertex through the peak and its neighbours (an echo subtracted half a sample
             # off leaves a flank that would be peeled as an echo of its own), as wide as its clean side says
             centre, top = _vertex(residual, valid, peak)
-            s = _tabulated_width(residual, valid, peak, centre, top, shape, response_left, response_right)
+            s = _tabulated_width(residual, valid, peak, centre, top, shape)
             amplitude[count] = top
             position[count] = centre - table_peak_offset(shape, s)  # an echo's position is its lobe's centroid
             sigma[count] = s
