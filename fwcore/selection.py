@@ -3,7 +3,8 @@
 The progressive estimate peels heavy tails, ringing and flanks off as extra
 echoes, and misses an echo that shows only as a shoulder. After the optimizer,
 echoes the filter flags are dropped (weakest first) when the raw samples do
-not need them, and an echo is added where the residual still holds one; both
+not need them, and an echo is added where the residual still holds one the
+filter would keep (a missed return, not a bump it would flag as weak); both
 decided by the Bayesian information criterion on the raw samples,
 chi^2 = sum ((model - raw) / sigma_i)^2 with sigma_i from the noise model, each
 echo costing its parameters x ln(m). Every candidate is an LM refit from a warm
@@ -96,9 +97,9 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
 @njit(**JIT)
 def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times, target, raw, weights, first, last,
                        pulse_sigma, noise):
-    """Where the residual, matched-filtered with the system pulse, rises above the noise threshold,
-    try one more echo there; keep it when chi^2 falls by more than its BIC price. At most
-    p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
+    """Where the residual, matched-filtered with the system pulse, rises above the noise threshold and its
+    height clears the filter's weak-echo floor, try one more echo there; keep it when chi^2 falls by more
+    than its BIC price. At most p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
     penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
     chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
     n = samples.size
@@ -120,15 +121,21 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
             standard[i] = residual[i] * weights[j]
         _smooth(residual, valid, pulse_sigma, smoothed)
         _smooth(standard, valid, pulse_sigma, smoothed_standard)
+        # an echo the filter would call weak is not a missed return: only candidates above its floor
+        largest = 0.0
+        for k in range(n_echoes):
+            largest = max(largest, best[1 + PARAMS_PER_ECHO * k])
+        floor = max(p.min_amplitude_ratio * largest, p.min_snr * noise)
         peak = -1
         score = p.noise_threshold * filtered_noise
         for i in range(n):
-            if valid[i] and first <= i <= last and smoothed_standard[i] > score:
+            # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
+            if (valid[i] and first <= i <= last and smoothed_standard[i] > score
+                    and smoothed[i] * math.sqrt(2.0) >= floor):
                 score = smoothed_standard[i]
                 peak = i
         if peak < 0:
             break
-        # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
         amplitude = smoothed[peak] * math.sqrt(2.0)
         d = best.size
         trial = _with_room(best, PARAMS_PER_ECHO)

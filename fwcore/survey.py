@@ -151,7 +151,7 @@ def measure_range_offset(batch: WaveformBatch, config: DecompositionConfig,
     (return time - echo time) over the waveforms of `batch` (single returns, `return_time_ps` within
     each packet) where the run's decomposition keeps exactly one echo; and how many those are.
     The system's range reference is a point of its pulse that a fitted centre need not be (Leica:
-    1.18 ns before it, 0.18 m of range)."""
+    1.19 ns before it, 0.18 m of range)."""
     result = decompose_batch(batch, config, threads=1)
     kept = np.flatnonzero(result.reject == 0)
     owner = result.echo_waveform[kept]  # sorted: echoes are grouped by waveform

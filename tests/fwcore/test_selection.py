@@ -10,7 +10,7 @@ from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.model import model_of_individual, waveform_model
 from fwcore.records import WaveformBatch
-from fwcore.selection import drop_unneeded_echoes
+from fwcore.selection import add_missing_echoes, drop_unneeded_echoes
 from tests.fwcore import naive
 
 PULSE_SIGMA = 3.0
@@ -59,3 +59,33 @@ def test_the_same_pulses_under_two_seeds_keep_the_same_echoes():
         # 1 cm along the beam is 0.067 ns: 0.067 samples at 1 ns
         same += sum(np.abs(pb - u).min() < 0.067 for u in pa) if pb.size else 0
     assert same >= 0.995 * total
+
+
+def _add_step(truth, start, floor_ratio, seed=3):
+    """add_missing_echoes on a Gaussian waveform drawn from `truth`, starting from the one-echo `start`."""
+    times = np.arange(160.0)
+    raw = model_of_individual(truth, times) + np.random.default_rng(seed).normal(0, 1.0, times.size)
+    lower = np.array([15, 0, 20, 1, SQ2], float)
+    upper = np.array([25, 1000, 140, 9, SQ2], float)
+    p = CONFIG.replace(model="gaussian", min_amplitude_ratio=floor_ratio, min_snr=0.0).kernel_params()
+    weights = np.ones(times.size)
+    return add_missing_echoes(p, analytic_shape(), start.copy(), lower, upper, 1, raw, np.ones(times.size, bool),
+                              times, raw, raw, weights, 0, 159, PULSE_SIGMA, 1.0)
+
+
+def test_the_add_step_finds_a_missed_shoulder():
+    # a 30% echo 1.5 pulse FWHM behind the main one, missing from the fit the step starts from
+    truth = np.array([20.0, 300.0, 50.0, PULSE_SIGMA, SQ2, 90.0, 50.0 + 1.5 * FWHM_PS / 1000, PULSE_SIGMA, SQ2])
+    best, _, _, n, added, used = _add_step(truth, truth[:5], 0.05)
+    assert (n, added) == (2, 1) and used > 0
+    assert best[6] == pytest.approx(truth[6], abs=0.2) and best[5] == pytest.approx(90.0, rel=0.1)
+
+
+@pytest.mark.parametrize("floor_ratio, expected", [(0.05, 0), (0.0, 1)])
+def test_the_add_step_leaves_an_echo_the_filter_calls_weak(floor_ratio, expected):
+    # a 3% echo 30 samples behind a strong one: 12 sigma, well above the residual's threshold, but below the
+    # filter's 5% floor it is no missed return, and no refit is spent on it
+    truth = np.array([20.0, 400.0, 50.0, PULSE_SIGMA, SQ2, 12.0, 80.0, PULSE_SIGMA, SQ2])
+    _, _, _, n, added, used = _add_step(truth, truth[:5], floor_ratio)
+    assert (n, added) == (1 + expected, expected)
+    assert (used > 0) == bool(expected)

@@ -98,8 +98,8 @@ def test_point_cloud_opens_and_matches_the_system_returns(leica_run, leica_dir):
     # echoes placed with the file's range offset (README, "The range offset"): 0.156 m without it
     assert np.median(d_system[d_system <= 0.5]) < 0.10
     summary = json.loads((leica_run / "run.json").read_text())["inputs"][0]
-    assert summary["range_offset_ps"] == pytest.approx(-1186.0, abs=1.0)
-    assert summary["range_offset_source"] == "single returns (270)"
+    assert summary["range_offset_ps"] == pytest.approx(-1187.0, abs=1.0)
+    assert summary["range_offset_source"] == "single returns (272)"
 
 
 def test_mcap_holds_point_clouds_and_waveforms(leica_run):
