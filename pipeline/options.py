@@ -97,6 +97,9 @@ def add_method_arguments(parser, compare: bool = False) -> None:
                         "least this share of the later's (default 1: the weaker goes; 0.35: the first surface)")
     g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)| "
                    "(with tol > 0, atol grows by noise_tol x the noise's spread of the fitness)")
+    g.add_argument("--stall-generations", dest="stall_generations", type=int,
+                   help="with tol > 0, MDE/DE also stop when their best fitness fell by no more than atol over "
+                        "this many generations (0: never)")
     g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
     g.add_argument("--lm-tolerance", dest="lm_tolerance", type=float,
                    help="LM stops when a step lowers the sum of squares by less than this share of it")

@@ -119,8 +119,10 @@ def converged(fitness, tol, atol):
 @njit(**JIT)
 def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes, tpos, target, weight, shape, eps):
     """Run MDE (chaotic=True) or DE with p's settings (fwcore.config.KernelParams) until converged
-    (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share) or for p.generations;
-    pop and fitness are updated in place. Returns (model evaluations, generations run, converged).
+    (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share), or stalled (with
+    p.tol > 0, the best fitness fell by no more than fitness_atol in p.stall_generations generations),
+    or for p.generations; pop and fitness are updated in place. Returns (model evaluations, generations
+    run, converged or stalled).
 
     Generational update (default): a generation's trials all mutate the same
     population. p.immediate writes each winner back at once (asynchronous DE).
@@ -143,6 +145,8 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
     nfev = 0
     nit = 0
     done = converged(fitness, p.tol, fitness_atol)
+    stall_check = p.tol > 0.0 and p.stall_generations > 0
+    reference = np.min(fitness)  # the best fitness p.stall_generations generations ago
     while nit < p.generations and not done:
         best = 0
         for i in range(1, np_):
@@ -188,6 +192,9 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
             fitness[:] = next_fit
         nit += 1
         done = converged(fitness, p.tol, fitness_atol)
+        if stall_check and not done and nit % p.stall_generations == 0:
+            done = reference - np.min(fitness) <= fitness_atol
+            reference = np.min(fitness)
     return nfev, nit, done
 
 

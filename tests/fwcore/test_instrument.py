@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 
 from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_waveform
+from fwcore.engine import decompose_batch, decompose_waveform
 from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, load_response, main_lobe, named_response,
                                response_from_samples)
 from fwcore.io import PointRange, read_pulses
 from fwcore.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
 from fwcore.optimizers.local import model_and_jacobian
 from fwcore.preprocess import initial_echoes
+from fwcore.pulses import pulse_waveforms
 from fwcore.survey import file_system_pulse, measure_file_response
 from tests.fwcore import naive
 
@@ -259,3 +260,16 @@ def test_an_echo_sits_at_its_response_lobes_centroid(leica_response):
     assert np.sum(t[inside] * echo[inside]) / np.sum(echo[inside]) == pytest.approx(0.0, abs=0.02)
     # and the shape says where the echo peaks
     assert t[np.argmax(echo)] == pytest.approx(table_peak_offset(shape, shape.s_min), abs=2 * shape.step)
+
+
+@pytest.mark.parametrize("stall_generations, generations", [(20, 20), (0, 200)])
+def test_mde_stops_on_a_riegl_baseline_no_echo_explains(riegl_response, stall_generations, generations):
+    # pulse 875: a strong return, then a baseline that wanders 2-5 DN for 60 ns; LM does not settle and its fit
+    # fails the noise model, so lm-mde searches, but no echo explains a baseline: MDE's best moves by less than
+    # the noise's share of the fitness, and the stall rule ends the search after one period with LM's fit
+    pulses = read_pulses(PointRange(str(RIEGL), 875, 876))
+    config = DecompositionConfig(model="system", system_response=riegl_response,
+                                 system_pulse_fwhm_ps=riegl_response.fwhm_ps, stall_generations=stall_generations)
+    result = decompose_batch(pulse_waveforms(pulses, 0), config, threads=1)
+    assert result.nit[0] == generations
+    assert result.fit_error_raw[0] == pytest.approx(57.31, abs=0.01)
