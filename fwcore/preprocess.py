@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT
+from fwcore._jit import JIT, JIT_INLINE
 from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape, half_height_crossings, main_lobe, parabola_height, parabola_vertex
 from fwcore.model import table_peak_offset, table_value
@@ -35,6 +35,21 @@ def gaussian_weights(sigma):
     return weights
 
 
+@njit(**JIT_INLINE)
+def smoothed_sample(samples, valid, weights, i):
+    """The Gaussian filter (gaussian_weights) at sample i by normalized convolution over the valid samples."""
+    n = samples.size
+    half = weights.size // 2
+    acc = 0.0
+    norm = 0.0
+    for j in range(max(0, i - half), min(n, i + half + 1)):
+        if valid[j]:
+            w = weights[j - i + half]
+            acc += w * samples[j]
+            norm += w
+    return acc / norm if norm > 0.0 else samples[i]
+
+
 @njit(**JIT)
 def _smooth(samples, valid, sigma, out):
     """Gaussian filter by normalized convolution, so gaps do not pull the signal to zero."""
@@ -44,16 +59,8 @@ def _smooth(samples, valid, sigma, out):
             out[i] = samples[i]
         return
     weights = gaussian_weights(sigma)
-    half = weights.size // 2
     for i in range(n):
-        acc = 0.0
-        norm = 0.0
-        for j in range(max(0, i - half), min(n, i + half + 1)):
-            if valid[j]:
-                w = weights[j - i + half]
-                acc += w * samples[j]
-                norm += w
-        out[i] = acc / norm if norm > 0.0 else samples[i]
+        out[i] = smoothed_sample(samples, valid, weights, i)
 
 
 @njit(**JIT)

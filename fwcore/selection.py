@@ -23,7 +23,7 @@ from fwcore.bounds import echo_bounds
 from fwcore.filter import KEPT, mark_spurious
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import _smooth, gaussian_weights
+from fwcore.preprocess import _smooth, gaussian_weights, smoothed_sample
 
 
 
@@ -106,7 +106,6 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     model = np.empty(times.size)
     residual = np.zeros(n)
     standard = np.zeros(n)
-    smoothed = np.empty(n)
     smoothed_standard = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
     w = gaussian_weights(pulse_sigma)
@@ -115,11 +114,15 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     n_jacobians = 0
     while added < p.max_added_echoes and n_echoes < p.max_echoes:
         individual_model(best, n_echoes, times, shape, model)
+        score = p.noise_threshold * filtered_noise
+        top = -np.inf
         for j in range(times.size):
             i = int(times[j])
             residual[i] = raw[j] - model[j]
             standard[i] = residual[i] * weights[j]
-        _smooth(residual, valid, pulse_sigma, smoothed)
+            top = max(top, standard[i])
+        if top <= score:
+            break  # a smoothing (a weighted mean) of the standardized residual cannot rise above its largest sample
         _smooth(standard, valid, pulse_sigma, smoothed_standard)
         # an echo the filter would call weak is not a missed return: only candidates above its floor
         largest = 0.0
@@ -127,16 +130,17 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
             largest = max(largest, best[1 + PARAMS_PER_ECHO * k])
         floor = max(p.min_amplitude_ratio * largest, p.min_snr * noise)
         peak = -1
-        score = p.noise_threshold * filtered_noise
+        amplitude = 0.0
         for i in range(n):
-            # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
-            if (valid[i] and first <= i <= last and smoothed_standard[i] > score
-                    and smoothed[i] * math.sqrt(2.0) >= floor):
-                score = smoothed_standard[i]
-                peak = i
+            if valid[i] and first <= i <= last and smoothed_standard[i] > score:
+                # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
+                height = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
+                if height >= floor:
+                    score = smoothed_standard[i]
+                    peak = i
+                    amplitude = height
         if peak < 0:
             break
-        amplitude = smoothed[peak] * math.sqrt(2.0)
         d = best.size
         trial = _with_room(best, PARAMS_PER_ECHO)
         trial_lower = _with_room(lower, PARAMS_PER_ECHO)
