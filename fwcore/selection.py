@@ -23,7 +23,7 @@ from fwcore.bounds import echo_bounds
 from fwcore.filter import KEPT, mark_spurious
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import _smooth, gaussian_weights, smoothed_sample
+from fwcore.preprocess import gaussian_weights, smoothed_sample
 
 
 
@@ -106,7 +106,6 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     model = np.empty(times.size)
     residual = np.zeros(n)
     standard = np.zeros(n)
-    smoothed_standard = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
     w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
@@ -123,7 +122,6 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
             top = max(top, standard[i])
         if top <= score:
             break  # a smoothing (a weighted mean) of the standardized residual cannot rise above its largest sample
-        _smooth(standard, valid, pulse_sigma, smoothed_standard)
         # an echo the filter would call weak is not a missed return: only candidates above its floor
         largest = 0.0
         for k in range(n_echoes):
@@ -132,11 +130,14 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         peak = -1
         amplitude = 0.0
         for i in range(n):
-            if valid[i] and first <= i <= last and smoothed_standard[i] > score:
+            if not (valid[i] and first <= i <= last):
+                continue
+            evidence = smoothed_sample(standard, valid, w, i)
+            if evidence > score:
                 # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
                 height = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
                 if height >= floor:
-                    score = smoothed_standard[i]
+                    score = evidence
                     peak = i
                     amplitude = height
         if peak < 0:

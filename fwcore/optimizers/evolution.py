@@ -193,8 +193,9 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
         nit += 1
         done = converged(fitness, p.tol, fitness_atol)
         if stall_check and not done and nit % p.stall_generations == 0:
-            done = reference - np.min(fitness) <= fitness_atol
-            reference = np.min(fitness)
+            current = np.min(fitness)
+            done = reference - current <= fitness_atol
+            reference = current
     return nfev, nit, done
 
 
