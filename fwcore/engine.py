@@ -230,14 +230,13 @@ def smoothing_sigma_samples(config: DecompositionConfig, sample_spacing_ps: np.n
 
 def waveform_status(batch: WaveformBatch) -> np.ndarray:
     """Per waveform, why it cannot be decomposed (STATUS_REASONS codes; 0: it can)."""
+    def per_waveform(flags: np.ndarray) -> np.ndarray:  # how many samples of each waveform are flagged
+        running = np.concatenate(([0], np.cumsum(flags, dtype=np.int64)))
+        return running[batch.offsets[1:]] - running[batch.offsets[:-1]]
+
     status = np.zeros(len(batch), dtype=np.int8)
-    for w in range(len(batch)):
-        lo, hi = batch.offsets[w], batch.offsets[w + 1]
-        chunk, mask = batch.samples[lo:hi], batch.valid[lo:hi]
-        if not mask.any():
-            status[w] = STATUS_NO_VALID_SAMPLES
-        elif not np.isfinite(chunk[mask]).all():
-            status[w] = STATUS_NON_FINITE
+    status[per_waveform(batch.valid & ~np.isfinite(batch.samples)) > 0] = STATUS_NON_FINITE
+    status[per_waveform(batch.valid) == 0] = STATUS_NO_VALID_SAMPLES
     return status
 
 

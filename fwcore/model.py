@@ -39,22 +39,30 @@ def echo_value(amplitude, position, s, alpha, t):
     return amplitude * math.exp(-LN2 * (abs(t - position) / (s * SQRT_2LN2)) ** (alpha * alpha))
 
 
+# A tabulated echo's rows and grid are read once per echo, not per sample: inside a sample loop, every read
+# of an array field of the shape tuple costs numba a reference count (an atomic) and blocks hoisting.
 @njit(**JIT_INLINE)
-def _table_coordinates(shape, s, d):
-    """Where width s and time offset d (samples) fall in the table: (row, row weight, column, column weight),
-    column -1 outside the table's support."""
-    last_row = shape.rows.shape[0] - 1
-    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), last_row - 1e-9)
+def table_row(shape, s):
+    """Where width s falls between the table's rows: (row, weight of the next row)."""
+    fw = min(max((s - shape.s_min) / shape.s_step, 0.0), shape.rows.shape[0] - 1 - 1e-9)
     w = int(fw)
-    fg = d / shape.step + shape.origin
-    if fg < 0.0 or fg >= shape.rows.shape[1] - 1:
-        return w, fw - w, -1, 0.0
-    j = int(fg)
-    return w, fw - w, j, fg - j
+    return w, fw - w
 
 
 @njit(**JIT_INLINE)
-def _bilinear(table, w, a, j, b):
+def grid_column(d, step, origin, columns):
+    """Where time offset d (samples) falls on a table's grid of `columns` points: (column, weight of the
+    next), column -1 outside the grid."""
+    fg = d / step + origin
+    if fg < 0.0 or fg >= columns - 1:
+        return -1, 0.0
+    j = int(fg)
+    return j, fg - j
+
+
+@njit(**JIT_INLINE)
+def bilinear(table, w, a, j, b):
+    """table between rows w, w + 1 (weight a) and columns j, j + 1 (weight b)."""
     return ((1.0 - a) * ((1.0 - b) * table[w, j] + b * table[w, j + 1])
             + a * ((1.0 - b) * table[w + 1, j] + b * table[w + 1, j + 1]))
 
@@ -62,31 +70,54 @@ def _bilinear(table, w, a, j, b):
 @njit(**JIT_INLINE)
 def table_value(shape, amplitude, position, s, t):
     """One echo of the system response's shape (fwcore.instrument.EchoShape) at time t: A row(s)(t - u)."""
-    w, a, j, b = _table_coordinates(shape, s, t - position)
+    w, a = table_row(shape, s)
+    j, b = grid_column(t - position, shape.step, shape.origin, shape.rows.shape[1])
     if j < 0:
         return 0.0
-    return amplitude * _bilinear(shape.rows, w, a, j, b)
+    return amplitude * bilinear(shape.rows, w, a, j, b)
 
 
 @njit(**JIT_INLINE)
-def table_derivatives(shape, s, d):
-    """The unit-amplitude tabulated echo at offset d = t - u and its derivatives by t and by s."""
-    w, a, j, b = _table_coordinates(shape, s, d)
-    if j < 0:
-        return 0.0, 0.0, 0.0
-    value = _bilinear(shape.rows, w, a, j, b)
-    slope = _bilinear(shape.slopes, w, a, j, b)
-    below = (1.0 - b) * shape.rows[w, j] + b * shape.rows[w, j + 1]
-    above = (1.0 - b) * shape.rows[w + 1, j] + b * shape.rows[w + 1, j + 1]
-    inside = shape.s_min <= s <= shape.s_min + shape.s_step * (shape.rows.shape[0] - 1)
-    return value, slope, (above - below) / shape.s_step if inside else 0.0
+def add_table_echo(shape, amplitude, position, s, times, lo, hi, out):
+    """out[i] += the tabulated echo at times[i], for i in [lo, hi)."""
+    w, a = table_row(shape, s)
+    rows = shape.rows
+    step, origin, columns = shape.step, shape.origin, rows.shape[1]
+    for i in range(lo, hi):
+        j, b = grid_column(times[i] - position, step, origin, columns)
+        if j >= 0:
+            out[i] += amplitude * bilinear(rows, w, a, j, b)
+
+
+@njit(**JIT_INLINE)
+def add_table_echo_derivatives(shape, amplitude, position, s, times, lo, hi, model, jac, base):
+    """model[i] += the tabulated echo at times[i], and its Jacobian columns base (by A), base + 1 (by u:
+    -A slope) and base + 2 (by s: across the rows, 0 outside the table's widths), for i in [lo, hi)."""
+    w, a = table_row(shape, s)
+    rows, slopes = shape.rows, shape.slopes
+    step, origin, columns = shape.step, shape.origin, rows.shape[1]
+    inside = shape.s_min <= s <= shape.s_min + shape.s_step * (rows.shape[0] - 1)
+    s_step = shape.s_step
+    for i in range(lo, hi):
+        j, b = grid_column(times[i] - position, step, origin, columns)
+        value, slope, by_width = 0.0, 0.0, 0.0
+        if j >= 0:
+            value = bilinear(rows, w, a, j, b)
+            slope = bilinear(slopes, w, a, j, b)
+            below = (1.0 - b) * rows[w, j] + b * rows[w, j + 1]
+            above = (1.0 - b) * rows[w + 1, j] + b * rows[w + 1, j + 1]
+            by_width = (above - below) / s_step if inside else 0.0
+        model[i] += amplitude * value
+        jac[i, base] = value
+        jac[i, base + 1] = -amplitude * slope
+        jac[i, base + 2] = amplitude * by_width
 
 
 @njit(**JIT_INLINE)
 def table_reach(shape, s):
     """A tabulated echo of width s: its support, (before, after) its position, in samples (of the two rows
     it is interpolated between)."""
-    w, _, _, _ = _table_coordinates(shape, s, 0.0)
+    w, _ = table_row(shape, s)
     first = min(shape.support[w, 0], shape.support[w + 1, 0])
     last = max(shape.support[w, 1], shape.support[w + 1, 1])
     # interpolation reaches one grid step past a row's last non-zero value
@@ -104,25 +135,24 @@ def table_peak_offset(shape, s):
     return (1.0 - (fw - w)) * shape.peak_offsets[w] + (fw - w) * shape.peak_offsets[w + 1]
 
 
-@njit(**JIT_INLINE)
-def shape_value(shape, amplitude, position, s, alpha, t):
-    """One echo of either model at time t."""
-    if shape.tabulated:
-        return table_value(shape, amplitude, position, s, t)
-    return echo_value(amplitude, position, s, alpha, t)
-
-
 @njit(**JIT)
 def individual_model(x, n_echoes, times, shape, out):
-    """The model of individual x at `times` into `out` (float64), every echo over every sample."""
+    """The model of individual x at `times` (float64, ascending) into `out`: a generalized Gaussian over
+    every sample, a tabulated echo over its table's support (it is exactly 0 elsewhere)."""
     for i in range(times.size):
         out[i] = x[0]
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
         if x[base] <= 0.0:
             continue
+        if shape.tabulated:
+            before, after = table_reach(shape, x[base + 2])
+            add_table_echo(shape, x[base], x[base + 1], x[base + 2], times,
+                           np.searchsorted(times, x[base + 1] - before),
+                           np.searchsorted(times, x[base + 1] + after, side="right"), out)
+            continue
         for i in range(times.size):
-            out[i] += shape_value(shape, x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
+            out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
 
 
 def model_of_individual(x, t) -> np.ndarray:

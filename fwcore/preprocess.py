@@ -16,7 +16,7 @@ from numba import njit
 from fwcore._jit import JIT, JIT_INLINE
 from fwcore.config import DecompositionConfig
 from fwcore.instrument import analytic_shape, half_height_crossings, main_lobe, parabola_height, parabola_vertex
-from fwcore.model import table_peak_offset, table_value
+from fwcore.model import add_table_echo, table_peak_offset
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -295,6 +295,7 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     afterpulse with it); returns how many were found."""
     n = smoothed.size
     residual = smoothed - background
+    sample_times = np.arange(n).astype(np.float64)
     count = 0
     while count < max_echoes:
         peak = -1
@@ -313,8 +314,7 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             amplitude[count] = top
             position[count] = centre - table_peak_offset(shape, s)  # an echo's position is its lobe's centroid
             sigma[count] = s
-            for i in range(n):
-                residual[i] -= table_value(shape, top, position[count], s, i)
+            add_table_echo(shape, -top, position[count], s, sample_times, 0, n, residual)
             count += 1
             continue
         s = _echo_sigma(residual, valid, peak, fallback_sigma)

@@ -27,7 +27,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.instrument import analytic_shape
-from fwcore.model import PARAMS_PER_ECHO, echo_value, table_derivatives, table_reach, table_value
+from fwcore.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
@@ -54,12 +54,7 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
             hi = np.searchsorted(times, u + after, side="right")
             windows[k, 0] = lo
             windows[k, 1] = hi
-            for i in range(lo, hi):
-                e, slope, by_width = table_derivatives(shape, s, times[i] - u)
-                model[i] += a * e
-                jac[i, base] = e
-                jac[i, base + 1] = -a * slope
-                jac[i, base + 2] = a * by_width
+            add_table_echo_derivatives(shape, a, u, s, times, lo, hi, model, jac, base)
             continue
         h = s * _SQRT_2LN2
         p = alpha * alpha
@@ -98,8 +93,8 @@ def squared_error(x, n_echoes, times, shape, target, weights):
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
             before, after = table_reach(shape, s)
-            for i in range(np.searchsorted(times, u - before), np.searchsorted(times, u + after, side="right")):
-                model[i] += table_value(shape, a, u, s, times[i])
+            add_table_echo(shape, a, u, s, times, np.searchsorted(times, u - before),
+                           np.searchsorted(times, u + after, side="right"), model)
             continue
         reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
         for i in range(np.searchsorted(times, u - reach), np.searchsorted(times, u + reach, side="right")):

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT_INLINE, SIMD_JIT, _bits_of_f32, fast_exp2, fast_log2
-from fwcore.model import PARAMS_PER_ECHO, table_reach, table_value
+from fwcore.model import PARAMS_PER_ECHO, bilinear, grid_column, table_reach, table_row
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 _F32 = np.float32
@@ -60,8 +60,13 @@ def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
             before, after = table_reach(shape, x[base + 2])
             lo = max(0, int(math.floor(u - before)))
             hi = min(n, int(math.ceil(u + after)) + 1)
+            w, a = table_row(shape, x[base + 2])
+            rows = shape.rows
+            step, origin, columns = shape.step, shape.origin, rows.shape[1]
             for i in range(lo, hi):
-                model[i] += _F32(table_value(shape, amplitude, u, x[base + 2], np.float64(tpos[i])))
+                j, b = grid_column(np.float64(tpos[i]) - u, step, origin, columns)
+                if j >= 0:
+                    model[i] += _F32(amplitude * bilinear(rows, w, a, j, b))
             continue
         h = x[base + 2] * _SQRT_2LN2
         p = x[base + 3] * x[base + 3]
