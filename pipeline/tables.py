@@ -98,11 +98,11 @@ COLUMNS = {c.name: c for c in (
     Column("amplitude", F64, "DN", "the echo's peak above the background, in digitizer counts"),
     Column("amplitude_volts", F64, "V", "amplitude times the descriptor's digitizer gain"),
     Column("sigma_chauve", F64, "ps^(alpha^2/2)", "Chauve's sigma: the echo is A exp(-|t - u|^(alpha^2) / (2 sigma^2)) "
-                                                  "with t in ps; its unit depends on alpha; NaN under --model "
+                                                  "with t in ps; its unit depends on alpha; null under --model "
                                                   "system (echoes of the measured response)"),
     Column("sigma", F64, "sample^(alpha^2/2)", "Chauve's sigma with t in samples; under --model system the sigma "
                                                "(samples) of the Gaussian of the echo's FWHM"),
-    Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top; NaN under "
+    Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top; null under "
                               "--model system"),
     Column("fwhm_ps", F64, "ps", "the echo's full width at half maximum"),
     Column("fwhm", F64, "sample", "the echo's full width at half maximum"),
@@ -196,7 +196,7 @@ def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: Deco
     table = _table("csv echoes", {
         "waveform_id": waveform_id[owner], "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
         "echo_count": np.diff(result.echo_offsets)[owner], "amplitude": result.amplitude, "time": result.position,
-        "sigma": result.sigma, "alpha": result.alpha, "fwhm": result.fwhm, "energy": result.energy,
+        "sigma": result.sigma, "alpha": _null_where_nan(result.alpha), "fwhm": result.fwhm, "energy": result.energy,
         **_record_columns("csv echoes", result, owner), **_kept(result), **_method(config, owner.size)})
     return _with_config(table, config)
 
@@ -237,6 +237,12 @@ def _method(config: DecompositionConfig, n: int) -> dict:
     return {"optimizer": _strings(config.optimizer.value, n), "model": _strings(config.model.value, n)}
 
 
+def _null_where_nan(values: np.ndarray) -> pa.Array:
+    """A float column whose NaN means 'does not apply' (a tabulated echo has no shape factor): null, so that no
+    NaN reaches an output."""
+    return pa.array(values, pa.float64(), from_pandas=True)
+
+
 def _strings(value: str, n: int) -> pa.Array:
     return pa.array([value] * n, pa.string())
 
@@ -250,7 +256,7 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
     if radiometry is None:
         radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable")}
     # NaN is null here: unavailable, not a number gone wrong
-    return {**{c: pa.array(radiometry[c], pa.float64(), from_pandas=True) for c in RADIOMETRY_COLUMNS},
+    return {**{c: _null_where_nan(radiometry[c]) for c in RADIOMETRY_COLUMNS},
             "radiometry": np.asarray(radiometry["radiometry"], dtype=object).tolist()}
 
 
@@ -269,7 +275,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
         "echo_count": np.diff(result.echo_offsets)[owner], "time_ps": result.position * spacing,
         "amplitude": result.amplitude, "amplitude_volts": result.amplitude * pulses.digitizer_gain[owner],
-        "sigma_chauve": sigma_to_time_unit(result.sigma, result.alpha, spacing), "alpha": result.alpha,
+        "sigma_chauve": _null_where_nan(sigma_to_time_unit(result.sigma, result.alpha, spacing)),
+        "alpha": _null_where_nan(result.alpha),
         "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing,
         **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),

@@ -4,6 +4,9 @@ import subprocess
 import sys
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
@@ -162,7 +165,7 @@ def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_pa
     # the table the engine used, rebuilt from the settings in the table's metadata
     shape = echo_shapes(DecompositionConfig.from_dict(config), np.array([1000.0]))[1000.0]
     echoes = table.to_pandas()
-    assert echoes.alpha.isna().all()  # the generalized Gaussian's shape factor means nothing here
+    assert table.column("alpha").null_count == table.num_rows  # the generalized Gaussian's shape: none here
     csv = read_neon_csv(small_csv)
     for wid, samples, valid in zip(csv.waveform_id, csv.samples, csv.valid):
         rows = echoes[echoes.waveform_id == wid]
@@ -208,5 +211,12 @@ def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewave
     shipped = named_response("riegl")
     assert entry["system_response"]["source"] == shipped.source == summary["config"]["system_response"]["source"]
     assert entry["system_pulse_fwhm_ps"] == pytest.approx(shipped.fwhm_ps)
+    echoes = ds.dataset(str(out / "echoes"), format="parquet").to_table()
+    # a tabulated echo has no generalized Gaussian's shape: null, and no NaN in any column
+    assert echoes.num_rows > 40 and echoes.column("alpha").null_count == echoes.num_rows
+    assert echoes.column("sigma_chauve").null_count == echoes.num_rows
+    for name in echoes.column_names:
+        if pa.types.is_floating(echoes.schema.field(name).type):
+            assert not pc.any(pc.is_nan(echoes.column(name))).as_py(), name
     assert main(["run", str(pulsewaves_dir / "riegl_example3.pls"), "--output", str(tmp_path / "bad"),
                  "--model", "system", "--system-response", str(tmp_path / "none.json")]) == 2
