@@ -163,7 +163,8 @@ def neon_rows() -> None:
           f"{'ratio':>6}  (targets: impulse raw <= 240, ratio <= 1.03; from the returns held-out <= 3.0)")
     cases = [("generalized, outgoing pulses' width", "generalized", None, outgoing),
              ("system, system_impulse.csv", "system", impulse, None),
-             ("system, measured on the returns", "system", None, None)]
+             ("system, measured on the returns", "system", None, None),
+             ("generalized, the returns' width", "generalized", None, None)]
     for label, model, response, out in cases:
         for optimizer in ("lm-mde", "lm", "gold", "richardson-lucy"):
             if optimizer in ("gold", "richardson-lucy") and model != "system":
