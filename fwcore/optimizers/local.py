@@ -106,10 +106,10 @@ def squared_error(x, n_echoes, times, shape, target, weights):
 
 
 @njit(**JIT)
-def _solve_damped(jtj, grad, lam, free, step):
-    """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky; False if singular."""
+def _solve_damped(jtj, grad, lam, free, step, a):
+    """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky, `a` (d x d) its
+    scratch; False if singular."""
     d = grad.size
-    a = np.zeros((d, d))
     largest = 0.0
     for j in range(d):
         largest = max(largest, jtj[j, j])
@@ -148,25 +148,77 @@ def _solve_damped(jtj, grad, lam, free, step):
 def _normal_equations(jac, residual, weights, windows, jtj, grad):
     """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. Each sum runs only
     over the samples where both columns can be non-zero (their echoes' windows): the terms left
-    out are exact zeros, so the result is the full sum's, bit for bit."""
+    out are exact zeros, so the result is the full sum's, bit for bit. An echo's own block (its columns
+    with each other and with the background's) is summed in one pass over its window, every sum in
+    its own accumulator and in the same order as alone: the same bits, without a pass per pair."""
     m, d = jac.shape
-    for r in range(d):
-        lo_r, hi_r = (0, m) if r == 0 else (windows[(r - 1) // PARAMS_PER_ECHO, 0],
-                                            windows[(r - 1) // PARAMS_PER_ECHO, 1])
-        g = 0.0
-        for i in range(lo_r, hi_r):
-            g += jac[i, r] * weights[i] * residual[i]
-        grad[r] = g
-        for c in range(r, d):
-            lo, hi = lo_r, hi_r
-            if c > 0:
-                lo = max(lo, windows[(c - 1) // PARAMS_PER_ECHO, 0])
-                hi = min(hi, windows[(c - 1) // PARAMS_PER_ECHO, 1])
-            acc = 0.0
-            for i in range(lo, hi):
-                acc += jac[i, r] * jac[i, c] * weights[i] * weights[i]
-            jtj[r, c] = acc
-            jtj[c, r] = acc
+    n_echoes = (d - 1) // PARAMS_PER_ECHO
+    g = 0.0
+    acc = 0.0
+    for i in range(m):  # the background's column is 1 everywhere
+        g += jac[i, 0] * weights[i] * residual[i]
+        acc += jac[i, 0] * jac[i, 0] * weights[i] * weights[i]
+    grad[0] = g
+    jtj[0, 0] = acc
+    for k in range(n_echoes):
+        _echo_block(jac, residual, weights, windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k, jtj, grad)
+    for k in range(n_echoes):  # two echoes' columns meet where their windows overlap
+        for q in range(k + 1, n_echoes):
+            lo = max(windows[k, 0], windows[q, 0])
+            hi = min(windows[k, 1], windows[q, 1])
+            for r in range(1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * (k + 1)):
+                for c in range(1 + PARAMS_PER_ECHO * q, 1 + PARAMS_PER_ECHO * (q + 1)):
+                    acc = 0.0
+                    for i in range(lo, hi):
+                        acc += jac[i, r] * jac[i, c] * weights[i] * weights[i]
+                    jtj[r, c] = acc
+                    jtj[c, r] = acc
+
+
+@njit(**JIT)
+def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
+    """One echo's gradient entries and its rows of J^T W J with itself and the background (columns 0 and
+    base..base + 3), summed over its window [lo, hi)."""
+    g1 = g2 = g3 = g4 = 0.0
+    b1 = b2 = b3 = b4 = 0.0  # with the background's column
+    a11 = a12 = a13 = a14 = a22 = a23 = a24 = a33 = a34 = a44 = 0.0
+    for i in range(lo, hi):
+        w = weights[i]
+        r = residual[i]
+        j0, j1, j2, j3, j4 = jac[i, 0], jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3]
+        g1 += j1 * w * r
+        g2 += j2 * w * r
+        g3 += j3 * w * r
+        g4 += j4 * w * r
+        b1 += j0 * j1 * w * w
+        b2 += j0 * j2 * w * w
+        b3 += j0 * j3 * w * w
+        b4 += j0 * j4 * w * w
+        a11 += j1 * j1 * w * w
+        a12 += j1 * j2 * w * w
+        a13 += j1 * j3 * w * w
+        a14 += j1 * j4 * w * w
+        a22 += j2 * j2 * w * w
+        a23 += j2 * j3 * w * w
+        a24 += j2 * j4 * w * w
+        a33 += j3 * j3 * w * w
+        a34 += j3 * j4 * w * w
+        a44 += j4 * j4 * w * w
+    grad[base], grad[base + 1], grad[base + 2], grad[base + 3] = g1, g2, g3, g4
+    jtj[0, base] = jtj[base, 0] = b1
+    jtj[0, base + 1] = jtj[base + 1, 0] = b2
+    jtj[0, base + 2] = jtj[base + 2, 0] = b3
+    jtj[0, base + 3] = jtj[base + 3, 0] = b4
+    jtj[base, base] = a11
+    jtj[base, base + 1] = jtj[base + 1, base] = a12
+    jtj[base, base + 2] = jtj[base + 2, base] = a13
+    jtj[base, base + 3] = jtj[base + 3, base] = a14
+    jtj[base + 1, base + 1] = a22
+    jtj[base + 1, base + 2] = jtj[base + 2, base + 1] = a23
+    jtj[base + 1, base + 3] = jtj[base + 3, base + 1] = a24
+    jtj[base + 2, base + 2] = a33
+    jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
+    jtj[base + 3, base + 3] = a44
 
 
 @njit(**JIT)
@@ -189,6 +241,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     trial_windows = np.zeros((n_echoes, 2), dtype=np.int64)
     residual = np.empty(m)
     jtj = np.empty((d, d))
+    factor = np.empty((d, d))  # the damped system's Cholesky factor
     grad = np.empty(d)
     step = np.empty(d)
     trial = np.empty(d)
@@ -207,7 +260,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
         # a parameter held at a bound with the descent pushing outwards stays there for the step
         for j in range(d):
             active[j] = free[j] and not ((x[j] <= lower[j] and grad[j] > 0.0) or (x[j] >= upper[j] and grad[j] < 0.0))
-        if not _solve_damped(jtj, grad, lam, active, step):
+        if not _solve_damped(jtj, grad, lam, active, step, factor):
             lam *= 10.0
             if lam > 1e12:
                 done = True
