@@ -22,7 +22,6 @@ FASTMATH = frozenset({"nsz", "arcp", "contract", "afn", "reassoc"})
 JIT = dict(cache=True, nogil=True, error_model="numpy")
 SIMD_JIT = dict(JIT, fastmath=set(FASTMATH))
 JIT_INLINE = dict(JIT, inline="always")
-PARALLEL_JIT = dict(JIT, parallel=True)
 
 _F32 = np.float32
 

@@ -2,10 +2,10 @@
 
     initial estimate -> bounds -> optimizer -> model-order selection -> raw polish -> filter -> metrics
 
-`decompose_batch` is the entry point: many waveforms of any lengths in one
-numba-parallel call, one waveform per thread, each with its own random
-stream, so a waveform's result does not depend on its batch or the thread
-count. `decompose_waveform` is the same for one waveform. Each step is a
+`decompose_batch` is the entry point: many waveforms of any lengths, in
+chunks on a pool of threads (the kernels release the GIL), each waveform with
+its own random stream, so a waveform's result does not depend on its batch or
+the thread count. `decompose_waveform` is the same for one waveform. Each step is a
 kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
 .selection, .filter); this module only wires them.
 """
@@ -13,12 +13,13 @@ kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from fwcore._jit import JIT, PARALLEL_JIT
+from fwcore._jit import JIT
 from fwcore.bounds import parameter_bounds
 from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.filter import mark_spurious
@@ -202,10 +203,11 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echoes)
 
 
-@njit(**PARALLEL_JIT)
-def _decompose_many(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, shape, local, out,
-                    echoes):
-    for w in prange(offsets.size - 1):
+@njit(**JIT)
+def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, shape, local, out,
+                     echoes, first, stop):
+    """Waveforms first..stop-1 of the batch (those of status 0), each into its own records."""
+    for w in range(first, stop):
         if status[w] != 0:
             continue
         lo, hi = offsets[w], offsets[w + 1]
@@ -240,9 +242,24 @@ def waveform_status(batch: WaveformBatch) -> np.ndarray:
     return status
 
 
+_CHUNK = 256  # waveforms per task at most, and 8 tasks per thread at least: slow ones (MDE) even out
+
+
+def _in_threads(kernel_args: tuple, n: int, threads: int) -> None:
+    """_decompose_range over waveforms 0..n-1 in chunks on `threads` threads. The kernel releases the GIL;
+    a thread pool rather than numba's prange, whose parallel compile took 35 s of the engine's 120."""
+    if threads <= 1 or n <= 1:
+        _decompose_range(*kernel_args, 0, n)
+        return
+    chunk = max(1, min(_CHUNK, n // (8 * threads)))
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda first: _decompose_range(*kernel_args, first, min(first + chunk, n)),
+                      range(0, n, chunk)))
+
+
 def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = DecompositionConfig(),
                     threads: int | None = None) -> BatchDecomposition:
-    """Decompose every waveform of the batch in one parallel call.
+    """Decompose every waveform of the batch, on `threads` threads (default: numba's thread count, all cores).
 
     A waveform with non-finite valid samples, or with no valid sample, is not
     decomposed: its status says why and it has no echoes. Under the system model the echoes have the
@@ -256,19 +273,14 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
     samples[~np.isfinite(samples)] = 0.0
     shapes = echo_shapes(config, batch.sample_spacing_ps)
-    previous_threads = numba.get_num_threads()
-    if threads is not None:
-        numba.set_num_threads(threads)
-    try:
-        for spacing, shape in shapes.items():
-            # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
-            group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
-            _decompose_many(samples, batch.valid, batch.offsets, group.astype(np.int8),
-                            smoothing_sigma_samples(config, batch.sample_spacing_ps),
-                            pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds,
-                            config.kernel_params(), shape, OPTIMIZERS[config.optimizer].local, out, echoes)
-    finally:
-        numba.set_num_threads(previous_threads)
+    for spacing, shape in shapes.items():
+        # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
+        group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
+        kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
+                       smoothing_sigma_samples(config, batch.sample_spacing_ps),
+                       pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds, config.kernel_params(),
+                       shape, OPTIMIZERS[config.optimizer].local, out, echoes)
+        _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]
     echo_offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=echo_offsets[1:])

@@ -1,7 +1,7 @@
 """A counter-based random stream per waveform, so results never depend on threads.
 
-numba's own np.random state is per thread: under prange the draws a waveform
-sees would depend on scheduling. Each waveform instead carries its own
+numba's own np.random state is per thread: with a batch spread over threads the
+draws a waveform sees would depend on scheduling. Each waveform instead carries its own
 SplitMix64 state, seeded from a stable pulse identity.
 """
 
