@@ -175,6 +175,9 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad):
                     jtj[c, r] = acc
 
 
+assert PARAMS_PER_ECHO == 4, "_echo_block keeps one accumulator per pair of an echo's 4 columns"
+
+
 @njit(**JIT)
 def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     """One echo's gradient entries and its rows of J^T W J with itself and the background (columns 0 and
