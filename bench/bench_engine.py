@@ -131,9 +131,9 @@ def leica_rows() -> None:
         times = echo_times_ps(pulses, result, system.range_offset_ps)[kept]
         points = compare_to_system(pulses, xyz, times, result.echo_waveform[kept])
         n_system = pulses.return_xyz.shape[0]
-        extra = points.new_points - points.new_at_omitted_returns
-        print(f"{label:28} {rate:9.1f} {points.matched_system / n_system:8.3f} {extra / n_system:7.3f} "
-              f"{(extra - points.new_in_dead_zone) / n_system:9.3f} {points.median_distance:8.3f} "
+        print(f"{label:28} {rate:9.1f} {points.matched_system / n_system:8.3f} "
+              f"{points.extra_points / n_system:7.3f} {points.extra_beyond_dead_zone / n_system:9.3f} "
+              f"{points.median_distance:8.3f} "
               f"{(~kept).sum() / len(pulses):10.2f} {result.fit_error_raw.mean():8.1f} "
               f"{stable_share(result, other, 2.0):11.4f} {mde_share(config, result):7.2f}", flush=True)
         if label == "default":

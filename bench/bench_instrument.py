@@ -122,11 +122,10 @@ def leica_rows() -> None:
             xyz = echo_positions(pulses, result, system.range_offset_ps)[kept]
             times = echo_times_ps(pulses, result, system.range_offset_ps)[kept]
             points = compare_to_system(pulses, xyz, times, result.echo_waveform[kept])
-            extra = points.new_points - points.new_at_omitted_returns
-            beyond = extra - points.new_in_dead_zone  # the system could not have reported the others
             ratio = f"{rate / sylva[0]:8.3f}" if sylva else f"{'-':>8}"
             print(f"  {model:12} {preset:8} {rate:9.0f} {ratio} {points.matched_system / n_system:8.3f} "
-                  f"{extra / n_system:6.3f} {beyond / n_system:6.3f} {(~kept).sum() / len(pulses):10.2f} "
+                  f"{points.extra_points / n_system:6.3f} {points.extra_beyond_dead_zone / n_system:6.3f} "
+                  f"{(~kept).sum() / len(pulses):10.2f} "
                   f"{result.fit_error_raw.mean():8.1f} {points.median_distance:8.3f}", flush=True)
 
 

@@ -102,10 +102,10 @@ def add_table_echo_derivatives(shape, amplitude, position, s, times, lo, hi, mod
         j, b = grid_column(times[i] - position, step, origin, columns)
         value, slope, by_width = 0.0, 0.0, 0.0
         if j >= 0:
-            value = bilinear(rows, w, a, j, b)
-            slope = bilinear(slopes, w, a, j, b)
-            below = (1.0 - b) * rows[w, j] + b * rows[w, j + 1]
+            below = (1.0 - b) * rows[w, j] + b * rows[w, j + 1]  # row w at the offset, and row w + 1
             above = (1.0 - b) * rows[w + 1, j] + b * rows[w + 1, j + 1]
+            value = (1.0 - a) * below + a * above  # bilinear's own sum, from the two it already holds
+            slope = bilinear(slopes, w, a, j, b)
             by_width = (above - below) / s_step if inside else 0.0
         model[i] += amplitude * value
         jac[i, base] = value

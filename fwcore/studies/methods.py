@@ -108,6 +108,16 @@ class PointComparison:
     # then counts new_in_dead_zone among the others: omitted + in dead zone <= new points)
     new_at_omitted_returns: int = 0
 
+    @property
+    def extra_points(self) -> int:
+        """New points that stand for no return the system reported (omitted ones do)."""
+        return self.new_points - self.new_at_omitted_returns
+
+    @property
+    def extra_beyond_dead_zone(self) -> int:
+        """Extra points where the system could have reported a return: outside its dead zone."""
+        return self.extra_points - self.new_in_dead_zone
+
     def row(self) -> dict:
         return dataclasses.asdict(self)
 
