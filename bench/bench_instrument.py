@@ -10,7 +10,7 @@ RAYON_NUM_THREADS=1) beside us in the same process:
   response (`system`) and of the generalized Gaussian;
 - Leica sample: the system's returns with a kept echo within 0.5 m, extra kept echoes
   per system return, spurious (filtered) echoes per pulse, raw error, pulses/s;
-- NEON: raw error and the held-out ratio (every 3rd valid sample blanked) with the
+- NEON: raw error and the held-out ratio (every 5th valid sample held out) with the
   system impulse response, and the held-out error with the response measured on the
   returns alone; Gold and Richardson-Lucy beside LM and MDE;
 - simulated flights drawn with the Gaussian, Leica and RIEGL responses (and the
@@ -42,7 +42,7 @@ from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa
 from fwcore.records import BatchDecomposition, WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
 from fwcore.studies.methods import compare_to_system  # noqa: E402
-from fwcore.survey import csv_system_pulse, file_system_pulse  # noqa: E402
+from fwcore.survey import csv_system_pulse, file_system_pulse, held_out_errors  # noqa: E402
 from bench_engine import fastest, timed  # noqa: E402  (result, waveforms/s) on one thread, the fastest of 3
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,6 +70,11 @@ def ghost_share(result: BatchDecomposition, spacing_ns: float) -> float:
     return ghosts / max(len(result), 1)
 
 
+def print_auto_choice(path: Path, n_points: int) -> None:
+    """What the default, --model auto, chooses for a file, as fwl run measures it, and why."""
+    print(f"  --model auto (the default): {file_system_pulse(path, n_points, config_of('default', 'auto')).model_choice}")
+
+
 def sylva_rate(path: Path) -> tuple[float, float] | None:
     """Sylva's (pulses/s, echoes per pulse) on a file, one thread; None when it is not installed."""
     try:
@@ -88,6 +93,7 @@ def riegl_rows() -> None:
     print(f"\nRIEGL Q680 ({RIEGL.name}, {len(pulses)} pulses)")
     if sylva:
         print(f"  Sylva (Rust LM, 1 thread): {sylva[0]:,.0f} pulses/s, {sylva[1]:.2f} echoes per pulse")
+    print_auto_choice(RIEGL, len(pulses))
     print(f"  {'model':12} {'preset':8} {'pulses/s':>9} {'x Sylva':>8} {'ghosts':>7} {'echoes/pulse':>12}  (targets: "
           "ghosts <= 1%; default >= 0.5x Sylva, fast >= 1x)")
     for model in MODELS:
@@ -110,6 +116,7 @@ def leica_rows() -> None:
     print(f"\nLeica sample ({len(pulses)} pulses, {n_system} system returns)")
     if sylva:
         print(f"  Sylva (Rust LM, 1 thread): {sylva[0]:,.0f} pulses/s, {sylva[1]:.2f} echoes per pulse")
+    print_auto_choice(LEICA, n_system)
     print(f"  {'model':12} {'preset':8} {'pulses/s':>9} {'x Sylva':>8} {'returns':>8} {'extra':>6} {'beyond':>6} "
           f"{'spur/pulse':>10} {'raw err':>8} {'median d':>8}  (targets: returns >= 0.985, extra <= 0.25, "
           "spur <= 1; default >= 1.5x Sylva, fast >= 3x; beyond: the extra echoes farther than the system's "
@@ -130,25 +137,12 @@ def leica_rows() -> None:
 
 
 def held_out_error(waveforms, config: DecompositionConfig) -> tuple[float, float]:
-    """(mean |model - sample| at held-out samples, the same at fitted ones), every 3rd valid sample held out."""
-    held, fitted = [], []
-    masks = []
-    for v in waveforms.valid:
-        idx = np.flatnonzero(v)
-        out = np.zeros(v.size, bool)
-        out[idx[1::3]] = True
-        masks.append(out)
+    """(mean |model - sample| at held-out samples, the same at fitted ones): fwcore.survey.held_out_errors,
+    the test --model auto chooses by, on every waveform."""
     batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
                                          [pulse_seed(config.seed, int(i)) for i in waveforms.waveform_id],
-                                         [v & ~m for v, m in zip(waveforms.valid, masks)])
-    result = decompose_batch(batch, config, threads=1)
-    for i, (y, v, m) in enumerate(zip(waveforms.samples, waveforms.valid, masks)):
-        if result.status[i]:
-            continue
-        model = result.waveform(i).model(np.arange(y.size))
-        held.append(np.abs(model - y)[m].mean())
-        fitted.append(np.abs(model - y)[v & ~m].mean())
-    return float(np.mean(held)), float(np.mean(fitted))
+                                         waveforms.valid)
+    return held_out_errors(batch, config)
 
 
 def neon_rows() -> None:
@@ -160,6 +154,11 @@ def neon_rows() -> None:
     print(f"\nNEON ({len(batch)} waveforms; system impulse FWHM {impulse.fwhm_ps / 1000:.2f} ns)")
     print(f"  {'model, response':44} {'optimizer':16} {'waveforms/s':>11} {'raw err':>8} {'held-out':>8} "
           f"{'ratio':>6}  (targets: impulse raw <= 240, ratio <= 1.03; from the returns held-out <= 3.0)")
+    auto = DecompositionConfig(model="auto")
+    for label, response, out in (("the returns alone", None, None), ("--outgoing", None, outgoing),
+                                 ("--system-response system_impulse.csv", impulse, None)):
+        choice = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto, response, out).model_choice
+        print(f"  --model auto (the default), {label}: {choice}")
     cases = [("generalized, outgoing pulses' width", "generalized", None, outgoing),
              ("system, system_impulse.csv", "system", impulse, None),
              ("system, measured on the returns", "system", None, None),
@@ -185,7 +184,7 @@ def simulation_rows(n_pulses: int) -> None:
             extra = [] if response == "generalized" else ["--system-response", response]
             subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--pulses", str(n_pulses), "--seed", "7",
                             "--output", str(flight), *extra], check=True, capture_output=True)
-            runs = [("system", []), ("generalized", [])]
+            runs = [("auto", []), ("system", []), ("generalized", [])]
             if response != "generalized":  # the response the flight was drawn with, instead of measuring it
                 runs.insert(1, ("system", ["--system-response", response]))
             for model, given in runs:
@@ -196,7 +195,8 @@ def simulation_rows(n_pulses: int) -> None:
                                         str(flight.with_suffix(".truth.parquet"))], check=True, capture_output=True,
                                        text=True).stdout
                 row = next(line for line in table.splitlines() if "| all |" in line).split("|")
-                label = f"{model}, {'given' if given else 'measured'}" if model == "system" else model
+                label = (f"{model}, {'given' if given else 'measured'}" if model == "system"
+                         else "auto (the default)" if model == "auto" else model)
                 print(f"  echoes of {response:12} model {label:18} recall {row[5].strip()} precision "
                       f"{row[6].strip()} RMSE/CRLB {row[10].strip()}", flush=True)
 

@@ -76,6 +76,9 @@ class Model(str, enum.Enum):
     SYSTEM = "system"  # the instrument's measured response, shifted, scaled and broadened (fwcore.instrument)
     GENERALIZED = "generalized"  # the method's generalized Gaussian
     GAUSSIAN = "gaussian"
+    # per file, the one of system and generalized that fits its strong single returns more closely
+    # (fwcore.survey.choose_echo_model); waveforms with no file around them get the generalized Gaussian
+    AUTO = "auto"
 
 
 class FitTarget(str, enum.Enum):
@@ -97,7 +100,7 @@ class DecompositionConfig:
     """Every method parameter of a decomposition run."""
 
     optimizer: Optimizer = Optimizer.LM_MDE
-    model: Model = Model.GENERALIZED
+    model: Model = Model.AUTO
     # Evolution: population NP and generations G (the MDE paper: 60 and 80); with tol > 0,
     # G is the most a waveform may take.
     population: int = 60
@@ -269,7 +272,7 @@ class DecompositionConfig:
         """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
         return KernelParams.typed(
             method=OPTIMIZERS[self.optimizer].code, own_echoes=OPTIMIZERS[self.optimizer].own_echoes,
-            deconvolution_iterations=self.deconvolution_iterations, gaussian=self.model is not Model.GENERALIZED,
+            deconvolution_iterations=self.deconvolution_iterations, gaussian=self.model in (Model.SYSTEM, Model.GAUSSIAN),
             fit_denoised=self.fit_target is FitTarget.DENOISED,
             robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
             population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
@@ -385,12 +388,12 @@ class KernelParams(NamedTuple):
 
 
 # Named configurations (README, "Presets"): the defaults are the best we know.
-# "paper": the MDE method exactly as published: its noise formula and constant noise, its filter
+# "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant noise, its filter
 # (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
 # polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate,
 # fewer and looser iterations, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"optimizer": Optimizer.MDE, "generations": 80, "tol": 0.0, "atol": 0.0,
+    "paper": {"optimizer": Optimizer.MDE, "model": Model.GENERALIZED, "generations": 80, "tol": 0.0, "atol": 0.0,
               "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
               "signal_dependent_noise": False, "shape_tolerance": 0.0, "select_echoes": False,
               "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0, "raw_polish": False},

@@ -62,6 +62,9 @@ class SystemResponse:
     n_pulses: int = 0  # the returns averaged into it (0: not measured on returns)
 
     def __post_init__(self) -> None:
+        # held at the precision it is saved with (to_dict), so a response read back is the one measured
+        object.__setattr__(self, "times_ps", tuple(round(float(x), 3) for x in self.times_ps))
+        object.__setattr__(self, "values", tuple(round(float(x), 6) for x in self.values))
         t, v = np.asarray(self.times_ps, float), np.asarray(self.values, float)
         if t.size < 5 or t.size != v.size or not np.all(np.diff(t) > 0) or not np.isfinite(v).all():
             raise ValueError(f"system response ({self.source}): need >= 5 increasing, finite samples")
@@ -99,7 +102,7 @@ class SystemResponse:
 
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, "n_pulses": self.n_pulses, "fwhm_ps": round(self.fwhm_ps, 1),
-                "times_ps": [round(x, 3) for x in self.times_ps], "values": [round(x, 6) for x in self.values]}
+                "times_ps": list(self.times_ps), "values": list(self.values)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "SystemResponse":

@@ -108,13 +108,17 @@ _MIN_ATTENUATION = 0.05  # below this a sample's residual says too little about 
 @njit(**JIT)
 def _robust_noise_sigma(samples, smoothed, valid, attenuation):
     """sigma of white noise from the median absolute residual, each residual divided by its
-    attenuation: the echoes, which the light smoothing follows, barely move a median.
-    Without smoothing, the same from first differences of consecutive valid samples (/ sqrt 2)."""
+    attenuation: the echoes, which the light smoothing follows, barely move a median. Only samples
+    whose neighbours are valid count: next to a gap the filter leans on one side, and quantised
+    samples then leave residuals of a fraction of a count that would make the median near 0.
+    Without smoothing, or where gaps leave no such sample (held-out samples), the same from first
+    differences of consecutive valid samples (/ sqrt 2)."""
     n = samples.size
     values = np.empty(n)
     m = 0
     for i in range(n):
-        if valid[i] and attenuation[i] > _MIN_ATTENUATION:
+        flanked = (i == 0 or valid[i - 1]) and (i == n - 1 or valid[i + 1])
+        if valid[i] and flanked and attenuation[i] > _MIN_ATTENUATION:
             values[m] = (samples[i] - smoothed[i]) / attenuation[i]
             m += 1
     scale = 1.0
@@ -330,6 +334,26 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
 
 
 @njit(**JIT)
+def _smoothing_support(valid, sigma, out):
+    """Where the denoised signal stands for the waveform: the valid samples, and the invalid ones that the
+    filter interpolates, with valid samples on both sides inside its window (a held-out sample, a short gap),
+    so that a peak's width is measured across them; a long gap stays out."""
+    n = valid.size
+    half = gaussian_weights(sigma).size // 2 if sigma > 0.0 else 0
+    for i in range(n):
+        out[i] = valid[i]
+        if valid[i] or half == 0:
+            continue
+        before = False
+        for j in range(max(0, i - half), i):
+            before = before or valid[j]
+        after = False
+        for j in range(i + 1, min(n, i + half + 1)):
+            after = after or valid[j]
+        out[i] = before and after
+
+
+@njit(**JIT)
 def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed, amplitude, position, sigma):
     """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
     noise and background, then peel up to p.max_echoes echoes off (fwcore.config.KernelParams).
@@ -349,8 +373,10 @@ def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smo
         noise = max(_noise_sigma(samples, smoothed, valid), p.min_noise_sigma)
         background = _valid_min(smoothed, valid)
     threshold = np.empty(samples.size)
-    _noise_threshold(smoothed, valid, background, noise, p.shape_tolerance, p.noise_threshold, threshold)
-    n = _progressive_echoes(smoothed, valid, background, threshold, p.max_echoes, pulse_sigma, shape,
+    support = np.empty(samples.size, dtype=np.bool_)
+    _smoothing_support(valid, smoothing_sigma, support)
+    _noise_threshold(smoothed, support, background, noise, p.shape_tolerance, p.noise_threshold, threshold)
+    n = _progressive_echoes(smoothed, support, background, threshold, p.max_echoes, pulse_sigma, shape,
                             amplitude, position, sigma)
     return noise, background, n
 

@@ -46,6 +46,8 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     width_source = system.fwhm_source
     if width_source.startswith("estimated"):  # nothing says it: measured on the returns, and said so
         print(f"{args.input}: no --outgoing: system pulse FWHM {config.pulse_fwhm_ps():.0f} ps {width_source}")
+    if system.model_choice:
+        print(f"{args.input}: model {system.model_choice}")
     if config.model is Model.SYSTEM:
         print(f"{args.input}: system response {system.response_source}"
               if system.response else f"{args.input}: no system response measured: echoes are Gaussians")
@@ -162,6 +164,8 @@ def _compare(args: argparse.Namespace) -> int:
     config = _config_from_args(args)
     optimizers = [Optimizer(o.strip()) for o in args.optimizers.split(",") if o.strip()]
     models = [Model(m.strip()) for m in args.models.split(",") if m.strip()]
+    if Model.AUTO in models:  # a comparison names what it compares; auto is a choice between two of them
+        raise ValueError("fwl compare --model takes system, generalized, gaussian (auto chooses between the first two)")
     pulses = [int(p) for p in args.pulses.split(",")] if args.pulses else None
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")

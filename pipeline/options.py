@@ -65,7 +65,10 @@ def add_method_arguments(parser, compare: bool = False) -> None:
     g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
     if not compare:
         g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
-        g.add_argument("--model", choices=[m.value for m in Model])
+        g.add_argument("--model", choices=[m.value for m in Model],
+                       help="the echoes' shape: system (the instrument's measured response), generalized (the "
+                            "method's generalized Gaussian), gaussian; default auto: per file, the one of system and "
+                            "generalized that predicts its held-out samples better (run.json says which and why)")
     g.add_argument("--population", type=int, help="NP")
     g.add_argument("--generations", type=int, help="G")
     g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")

@@ -26,7 +26,7 @@ import pyarrow.parquet as pq
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 import fwcore
-from fwcore.config import DecompositionConfig
+from fwcore.config import DecompositionConfig, Model
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner
@@ -288,6 +288,16 @@ def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionCon
     return read_plans(output, inputs)
 
 
+def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
+    """The run's echo model; under --model auto, what its files got (run.json says why, per file)."""
+    chosen = [p.source.system.model for p in plans.values() if p.source is not None and p.source.system.model]
+    if config.model is not Model.AUTO or not chosen:
+        return config.model.value
+    if len(chosen) == 1:
+        return f"auto ({chosen[0]})"
+    return "auto (" + ", ".join(f"{m} {chosen.count(m)} files" for m in sorted(set(chosen))) + ")"
+
+
 def _planned(plan: FilePlan) -> dict:
     """What a file's plan measured of what the file does not record (fwcore.survey), for run.json."""
     s = plan.source
@@ -298,7 +308,8 @@ def _planned(plan: FilePlan) -> dict:
             "system_pulse_fwhm_ps": s.system.fwhm_ps, "system_pulse_fwhm_source": s.system.fwhm_source,
             "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
             "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
-            "system_response": s.system.response.to_dict() if s.system.response else None}
+            "system_response": s.system.response.to_dict() if s.system.response else None,
+            "model": s.system.model or None, "model_choice": s.system.model_choice or None}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
@@ -384,7 +395,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 said = f" ({files_rejected} rejected)" if files_rejected else ""
                 kept = f", {len(reused)} ranges reused" if reused else ""
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
-                          f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{config.model.value}; "
+                          f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{_models(config, plans)}; "
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")

@@ -200,7 +200,7 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     # the system model's rows need the file's response: measured as fwl run --model system measures it
-    measured = base.replace(model=Model.SYSTEM) if Model.SYSTEM in models else base
+    measured = base.replace(model=Model.SYSTEM if Model.SYSTEM in models else Model.GENERALIZED)
     data = load_input(input_path, measured, limit, outgoing, response)
     data = dataclasses.replace(data, config=data.config.replace(model=base.model))
     runs = compare_methods(data.batch, data.config, optimizers, models, threads)

@@ -146,13 +146,18 @@ def evaluate_run(results_dir: str | Path, truth_file: str | Path, match_ps: floa
     sensor = _sensor_of(truth_table)
     truth = {c: truth_table.column(c).to_numpy() for c in ("pulse_id", "time_ps", "amplitude", "sigma_ps",
                                                              "alpha", "fwhm_ps", "noise_sigma")}
-    echoes = ds.dataset(str(results_dir / "echoes"), format="parquet").to_table(
-        columns=["pulse_id", "time_ps", "amplitude", "fwhm_ps", "kept"])
+    table = ds.dataset(str(results_dir / "echoes"), format="parquet")
+    echoes = table.to_table(columns=["pulse_id", "time_ps", "amplitude", "fwhm_ps", "kept"])
+    fitted = (sorted(set(table.to_table(columns=["model"]).column("model").to_pylist()) - {None})
+              if "model" in table.schema.names else [])
     kept = echoes.column("kept").to_numpy(zero_copy_only=False)
     found = {c: echoes.column(c).to_numpy()[kept] for c in ("pulse_id", "time_ps", "amplitude", "fwhm_ps")}
     run_json = results_dir / "run.json"
     config = json.loads(run_json.read_text()).get("config", {}) if run_json.exists() else {}
-    label = f"{results_dir.name} ({config.get('optimizer', '?')}, {config.get('model', '?')})"
+    model = config.get("model", "?")
+    if fitted and fitted != [model]:  # --model auto: the model(s) the echoes were fitted with
+        model = f"{model}: {', '.join(fitted)}"
+    label = f"{results_dir.name} ({config.get('optimizer', '?')}, {model})"
     pairs = match_echoes(truth["pulse_id"], truth["time_ps"], found["pulse_id"], found["time_ps"], match_ps)
     crlb = range_crlb_cm(truth["amplitude"], truth["sigma_ps"], truth["alpha"], sensor)
     snr = truth["amplitude"] / truth["noise_sigma"]

@@ -81,6 +81,8 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
         raise FileNotFoundError(f"{source_file}: the run's input is no longer where run.json says")
     summary = run_summary(run)
     config = DecompositionConfig.from_dict(summary["config"])
+    if row.get("model"):  # the echo model the run fitted (under --model auto, the one chosen for the file)
+        config = config.replace(model=Model(row["model"]))
     if row.get("system_pulse_fwhm_ps") is not None:
         config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
     if row.get("shape_tolerance") is not None:  # measured per file, like the pulse width

@@ -26,7 +26,9 @@ def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
     assert rejected == []
     assert [(t.point_range.start, t.point_range.stop, t.point_range.n_pulses) for t in tasks] == \
         [(0, 400, 342), (400, 800, 310), (800, 1125, 272)]  # 342 + 310 + 272 = 924
-    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10980}
+    # --model auto gives the Leica sample echoes of its measured pulse, and the pulse width is that pulse's
+    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10337}
+    assert {t.source.system.model for t in tasks} == {"system"}
     assert not tasks[0].source.adjusted_standard_gps_time  # the Leica sample stores GPS week time
 
 

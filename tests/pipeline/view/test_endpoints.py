@@ -86,6 +86,9 @@ def test_a_pulse_is_re_read_and_its_decomposition_reproduced(viewed, which):
     assert p["reproduced"] and len(fit["echoes"]) == len(table) == len(p["echo_rows"])
     for got, want in zip(fit["echoes"], table.itertuples()):
         for name in ("amplitude", "time_ps", "sigma_chauve", "alpha", "fwhm_ps", "energy"):
+            if got[name] is None:  # JSON's null: an echo of the system response has no sigma_chauve or alpha
+                assert name in ("sigma_chauve", "alpha") and np.isnan(getattr(want, name)), name
+                continue
             assert got[name] == pytest.approx(getattr(want, name), rel=1e-9, abs=1e-9), name
         assert got["kept"] == want.kept and got["reject_reason"] == want.reject_reason
     row = pulses[pulses.pulse_id == pulse_id].iloc[0]
