@@ -76,8 +76,8 @@ class Model(str, enum.Enum):
     SYSTEM = "system"  # the instrument's measured response, shifted, scaled and broadened (fwcore.instrument)
     GENERALIZED = "generalized"  # the method's generalized Gaussian
     GAUSSIAN = "gaussian"
-    # per file, the one of system and generalized that fits its strong single returns more closely
-    # (fwcore.survey.choose_echo_model); waveforms with no file around them get the generalized Gaussian
+    # per file, the one of system and generalized whose echoes predict its held-out samples better
+    # (fwcore.survey.choose_system_pulse); waveforms with no file around them get the generalized Gaussian
     AUTO = "auto"
 
 
@@ -272,7 +272,8 @@ class DecompositionConfig:
         """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
         return KernelParams.typed(
             method=OPTIMIZERS[self.optimizer].code, own_echoes=OPTIMIZERS[self.optimizer].own_echoes,
-            deconvolution_iterations=self.deconvolution_iterations, gaussian=self.model in (Model.SYSTEM, Model.GAUSSIAN),
+            deconvolution_iterations=self.deconvolution_iterations,
+            gaussian=self.model in (Model.SYSTEM, Model.GAUSSIAN),
             fit_denoised=self.fit_target is FitTarget.DENOISED,
             robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
             population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
@@ -388,8 +389,8 @@ class KernelParams(NamedTuple):
 
 
 # Named configurations (README, "Presets"): the defaults are the best we know.
-# "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant noise, its filter
-# (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
+# "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant
+# noise, its filter (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
 # polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate,
 # fewer and looser iterations, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {

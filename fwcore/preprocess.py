@@ -108,19 +108,25 @@ _MIN_ATTENUATION = 0.05  # below this a sample's residual says too little about 
 @njit(**JIT)
 def _robust_noise_sigma(samples, smoothed, valid, attenuation):
     """sigma of white noise from the median absolute residual, each residual divided by its
-    attenuation: the echoes, which the light smoothing follows, barely move a median. Only samples
-    whose neighbours are valid count: next to a gap the filter leans on one side, and quantised
-    samples then leave residuals of a fraction of a count that would make the median near 0.
-    Without smoothing, or where gaps leave no such sample (held-out samples), the same from first
-    differences of consecutive valid samples (/ sqrt 2)."""
+    attenuation: the echoes, which the light smoothing follows, barely move a median. Where gaps
+    leave out samples (held-out samples), only those with both neighbours valid count, when they are
+    at least half of them: next to a gap the filter leans on one side, and quantised samples then
+    leave residuals of a fraction of a count that pull the median towards 0.
+    Without smoothing, the same from first differences of consecutive valid samples (/ sqrt 2)."""
     n = samples.size
     values = np.empty(n)
+    flanked = np.empty(n)
     m = 0
+    k = 0
     for i in range(n):
-        flanked = (i == 0 or valid[i - 1]) and (i == n - 1 or valid[i + 1])
-        if valid[i] and flanked and attenuation[i] > _MIN_ATTENUATION:
+        if valid[i] and attenuation[i] > _MIN_ATTENUATION:
             values[m] = (samples[i] - smoothed[i]) / attenuation[i]
             m += 1
+            if (i == 0 or valid[i - 1]) and (i == n - 1 or valid[i + 1]):
+                flanked[k] = values[m - 1]
+                k += 1
+    if k < m and 2 * k >= m and k >= 3:
+        values, m = flanked, k
     scale = 1.0
     if m < 3:
         m = 0

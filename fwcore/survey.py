@@ -32,8 +32,8 @@ RESPONSE_PULSES = 3000  # candidates for the response: a few hundred strong sing
 # waveforms that choose the echo model under --model auto: on the shared Leica, RIEGL and NEON files the two
 # models' held-out errors differ by 20-70%, far beyond what 200 waveforms leave uncertain
 MODEL_PULSES = 200
-# every fifth valid sample is held out of the fit that judges a model: its neighbours stay, so the engine
-# still measures the noise where both of a sample's neighbours are valid
+# every fifth valid sample is held out of the fits that judge the models: half the others keep both
+# neighbours, where the engine measures a quantised digitizer's noise (every third leaves it none)
 HELD_OUT_EVERY = 5
 
 
@@ -71,13 +71,14 @@ class SystemPulse:
         return cls(**{**d, "response": SystemResponse.from_dict(response) if response else None})
 
 
-def held_out_errors(batch: WaveformBatch, config: DecompositionConfig) -> tuple[float, float]:
-    """How well a decomposition predicts samples it did not see: every HELD_OUT_EVERY-th valid sample of each
+def held_out_errors(batch: WaveformBatch, config: DecompositionConfig,
+                    every: int = HELD_OUT_EVERY) -> tuple[float, float]:
+    """How well a decomposition predicts samples it did not see: every `every`-th valid sample of each
     waveform held out, the rest decomposed under `config`; (mean |model - sample| at the held-out samples, the
     same at the fitted ones), digitizer units, averaged over the decomposed waveforms."""
     held = np.zeros(batch.valid.size, dtype=bool)
     for lo, hi in zip(batch.offsets[:-1], batch.offsets[1:]):
-        held[lo + np.flatnonzero(batch.valid[lo:hi])[1::HELD_OUT_EVERY]] = True
+        held[lo + np.flatnonzero(batch.valid[lo:hi])[1::every]] = True
     fitted = batch.valid & ~held
     result = decompose_batch(dataclasses.replace(batch, valid=fitted), config, threads=1)
     errors = []

@@ -394,8 +394,9 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             if watch:
                 said = f" ({files_rejected} rejected)" if files_rejected else ""
                 kept = f", {len(reused)} ranges reused" if reused else ""
+                method = f"{config.optimizer.value}/{_models(config, plans)}"
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
-                          f"{output} ({', '.join(sorted(formats))}); {config.optimizer.value}/{_models(config, plans)}; "
+                          f"{output} ({', '.join(sorted(formats))}); {method}; "
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
