@@ -106,9 +106,11 @@ def stable_share(a, b, spacing_ns: float) -> float:
 
 def leica_rows() -> None:
     pulses = read_pulses(LEICA)
-    system = file_system_pulse(LEICA, pulses.return_xyz.shape[0], DecompositionConfig())  # as fwl run measures it
-    print(f"\nLeica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns; from its single "
-          f"returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance {system.shape_tolerance:.3f}, "
+    n_returns = pulses.return_xyz.shape[0]
+    system = file_system_pulse(LEICA, n_returns, DecompositionConfig())  # as fwl run measures it
+    print(f"\nLeica sample ({len(pulses)} pulses, {n_returns} system returns; model {system.model} (--model auto); "
+          f"from its single returns: pulse FWHM {system.fwhm_ps / 1000:.2f} ns, shape tolerance "
+          f"{system.shape_tolerance:.3f}, "
           f"range offset {system.range_offset_ps / 1000:+.2f} ns; "
           f"dead zone {system_dead_zone(pulses.return_xyz, pulses.return_pulse()):.2f} m; "
           f"{pulses.omitted_returns().sum()} returns the file omits)")
@@ -121,9 +123,10 @@ def leica_rows() -> None:
     variants.append(("default, first echo 0.35", preset("default").replace(first_echo_ratio=0.35)))
     variants.append(("default, no raw polish", preset("default").replace(raw_polish=False)))
     for label, base in variants:
-        config = base.replace(system_pulse_fwhm_ps=system.fwhm_ps)
-        if config.shape_tolerance is None:
-            config = config.replace(shape_tolerance=system.shape_tolerance)
+        system = file_system_pulse(LEICA, n_returns, base)  # the preset's model (paper: the generalized Gaussian)
+        config = system.configure(base)
+        if base.shape_tolerance is not None:  # a variant's own
+            config = config.replace(shape_tolerance=base.shape_tolerance)
         result, rate = timed(pulse_waveforms(pulses, 0), config)
         other = decompose_batch(pulse_waveforms(pulses, 1), config, threads=1)
         kept = result.reject == 0
@@ -179,7 +182,7 @@ def extras_on_truth(n_pulses: int = 4000, seed: int = 7) -> str:
         path = write_waveform_las(Path(work) / "flight.las", flight.pulses, "las13-wdp", bits=flight.bits)
         pulses = read_pulses(path)
         system = file_system_pulse(path, pulses.return_xyz.shape[0], DecompositionConfig())  # as fwl run measures it
-    config = preset("default").replace(system_pulse_fwhm_ps=system.fwhm_ps, shape_tolerance=system.shape_tolerance)
+    config = system.configure(preset("default"))
     result = decompose_batch(pulse_waveforms(pulses, 0), config, threads=1)
     e = extras_among_returns(pulses, result, system.range_offset_ps)
     kept = result.reject == 0

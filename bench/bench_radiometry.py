@@ -140,8 +140,7 @@ def stage_share(las: Path, flags: list[str], ranges: int = 6) -> dict:
     n = 0
     for task in tasks[:ranges]:
         s = task.source
-        config = DecompositionConfig().replace(system_pulse_fwhm_ps=s.system_pulse_fwhm_ps,
-                                               shape_tolerance=s.shape_tolerance)
+        config = s.system.configure(DecompositionConfig())
         t0 = time.perf_counter()
         pulses = read_pulses(task.point_range)
         t1 = time.perf_counter()
