@@ -24,9 +24,10 @@ import psutil
 
 from fwcore.config import PRESETS, DecompositionConfig
 from fwcore.engine import decompose_batch
-from fwcore.io import PulseBatch, read_pulses
+from fwcore.io import PulseBatch, input_summary, read_pulses
 from fwcore.io.writer import write_waveform_las
-from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
+from fwcore.pulses import pulse_waveforms
+from fwcore.survey import file_system_pulse
 
 SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 
@@ -119,14 +120,14 @@ def main() -> None:
     sample = read_pulses(SAMPLE)
     big = repeated(sample, args.copies)
     path = write_waveform_las(work / "flight.las", big, "las13-wdp", 8)
-    fwhm = system_pulse_fwhm_ps(sample)
     if args.preset:
-        config, method = DecompositionConfig(**PRESETS[args.preset], system_pulse_fwhm_ps=fwhm), f"preset {args.preset}"
+        base, method = DecompositionConfig(**PRESETS[args.preset]), f"preset {args.preset}"
     else:
-        config, method = DecompositionConfig(generations=args.generations, system_pulse_fwhm_ps=fwhm), \
-            f"MDE NP 60, G {args.generations}"
+        base, method = DecompositionConfig(generations=args.generations), f"MDE NP 60, G {args.generations}"
+    system = file_system_pulse(path, input_summary(path).records, base)  # what fwl run measures on the file
+    config = system.configure(base)
     print(f"{len(big)} pulses in {path} ({path.stat().st_size / 1e6:.0f} MB + "
-          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}")
+          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}, model {config.model.value}")
 
     pulses = read_pulses(path)
     decompose_batch(pulse_waveforms(pulses, 0), config.replace(generations=1), threads=2)  # compile
@@ -139,7 +140,7 @@ def main() -> None:
     from pipeline.run import run
     with PeakMemory() as pipeline_memory:
         start = time.perf_counter()
-        summary = run([str(path)], work / "out", config, ("parquet", "las"), points_per_range=5000, watch=False)
+        summary = run([str(path)], work / "out", base, ("parquet", "las"), points_per_range=5000, watch=False)
         pipeline = summary["counts"]["pulses_read"] / (time.perf_counter() - start)
     print(f"{'':34} {'pulses/s':>9} {'peak RSS MiB':>13}")
     print(f"{'engine alone, 2 threads':34} {engine:9.1f} {engine_memory.peak / 2**20:13.0f}")
