@@ -48,8 +48,11 @@ def repeated(pulses: PulseBatch, copies: int) -> PulseBatch:
     def offsets(o):
         return np.concatenate([[0], np.cumsum(np.tile(np.diff(o), copies))])
 
+    # per row or per return where the file records them (the Leica sample: each return's number_of_returns)
+    optional = {name: tile(getattr(pulses, name)) for name in ("number_of_returns", "sensor_location_ps", "rgb", "nir")
+                if getattr(pulses, name) is not None}
     return dataclasses.replace(
-        pulses, pulse_id=np.arange(n * copies), packet_offset=tile(pulses.packet_offset),
+        pulses, **optional, pulse_id=np.arange(n * copies), packet_offset=tile(pulses.packet_offset),
         descriptor_index=tile(pulses.descriptor_index), classification=tile(pulses.classification),
         channel=tile(pulses.channel), segment=tile(pulses.segment),
         gps_time=tile(pulses.gps_time) + shift_pulse * span, anchor=anchor,
