@@ -31,10 +31,8 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
 
 from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
-from fwcore.engine import decompose_batch  # noqa: E402
 from fwcore.instrument import load_response  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.neon import read_neon_csv  # noqa: E402
