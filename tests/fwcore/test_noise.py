@@ -80,3 +80,37 @@ def test_pulse_width_needs_isolated_echoes():
     flat = [np.random.default_rng(i).normal(100, 2, 120) for i in range(10)]
     with pytest.raises(ValueError, match="isolated strong echo"):
         estimate_pulse_fwhm(flat)
+
+
+def _every(n: int, k: int) -> np.ndarray:
+    """A validity mask with every k-th sample held out (from sample 1), as fwcore.survey.held_out_errors makes."""
+    valid = np.ones(n, bool)
+    valid[1::k] = False
+    return valid
+
+
+def test_noise_of_a_quantised_waveform_survives_held_out_samples(leica_waveforms):
+    # Leica's 8-bit baseline: next to a held-out sample the filter leans on one neighbour and leaves residuals
+    # of a fraction of a count; read only where both neighbours are valid, the noise is the full waveform's
+    ratios = []
+    for y in leica_waveforms[:60]:
+        y = np.asarray(y, dtype=float)
+        plain = estimate_noise(y, 0.58)
+        ratios.append(estimate_noise(y, 0.58, valid=_every(y.size, 5)) / plain)
+    assert 0.9 < np.median(ratios) < 1.1
+    assert min(ratios) > 0.5  # reading every sample, as before, fails both
+
+
+def test_an_echo_is_measured_across_held_out_samples():
+    # one Gaussian echo, sigma 3 samples, every 3rd sample held out, at six sub-sample phases: its width comes
+    # from the denoised signal across the gaps, not from the fallback width (1 sample, as before)
+    t = np.arange(120.0)
+    widths, single = [], 0
+    for centre in (60.0, 60.25, 60.5, 60.75, 61.0, 61.5):
+        y = 10.0 + 100.0 * np.exp(-0.5 * ((t - centre) / 3.0) ** 2)
+        est = initial_echoes(y, 0.6, fallback_sigma=1.0, valid=_every(y.size, 3), min_noise_sigma=2.0)
+        widths.append(est.sigma[np.argmax(est.amplitude)])
+        single += est.n_echoes == 1
+    # a peak on a valid sample just before a held-out one (centre 60.0) leans the filter and reads 2 samples
+    assert np.mean(widths) == pytest.approx(3.0, rel=0.1) and min(widths) > 1.9
+    assert single >= 5
