@@ -25,10 +25,16 @@ MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can 
 SIDE_BALANCE = 1.15
 
 
+@njit(**JIT_INLINE)
+def filter_half_width(sigma):
+    """How many samples the Gaussian filter of `sigma` reaches on each side: ceil(4 sigma)."""
+    return int(math.ceil(4.0 * sigma))
+
+
 @njit(**JIT)
 def gaussian_weights(sigma):
-    """The Gaussian filter's unnormalised weights exp(-j^2 / (2 sigma^2)) for |j| <= ceil(4 sigma)."""
-    half = int(math.ceil(4.0 * sigma))
+    """The Gaussian filter's unnormalised weights exp(-j^2 / (2 sigma^2)) for |j| <= filter_half_width(sigma)."""
+    half = filter_half_width(sigma)
     weights = np.empty(2 * half + 1)
     for j in range(-half, half + 1):
         weights[j + half] = math.exp(-0.5 * (j / sigma) ** 2)
@@ -115,18 +121,20 @@ def _robust_noise_sigma(samples, smoothed, valid, attenuation):
     Without smoothing, the same from first differences of consecutive valid samples (/ sqrt 2)."""
     n = samples.size
     values = np.empty(n)
-    flanked = np.empty(n)
     m = 0
-    k = 0
+    k = 0  # of them, with both neighbours valid
     for i in range(n):
         if valid[i] and attenuation[i] > _MIN_ATTENUATION:
             values[m] = (samples[i] - smoothed[i]) / attenuation[i]
             m += 1
-            if (i == 0 or valid[i - 1]) and (i == n - 1 or valid[i + 1]):
-                flanked[k] = values[m - 1]
-                k += 1
-    if k < m and 2 * k >= m and k >= 3:
-        values, m = flanked, k
+            k += (i == 0 or valid[i - 1]) and (i == n - 1 or valid[i + 1])
+    if k < m and 2 * k >= m and k >= 3:  # gaps: keep the flanked residuals only (in order, over the same slots)
+        m = 0
+        for i in range(n):
+            if valid[i] and attenuation[i] > _MIN_ATTENUATION and (i == 0 or valid[i - 1]) \
+                    and (i == n - 1 or valid[i + 1]):
+                values[m] = (samples[i] - smoothed[i]) / attenuation[i]
+                m += 1
     scale = 1.0
     if m < 3:
         m = 0
@@ -345,7 +353,7 @@ def _smoothing_support(valid, sigma, out):
     filter interpolates, with valid samples on both sides inside its window (a held-out sample, a short gap),
     so that a peak's width is measured across them; a long gap stays out."""
     n = valid.size
-    half = gaussian_weights(sigma).size // 2 if sigma > 0.0 else 0
+    half = filter_half_width(sigma) if sigma > 0.0 else 0
     for i in range(n):
         out[i] = valid[i]
         if valid[i] or half == 0:

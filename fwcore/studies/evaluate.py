@@ -147,9 +147,9 @@ def evaluate_run(results_dir: str | Path, truth_file: str | Path, match_ps: floa
     truth = {c: truth_table.column(c).to_numpy() for c in ("pulse_id", "time_ps", "amplitude", "sigma_ps",
                                                              "alpha", "fwhm_ps", "noise_sigma")}
     table = ds.dataset(str(results_dir / "echoes"), format="parquet")
-    echoes = table.to_table(columns=["pulse_id", "time_ps", "amplitude", "fwhm_ps", "kept"])
-    fitted = (sorted(set(table.to_table(columns=["model"]).column("model").to_pylist()) - {None})
-              if "model" in table.schema.names else [])
+    has_model = "model" in table.schema.names
+    echoes = table.to_table(columns=["pulse_id", "time_ps", "amplitude", "fwhm_ps", "kept"] + ["model"] * has_model)
+    fitted = sorted(set(echoes.column("model").to_pylist()) - {None}) if has_model else []
     kept = echoes.column("kept").to_numpy(zero_copy_only=False)
     found = {c: echoes.column(c).to_numpy()[kept] for c in ("pulse_id", "time_ps", "amplitude", "fwhm_ps")}
     run_json = results_dir / "run.json"
