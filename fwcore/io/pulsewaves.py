@@ -107,13 +107,49 @@ class PulseDescriptor:
     problem: str | None = None  # why its pulses cannot be read; None: usable
 
 
+DECIBEL_UNIT = 1  # the unit_of_measurement RiPROCESS writes on its dB tables (the draft defines no codes)
+NO_VALUE = 1e30  # a table entry of this magnitude or more (RIEGL: -2e37), or not finite, is no measurement
+
+
 @dataclasses.dataclass(frozen=True)
 class LookupTable:
+    """A sampling's lookup table: entry k is the physical value of sample code k."""
+
     index: int
     unit: int
     data_type: int
     description: str
     entries: np.ndarray
+
+    @property
+    def no_value(self) -> np.ndarray:
+        """Per code: the table says "below detection" (RIEGL writes -2e37 for codes 0-3), not a value."""
+        return ~np.isfinite(self.entries) | (np.abs(self.entries) >= NO_VALUE)
+
+    @property
+    def decibels(self) -> bool:
+        """Its values are levels in dB: its description says so, or its unit code is RiPROCESS's dB code.
+        Values alone do not decide (a table of volts may be negative too)."""
+        return self.unit == DECIBEL_UNIT or bool(re.search(r"\bdB[mW]?\b|decibel", self.description, re.IGNORECASE))
+
+    def power(self) -> np.ndarray:
+        """Per code, what the engine fits: power (10^(dB/10)) for a dB table, the value for a linear one;
+        0 where the table has no value (below detection)."""
+        valid = ~self.no_value
+        values = np.where(valid, self.entries, 0.0)
+        if self.decibels:
+            values = np.where(valid, 10.0 ** (np.minimum(values, 300.0) / 10.0), 0.0)
+        return values
+
+    def saturation_code(self, bits: int) -> int:
+        """The first code at which the samples saturate: the digitizer's full scale, or the first code at the
+        table's highest value where the table ends in a flat top."""
+        full = (1 << bits) - 1
+        valid = np.flatnonzero(~self.no_value)
+        if valid.size == 0:
+            return full
+        top = self.entries[valid].max()
+        return int(min(full, valid[np.argmax(self.entries[valid] >= top)]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -261,12 +297,15 @@ def _descriptor_problem(d: PulseDescriptor) -> str | None:
 
 
 def _parse_table(index: int, payload: bytes) -> LookupTable | None:
-    """A lookup table record: header (size, reserved, number of tables, description), then the first table."""
+    """A lookup table record: header (size, reserved, number of tables, description), then the first table:
+    size, reserved, entries, unit, data type, options, [compression,] description, then the entries. The
+    description is the last 64 bytes of the table's `size`: 84 with a compression field before it, 80 as the
+    reference library's 0.3 r8 writes it."""
     try:
         size, _, n_tables = struct.unpack_from("<III", payload)
         at = size
-        t_size, _, n_entries, unit, data_type, _, _ = struct.unpack_from("<IIIHBBI", payload, at)
-        description = _text(payload[at + 20:at + 84])
+        t_size, _, n_entries, unit, data_type, _ = struct.unpack_from("<IIIHBB", payload, at)
+        description = _text(payload[at + max(16, t_size - 64):at + max(80, t_size)])
         entries = np.frombuffer(payload, dtype="<f4", count=n_entries, offset=at + t_size) if data_type == 8 \
             else np.zeros(0, np.float32)
         return LookupTable(index, unit, data_type, description, entries.astype(np.float64))
@@ -615,19 +654,15 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
         reason[i] = f"{name}: the pulse has no returning samples"
     rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
 
-    rows = np.flatnonzero(returning)  # segments are walked in pulse, sampling, segment order already
+    # one waveform a pulse: the segments of the one returning sampling it is decomposed from, joined
+    rows, samples, sample_offsets, joined, dropped = _pulse_waveforms(
+        data, np.flatnonzero(returning), seg_pulse, row, seg_duration, seg_count, seg_at, layout, pw.lookup_tables)
+    rejected += [(int(pulse_id[p]), f"{name}: {problem}") for p, problem in dropped]
     owner, r = seg_pulse[rows], row[rows]
     unit_ps = layout.unit_ps[r]
     duration = layout.duration_scale[r] * seg_duration[rows] + layout.duration_offset[r]
     bits = layout.bits[r].astype(np.int16)
-    samples, sample_offsets = _gather(data, seg_at[rows], seg_count[rows], layout.sample_bytes[r])
-    samples = linear_samples(samples, sample_offsets, layout.lookup_table[r], pw.lookup_tables)
-    # segment number within the pulse (0, 1, ...)
-    segment = np.zeros(rows.size, np.int16)
-    if rows.size:
-        first_row = np.r_[True, owner[1:] != owner[:-1]]
-        start = np.maximum.accumulate(np.where(first_row, np.arange(rows.size), 0))
-        segment = (np.arange(rows.size) - start).astype(np.int16)
+    segment = (joined - 1).astype(np.int16)  # returning segments the row joins after its first
     # the first outgoing segment of each row's pulse, where recorded
     out_seg = np.flatnonzero(ok_segment & (kind == OUTGOING) & (seg_count > 0))
     pulse_out = np.full(n, -1, np.int64)
@@ -680,20 +715,122 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
     )
 
 
+def _saturation_codes(layout: _Layout, tables: dict[int, LookupTable]) -> np.ndarray:
+    """Per sampling row: the first sample code at which it saturates (LookupTable.saturation_code)."""
+    codes = (np.int64(1) << layout.bits) - 1
+    for m, index in enumerate(layout.lookup_table):
+        table = tables.get(int(index))
+        if table is not None and table.entries.size:
+            codes[m] = table.saturation_code(int(layout.bits[m]))
+    return codes
+
+
+def _one_sampling(raw: np.ndarray, offsets: np.ndarray, pulse: np.ndarray, row: np.ndarray,
+                  saturation: np.ndarray) -> np.ndarray:
+    """Per returning segment: whether it is of the one sampling its pulse is decomposed from.
+
+    Two channels of one pulse sample the same surfaces at two sensitivities (RIEGL: the low-power channel,
+    sensitive, and the high-power one, recorded where the first saturates). Kept: the sampling without a
+    saturated sample whose peak is highest against its full scale (the most sensitive that holds the
+    signal); where all saturate, the one with the fewest saturated samples; ties, the first sampling.
+    """
+    if pulse.size == 0:
+        return np.zeros(0, bool)
+    starts = offsets[:-1]
+    full = saturation[row].astype(np.float64)
+    peak = np.maximum.reduceat(raw, starts) / full
+    clipped = np.add.reduceat((raw >= np.repeat(full, np.diff(offsets))).astype(np.int64), starts)
+    k = int(row.max()) + 1
+    groups, inverse = np.unique(pulse * k + row, return_inverse=True)
+    if groups.size == np.unique(pulse).size:
+        return np.ones(pulse.size, bool)  # one returning sampling a pulse: nothing to choose
+    g_clipped = np.bincount(inverse, clipped, minlength=groups.size)
+    g_peak = np.zeros(groups.size)
+    np.maximum.at(g_peak, inverse, peak)
+    g_pulse = groups // k
+    order = np.lexsort((groups % k, -g_peak, g_clipped, g_pulse))
+    first = order[np.r_[True, g_pulse[order][1:] != g_pulse[order][:-1]]]
+    chosen = np.zeros(groups.size, bool)
+    chosen[first] = True
+    return chosen[inverse]
+
+
+MAX_JOINED_SAMPLES = 1 << 16  # a pulse's segments joined span at most this many samples
+GRID_TOLERANCE = 0.05  # segments of one sampling start within this many samples of one grid
+
+
+def _join_segments(samples: np.ndarray, offsets: np.ndarray, pulse: np.ndarray, start: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[tuple[int, str]]]:
+    """One waveform per pulse from the segments of its sampling (`start`: each segment's first sample, in
+    samples from the anchor): a pulse of one segment keeps it as it is; several are placed on the first's
+    sample grid, the gaps between them (where the digitizer recorded nothing: below detection) at the
+    lowest sample the pulse recorded. Returns per waveform its first segment and how many it joins, the
+    samples and offsets, and the pulses that cannot be joined with why."""
+    if pulse.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), samples, offsets, []
+    head = np.r_[True, pulse[1:] != pulse[:-1]]
+    heads = np.flatnonzero(head)
+    joined = np.diff(np.r_[heads, pulse.size])
+    if (joined == 1).all():
+        return heads, joined, samples, offsets, []
+    pieces, lengths, keep, dropped = [], [], np.ones(heads.size, bool), []
+    for w, (h, count) in enumerate(zip(heads, joined)):
+        segs = np.arange(h, h + count)
+        if count == 1:
+            pieces.append(samples[offsets[h]:offsets[h + 1]])
+            lengths.append(pieces[-1].size)
+            continue
+        shift = start[segs] - start[segs].min()
+        at = np.rint(shift).astype(np.int64)
+        span = int((at + np.diff(offsets)[segs]).max())
+        if np.abs(shift - at).max() > GRID_TOLERANCE or span > MAX_JOINED_SAMPLES:
+            keep[w] = False
+            dropped.append((int(pulse[h]), f"its {count} returning segments do not join into one waveform "
+                            f"(they start {np.round(shift, 2).tolist()} samples apart and span {span})"))
+            continue
+        recorded = samples[offsets[h]:offsets[h + count]]
+        wave = np.full(span, np.nanmin(recorded) if np.isfinite(recorded).any() else np.nan)
+        for j, a in zip(segs, at):
+            wave[a:a + offsets[j + 1] - offsets[j]] = samples[offsets[j]:offsets[j + 1]]
+        pieces.append(wave)
+        lengths.append(span)
+        heads[w] = segs[np.argmin(start[segs])]
+    out_offsets = np.zeros(len(pieces) + 1, np.int64)
+    np.cumsum(lengths, out=out_offsets[1:])
+    return heads[keep], joined[keep], np.concatenate(pieces) if pieces else samples[:0], out_offsets, dropped
+
+
+def _pulse_waveforms(data, returning, seg_pulse, row, seg_duration, seg_count, seg_at, layout: _Layout,
+                     tables: dict[int, LookupTable]):
+    """The pulses' waveforms from their returning segments (`returning`, walked in pulse, sampling, segment
+    order): one sampling a pulse (_one_sampling), its segments joined (_join_segments), through its lookup
+    table. Returns each waveform's first segment, samples, offsets, segments joined and the pulses dropped."""
+    r = row[returning]
+    raw, offsets = _gather(data, seg_at[returning], seg_count[returning], layout.sample_bytes[r])
+    keep = _one_sampling(raw, offsets, seg_pulse[returning], r, _saturation_codes(layout, tables))
+    if not keep.all():
+        raw = raw[np.repeat(keep, np.diff(offsets))]
+        returning, r = returning[keep], r[keep]
+        offsets = np.r_[0, np.cumsum(seg_count[returning])].astype(np.int64)
+    samples = linear_samples(raw, offsets, layout.lookup_table[r], tables)
+    start = (layout.duration_scale[r] * seg_duration[returning] + layout.duration_offset[r]) \
+        * layout.unit_ps[r] / layout.spacing_ps[r]
+    heads, joined, samples, offsets, dropped = _join_segments(samples, offsets, seg_pulse[returning], start)
+    return returning[heads], samples, offsets, joined, dropped
+
+
 def linear_samples(samples: np.ndarray, offsets: np.ndarray, table_of_segment: np.ndarray,
                    tables: dict[int, LookupTable]) -> np.ndarray:
     """Samples through their sampling's lookup table, where it has one (the spec: the table maps a sample to the
-    physical value measured); a table in dB (its description says so) gives back power, 10^(dB / 10), so
-    that every model sees a signal proportional to power. A code beyond the table is NaN (its pulse is then
-    not decomposed, and says why)."""
+    physical value measured), as LookupTable.power gives them: a dB table gives back power, 10^(dB / 10), so
+    that every model sees a signal proportional to power; a code the table marks "no value" (below
+    detection) gives 0. A code beyond the table is NaN (its pulse is then not decomposed, and says why)."""
     out = samples
     for index in np.unique(table_of_segment[table_of_segment != 0]):
         table = tables.get(int(index))
         if table is None or table.entries.size == 0:
             continue  # fwl info lists the sampling's missing table; the codes stay
-        values = table.entries
-        if re.search(r"\bdBm?\b", table.description, re.IGNORECASE):
-            values = 10.0 ** (values / 10.0)
+        values = table.power()
         segments = np.flatnonzero(table_of_segment == index)
         at = np.concatenate([np.arange(offsets[s], offsets[s + 1]) for s in segments])
         codes = samples[at].astype(np.int64)

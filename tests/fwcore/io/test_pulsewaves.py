@@ -10,12 +10,12 @@ from fwcore.io.geolocate import geolocate
 from fwcore.io.pulsewaves import WAVES_HEADER_BYTES, _layout, _walk_waves, open_pulsewaves
 from fwcore.pulses import system_pulse_fwhm_ps
 
-SAMPLES = {  # name: pulses, returning rows, heights of the returning samples (README)
+SAMPLES = {  # name: pulses, waveforms (one a pulse read), heights of the returning samples (README)
     "las13fwf_example1": (1000, 1000, (231.6, 277.0)),
     "geolas_example1": (1000, 790, (409.7, 455.7)),
     "lvis_example1": (1000, 1000, (-13.1, 119.1)),
     "optech_example1": (998, 998, (130.9, 152.6)),
-    "riegl_example3": (16486, 16487, (334.9, 359.9)),
+    "riegl_example3": (16486, 16486, (334.9, 359.9)),
 }
 EARTH_CENTRED = {"optech_example1", "riegl_example3"}
 
@@ -53,7 +53,7 @@ def test_samples_lie_inside_the_header_bounds_at_the_known_heights(pulsewaves_di
     pw = open_pulsewaves(path)
     batch = read_pulses(path)
     assert len(batch) == SAMPLES[name][1]
-    assert len(batch) == np.unique(batch.pulse_id).size + (1 if name == "riegl_example3" else 0)
+    assert len(batch) == np.unique(batch.pulse_id).size  # one waveform a pulse
     xyz = _positions(batch)
     assert np.isfinite(xyz).all()
     # within the coordinate quantisation and half a sampling unit along the beam
@@ -100,13 +100,23 @@ def test_geolas_mis_encoded_descriptor_is_rejected_not_decomposed(pulsewaves_dir
     assert batch.samples.max() <= 255
 
 
-def test_riegl_pulse_with_two_returning_segments_is_one_pulse(pulsewaves_dir):
-    batch = read_pulses(pulsewaves_dir / "riegl_example3.pls")
-    ids, count = np.unique(batch.pulse_id, return_counts=True)
-    (twice,) = ids[count == 2]
-    rows = np.flatnonzero(batch.pulse_id == twice)
-    assert batch.segment[rows].tolist() == [0, 1] and sorted(batch.channel[rows].tolist()) == [0, 1]
-    assert (batch.descriptor_index[rows] == 3).all()
+def test_riegl_pulse_with_two_channels_is_one_waveform_of_the_unsaturated_channel(pulsewaves_dir):
+    """The one pulse of descriptor 3 carries the low-power channel 1 (sensitive: it saturates at 255) and
+    the high-power channel 0 over the same 80 ns: it is one waveform, channel 0's, as recorded."""
+    path = pulsewaves_dir / "riegl_example3.pls"
+    batch = read_pulses(path)
+    (row,) = np.flatnonzero(batch.descriptor_index == 3)
+    assert np.unique(batch.pulse_id).size == len(batch) == 16486
+    assert batch.channel[row] == 0 and batch.segment[row] == 0
+    high = batch.pulse_samples(row)
+    assert high.size == 80 and high.max() == 76  # the high-power channel, unsaturated
+    # the low-power channel of the same pulse, read straight from the waves: saturated (two samples at 255)
+    waves = np.fromfile(open_pulsewaves(path).waves_path, np.uint8)
+    at = int(batch.packet_offset[row])
+    at += 1 + int(waves[at])  # reference sampling: an 8-bit count, then its samples
+    low_n = int(waves[at + 4])  # low-power sampling: a 32-bit duration, an 8-bit count, then its samples
+    low = waves[at + 5:at + 5 + low_n]
+    assert low_n == 80 and (low == 255).sum() == 2
     assert set(np.diff(batch.sample_offsets).tolist()) <= {80, 160}
 
 
