@@ -9,9 +9,10 @@ import laspy
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
+from fwcore.io.descriptors import ranges_text
 from fwcore.io.las import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
 from fwcore.io.ownership import pulse_ownership
-from fwcore.io.pulsewaves import VARIES, open_pulsewaves
+from fwcore.io.pulsewaves import VARIES, LookupTable, PulseWavesFile, open_pulsewaves
 
 
 def crs_name(wkt: str | None) -> str | None:
@@ -119,8 +120,7 @@ def describe_pulsewaves(path: str | Path) -> dict:
         "descriptors_missing": [{"index": int(i), "pulses": int(n)} for i, n in used.items()
                                 if i not in pw.descriptors],
         "scanners": [dataclasses.asdict(s) for s in pw.scanners.values()],
-        "lookup_tables": [{"index": t_.index, "entries": int(t_.entries.size), "description": t_.description}
-                          for t_ in pw.lookup_tables.values()],
+        "lookup_tables": [describe_table(t_, pw) for t_ in pw.lookup_tables.values()],
         "packets": f"{pw.waves_path.name} ({pw.waves_path.stat().st_size} bytes, uncompressed)",
         "crs": {"name": crs_name(pw.crs_wkt), "source": pw.crs_source},
         "bounds": {"min": list(h.bounds_min), "max": list(h.bounds_max)},
@@ -129,6 +129,37 @@ def describe_pulsewaves(path: str | Path) -> dict:
                      ("standard GPS time" if h.t_offset >= 1e8 else "GPS week seconds")},
         "problems": list(pw.problems),
     }
+
+
+def describe_table(table: LookupTable, pw: PulseWavesFile) -> dict:
+    """What a lookup table converts to (LookupTable.decibels, .power), its no-value codes and the samplings
+    that use it."""
+    valid = np.flatnonzero(~table.no_value)
+    values = table.entries[valid]
+    power = table.power()[valid]
+    unit = "dB" if table.decibels else "as given"
+    return {
+        "index": table.index, "entries": int(table.entries.size), "description": table.description,
+        "unit_of_measurement": table.unit,
+        "converts": f"decibels (unit {table.unit}) to power, 10^(dB/10)" if table.decibels
+        else f"linear (unit {table.unit}): values as given",
+        "no_value_codes": ranges_text(np.flatnonzero(table.no_value).tolist()) or None,
+        "value_codes": ranges_text(valid.tolist()) or None, "value_unit": unit,
+        "range": [float(values.min()), float(values.max())] if valid.size else None,
+        "power": [float(power.min()), float(power.max())] if valid.size else None,
+        "used_by": [f"{s.kind} channel {s.channel} of descriptor {d.index}" for d in pw.descriptors.values()
+                    for s in d.samplings if s.lookup_table == table.index],
+    }
+
+
+def _table_line(t: dict) -> str:
+    line = f"  lookup table {t['index']}: {t['entries']} entries, {t['description']}: {t['converts']}"
+    if t["no_value_codes"]:
+        line += f"; codes {t['no_value_codes']} no value (below detection: power 0)"
+    if t["range"]:
+        line += (f"; codes {t['value_codes']} {t['range'][0]:.4g}..{t['range'][1]:.4g}"
+                 + (f" dB (power {t['power'][0]:.4g}..{t['power'][1]:.4g})" if t["value_unit"] == "dB" else ""))
+    return line + ("; used by " + ", ".join(t["used_by"]) if t["used_by"] else "; used by no sampling")
 
 
 def format_info(info: dict) -> str:
@@ -159,6 +190,9 @@ def format_info(info: dict) -> str:
                 lines.append(f"    {s['kind']} channel {s['channel']}: {s['bits']} bits, "
                              f"{s['samples']} samples, {s['segments']} segments, {s['sample_units_ns']} ns"
                              + (f", lookup table {s['lookup_table']}" if s["lookup_table"] else ""))
+            if sum(s["kind"] == "returning" for s in d["samplings"]) > 1:
+                lines.append("    one waveform a pulse: of its returning channels, the one without a saturated "
+                             "sample whose peak is highest against its full scale")
         elif d["pulses"] or d["problem"] is None:
             lines.append(f"  descriptor {d['index']}: {d['pulses']} pulses; {d['bits']} bits, {d['samples']} samples "
                          f"at {d['spacing_ps']:g} ps, gain {d['gain']:g}, offset {d['offset']:g}, "
@@ -170,7 +204,7 @@ def format_info(info: dict) -> str:
     for d in info.get("descriptors_missing", []):
         lines.append(f"  descriptor {d['index']}: used by {d['pulses']} pulses but not defined")
     for t in info.get("lookup_tables", []):
-        lines.append(f"  lookup table {t['index']}: {t['entries']} entries, {t['description']}")
+        lines.append(_table_line(t))
     crs = info["crs"]
     lines.append(f"  CRS: {crs['name'] or 'none'} ({crs['source']})")
     b = info["bounds"]
