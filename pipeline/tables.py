@@ -88,7 +88,7 @@ COLUMNS = {c.name: c for c in (
                                 "of the file"),
     Column("waveform_id", I64, "", "the waveform's id in the CSV input"),
     Column("channel", I16, "", "the PulseWaves sampling channel (LAS: 0)"),
-    Column("segment", I16, "", "the returning segment within the pulse (PulseWaves; LAS: 0)"),
+    Column("segment", I16, "", "returning segments joined after the first in the waveform (PulseWaves; LAS: 0)"),
     Column("packet_offset", I64, "byte", "where the pulse's samples are: LAS packet offset, PulseWaves offset to waves"),
     Column("gps_time", F64, "s", "the pulse's GPS time as the input stores it (week seconds or adjusted standard)"),
     Column("echo_index", I32, "", "the echo's number in its waveform, in time order from 0, spurious ones included"),

@@ -10,11 +10,15 @@ draft and the files disagree, the files and the reference library's headers
 - lookup tables are records 300001..300255; pulse descriptors 200001..200255;
 - the header's AVLR count is not trusted: AVLRs are found walking back from the end of the file.
 
-A row of the batch is one returning segment (RIEGL records a second, high- or
-low-power one for some pulses): sample k of a segment lies at
-P = anchor + (d + k * s) * direction, d = scale * D + offset its duration from
-the anchor and s the sampling's sample units over the composition's. In the
-batch's LAS terms: direction x_t = -direction / unit_ps and L0 = -d * unit_ps.
+A row of the batch is one pulse's waveform: of its returning samplings (RIEGL
+records a high-power channel beside the low-power one where that saturates)
+the one that does not saturate with the highest peak against its full scale,
+its segments joined on one sample grid, through its lookup table (a dB table
+gives power; its no-value entries, below detection, 0). Sample k of a segment
+lies at P = anchor + (d + k * s) * direction, d = scale * D + offset its
+duration from the anchor and s the sampling's sample units over the
+composition's. In the batch's LAS terms: direction x_t = -direction / unit_ps
+and L0 = -d * unit_ps.
 """
 
 from __future__ import annotations
@@ -589,7 +593,7 @@ def _warn_unusable(pw: PulseWavesFile, chunk_pulses: int = 1_000_000) -> None:
 
 
 def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | None = None) -> PulseBatch:
-    """The returning segments of a range of pulses, one row each; pulses that cannot be read are rejected."""
+    """One waveform a pulse of a range (see the module's docstring); pulses that cannot be read are rejected."""
     if not isinstance(point_range, PointRange):
         pw = pw or open_pulsewaves(point_range)
         point_range = PointRange(str(point_range), 0, pw.point_count, problems=pw.problems)

@@ -1,8 +1,8 @@
 """The pulse record: what the readers hand on, one batch of waveforms of one file, columnar.
 
-A row is one returning waveform: a LAS pulse has one, a PulseWaves pulse one
-per returning segment (RIEGL records a second, high- or low-power one for
-some pulses); the rows of one pulse share its `pulse_id`.
+A row is one pulse's returning waveform: a LAS pulse has one; of a PulseWaves
+pulse's returning channels (RIEGL records a high-power one beside the low-power
+one where that saturates) the reader keeps one, its segments joined.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class PulseBatch:
     return_offsets: np.ndarray  # n + 1
     classification: np.ndarray | None = None  # per row, when the input classifies its pulses or points
     channel: np.ndarray | None = None  # int16 per row: PulseWaves sampling channel (LAS: 0)
-    segment: np.ndarray | None = None  # int16 per row: returning segment within the pulse (LAS: 0)
+    segment: np.ndarray | None = None  # int16 per row: returning segments joined after the first (LAS: 0)
     rgb: np.ndarray | None = None  # (n, 3) when the points carry colour
     nir: np.ndarray | None = None
     outgoing: np.ndarray | None = None  # float64 flat: the recorded outgoing waveform per row, where recorded

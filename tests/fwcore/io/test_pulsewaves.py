@@ -196,3 +196,22 @@ def test_pulses_planned_are_the_pulses_read(pulsewaves_dir, name):
         assert len(batch) + pulses_rejected == r.n_pulses == np.unique(batch.pulse_id).size + pulses_rejected
         read += len(batch) + pulses_rejected
     assert sum(r.n_pulses for r in ranges) == read == SAMPLES[name][0]
+
+
+def test_a_range_of_riegl_example3_decomposes_or_rejects_every_pulse_it_planned(pulsewaves_dir, tmp_path):
+    """The range that holds the pulse of two channels, through the run's stages without Beam: planned = read =
+    decomposed + rejected (it read 501 of 500 before)."""
+    from fwcore.config import DecompositionConfig, Model
+    from pipeline.plan import plan_file, planned_pulses
+    from pipeline.stages import RangeSettings, run_range
+
+    config = DecompositionConfig(model=Model.GAUSSIAN)
+    path = pulsewaves_dir / "riegl_example3.pls"
+    tasks = plan_file(str(path), path.name, path.stem, config, 500, None)
+    assert sum(planned_pulses(t) for t in tasks) == 16486
+    batch = read_pulses(path)
+    start = int(np.flatnonzero(batch.descriptor_index == 3)[0])  # one waveform a pulse: its row is its record
+    (task,) = [t for t in tasks if t.point_range.start <= start < t.point_range.stop]
+    outcome = run_range(task, RangeSettings(str(tmp_path), config, frozenset({"parquet"})))
+    assert outcome.pulses_read == planned_pulses(task) == 500
+    assert outcome.pulses_decomposed + outcome.pulses_rejected == 500 and outcome.problems == 0
