@@ -738,16 +738,15 @@ def _one_sampling(raw: np.ndarray, offsets: np.ndarray, pulse: np.ndarray, row: 
     saturated sample whose peak is highest against its full scale (the most sensitive that holds the
     signal); where all saturate, the one with the fewest saturated samples; ties, the first sampling.
     """
-    if pulse.size == 0:
-        return np.zeros(0, bool)
+    # segments come in pulse, sampling order: a pulse has two samplings where one follows another in it
+    if not ((pulse[1:] == pulse[:-1]) & (row[1:] != row[:-1])).any():
+        return np.ones(pulse.size, bool)  # one returning sampling a pulse: nothing to choose
     starts = offsets[:-1]
     full = saturation[row].astype(np.float64)
     peak = np.maximum.reduceat(raw, starts) / full
     clipped = np.add.reduceat((raw >= np.repeat(full, np.diff(offsets))).astype(np.int64), starts)
     k = int(row.max()) + 1
     groups, inverse = np.unique(pulse * k + row, return_inverse=True)
-    if groups.size == np.unique(pulse).size:
-        return np.ones(pulse.size, bool)  # one returning sampling a pulse: nothing to choose
     g_clipped = np.bincount(inverse, clipped, minlength=groups.size)
     g_peak = np.zeros(groups.size)
     np.maximum.at(g_peak, inverse, peak)
