@@ -606,50 +606,14 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
     n = max(0, stop - point_range.start)
     records = walked[:n]
     rejected = [(-1, reason) for reason in point_range.problems]
-    scales, offsets = np.asarray(header.scales), np.asarray(header.offsets)
-    anchor_raw = records["anchor"].astype(np.float64)
-    target_raw = records["target"].astype(np.float64)
-    anchor = anchor_raw * scales + offsets
-    direction = ((target_raw - anchor_raw) * scales) / 1000.0  # world units per sampling unit
-    gps_time = records["T"].astype(np.float64) * header.t_scale + header.t_offset
-    pulse_id = pulse_identity(records["T"].astype(np.float64), anchor_raw, target_raw, quantum=1.0)
+    anchor, direction, zero_beam, gps_time, pulse_id = _pulse_geometry(records, header)
 
     data = np.memmap(pw.waves_path, dtype=np.uint8, mode="r")
     layout = _layout(pw.descriptors)
-    wave_offsets = walked["offset"].astype(np.int64)
-    descriptor = walked["descriptor"].astype(np.int64)
-    args = (layout.first, layout.count, layout.extra, layout.bits_duration, layout.bits_segments,
-            layout.bits_samples, layout.n_segments, layout.n_samples, layout.sample_bytes)
-    empty = np.zeros(0, np.int64)
-    counts, ends = _walk_waves(data, wave_offsets, descriptor, *args, False, empty, empty, empty, empty, empty, empty)
-    total = int(counts[counts > 0].sum())
-    seg = [np.zeros(total, np.int64) for _ in range(6)]
-    _walk_waves(data, wave_offsets, descriptor, *args, True, *seg)
-    seg_pulse, seg_sampling, seg_index, seg_duration, seg_count, seg_at = seg
-    row = layout.first[descriptor[seg_pulse]] + seg_sampling  # each segment's sampling row in the layout
-    kind = layout.kind[row]
-    seg_end = seg_at + seg_count * layout.sample_bytes[row]
-    misfit = _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_count, seg_end, kind,
-                         layout.sample_bytes[row])
-    counts, ends, wave_offsets, descriptor = counts[:n], ends[:n], wave_offsets[:n], descriptor[:n]
-    keep = seg_pulse < n
-    seg_pulse, seg_index, seg_duration, seg_count, seg_at, row, kind = (
-        a[keep] for a in (seg_pulse, seg_index, seg_duration, seg_count, seg_at, row, kind))
+    counts, wave_offsets, descriptor, misfit, (seg_pulse, seg_duration, seg_count, seg_at, row, kind) = \
+        _walk_segments(data, walked, layout, n)
 
-    reason = np.full(n, None, dtype=object)
-    for i in np.flatnonzero(counts == -1):
-        d = pw.descriptors.get(int(descriptor[i]))
-        reason[i] = f"{name}: " + (d.problem if d else f"pulse descriptor index {descriptor[i]} has no descriptor")
-    for i in np.flatnonzero(counts == -2):
-        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} run past the end of {pw.waves_path.name} "
-                     f"({data.size} bytes) as pulse descriptor {descriptor[i]} lays them out")
-    for i in np.flatnonzero(misfit & (reason == None)):  # noqa: E711
-        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} do not match pulse descriptor {descriptor[i]} "
-                     "(mis-encoded: they overlap the next pulse's waves or end with its outgoing samples); "
-                     "not decomposed")
-    zero_beam = ~np.any(target_raw != anchor_raw, axis=1)
-    for i in np.flatnonzero(zero_beam & (reason == None)):  # noqa: E711
-        reason[i] = f"{name}: target equals anchor: the pulse has no direction"
+    reason = _pulse_reasons(pw, data.size, counts, wave_offsets, descriptor, misfit, zero_beam)
     ok_segment = reason[seg_pulse] == None  # noqa: E711
     returning = ok_segment & (kind == RETURNING) & (seg_count > 0)
     has_return = np.zeros(n, bool)
@@ -667,18 +631,9 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
     duration = layout.duration_scale[r] * seg_duration[rows] + layout.duration_offset[r]
     bits = layout.bits[r].astype(np.int16)
     segment = (joined - 1).astype(np.int16)  # returning segments the row joins after its first
-    # the first outgoing segment of each row's pulse, where recorded
-    out_seg = np.flatnonzero(ok_segment & (kind == OUTGOING) & (seg_count > 0))
-    pulse_out = np.full(n, -1, np.int64)
-    pulse_out[seg_pulse[out_seg[::-1]]] = out_seg[::-1]
-    pick = pulse_out[owner]
-    has = pick >= 0
-    safe = np.maximum(pick, 0)
-    out_count = np.where(has, seg_count[safe], 0) if seg_count.size else np.zeros(owner.size, np.int64)
-    out_at = np.where(has, seg_at[safe], 0) if seg_at.size else np.zeros(owner.size, np.int64)
-    out_bytes = layout.sample_bytes[row[safe]] if row.size else np.ones(owner.size, np.int64)
-    outgoing, outgoing_offsets = _gather(data, out_at, out_count, out_bytes)
-    outgoing_spacing = np.where(has, layout.spacing_ps[row[safe]] if row.size else 0.0, 0.0)
+    outgoing, outgoing_offsets, outgoing_spacing = _outgoing_waveforms(
+        data, n, owner, np.flatnonzero(ok_segment & (kind == OUTGOING) & (seg_count > 0)), seg_pulse, seg_count,
+        seg_at, row, layout)
     flags = records["flags"][owner]
     zeros = np.zeros(rows.size)
     # the optical centre is oc sampling units back from the anchor, where the descriptor gives a constant oc
@@ -717,6 +672,79 @@ def read_pulsewaves(point_range: PointRange | str | Path, pw: PulseWavesFile | N
         outgoing=outgoing, outgoing_offsets=outgoing_offsets, outgoing_spacing_ps=outgoing_spacing,
         rejected=tuple(rejected),
     )
+
+
+def _pulse_geometry(records: np.ndarray, header: PulseHeader):
+    """Per pulse record: its anchor, direction (world units per sampling unit), whether it has none (target at
+    the anchor), GPS time and identity."""
+    scales, offsets = np.asarray(header.scales), np.asarray(header.offsets)
+    anchor_raw = records["anchor"].astype(np.float64)
+    target_raw = records["target"].astype(np.float64)
+    direction = ((target_raw - anchor_raw) * scales) / 1000.0
+    gps_time = records["T"].astype(np.float64) * header.t_scale + header.t_offset
+    pulse_id = pulse_identity(records["T"].astype(np.float64), anchor_raw, target_raw, quantum=1.0)
+    return anchor_raw * scales + offsets, direction, ~np.any(target_raw != anchor_raw, axis=1), gps_time, pulse_id
+
+
+def _walk_segments(data: np.ndarray, walked: np.ndarray, layout: _Layout, n: int):
+    """The waves of the first n of the `walked` records (one more bounds their waves): per pulse its segment
+    count (or -1, -2: _walk_waves), offset to waves, descriptor and whether its waves are mis-encoded; per
+    segment of those n its pulse, stored duration, sample count, first byte, sampling row and kind."""
+    wave_offsets = walked["offset"].astype(np.int64)
+    descriptor = walked["descriptor"].astype(np.int64)
+    args = (layout.first, layout.count, layout.extra, layout.bits_duration, layout.bits_segments,
+            layout.bits_samples, layout.n_segments, layout.n_samples, layout.sample_bytes)
+    empty = np.zeros(0, np.int64)
+    counts, ends = _walk_waves(data, wave_offsets, descriptor, *args, False, empty, empty, empty, empty, empty, empty)
+    total = int(counts[counts > 0].sum())
+    seg = [np.zeros(total, np.int64) for _ in range(6)]
+    _walk_waves(data, wave_offsets, descriptor, *args, True, *seg)
+    seg_pulse, seg_sampling, _, seg_duration, seg_count, seg_at = seg
+    row = layout.first[descriptor[seg_pulse]] + seg_sampling  # each segment's sampling row in the layout
+    kind = layout.kind[row]
+    seg_end = seg_at + seg_count * layout.sample_bytes[row]
+    misfit = _misencoded(data, n, wave_offsets, counts, ends, seg_pulse, seg_at, seg_count, seg_end, kind,
+                         layout.sample_bytes[row])
+    keep = seg_pulse < n
+    segments = tuple(a[keep] for a in (seg_pulse, seg_duration, seg_count, seg_at, row, kind))
+    return counts[:n], wave_offsets[:n], descriptor[:n], misfit, segments
+
+
+def _pulse_reasons(pw: PulseWavesFile, waves_size: int, counts: np.ndarray, wave_offsets: np.ndarray,
+                   descriptor: np.ndarray, misfit: np.ndarray, zero_beam: np.ndarray) -> np.ndarray:
+    """Per pulse, why it cannot be read (None: it can): its descriptor, waves past the file's end, waves that
+    do not match the descriptor, no direction."""
+    name = pw.path.name
+    reason = np.full(counts.size, None, dtype=object)
+    for i in np.flatnonzero(counts == -1):
+        d = pw.descriptors.get(int(descriptor[i]))
+        reason[i] = f"{name}: " + (d.problem if d else f"pulse descriptor index {descriptor[i]} has no descriptor")
+    for i in np.flatnonzero(counts == -2):
+        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} run past the end of {pw.waves_path.name} "
+                     f"({waves_size} bytes) as pulse descriptor {descriptor[i]} lays them out")
+    for i in np.flatnonzero(misfit & (reason == None)):  # noqa: E711
+        reason[i] = (f"{name}: the waves at byte {wave_offsets[i]} do not match pulse descriptor {descriptor[i]} "
+                     "(mis-encoded: they overlap the next pulse's waves or end with its outgoing samples); "
+                     "not decomposed")
+    for i in np.flatnonzero(zero_beam & (reason == None)):  # noqa: E711
+        reason[i] = f"{name}: target equals anchor: the pulse has no direction"
+    return reason
+
+
+def _outgoing_waveforms(data, n, owner, out_seg, seg_pulse, seg_count, seg_at, row, layout: _Layout):
+    """The first outgoing segment (`out_seg`: the readable ones) of each row's pulse, where recorded: its
+    samples, offsets and sample spacing per row."""
+    pulse_out = np.full(n, -1, np.int64)
+    pulse_out[seg_pulse[out_seg[::-1]]] = out_seg[::-1]
+    pick = pulse_out[owner]
+    has = pick >= 0
+    safe = np.maximum(pick, 0)
+    out_count = np.where(has, seg_count[safe], 0) if seg_count.size else np.zeros(owner.size, np.int64)
+    out_at = np.where(has, seg_at[safe], 0) if seg_at.size else np.zeros(owner.size, np.int64)
+    out_bytes = layout.sample_bytes[row[safe]] if row.size else np.ones(owner.size, np.int64)
+    outgoing, outgoing_offsets = _gather(data, out_at, out_count, out_bytes)
+    outgoing_spacing = np.where(has, layout.spacing_ps[row[safe]] if row.size else 0.0, 0.0)
+    return outgoing, outgoing_offsets, outgoing_spacing
 
 
 def _saturation_codes(layout: _Layout, tables: dict[int, LookupTable]) -> np.ndarray:
