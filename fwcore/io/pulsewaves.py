@@ -814,10 +814,12 @@ def _join_segments(samples: np.ndarray, offsets: np.ndarray, pulse: np.ndarray, 
         shift = start[segs] - start[segs].min()
         at = np.rint(shift).astype(np.int64)
         span = int((at + np.diff(offsets)[segs]).max())
-        if np.abs(shift - at).max() > GRID_TOLERANCE or span > MAX_JOINED_SAMPLES:
+        off_grid, too_long = np.abs(shift - at).max() > GRID_TOLERANCE, span > MAX_JOINED_SAMPLES
+        if off_grid or too_long:
             keep[w] = False
-            dropped.append((int(pulse[h]), f"its {count} returning segments do not join into one waveform "
-                            f"(they start {np.round(shift, 2).tolist()} samples apart and span {span})"))
+            dropped.append((int(pulse[h]), f"its {count} returning segments do not join into one waveform: " + (
+                f"they start {', '.join(f'{v:g}' for v in np.round(shift, 2))} samples after the first, off "
+                "one sample grid" if off_grid else f"they span {span} samples, more than {MAX_JOINED_SAMPLES}")))
             continue
         recorded = samples[offsets[h]:offsets[h + count]]
         wave = np.full(span, np.nanmin(recorded) if np.isfinite(recorded).any() else np.nan)

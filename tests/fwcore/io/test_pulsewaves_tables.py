@@ -266,3 +266,16 @@ def test_a_range_of_a_file_with_tables_reads_its_planned_pulses(riegl_like):
     ranges = plan_point_ranges(riegl_like, 4)
     assert sum(r.n_pulses for r in ranges) == len(FLIGHT) + 1
     assert sum(len(read_pulses(r)) for r in ranges) == len(FLIGHT) + 1
+
+
+def test_segments_off_one_sample_grid_reject_their_pulse_with_the_reason(tmp_path):
+    rng = np.random.default_rng(5)
+    good = _pulse([(1005.0, 25.0)], rng)
+    off = _pulse([(1005.0, 25.0), (1110.0, 12.0)], rng, windows=((990.0, 30), (1095.5, 30)))  # half a sample off
+    path = write_pulsewaves(tmp_path / "off.pls", RIEGL, RIEGL_TABLES, [good, off])
+    batch = read_pulses(path)
+    assert len(batch) == 1 and len(batch.rejected) == 1
+    pulse_id, reason = batch.rejected[0]
+    assert pulse_id >= 0 and pulse_id != batch.pulse_id[0]
+    assert reason == ("off.pls: its 2 returning segments do not join into one waveform: they start 0, 105.5 "
+                      "samples after the first, off one sample grid")
