@@ -348,7 +348,8 @@ def evaluate_runs(results_dirs: Sequence[str | Path], truth_file: str | Path, ma
 def evaluate_radiometry(results_dir: str | Path, truth_file: str | Path, match_ps: float = 1000.0) -> dict:
     """A run's ranges and reflectances against a radiometric flight's truth (`fwl simulate --radiometry`): over
     the extended true echoes (one surface filling the footprint) matched by a kept echo, the median and 90th
-    percentile of |rho / rho_true - 1|, and the median |range error| in cm over every matched echo."""
+    percentile of |rho / rho_true - 1|, the median |range error| in cm over every matched echo, and over every
+    kept echo the share with a reflectance, the largest and how many exceed 1.5 (true ones are 0.05-0.6)."""
     truth_table = pq.read_table(truth_file, columns=["pulse_id", "time_ps", "range_m", "reflectance", "extended"])
     truth = {c: truth_table.column(c).to_numpy(zero_copy_only=False) for c in truth_table.column_names}
     echoes = ds.dataset(str(Path(results_dir) / "echoes"), format="parquet").to_table(
@@ -363,7 +364,11 @@ def evaluate_radiometry(results_dir: str | Path, truth_file: str | Path, match_p
     ratio = ratio[np.isfinite(ratio)]
     with_plane = np.isfinite(np.asarray(found["incidence_deg"][f_idx], float))[extended]
     finite_range = np.isfinite(range_error)
-    return {"matched": int(t_idx.size), "extended": int(extended.sum()), "extended_with_reflectance": int(ratio.size),
+    given = np.asarray(found["reflectance"], float)
+    given = given[np.isfinite(given)]
+    return {"kept": int(kept.sum()), "kept_with_reflectance": given.size / kept.sum() if kept.any() else float("nan"),
+            "reflectance_max": float(given.max()) if given.size else float("nan"),
+            "reflectance_above_1_5": int((given > 1.5).sum()), "matched": int(t_idx.size), "extended": int(extended.sum()), "extended_with_reflectance": int(ratio.size),
             "extended_with_plane": float(with_plane.mean()) if with_plane.size else float("nan"),
             "reflectance_error_median": float(np.median(ratio)) if ratio.size else float("nan"),
             "reflectance_error_p90": float(np.percentile(ratio, 90)) if ratio.size else float("nan"),
