@@ -554,3 +554,27 @@ def test_an_echo_without_energy_has_null_radiometry_and_says_why():
     assert list(out["reflectance_basis"][[3, 4, 5]]) == ["incidence", "null: no energy", "null: no energy"]
     assert list(out["radiometry"][[3, 4]]) == [CALIBRATED, "unavailable"]
     np.testing.assert_array_equal(out["range_m"], 500.0)
+
+
+def test_a_plane_whose_tilt_is_uncertain_is_not_trusted_where_it_moves_cos_alpha_by_more_than_5_percent():
+    from fwcore.radiometry import trusted_incidence
+
+    # tan(45 deg) x 0.04 = 4%: trusted; x 0.06 = 6%: not; at 10 deg tan = 0.176: 0.06 rad moves cos by 1%
+    kept = trusted_incidence(np.radians([45.0, 45.0, 10.0]), np.array([0.04, 0.06, 0.06]))
+    np.testing.assert_allclose(np.degrees(kept), [45.0, np.nan, 10.0])
+
+
+def test_the_tilt_uncertainty_of_a_fitted_plane():
+    from fwcore.radiometry import local_planes
+
+    # 9 points: a 3 x 3 grid 1 m apart, z = +-0.01 m in a checkerboard: misfit variance ~1e-4 about the plane,
+    # variance 2/3 m^2 along either axis: tilt sqrt(1e-4 x 80/81 / (9 x 2/3)) ~ 0.004 rad
+    x, y = np.meshgrid(np.arange(3.0), np.arange(3.0))
+    z = 0.01 * np.where((x + y) % 2 == 0, 1.0, -1.0)
+    xyz = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    normals, tilt = local_planes(xyz, 10, 5.0, 0.10)
+    assert np.isfinite(normals).all()
+    centred = xyz - xyz.mean(axis=0)
+    values = np.linalg.eigvalsh(centred.T @ centred / 9)
+    np.testing.assert_allclose(tilt, np.sqrt(values[0] / (9 * values[1])), rtol=1e-9)
+    assert 0.003 < tilt[0] < 0.005
