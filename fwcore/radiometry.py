@@ -9,9 +9,9 @@ coefficient and diffuse reflectance (Wagner 2006, 2010), calibrated where the ru
 
 C_cal comes from a reference patch of known reflectance (its single returns, by their median), or is given;
 without either it is 1 with the range in km and the energy per ns (1e-15 in m and ps: values of a sane scale,
-not 1e17) and every value is relative, and said so. An incidence is used only from a plane within 80 degrees of
-facing the beam; elsewhere the reflectance is the apparent one (cos alpha = 1), or null, and `reflectance_basis`
-says which and why. Plain functions over numpy arrays: the
+not 1e17) and every value is relative, and said so. An incidence is used only from a trusted plane (within 80
+degrees of facing the beam, its tilt uncertain by less than 5% of cos alpha); elsewhere the reflectance is the
+apparent one (cos alpha = 1), or null, and `reflectance_basis` says which and why. Plain functions over numpy arrays: the
 pipeline's Geolocate stage and the calibration's pre-pass call `echo_radiometry`.
 """
 
@@ -46,7 +46,7 @@ MAX_COSINE_ERROR = 0.05
 # why an echo's reflectance is what it is (the column reflectance_basis)
 BY_INCIDENCE = "incidence"
 APPARENT_NO_PLANE = "apparent: no plane"
-APPARENT_GRAZING = "apparent: untrusted plane"
+APPARENT_UNTRUSTED = "apparent: untrusted plane"
 NULL_NO_RANGE = "null: no range"
 NULL_NO_ENERGY = "null: no energy"
 NULL_NO_DIVERGENCE = "null: no beam divergence"
@@ -459,7 +459,7 @@ def echo_radiometry(geometry: EchoGeometry, config: RadiometryConfig, beam_diver
         else:
             gamma = rho = np.full(m, np.nan)
     basis = np.select([~ranged, ~has, np.isnan(rho), np.isfinite(incidence), np.isfinite(fitted)],
-                      [NULL_NO_RANGE, NULL_NO_ENERGY, NULL_NO_DIVERGENCE, BY_INCIDENCE, APPARENT_GRAZING],
+                      [NULL_NO_RANGE, NULL_NO_ENERGY, NULL_NO_DIVERGENCE, BY_INCIDENCE, APPARENT_UNTRUSTED],
                       APPARENT_NO_PLANE).astype(object)
     flag = np.where(has, CALIBRATED if config.calibrated else RELATIVE, UNAVAILABLE)
     return {"range_m": np.where(ranged, geometry.range_m, np.nan), "incidence_deg": np.degrees(incidence),
