@@ -7,6 +7,7 @@ simulated  `fwl simulate --radiometry` (16-bit, reflectances 0.05-0.6, a flight 
            SIM.trajectory.csv --calibration-reference SIM.calibration.json --beam-divergence-mrad 0.5`
            (default preset). Over the extended true echoes matched by a kept echo: median and 90th percentile
            of |rho / rho_true - 1|; over every matched echo: median |range error|. Targets 3%, 10%, 2 cm.
+           Over every kept echo: the share with a reflectance (>= 50%) and how many exceed 1.5 (none).
 riegl      `fwl run` on the bundled RIEGL Q680 PulseWaves file (ranges from its optical centre, beam divergence
            from its scanner record): the share of kept echoes with a range (target >= 99%); over single returns
            with a local plane at most 20 deg off the beam (open, flat ground and roofs), the spread across range
@@ -69,7 +70,9 @@ def simulated(workdir: Path, pulses: int) -> None:
           f"|rho/rho_true - 1| median {100 * r['reflectance_error_median']:.2f}% (target <= 3%), "
           f"p90 {100 * r['reflectance_error_p90']:.2f}% (target <= 10%)")
     print(f"  matched echoes {r['matched']}: |range error| median {r['range_error_median_cm']:.2f} cm "
-          f"(target <= 2 cm), bias {r['range_bias_cm']:+.2f} cm; with a range {100 * r['with_range']:.1f}%", flush=True)
+          f"(target <= 2 cm), bias {r['range_bias_cm']:+.2f} cm; with a range {100 * r['with_range']:.1f}%")
+    print(f"  kept echoes {r['kept']}: with a reflectance {100 * r['kept_with_reflectance']:.1f}% (target >= 50%), "
+          f"largest {r['reflectance_max']:.3f}, above 1.5: {r['reflectance_above_1_5']} (target 0)", flush=True)
 
 
 def _spread(values: np.ndarray, range_m: np.ndarray, bins: int = 5) -> tuple[float, float]:

@@ -8,7 +8,10 @@ coefficient and diffuse reflectance (Wagner 2006, 2010), calibrated where the ru
     rho         = gamma / (4 cos alpha)      (a Lambertian target that fills the footprint)
 
 C_cal comes from a reference patch of known reflectance (its single returns, by their median), or is given;
-without either it is 1 and every value is relative, and said so. Plain functions over numpy arrays: the
+without either it is 1 with the range in km and the energy per ns (1e-15 in m and ps: values of a sane scale,
+not 1e17) and every value is relative, and said so. An incidence is used only from a trusted plane (within 80
+degrees of facing the beam, its tilt uncertain by less than 5% of cos alpha); elsewhere the reflectance is the
+apparent one (cos alpha = 1), or null, and `reflectance_basis` says which and why. Plain functions over numpy arrays: the
 pipeline's Geolocate stage and the calibration's pre-pass call `echo_radiometry`.
 """
 
@@ -33,6 +36,20 @@ SBET_FIELDS = ("gps_time", "latitude", "longitude", "height", "x_velocity", "y_v
 SBET_RECORD = np.dtype([(f, "<f8") for f in SBET_FIELDS])  # 17 little-endian doubles, angles in radians
 CALIBRATED, RELATIVE, UNAVAILABLE = "calibrated", "relative", "unavailable"
 MAX_GEOMETRY_ANGLE_DEG = 3.0  # sensor-to-return against the beam: a trajectory in another CRS is far off this
+# C_cal = 1 with R in km and E in units x ns: a relative value of the same scale as the instrument's energies
+RELATIVE_CONSTANT = 1e-15
+# beyond 80 deg 1/cos alpha exceeds 5.8 and grows by tan(alpha) = 10% a degree of the plane's error; a plane that
+# nearly holds the beam is as likely fitted along it (echoes of a few pulses at a step or in a crown) as seen edge-on
+MAX_INCIDENCE_DEG = 80.0
+# a plane whose tilt uncertainty moves cos alpha by more than this (5%) is ill-conditioned for the reflectance
+MAX_COSINE_ERROR = 0.05
+# why an echo's reflectance is what it is (the column reflectance_basis)
+BY_INCIDENCE = "incidence"
+APPARENT_NO_PLANE = "apparent: no plane"
+APPARENT_UNTRUSTED = "apparent: untrusted plane"
+NULL_NO_RANGE = "null: no range"
+NULL_NO_ENERGY = "null: no energy"
+NULL_NO_DIVERGENCE = "null: no beam divergence"
 
 
 class RadiometryError(ValueError):
@@ -115,7 +132,7 @@ class RadiometryConfig:
         return self.calibration_constant is not None
 
     def constant(self) -> float:
-        return self.calibration_constant if self.calibration_constant is not None else 1.0
+        return self.calibration_constant if self.calibration_constant is not None else RELATIVE_CONSTANT
 
     def to_dict(self) -> dict:
         value = dataclasses.asdict(self)
@@ -322,14 +339,22 @@ def local_plane_normals(xyz: np.ndarray, neighbours: int, radius_m: float, max_r
     """Unit normals (n, 3) of planes fitted to each point and its nearest `neighbours` within `radius_m`; NaN where
     fewer than 3 neighbours are that close or the plane's RMS misfit exceeds `max_rms_m` (no plane: vegetation,
     edges)."""
+    return local_planes(xyz, neighbours, radius_m, max_rms_m)[0]
+
+
+def local_planes(xyz: np.ndarray, neighbours: int, radius_m: float, max_rms_m: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """local_plane_normals, and each plane's tilt uncertainty (radians, 1 sigma, about its narrower axis):
+    sqrt(misfit variance / (points x variance along that axis)), as for the slope of a line fitted to them."""
     from scipy.spatial import cKDTree
 
     n = len(xyz)
     normals = np.full((n, 3), np.nan)
+    tilt = np.full(n, np.nan)
     finite = np.all(np.isfinite(xyz), axis=1)
     rows = np.flatnonzero(finite)
     if rows.size < 4:
-        return normals
+        return normals, tilt
     points = xyz[rows]
     origin = points.mean(axis=0)  # numerically kinder than UTM or ECEF magnitudes
     points = points - origin
@@ -345,13 +370,24 @@ def local_plane_normals(xyz: np.ndarray, neighbours: int, radius_m: float, max_r
     rms = np.sqrt(np.maximum(values[:, 0], 0.0))
     ok = (count >= 4) & (rms <= max_rms_m) & (values[:, 1] > 4.0 * values[:, 0])  # a plane, not a line
     normals[rows[ok]] = vectors[ok, :, 0]
-    return normals
+    tilt[rows[ok]] = np.sqrt(np.maximum(values[ok, 0], 0.0) / (count[ok] * values[ok, 1]))
+    return normals, tilt
 
 
 def incidence_angle(normals: np.ndarray, beam: np.ndarray) -> np.ndarray:
     """Radians between the beam (unit, either sense) and the surface normal; NaN where there is no plane."""
     cosine = np.abs(np.einsum("ij,ij->i", normals, beam))
     return np.arccos(np.clip(cosine, 0.0, 1.0))
+
+
+def trusted_incidence(incidence_rad: np.ndarray, tilt_rad: np.ndarray | None = None) -> np.ndarray:
+    """The incidence where its plane can be trusted, NaN elsewhere: at most MAX_INCIDENCE_DEG, and where the plane's
+    tilt uncertainty moves cos alpha by at most MAX_COSINE_ERROR (relative: tan alpha x tilt)."""
+    with np.errstate(invalid="ignore"):
+        ok = incidence_rad <= math.radians(MAX_INCIDENCE_DEG)
+        if tilt_rad is not None:
+            ok &= np.tan(incidence_rad) * tilt_rad <= MAX_COSINE_ERROR
+        return np.where(ok, incidence_rad, np.nan)
 
 
 def backscatter_cross_section(energy: np.ndarray, range_m: np.ndarray, constant: float) -> np.ndarray:
@@ -401,40 +437,48 @@ def echo_ranges(xyz: np.ndarray, echo_time_ps: np.ndarray, direction: np.ndarray
 
 def echo_radiometry(geometry: EchoGeometry, config: RadiometryConfig, beam_divergence_mrad: float | None
                     ) -> dict[str, np.ndarray]:
-    """Per echo: range_m, incidence_deg (kept echoes with a local plane), backscatter_cross_section_m2,
-    backscatter_coefficient, reflectance and the flag radiometry (calibrated | relative | unavailable).
-    Values are NaN where unavailable: no range, or (coefficient and reflectance) no beam divergence."""
+    """Per echo: range_m, incidence_deg (kept echoes with a trusted local plane), backscatter_cross_section_m2,
+    backscatter_coefficient, reflectance, the flag radiometry (calibrated | relative | unavailable) and
+    reflectance_basis (incidence | apparent: why | null: why). Every value is finite and positive, or NaN: no
+    range, no energy, or (coefficient and reflectance) no beam divergence."""
     m = len(geometry.range_m)
-    normals = np.full((m, 3), np.nan)
+    normals, tilt = np.full((m, 3), np.nan), np.full(m, np.nan)
     kept = np.flatnonzero(geometry.kept & np.isfinite(geometry.range_m))
-    normals[kept] = local_plane_normals(geometry.xyz[kept], config.plane_neighbours, config.plane_radius_m,
-                                        config.plane_rms_m)
-    incidence = incidence_angle(normals, geometry.beam)
-    with np.errstate(invalid="ignore"):
+    normals[kept], tilt[kept] = local_planes(geometry.xyz[kept], config.plane_neighbours, config.plane_radius_m,
+                                             config.plane_rms_m)
+    fitted = incidence_angle(normals, geometry.beam)
+    incidence = trusted_incidence(fitted, tilt)
+    with np.errstate(invalid="ignore", over="ignore"):
         sigma = backscatter_cross_section(geometry.energy, geometry.range_m, config.constant())
+        ranged = np.isfinite(geometry.range_m) & (geometry.range_m > 0)
+        has = ranged & np.isfinite(sigma) & (sigma > 0)
+        sigma = np.where(has, sigma, np.nan)
         if beam_divergence_mrad:
             gamma = backscatter_coefficient(sigma, geometry.range_m, beam_divergence_mrad * 1e-3)
             rho = diffuse_reflectance(gamma, incidence)
         else:
             gamma = rho = np.full(m, np.nan)
-    has = np.isfinite(geometry.range_m) & np.isfinite(sigma)
+    basis = np.select([~ranged, ~has, np.isnan(rho), np.isfinite(incidence), np.isfinite(fitted)],
+                      [NULL_NO_RANGE, NULL_NO_ENERGY, NULL_NO_DIVERGENCE, BY_INCIDENCE, APPARENT_UNTRUSTED],
+                      APPARENT_NO_PLANE).astype(object)
     flag = np.where(has, CALIBRATED if config.calibrated else RELATIVE, UNAVAILABLE)
-    return {"range_m": geometry.range_m, "incidence_deg": np.degrees(incidence),
-            "backscatter_cross_section_m2": np.where(has, sigma, np.nan), "backscatter_coefficient": gamma,
-            "reflectance": rho, "radiometry": flag}
+    return {"range_m": np.where(ranged, geometry.range_m, np.nan), "incidence_deg": np.degrees(incidence),
+            "backscatter_cross_section_m2": sigma, "backscatter_coefficient": gamma, "reflectance": rho,
+            "radiometry": flag, "reflectance_basis": basis}
 
 
 def calibration_samples(radiometry: dict[str, np.ndarray], xyz: np.ndarray, single: np.ndarray,
                         reference: CalibrationReference, beam_divergence_mrad: float) -> np.ndarray:
     """C_cal per echo of the reference patch: single returns inside it with a range and a local plane, whose
-    relative cross-section (C_cal = 1) must equal pi rho R^2 beta^2 cos alpha (a Lambertian extended target)."""
+    R^4 E (their relative cross-section over RELATIVE_CONSTANT) times C_cal must equal pi rho R^2 beta^2 cos alpha
+    (a Lambertian extended target)."""
     inside = (single & reference.contains(xyz[:, 0], xyz[:, 1]) & np.isfinite(radiometry["incidence_deg"])
               & np.isfinite(radiometry["backscatter_cross_section_m2"]))
     r = radiometry["range_m"][inside]
     alpha = np.radians(radiometry["incidence_deg"][inside])
     beta = beam_divergence_mrad * 1e-3
     expected = math.pi * reference.reflectance * r ** 2 * beta ** 2 * np.cos(alpha)
-    return expected / radiometry["backscatter_cross_section_m2"][inside]
+    return expected / (radiometry["backscatter_cross_section_m2"][inside] / RELATIVE_CONSTANT)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -116,6 +116,8 @@ COLUMNS = {c.name: c for c in (
     Column("backscatter_coefficient", F64, "1", "gamma = 4 sigma / (pi R^2 beta^2); relative unless calibrated"),
     Column("reflectance", F64, "1", "rho = gamma / (4 cos alpha), alpha 0 without a plane; relative unless calibrated"),
     Column("radiometry", STR, "", "calibrated | relative | unavailable: what the radiometric columns are"),
+    Column("reflectance_basis", STR, "", "incidence | apparent: no plane | apparent: untrusted plane | null: no "
+                                         "range, no energy or no beam divergence: what the reflectance is, or why none"),
     Column("x", F64, "CRS unit", "the echo's position in the input's CRS (at time_ps plus the file's range offset)"),
     Column("y", F64, "CRS unit", "as x"),
     Column("z", F64, "CRS unit", "as x"),
@@ -156,7 +158,7 @@ TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
                "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
-               "radiometry", "x", "y", "z", GEOMETRY_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
+               "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
@@ -254,10 +256,11 @@ RADIOMETRY_COLUMNS = ("range_m", "incidence_deg", "backscatter_cross_section_m2"
 def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dict:
     """fwcore.radiometry.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
     if radiometry is None:
-        radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable")}
+        radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable"),
+                      "reflectance_basis": np.full(n, "null: no range")}
     # NaN is null here: unavailable, not a number gone wrong
     return {**{c: _null_where_nan(radiometry[c]) for c in RADIOMETRY_COLUMNS},
-            "radiometry": np.asarray(radiometry["radiometry"], dtype=object).tolist()}
+            **{c: np.asarray(radiometry[c], dtype=object).tolist() for c in ("radiometry", "reflectance_basis")}}
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,

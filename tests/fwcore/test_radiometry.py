@@ -338,10 +338,14 @@ def test_a_given_constant_makes_echoes_calibrated():
     np.testing.assert_allclose(out["incidence_deg"], 0.0, rtol=0, atol=1e-6)
 
 
-def test_without_a_constant_echoes_are_relative_with_c_equal_to_one():
-    out = echo_radiometry(flat_geometry(range_m=500.0, energy=2.0), RadiometryConfig(), 0.5)
-    assert (out["radiometry"] == RELATIVE).all()
-    assert (out["backscatter_cross_section_m2"] == 500.0 ** 4 * 2.0).all()  # 1.25e11, exactly
+def test_without_a_constant_echoes_are_relative_with_c_equal_to_one_in_km_and_ns():
+    # the RIEGL sample's median echo: 3.8e5 DN x ps at 500 m (with C = 1 in m and ps its reflectance was 1.2e17)
+    out = echo_radiometry(flat_geometry(range_m=500.0, energy=3.8e5), RadiometryConfig(), 0.5)
+    assert (out["radiometry"] == RELATIVE).all() and (out["reflectance_basis"] == "incidence").all()
+    np.testing.assert_allclose(out["backscatter_cross_section_m2"], 0.5 ** 4 * 380.0, rtol=1e-12)  # 23.75
+    # gamma = 4 x 23.75 / (pi 500^2 (0.5e-3)^2) = 95 / (0.0625 pi); rho = gamma / 4 at normal incidence
+    np.testing.assert_allclose(out["backscatter_coefficient"], 95.0 / (0.0625 * math.pi), rtol=1e-9)
+    np.testing.assert_allclose(out["reflectance"], 380.0 / math.pi, rtol=1e-9)  # 121
     np.testing.assert_array_equal(out["range_m"], 500.0)
 
 
@@ -359,9 +363,9 @@ def test_an_echo_without_range_is_unavailable_and_nan():
 
 def test_without_beam_divergence_only_the_cross_section_is_given():
     out = echo_radiometry(flat_geometry(range_m=10.0, energy=3.0), RadiometryConfig(), None)
-    np.testing.assert_array_equal(out["backscatter_cross_section_m2"], 30000.0)
+    np.testing.assert_allclose(out["backscatter_cross_section_m2"], 3e-11, rtol=1e-12)  # 1e-15 x 1e4 x 3
     assert np.isnan(out["backscatter_coefficient"]).all() and np.isnan(out["reflectance"]).all()
-    assert (out["radiometry"] == RELATIVE).all()
+    assert (out["radiometry"] == RELATIVE).all() and (out["reflectance_basis"] == "null: no beam divergence").all()
 
 
 def test_incidence_is_only_for_kept_echoes():
@@ -370,8 +374,9 @@ def test_incidence_is_only_for_kept_echoes():
     out = echo_radiometry(geometry, RadiometryConfig(), 1.0)
     assert np.isnan(out["incidence_deg"][12])
     assert np.isfinite(np.delete(out["incidence_deg"], 12)).all()
-    # its reflectance is the apparent one (normal incidence): gamma / 4 = 4 * 1e4 / (pi * 100 * 1e-6) / 4
-    assert out["reflectance"][12] == pytest.approx(1e8 / math.pi, rel=1e-12)
+    # its reflectance is the apparent one (normal incidence): gamma / 4 = 4 * 1e-11 / (pi * 100 * 1e-6) / 4
+    assert out["reflectance"][12] == pytest.approx(1e-7 / math.pi, rel=1e-12)
+    assert out["reflectance_basis"][12] == "apparent: no plane" and out["reflectance_basis"][0] == "incidence"
 
 
 def test_incidence_in_degrees_on_a_tilted_plane():
@@ -497,7 +502,7 @@ def test_config_round_trips_through_a_dict():
     again = RadiometryConfig.from_dict(json.loads(json.dumps(config.to_dict())))
     assert again == config
     assert again.calibrated and again.constant() == 2e-9
-    assert not RadiometryConfig().calibrated and RadiometryConfig().constant() == 1.0
+    assert not RadiometryConfig().calibrated and RadiometryConfig().constant() == 1e-15  # 1 in km and ns
 
 
 # ---------------------------------------------------------------- metric beams
@@ -511,3 +516,65 @@ def test_metric_beam_is_light_two_way_per_ps_in_metres():
     assert not metric_beam(along_x(1e-9))[0]  # degrees
     assert not metric_beam(along_x(4.9e-4))[0]  # feet
     np.testing.assert_array_equal(metric_beam(np.array([[1.499e-4, 0, 0], [1e-9, 0, 0]])), [True, False])
+
+
+def wall_geometry(n=10, range_m=500.0, energy=3.8e5):
+    """Echoes on a vertical plane x = 0 (a wall, or echoes of a few pulses along their beams) seen from above."""
+    yy, zz = np.meshgrid(np.arange(n) * 0.5, np.arange(n) * 0.5)
+    xyz = np.stack([np.zeros(n * n), yy.ravel(), zz.ravel()], axis=1)
+    m = len(xyz)
+    return EchoGeometry(xyz=xyz, beam=np.tile(DOWN, (m, 1)), range_m=np.full(m, range_m),
+                        energy=np.full(m, energy), kept=np.ones(m, dtype=bool))
+
+
+def test_a_plane_along_the_beam_gives_no_incidence_and_the_apparent_reflectance():
+    # the plane holds the beam: incidence 90 deg, 1 / cos alpha 1e16 (the simulated flight's 1e15 reflectances)
+    calibrated = RadiometryConfig(calibration_constant=3.7e-17)
+    out = echo_radiometry(wall_geometry(), calibrated, 0.5)
+    assert np.isnan(out["incidence_deg"]).all()
+    assert (out["reflectance_basis"] == "apparent: untrusted plane").all()
+    # apparent: C R^4 E x 4 / (pi R^2 beta^2) / 4 = 3.7e-17 x 500^2 x 3.8e5 / (pi x 0.25e-6) = 0.4477
+    np.testing.assert_allclose(out["reflectance"], 3.7e-17 * 500.0 ** 2 * 3.8e5 / (math.pi * 0.25e-6), rtol=1e-9)
+    assert (out["radiometry"] == CALIBRATED).all()
+
+
+def test_incidence_is_trusted_up_to_80_degrees():
+    from fwcore.radiometry import trusted_incidence
+
+    kept = trusted_incidence(np.radians([0.0, 45.0, 79.9, 80.1, 89.99, np.nan]))
+    np.testing.assert_allclose(np.degrees(kept), [0.0, 45.0, 79.9, np.nan, np.nan, np.nan])
+
+
+def test_an_echo_without_energy_has_null_radiometry_and_says_why():
+    geometry = flat_geometry(range_m=500.0, energy=3.8e5)
+    geometry.energy[[4, 5]] = [0.0, np.inf]
+    out = echo_radiometry(geometry, RadiometryConfig(calibration_constant=3.7e-17), 0.5)
+    for column in ("backscatter_cross_section_m2", "backscatter_coefficient", "reflectance"):
+        assert np.isnan(out[column][[4, 5]]).all() and np.isfinite(np.delete(out[column], [4, 5])).all()
+    assert list(out["reflectance_basis"][[3, 4, 5]]) == ["incidence", "null: no energy", "null: no energy"]
+    assert list(out["radiometry"][[3, 4]]) == [CALIBRATED, "unavailable"]
+    np.testing.assert_array_equal(out["range_m"], 500.0)
+
+
+def test_a_plane_whose_tilt_is_uncertain_is_not_trusted_where_it_moves_cos_alpha_by_more_than_5_percent():
+    from fwcore.radiometry import trusted_incidence
+
+    # tan(45 deg) x 0.04 = 4%: trusted; x 0.06 = 6%: not; at 10 deg tan = 0.176: 0.06 rad moves cos by 1%
+    kept = trusted_incidence(np.radians([45.0, 45.0, 10.0]), np.array([0.04, 0.06, 0.06]))
+    np.testing.assert_allclose(np.degrees(kept), [45.0, np.nan, 10.0])
+
+
+def test_the_tilt_uncertainty_of_a_fitted_plane():
+    from fwcore.radiometry import local_planes
+
+    # 9 points: a 3 x 3 grid 1 m apart, z = +-0.01 m in a checkerboard: misfit variance ~1e-4 about the plane,
+    # variance 2/3 m^2 along either axis: tilt sqrt(1e-4 x 80/81 / (9 x 2/3)) ~ 0.004 rad
+    x, y = np.meshgrid(np.arange(3.0), np.arange(3.0))
+    z = 0.01 * np.where((x + y) % 2 == 0, 1.0, -1.0)
+    xyz = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    normals, tilt = local_planes(xyz, 10, 5.0, 0.10)
+    assert np.isfinite(normals).all()
+    centred = xyz - xyz.mean(axis=0)
+    values = np.linalg.eigvalsh(centred.T @ centred / 9)
+    np.testing.assert_allclose(tilt, np.sqrt(values[0] / (9 * values[1])), rtol=1e-9)
+    assert 0.003 < tilt[0] < 0.005

@@ -45,6 +45,18 @@ def test_a_calibrated_run_finds_reflectance_and_range_of_the_simulated_truth(cal
     assert accuracy["range_error_median_cm"] < 2.0
 
 
+def test_every_calibrated_reflectance_is_finite_and_bounded_and_says_what_it_is(calibrated):
+    echoes = ds.dataset(str(calibrated / "echoes")).to_table(
+        columns=["kept", "reflectance", "incidence_deg", "reflectance_basis"]).to_pandas()
+    kept = echoes[echoes.kept]
+    given = kept.reflectance.dropna()
+    assert len(given) >= 0.5 * len(kept) and given.between(1e-6, 1.5).all()  # true reflectances 0.05-0.6
+    assert kept.incidence_deg.dropna().between(0, 80).all()
+    by_incidence = kept.reflectance_basis == "incidence"
+    assert kept.incidence_deg[by_incidence].notna().all() and kept.incidence_deg[~by_incidence].isna().all()
+    assert set(kept.reflectance_basis) <= {"incidence", "apparent: no plane", "apparent: untrusted plane"}
+
+
 def test_the_calibration_constant_is_the_simulated_radar_constant(calibrated, flight):
     """The simulator's echoes have energy K rho cos(a) / R^2 (DN x ps); the run's energies are in volts x ps
     (the digitizer gain 0.01 V/DN), so sigma = C R^4 E needs C = pi beta^2 / (K gain)."""
@@ -96,8 +108,12 @@ def test_pulsewaves_ranges_come_from_the_scanner_position_in_the_file(tmp_path, 
     assert kept.range_m.notna().mean() >= 0.99
     assert kept.range_m.between(480, 530).all()  # the Q680 flew ~500 m from these returns
     assert (kept.radiometry == "relative").all() and kept.backscatter_coefficient.notna().all()
-    # relative values: C_cal = 1, sigma = R^4 E with E the energy in digitizer units x ps
-    np.testing.assert_allclose(kept.backscatter_cross_section_m2, kept.range_m ** 4 * kept.energy, rtol=1e-9)
+    # relative values: C_cal = 1 in km and ns, sigma = (R / km)^4 E / ns with E the energy in digitizer units x ps
+    np.testing.assert_allclose(kept.backscatter_cross_section_m2, 1e-15 * kept.range_m ** 4 * kept.energy,
+                               rtol=1e-9)
+    # of the instrument's energies' scale (it reached 4.2e17 with C = 1 in m and ps), and never 90 deg planes
+    assert kept.reflectance.between(0.1, 1e4).all() and kept.incidence_deg.dropna().between(0, 80).all()
+    assert set(kept.reflectance_basis) <= {"incidence", "apparent: no plane", "apparent: untrusted plane"}
     planned = json.loads((out / "run.json").read_text())["inputs"][0]["radiometry"]
     assert planned == {"range_source": "scanner position in the file", "why_no_range": None,
                        "beam_divergence_mrad": 0.5, "beam_divergence_source": "file"}

@@ -89,3 +89,60 @@ def test_matching_is_one_to_one_and_within_the_window():
 def test_a_directory_that_is_no_run_is_an_error(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path), "--truth", str(tmp_path / "x.parquet")]) == 2
     assert "not an fwl run output folder" in capsys.readouterr().err
+
+
+def hand_built_truth():
+    """Pulses of known separations, W = 4 ns (the median FWHM), noise sigma 1 DN:
+    pulse 1: a single echo (resolvable); pulse 2: two echoes 10 ns apart (2.5 W, both resolvable);
+    pulse 3: two echoes 3 ns apart (0.75 W: a group, centre 3,500 ps) and one 20 ns on (resolvable);
+    pulse 4: two echoes 2.5 ns apart (0.625 W: a group, centre 6,250 ps); pulse 5: one echo of SNR 3."""
+    return {"pulse_id": np.array([1, 2, 2, 3, 3, 3, 4, 4, 5]),
+            "time_ps": np.array([5000.0, 5000.0, 15000.0, 2000.0, 5000.0, 25000.0, 5000.0, 7500.0, 5000.0]),
+            "amplitude": np.array([50.0, 50.0, 40.0, 20.0, 20.0, 25.0, 20.0, 20.0, 3.0]),
+            "noise_sigma": np.ones(9),
+            "fwhm_ps": np.array([4000.0, 4000.0, 4000.0, 4000.0, 4000.0, 4000.0, 3000.0, 5000.0, 4000.0])}
+
+
+def test_resolution_on_a_hand_built_truth_with_known_answers():
+    from fwcore.studies.evaluate import score_resolution
+
+    # kept: pulse 1 +300 ps; pulse 2 both (-400, +600 ps); pulse 3 its group's centre (1.5 ns from either echo)
+    # and its far echo; pulse 4 150 ps past its group's centre (1.4 and 1.1 ns from its echoes, within 0.5 W of the
+    # centre); pulse 5 a ghost 3 ns off its weak echo
+    found = {"pulse_id": np.array([1, 2, 2, 3, 3, 4, 5]),
+             "time_ps": np.array([5300.0, 4600.0, 15600.0, 3500.0, 25000.0, 6400.0, 8000.0])}
+    scored = score_resolution(hand_built_truth(), found)
+    assert scored.pulse_width_ps == 4000.0
+    assert scored.resolvable == 4 and scored.matched == 4 and scored.recall == 1.0
+    # right: the 4 matched and the two group centres; wrong: the ghost
+    assert scored.kept == 7 and scored.right == 6 and scored.precision == pytest.approx(6 / 7)
+    cm = np.array([300.0, -400.0, 600.0, 0.0]) * 0.0299792458 / 2  # ps -> cm (two-way, in air)
+    assert scored.range_rmse_cm == pytest.approx(np.sqrt(np.mean(cm ** 2)), rel=1e-3)
+    by = {b.label: (b.true_echoes, b.matched) for b in scored.by_separation}
+    # pulse 4's pair at 0.625 W, pulse 3's at 0.75 W (neither split), pulse 2's at 2.5 W, pulse 3's far one 5 W
+    assert by == {"< 0.5 W": (0, 0), "0.5-0.75 W": (2, 0), "0.75-1 W": (2, 0), "1-1.5 W": (0, 0),
+                  "1.5-2 W": (0, 0), ">= 2 W": (3, 3)}
+
+
+def test_a_group_whose_member_is_found_gives_no_second_right_echo():
+    from fwcore.studies.evaluate import score_resolution
+
+    # pulse 3: its 5,000 ps echo found within 1 ns, and another echo at the group's centre: the same surfaces twice
+    found = {"pulse_id": np.array([3, 3, 4]), "time_ps": np.array([5200.0, 3500.0, 9000.0])}
+    scored = score_resolution(hand_built_truth(), found)
+    assert scored.kept == 3 and scored.right == 1  # pulse 4's 9,000 ps: 1.5 ns from its echo, 2.75 from the centre
+    by = {b.label: (b.true_echoes, b.matched) for b in scored.by_separation}
+    assert by["0.75-1 W"] == (2, 1)
+
+
+def test_evaluate_reports_resolvable_rows(high_snr_run):
+    from fwcore.studies.evaluate import resolution_of_run
+
+    rows = evaluate_run(high_snr_run / "run", high_snr_run / "sim.truth.parquet")
+    scored = resolution_of_run(high_snr_run / "run", high_snr_run / "sim.truth.parquet")
+    resolvable = next(r for r in rows if r["split"] == "resolvable: >= 1 W apart, SNR >= 5")
+    assert resolvable["true_echoes"] == scored.resolvable and resolvable["recall"] == scored.recall
+    assert resolvable["precision"] == scored.precision and resolvable["range_rmse_cm"] == scored.range_rmse_cm
+    assert scored.recall > 0.95 and 0.9 < scored.precision <= 1.0
+    bins = [r for r in rows if r["split"].endswith("apart, SNR >= 5") and r is not resolvable]
+    assert [r["true_echoes"] for r in bins] == [b.true_echoes for b in scored.by_separation]
