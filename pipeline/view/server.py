@@ -218,8 +218,9 @@ class Viewer:
         return {"input": ident, "output": self.roots.id_of(job.output), **job.state()}
 
 
-# the page runs only its own scripts (no inline script); Plotly sets inline styles and compiles WebGL shaders
-CONTENT_SECURITY_POLICY = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+# the page runs only its own files' scripts, never inline script or markup's handlers; Plotly sets inline styles,
+# and its WebGL layer (regl) builds its draw calls with Function, hence 'unsafe-eval' (over no text of a file)
+CONTENT_SECURITY_POLICY = ("default-src 'self'; script-src 'self' 'unsafe-eval'; style-src 'self' 'unsafe-inline'; "
                            "img-src 'self' data: blob:; worker-src 'self' blob:; connect-src 'self'; "
                            "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
 REQUEST_TIMEOUT = 10.0  # seconds a connection may stay silent (a short body, a half-open client)

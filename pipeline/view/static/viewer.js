@@ -244,11 +244,11 @@ function echoTraces(data, three) {
 
 function pickedTrace(three) {
   if (!picked) return [];
-  const t = { mode: "markers", name: `pulse ${state.pulse}`, meta: "picked", hoverinfo: "name",
+  const t = { mode: "markers", name: `pulse ${state.pulse}`, meta: "picked", hoverinfo: "skip",
     x: picked.x, y: picked.y, marker: { color: "rgba(0,0,0,0)", size: three ? 6 : 16, symbol: "circle-open",
       line: { color: "#e02020", width: 3 } } };
   if (three) { t.type = "scatter3d"; t.z = picked.z; t.marker = { color: "#e02020", size: 5, symbol: "diamond" }; }
-  else t.type = "scatter";
+  else t.type = WEBGL ? "scattergl" : "scatter";  // one kind of trace: an SVG layer over WebGL takes the clicks
   return [t];
 }
 
@@ -311,8 +311,8 @@ function bindPlotEvents() {
   if (bound) return;
   bound = true;
   const onClick = (event) => {
-    const p = event.points && event.points[0];
-    if (p && p.customdata) showPulse(p.customdata[0], p.customdata[1]);
+    const p = (event.points || []).find((q) => q.customdata);  // an echo, not a mark over it
+    if (p) showPulse(p.customdata[0], p.customdata[1]);
   };
   $("map").on("plotly_click", onClick);
   $("scene").on("plotly_click", onClick);
