@@ -121,7 +121,10 @@ def _frame(run: Path, _mtime: int) -> Frame:
         return Frame(("x (m)", "y (m)", "z (m)"), name)
     import pyproj
     origin = tuple((lo + hi) / 2 for lo, hi in (b["x"], b["y"], b["z"]))
-    geodetic = pyproj.Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True)
+    ellipsoid = crs.ellipsoid  # the centre's latitude and longitude on the CRS's own ellipsoid
+    geodetic = pyproj.Transformer.from_pipeline(
+        f"+proj=pipeline +step +inv +proj=cart +a={ellipsoid.semi_major_metre!r} +rf={ellipsoid.inverse_flattening!r} "
+        f"+step +proj=unitconvert +xy_in=rad +xy_out=deg")
     lon, lat, h = geodetic.transform(*origin)
     lam, phi = np.radians(lon), np.radians(lat)
     rotation = ((-np.sin(lam), np.cos(lam), 0.0),
