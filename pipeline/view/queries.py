@@ -7,7 +7,6 @@ as the box shrinks, so a run of millions of echoes stays responsive.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import functools
 import json
@@ -24,7 +23,6 @@ COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "
 COLOUR_UNITS = {"height": "m", "amplitude": "DN", "width": "ns", "fit_error": "", "reflectance": "", "range": "m"}
 HISTOGRAM_BINS = 40
 COLOUR_SQL = {"width": "fwhm_ps / 1000.0"}  # the width in ns, as the pulse view shows times
-ECHO_CACHE = 64  # answers kept: a reload, or many pages asking for the same view, reads the tables once
 
 _local = threading.local()
 _database = duckdb.connect()
@@ -205,35 +203,13 @@ def colour_range(values: np.ndarray) -> dict:
     return {"cmin": lo, "cmax": hi, "below": int((finite < lo).sum()), "above": int((finite > hi).sum())}
 
 
-_echo_cache: collections.OrderedDict = collections.OrderedDict()
-_echo_cache_lock = threading.Lock()
-_echo_key_locks: dict = {}
-
-
 def echoes_in_box(run: Path, colour: str, box: tuple[float, float, float, float] | None, limit: int,
                   kept_only: bool = False) -> dict:
     """Up to `limit` echoes inside box (xmin, xmax, ymin, ymax of the map's frame), their colour value, kept
-    flag and pulse; the same request again is answered from memory while the run is unchanged."""
+    flag and pulse."""
     if colour not in COLOUR_COLUMNS:
         raise ValueError(f"colour must be one of {', '.join(COLOUR_COLUMNS)}, not {colour!r}")
-    mtime = (run / "run.json").stat().st_mtime_ns if (run / "run.json").exists() else 0
-    key = (str(run), mtime, colour, box, int(limit), bool(kept_only))
-    with _echo_cache_lock:
-        if key in _echo_cache:
-            _echo_cache.move_to_end(key)
-            return _echo_cache[key]
-        key_lock = _echo_key_locks.setdefault(key, threading.Lock())
-    with key_lock:  # one query per view: the others asking for it at once wait for its answer
-        with _echo_cache_lock:
-            if key in _echo_cache:
-                return _echo_cache[key]
-        answer = _echoes_in_box(run, colour, box, limit, kept_only)
-        with _echo_cache_lock:
-            _echo_cache[key] = answer
-            while len(_echo_cache) > ECHO_CACHE:
-                _echo_cache.popitem(last=False)
-            _echo_key_locks.pop(key, None)
-    return answer
+    return _echoes_in_box(run, colour, box, limit, kept_only)
 
 
 def _echoes_in_box(run: Path, colour: str, box, limit: int, kept_only: bool) -> dict:

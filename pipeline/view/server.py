@@ -19,6 +19,7 @@ is fetched from the network.
 
 from __future__ import annotations
 
+import collections
 import hmac
 import ipaddress
 import json
@@ -108,6 +109,43 @@ class Refits:
                 self._cond.notify_all()
 
 
+class Encoded(bytes):
+    """An answer already in JSON."""
+
+
+class Answers:
+    """The last `size` answers by key; a key many requests ask for at once is made once, the others wait for it
+    (a reload, or many pages on the same view, read the tables and encode the JSON once)."""
+
+    def __init__(self, size: int = 32):
+        self.size = size
+        self._answers: collections.OrderedDict = collections.OrderedDict()
+        self._making: dict = {}
+        self._lock = threading.Lock()
+
+    def clear(self) -> None:
+        with self._lock:
+            self._answers.clear()
+
+    def get(self, key, make) -> Encoded:
+        with self._lock:
+            if key in self._answers:
+                self._answers.move_to_end(key)
+                return self._answers[key]
+            making = self._making.setdefault(key, threading.Lock())
+        with making:
+            with self._lock:
+                if key in self._answers:
+                    return self._answers[key]
+            answer = Encoded(json.dumps(jsonable(make()), allow_nan=False).encode())
+            with self._lock:
+                self._answers[key] = answer
+                while len(self._answers) > self.size:
+                    self._answers.popitem(last=False)
+                self._making.pop(key, None)
+        return answer
+
+
 class Busy(RuntimeError):
     """Too many fits waiting (HTTP 503)."""
 
@@ -122,6 +160,7 @@ class Viewer:
     def __init__(self, roots: Roots, jobs: Jobs, token: str | None = None):
         self.roots, self.jobs, self.token = roots, jobs, token
         self.refits = Refits()
+        self.answers = Answers()
 
     # ------------------------------------------------------------ endpoints
 
@@ -172,8 +211,10 @@ class Viewer:
     def echoes(self, query) -> dict:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
         colour = params.choice(query, "colour", tuple(queries.COLOUR_COLUMNS), "height")
-        return queries.echoes_in_box(run, colour, params.box(query), params.limit(query, 20000),
-                                     params.flag(query, "kept"))
+        box, limit, kept = params.box(query), params.limit(query, 20000), params.flag(query, "kept")
+        marker = run / "run.json"  # a run written again is another run
+        key = ("echoes", str(run), marker.stat().st_mtime_ns, colour, box, limit, kept)
+        return self.answers.get(key, lambda: queries.echoes_in_box(run, colour, box, limit, kept))
 
     def returns(self, query) -> dict:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
@@ -293,7 +334,8 @@ class Handler(BaseHTTPRequestHandler):
 
     def _call(self, endpoint, argument):
         try:
-            payload = jsonable(endpoint(argument))
+            answer = endpoint(argument)
+            payload = answer if isinstance(answer, Encoded) else json.dumps(jsonable(answer), allow_nan=False).encode()
         except OutsideRoots as err:
             return self._error(403, str(err))
         except (BadRequest, ValueError) as err:
@@ -307,7 +349,7 @@ class Handler(BaseHTTPRequestHandler):
         except Exception as err:  # the page shows the message; the terminal the trace
             traceback.print_exc()
             return self._error(500, f"{type(err).__name__}: {err}")
-        self._send(200, json.dumps(payload, allow_nan=False).encode(), "application/json")
+        self._send(200, payload, "application/json")
 
     def _static(self, name: str):
         if name == "plotly.min.js":

@@ -6,6 +6,7 @@ import http.client
 import json
 import os
 import shutil
+import threading
 import time
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -240,3 +241,53 @@ def test_a_refused_decompose_creates_nothing(tmp_path):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_many_requests_at_once_and_idle_connections_are_all_answered(viewed):
+    """200 map requests at once all answer 200 (a deep listen backlog: none reset), with the same echoes; with
+    300 connections open and silent, another request is still answered (a thread each, dropped on timeout)."""
+    import socket
+    from concurrent.futures import ThreadPoolExecutor
+
+    path = f"/api/echoes?run={viewed.run_id}&colour=amplitude&limit=60000"
+    with ThreadPoolExecutor(200) as pool:
+        answers = list(pool.map(lambda _: _request(viewed.url, "GET", path), range(200)))
+    assert [a[0] for a in answers] == [200] * 200
+    assert all(a[2]["pulse_id"] == answers[0][2]["pulse_id"] for a in answers)
+    u = urlsplit(viewed.url)
+    idle = [socket.create_connection((u.hostname, u.port), timeout=30) for _ in range(300)]
+    try:
+        idle[0].sendall(b"POST /api/try HTTP/1.1\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{")
+        status, _, data = _request(viewed.url, "GET", f"/api/summary?run={viewed.run_id}")
+        assert status == 200 and data["counts"]["pulses_read"] == 90
+    finally:
+        for s in idle:
+            s.close()
+
+
+def test_a_fit_waiting_is_cancelled_by_its_pages_next(viewed):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pipeline.view.server import Busy, Cancelled, Refits
+
+    refits, started, release = Refits(slots=1, waiting=2), threading.Event(), threading.Event()
+
+    def slow():
+        started.set()
+        release.wait(30)
+        return "first"
+
+    with ThreadPoolExecutor(4) as pool:
+        first = pool.submit(refits.run, "page-a", "refit", slow)
+        started.wait(30)
+        waiting = pool.submit(refits.run, "page-b", "refit", lambda: "b, first try")
+        time.sleep(0.2)
+        later = pool.submit(refits.run, "page-b", "refit", lambda: "b, moved on")
+        other = pool.submit(refits.run, "page-c", "refit", lambda: "c")
+        time.sleep(0.2)
+        with pytest.raises(Busy):  # two waiting already: the queue is bounded
+            refits.run("page-d", "refit", lambda: "d")
+        release.set()
+        assert first.result(30) == "first" and later.result(30) == "b, moved on" and other.result(30) == "c"
+        with pytest.raises(Cancelled):
+            waiting.result(30)
