@@ -291,3 +291,45 @@ def test_a_fit_waiting_is_cancelled_by_its_pages_next(viewed):
         assert first.result(30) == "first" and later.result(30) == "b, moved on" and other.result(30) == "c"
         with pytest.raises(Cancelled):
             waiting.result(30)
+
+
+def test_a_viewer_open_to_the_network_warns_and_asks_for_its_token(viewed):
+    """--host 0.0.0.0: a warning, a URL with this machine's name and a token (never http://0.0.0.0), and every
+    API call refused without that token, whatever Host it names."""
+    import re
+    import subprocess
+    import sys
+
+    process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "view", str(viewed.run), "--host", "0.0.0.0",
+                                "--port", "0", "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        warning = process.stderr.readline()
+        while "WARNING" not in warning and warning:
+            warning = process.stderr.readline()
+        line = process.stdout.readline()
+        assert "WARNING: listening on 0.0.0.0" in warning and "token" in warning
+        assert "0.0.0.0" not in line
+        match = re.search(r"http://([^:/]+):(\d+)/\?token=([A-Za-z0-9_-]{20,})", line)
+        assert match, line
+        port, token = match.group(2), match.group(3)
+        url = f"http://127.0.0.1:{port}/"
+        assert _request(url, "GET", "/")[0] == 200  # the page itself holds no data
+        for headers in ({}, {"X-Fwl-Token": "guess"}, {"Host": "evil.example"}):
+            status, _, data = _request(url, "GET", "/api/catalog", headers=headers)
+            assert status == 403 and "token" in data["error"]
+        assert _request(url, "GET", "/api/catalog", headers={"X-Fwl-Token": token})[0] == 200
+        assert _request(url, "GET", f"/api/catalog?token={token}", headers={"Host": "evil.example"})[0] == 200
+        status, _, _ = _request(url, "POST", "/api/decompose", {"input": "0/x.las"})
+        assert status == 403
+    finally:
+        process.terminate()
+        process.wait(20)
+
+
+def test_the_loopback_viewer_prints_its_address_and_needs_no_token(viewed):
+    from pipeline.view.server import is_loopback
+
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
+    assert "token" not in viewed.url and viewed.get("/api/catalog")["runs"]
