@@ -193,7 +193,7 @@ function offerColours() {
     const why = colours[option.value];
     option.disabled = !!why;
     option.title = why || "";
-    option.textContent = option.dataset.label + (why ? " (not in this run)" : "");
+    option.textContent = option.dataset.label + (why ? " ✗" : "");  // the reason: its tooltip and the note
   }
   $("colour-note").textContent = colours[state.colour] ? `${state.colour}: ${colours[state.colour]}` : "";
 }
@@ -245,8 +245,7 @@ function echoTraces(data, three) {
 function pickedTrace(three) {
   if (!picked) return [];
   const t = { mode: "markers", name: `pulse ${state.pulse}`, meta: "picked", hoverinfo: "skip",
-    x: picked.x, y: picked.y, marker: { color: "rgba(0,0,0,0)", size: three ? 6 : 16, symbol: "circle-open",
-      line: { color: "#e02020", width: 3 } } };
+    x: picked.x, y: picked.y, marker: { color: "#e02020", size: 16, symbol: "circle-open", line: { width: 3 } } };
   if (three) { t.type = "scatter3d"; t.z = picked.z; t.marker = { color: "#e02020", size: 5, symbol: "diamond" }; }
   else t.type = WEBGL ? "scattergl" : "scatter";  // one kind of trace: an SVG layer over WebGL takes the clicks
   return [t];

@@ -261,3 +261,33 @@ def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl
     assert kept["cmin"] > values.min() and kept["cmax"] < values.max()
     assert "2nd–98th" in kept["colorbar"]["title"]["text"]
     assert max(abs(v) for v in served["x"] + served["y"]) < 5000
+
+
+def _documented_urls() -> list[str]:
+    """The viewer URLs the documentation shows (`?run=...`), from every docs page and the README."""
+    root = Path(__file__).resolve().parents[3]
+    pages = sorted((root / "docs").glob("*.md")) + [root / "README.md"]
+    return sorted({m for page in pages for m in re.findall(r"\?run=[^`\s)]+", page.read_text())})
+
+
+@pytest.mark.parametrize("query", _documented_urls())
+def test_a_documented_url_opens_what_it_says(browser, fwl_view, query):
+    """Opened on `fwl view` of the Leica sample's run (its first 90 pulses, as the docs' example says)."""
+    from urllib.parse import parse_qs
+
+    wanted = {k: v[0] for k, v in parse_qs(query[1:]).items()}
+    browser.get(fwl_view + query)
+    _wait(browser, "document.body.dataset.ready === '1'")
+    if "pulse" in wanted:
+        file, pulse = wanted["pulse"].rsplit(":", 1)
+        _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse}'")
+        assert browser.execute_script("return document.getElementById('waveform').dataset.file") == file
+    if "colour" in wanted:
+        assert browser.execute_script("return document.getElementById('colour').value") == wanted["colour"]
+    if wanted.get("tab") == "try":
+        _wait(browser, "document.getElementById('try-b-title').textContent.startsWith('yours')")
+    assert browser.execute_script("return document.getElementById('message').textContent") == ""
+
+
+def test_the_documentation_shows_a_viewer_url():
+    assert _documented_urls()
