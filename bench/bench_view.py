@@ -110,7 +110,8 @@ def load(server, parallel: int, idle: int) -> None:
     same = ["/api/echoes?run=0/&colour=height&limit=60000"] * parallel
     boxes = [f"/api/echoes?run=0/&colour=height&limit=20000&box={x},{x + 400},{y},{y + 400}"
              for x, y in ((100 * (i % 16), 100 * (i // 16 % 16)) for i in range(parallel))]
-    print(f"\n{parallel} map requests at once     {'median s':>9} {'p95 s':>7} {'worst s':>8} {'not 200':>8} {'all s':>6}")
+    print(f"\n{parallel} map requests at once     {'median s':>9} {'p95 s':>7} {'worst s':>8} {'not 200':>8} "
+          f"{'all s':>6}")
     for name, paths in (("the same view", same), ("different boxes", boxes)):
         start = time.perf_counter()
         with ThreadPoolExecutor(parallel) as pool:

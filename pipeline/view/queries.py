@@ -179,7 +179,8 @@ def _colours(run: Path, _mtime: int) -> dict[str, str | None]:
         if column not in columns:
             out[colour] = f"the run's echo table has no {column} column"
             continue
-        n = _connection().execute(f"SELECT count(*) FROM {echoes} WHERE isfinite(CAST({column} AS DOUBLE))").fetchone()[0]
+        n = _connection().execute(f"SELECT count(*) FROM {echoes} "
+                                  f"WHERE isfinite(CAST({column} AS DOUBLE))").fetchone()[0]
         why = " (the run computed no radiometry for its inputs)" if colour in ("reflectance", "range") else ""
         out[colour] = None if n else f"the run has no {column} values{why}"
     return out

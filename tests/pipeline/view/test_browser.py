@@ -116,7 +116,8 @@ def test_a_shared_url_opens_the_same_pulse_and_try_compares_fits(browser, fwl_vi
     _wait(browser, "document.body.dataset.ready === '1'")
     assert browser.find_element(By.ID, "colour").get_attribute("value") == "amplitude"
     shown = _wait(browser, "document.getElementById('map').data && document.getElementById('map').data"
-                           ".filter(t => t.meta === 'kept' || t.meta === 'spurious').reduce((n, t) => n + t.x.length, 0)")
+                           ".filter(t => t.meta === 'kept' || t.meta === 'spurious')"
+                           ".reduce((n, t) => n + t.x.length, 0)")
     assert shown == int((echoes.x.between(x0, x1) & echoes.y.between(y0, y1)).sum()) < len(echoes)
     _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse_id}'")
     browser.find_element(By.CSS_SELECTOR, "#try-form select[name=optimizer] option[value=mde]").click()

@@ -333,3 +333,24 @@ def test_the_loopback_viewer_prints_its_address_and_needs_no_token(viewed):
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
     assert "token" not in viewed.url and viewed.get("/api/catalog")["runs"]
+
+
+def test_a_connection_that_goes_silent_is_dropped(tmp_path):
+    """A body shorter than its Content-Length: the thread waits REQUEST_TIMEOUT (here 1 s), then lets go."""
+    import socket
+
+    server = make_server([tmp_path], port=0, runs_dir=tmp_path / "runs")
+    server.RequestHandlerClass.timeout = 1.0
+    serve_in_thread(server)
+    try:
+        host, port = server.server_address[:2]
+        with socket.create_connection((host, port), timeout=30) as s:
+            s.sendall(b"POST /api/try HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+                      b"Content-Length: 100\r\n\r\n{")
+            started = time.monotonic()
+            assert s.recv(1024) == b""  # closed, no answer: nothing was asked in full
+            assert time.monotonic() - started < 10
+        assert _request(url_of(server), "GET", "/api/catalog")[0] == 200
+    finally:
+        server.shutdown()
+        server.server_close()
