@@ -292,3 +292,21 @@ def test_a_documented_url_opens_what_it_says(browser, fwl_view, query):
 
 def test_the_documentation_shows_a_viewer_url():
     assert _documented_urls()
+
+
+def test_a_viewer_with_a_token_takes_it_once_from_its_url(browser, viewed):
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+
+    server = make_server([viewed.run], port=0, runs_dir=viewed.folder / "runs", token="s3cret-token-of-this-test")
+    serve_in_thread(server)
+    try:
+        url = url_of(server)
+        assert url.endswith("/?token=s3cret-token-of-this-test")
+        browser.get(url)
+        _wait(browser, "document.body.dataset.ready === '1'")
+        _wait(browser, "document.getElementById('waveform').dataset.pulse")
+        assert len(browser.find_elements("css selector", "#runs li.run")) == 1
+        assert "token" not in browser.current_url  # kept by the page, not left in the address bar
+    finally:
+        server.shutdown()
+        server.server_close()

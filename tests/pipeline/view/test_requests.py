@@ -354,3 +354,26 @@ def test_a_connection_that_goes_silent_is_dropped(tmp_path):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_clients_that_hang_up_are_logged_once_quietly(tmp_path, capfd):
+    import socket
+    import struct
+
+    server = make_server([tmp_path], port=0, runs_dir=tmp_path / "runs")
+    serve_in_thread(server)
+    try:
+        host, port = server.server_address[:2]
+        for _ in range(5):  # ask for plotly.min.js (megabytes), then reset the connection at once
+            s = socket.create_connection((host, port), timeout=30)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            s.sendall(b"GET /static/plotly.min.js HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            s.recv(1)
+            s.close()
+        time.sleep(1.0)
+        assert _request(url_of(server), "GET", "/api/catalog")[0] == 200
+    finally:
+        server.shutdown()
+        server.server_close()
+    err = capfd.readouterr().err
+    assert err.count("closed its connection before its answer") == 1 and "Traceback" not in err
