@@ -27,6 +27,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_instrument.py
 
 docs: $(STAMP)
+	$(BIN)/python docs/screenshot.py
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 clean:

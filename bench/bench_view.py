@@ -7,17 +7,26 @@ writes, 10,000 echoes per part file, positions spread over a 2 km x 2 km
 block (decomposing a million echoes for a timing of the queries would take
 an hour on this machine). The viewer then serves it in this process, and
 each request the page makes is timed end to end over HTTP (best of
---repeat): the whole map, a zoomed box, the 3D sample, the summary, the
-pulse list. Bytes are the JSON the page receives.
+--repeat, the server's answer cache emptied before each): the whole map, a
+zoomed box, the 3D sample, the summary, the pulse list. Bytes are the JSON
+the page receives.
+
+Then the server under load: --parallel map requests at once (the same view,
+as many pages reloading, and as many different boxes), their latencies'
+median, 95th percentile and worst, and how many were not answered 200; and
+one request's time while --idle connections are open and silent.
 """
 
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
+import socket
 import tempfile
 import time
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -71,9 +80,10 @@ def make_run(folder: Path, n_echoes: int, seed: int = 0) -> None:
                                                  "counts": counts, "seconds": None}))
 
 
-def timed(url: str, repeat: int) -> tuple[float, int]:
+def timed(url: str, repeat: int, server) -> tuple[float, int]:
     best, size = float("inf"), 0
     for _ in range(repeat):
+        server.viewer.answers.clear()  # the tables read again, not the last answer
         start = time.perf_counter()
         with urllib.request.urlopen(url, timeout=600) as r:
             size = len(r.read())
@@ -81,11 +91,49 @@ def timed(url: str, repeat: int) -> tuple[float, int]:
     return best, size
 
 
+def _get(host: str, port: int, path: str) -> tuple[int, float]:
+    start = time.perf_counter()
+    try:
+        con = http.client.HTTPConnection(host, port, timeout=120)
+        con.request("GET", path)
+        response = con.getresponse()
+        response.read()
+        con.close()
+        return response.status, time.perf_counter() - start
+    except OSError:  # reset or refused: what a short listen backlog gives
+        return 0, time.perf_counter() - start
+
+
+def load(server, parallel: int, idle: int) -> None:
+    host, port = server.server_address[:2]
+    server.viewer.answers.clear()
+    same = ["/api/echoes?run=0/&colour=height&limit=60000"] * parallel
+    boxes = [f"/api/echoes?run=0/&colour=height&limit=20000&box={x},{x + 400},{y},{y + 400}"
+             for x, y in ((100 * (i % 16), 100 * (i // 16 % 16)) for i in range(parallel))]
+    print(f"\n{parallel} map requests at once     {'median s':>9} {'p95 s':>7} {'worst s':>8} {'not 200':>8} "
+          f"{'all s':>6}")
+    for name, paths in (("the same view", same), ("different boxes", boxes)):
+        start = time.perf_counter()
+        with ThreadPoolExecutor(parallel) as pool:
+            answers = list(pool.map(lambda p: _get(host, port, p), paths))
+        seconds = np.array([s for _, s in answers])
+        failed = sum(status != 200 for status, _ in answers)
+        print(f"  {name:29} {np.median(seconds):9.2f} {np.percentile(seconds, 95):7.2f} {seconds.max():8.2f} "
+              f"{failed:8d} {time.perf_counter() - start:6.1f}")
+    sockets = [socket.create_connection((host, port), timeout=30) for _ in range(idle)]
+    status, seconds = _get(host, port, "/api/summary?run=0/")
+    print(f"one request with {idle} idle connections open: {status} in {seconds:.2f} s")
+    for s in sockets:
+        s.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--echoes", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--workdir")
+    parser.add_argument("--parallel", type=int, default=200, help="map requests at once")
+    parser.add_argument("--idle", type=int, default=300, help="silent connections held open")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
         run = Path(tmp) / "run"
@@ -104,8 +152,9 @@ def main() -> None:
         ]
         print(f"{'request':34} {'seconds':>8} {'KB':>8}")
         for name, path in requests:
-            seconds, size = timed(base + path, args.repeat)
+            seconds, size = timed(base + path, args.repeat, server)
             print(f"{name:34} {seconds:8.3f} {size / 1e3:8.0f}")
+        load(server, args.parallel, args.idle)
         server.shutdown()
         server.server_close()
 

@@ -275,12 +275,19 @@ def _response_line(response: dict | None) -> str:
 
 
 def _view(args: argparse.Namespace) -> int:
+    import secrets
     import webbrowser
 
     from pipeline.view import make_server, url_of
+    from pipeline.view.server import is_loopback
 
+    token = args.token
+    if not is_loopback(args.host):  # open to the network on purpose only: say so, and ask for a token
+        token = token or secrets.token_urlsafe(24)
+        print(f"fwl view: WARNING: listening on {args.host}, not this machine alone: anyone who can reach it and "
+              f"has the token can read the served folders and start decompositions", file=sys.stderr, flush=True)
     try:
-        server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir)
+        server = make_server(args.paths or ["."], args.host, args.port, args.runs_dir, token=token)
     except OSError as err:  # the port is taken, or the address is not this machine's
         if isinstance(err, FileNotFoundError):
             raise
@@ -417,7 +424,10 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
     v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",
                    help="run folders, folders to search for runs and inputs, or .las/.laz/.pls inputs (default .)")
-    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1); any other asks for a token (printed once)")
+    v.add_argument("--token", default=None,
+                   help="the token every API call must carry (default: none on 127.0.0.1, a random one otherwise)")
     v.add_argument("--port", type=int, default=8050, help="port (default 8050; 0 picks a free one)")
     v.add_argument("--runs-dir", dest="runs_dir", default="out/view",
                    help="where runs of picked inputs are written (default out/view)")

@@ -2,8 +2,10 @@
 
 Every path a request names is an id relative to one of these roots; it is
 resolved and checked to stay inside its root before anything is opened, so a
-request can never reach another file of the machine (`..`, absolute paths and
-symbolic links that leave the root are refused).
+request can never reach another file of the machine (`..` and absolute paths
+are refused, and so are symbolic links that leave the root, except an input
+file linked into a viewed folder: whoever put the link there shares that
+file, and the viewer follows it to decompose it).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import glob
+import os
 from pathlib import Path
 
 from pipeline.outputs import INPUT_SUFFIXES, is_complete, read_run
@@ -54,18 +57,21 @@ class Roots:
     # ------------------------------------------------------------ ids <-> paths
 
     def id_of(self, path: Path) -> str:
-        path = path.resolve()
-        for i, f in enumerate(self.files):
-            if path == f:
-                return f"f{i}"
-        for i, root in enumerate(self.folders):
-            if path == root or path.is_relative_to(root):
-                rel = path.relative_to(root).as_posix()
-                return f"{i}/{'' if rel == '.' else rel}"
+        """The id of a path under the roots: by its own name first (a link inside a folder keeps its place),
+        then by where it resolves to."""
+        for candidate in (Path(os.path.abspath(path)), path.resolve()):
+            for i, f in enumerate(self.files):
+                if candidate == f:
+                    return f"f{i}"
+            for i, root in enumerate(self.folders):
+                if candidate == root or candidate.is_relative_to(root):
+                    rel = candidate.relative_to(root).as_posix()
+                    return f"{i}/{'' if rel == '.' else rel}"
         raise OutsideRoots(f"{path} is outside the viewer's folders")
 
-    def path_of(self, ident: str) -> Path:
-        """The path an id names, refused unless it stays inside its root after resolving links and `..`."""
+    def path_of(self, ident: str, follow_link: bool = False) -> Path:
+        """The path an id names, refused unless it stays inside its root after resolving links and `..`
+        (with follow_link, a file linked into the root is its link's path)."""
         head, _, rest = str(ident).partition("/")
         if head.startswith("f") and not rest:
             try:
@@ -80,6 +86,9 @@ class Roots:
             raise OutsideRoots(f"{ident!r}: absolute paths are refused")
         path = (root / rest).resolve()
         if path != root and not path.is_relative_to(root):
+            linked = root / rest
+            if follow_link and ".." not in Path(rest).parts and linked.is_symlink() and linked.is_file():
+                return linked
             raise OutsideRoots(f"{ident!r} leaves the viewer's folders")
         return path
 
@@ -90,7 +99,7 @@ class Roots:
         return path
 
     def input_of(self, ident: str) -> Path:
-        path = self.path_of(ident)
+        path = self.path_of(ident, follow_link=True)
         if not (path.is_file() and path.suffix.lower() in INPUT_SUFFIXES):
             raise FileNotFoundError(f"{ident!r} is not a .las/.laz/.pls input")
         return path
@@ -116,7 +125,7 @@ class Roots:
                 if (path.suffix.lower() in INPUT_SUFFIXES and path.is_file()
                         and not any(path.is_relative_to(r) for r in runs)
                         and _has_waveforms(path, path.stat().st_mtime_ns)):
-                    found.add(path.resolve())
+                    found.add(path)  # a link keeps its own name and place in the folder
         return sorted(found)
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
+import os
 import subprocess
 import sys
 import threading
@@ -22,6 +24,27 @@ from pipeline.transforms import PARTS
 from pipeline.view.catalog import is_complete_run
 
 POINTS_PER_RANGE = 5000  # fwl run's default unit of work
+MAX_NAMESAKES = 100  # inputs of one name (in different folders) that may have runs side by side
+
+
+def _claim(output: Path) -> Path:
+    """The file naming the input a run folder belongs to, written before the run starts."""
+    return output.with_name(output.name + ".input")
+
+
+def _owner(output: Path) -> Path | None:
+    """The input a run folder belongs to: its claim file's path, else (a run made elsewhere) run.json's only input."""
+    claim = _claim(output)
+    if claim.is_file():
+        return Path(claim.read_text().strip())
+    if (output / "run.json").is_file():
+        try:
+            inputs = json.loads((output / "run.json").read_text()).get("inputs", [])
+        except (OSError, ValueError):
+            return Path("/")  # unreadable: someone's, not to be replaced
+        paths = [e["path"] if isinstance(e, dict) else e for e in inputs]
+        return Path(os.path.abspath(paths[0])) if len(paths) == 1 else Path("/")
+    return None
 
 
 @dataclasses.dataclass
@@ -58,7 +81,8 @@ class Job:
 
 
 class Jobs:
-    """One decomposition per input at a time; runs go to runs_dir/<input stem>."""
+    """One decomposition per input at a time; each input path has a run folder of its own under runs_dir:
+    <stem>, or <stem>-2, -3, ... when another input of the same name holds <stem>."""
 
     def __init__(self, runs_dir: Path, run_args: list[str] | None = None, points_per_range: int = POINTS_PER_RANGE):
         self.runs_dir = runs_dir
@@ -68,7 +92,16 @@ class Jobs:
         self._lock = threading.Lock()
 
     def output_for(self, path: Path) -> Path:
-        return self.runs_dir / path.stem
+        """The input's own run folder: the first of <stem>, <stem>-2, ... that is free or already its own
+        (its claim file names this path), so one input never replaces another's run."""
+        path = Path(os.path.abspath(path))
+        for n in range(1, MAX_NAMESAKES + 1):
+            output = self.runs_dir / (path.stem if n == 1 else f"{path.stem}-{n}")
+            owner = _owner(output)
+            if owner == path or (owner is None and not output.exists() and not _claim(output).exists()):
+                return output
+        raise ValueError(f"{path.name}: {MAX_NAMESAKES} other inputs of that name already have runs in "
+                         f"{self.runs_dir}; give the viewer another --runs-dir")
 
     def start(self, path: Path) -> Job:
         from fwcore.io import plan_point_ranges
@@ -78,8 +111,10 @@ class Jobs:
             if job is not None and job.process.poll() is None:
                 return job
             output = self.output_for(path)
-            output.parent.mkdir(parents=True, exist_ok=True)
+            # read the plan before writing anything: a file that cannot be decomposed leaves no folder behind
             pulses = sum(r.n_pulses for r in plan_point_ranges(path, self.points_per_range))
+            output.parent.mkdir(parents=True, exist_ok=True)
+            _claim(output).write_text(os.path.abspath(path) + "\n")
             command = [sys.executable, "-m", "pipeline.cli", "run", str(path), "--output", str(output),
                        "--points-per-range", str(self.points_per_range), *self.run_args]
             job = Job(path, output, pulses, None)

@@ -108,14 +108,16 @@ def input_response(summary: dict, source_file: str) -> SystemResponse | None:
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
-    """Another configuration for a pulse: a preset (as `fwl run --preset` has it) or the run's own, then the
-    changed settings; the run's pulse width and seed stay, so only the method differs."""
+    """Another method for a pulse: a preset's method (as `fwl run --preset` has it) or the run's own, then the
+    changed settings; the run's model, pulse width, response and seed stay unless a change names them, so
+    only the method differs."""
     config = base
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
         config = DecompositionConfig(**PRESETS[preset]).replace(
-            system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed, system_response=base.system_response,
+            model=base.model, system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed,
+            system_response=base.system_response,
             shape_tolerance=PRESETS[preset].get("shape_tolerance", base.shape_tolerance))
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
@@ -203,16 +205,17 @@ def system_return_points(run: Path, box: tuple[float, float, float, float] | Non
     """The system's own returns of the run's pulses (by their gps times) inside the box, at most `limit`,
     evenly thinned."""
     xs, ys, zs = [], [], []
+    frame = queries.frame(run)
     for name, path in run_inputs(run).items():
         times = queries.gps_time_range(run, name)
         if times is None or path.suffix.lower() not in (".las", ".laz"):
             continue  # PulseWaves keeps no separate return points
         p = _las_points(str(path))
         sel = (p["gps_time"] >= times[0]) & (p["gps_time"] <= times[1])
-        if box is not None:
-            sel &= (p["x"] >= box[0]) & (p["x"] <= box[1]) & (p["y"] >= box[2]) & (p["y"] <= box[3])
-        idx = np.flatnonzero(sel)
-        xs.append(p["x"][idx]), ys.append(p["y"][idx]), zs.append(p["z"][idx])
+        px, py, pz = frame.apply(p["x"][sel], p["y"][sel], p["z"][sel])  # in the map's frame, as the echoes
+        inside = np.ones(px.size, dtype=bool) if box is None else \
+            (px >= box[0]) & (px <= box[1]) & (py >= box[2]) & (py <= box[3])
+        xs.append(px[inside]), ys.append(py[inside]), zs.append(pz[inside])
     x, y, z = (np.concatenate(a) if a else np.zeros(0) for a in (xs, ys, zs))
     total = x.size
     if total > limit:

@@ -7,24 +7,33 @@ as the box shrinks, so a run of millions of echoes stays responsive.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import json
 import threading
 from pathlib import Path
 
 import duckdb
 import numpy as np
+import pyarrow.parquet as pq
 
 # the page's colour choices -> echo table columns
 COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "fit_error": "fit_error",
                   "reflectance": "reflectance", "range": "range_m"}
+COLOUR_UNITS = {"height": "m", "amplitude": "DN", "width": "ns", "fit_error": "", "reflectance": "", "range": "m"}
 HISTOGRAM_BINS = 40
+COLOUR_SQL = {"width": "fwhm_ps / 1000.0"}  # the width in ns, as the pulse view shows times
 
 _local = threading.local()
+_database = duckdb.connect()
+_database_lock = threading.Lock()
 
 
 def _connection() -> duckdb.DuckDBPyConnection:
-    """One DuckDB connection per server thread (a connection is not shared between threads)."""
+    """One cursor per server thread on one shared in-memory database (a cursor is cheap; a database is not)."""
     if not hasattr(_local, "con"):
-        _local.con = duckdb.connect()
+        with _database_lock:
+            _local.con = _database.cursor()
     return _local.con
 
 
@@ -41,12 +50,107 @@ def _query(sql: str, params: list | None = None) -> dict[str, np.ndarray]:
     return _connection().execute(sql, params or []).fetchnumpy()
 
 
-def bounds(run: Path) -> dict[str, list[float]] | None:
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """The coordinates a person reads on the map and 3D view: the run's projected CRS as it is, or, for an
+    earth-centred CRS (EPSG:4978), east, north and up in metres about the run's centre (a rotation about it)."""
+
+    labels: tuple[str, str, str]
+    crs: str | None = None
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation: tuple[tuple[float, ...], ...] | None = None  # rows: east, north, up in the CRS's axes
+    centre: str | None = None  # where the local frame's origin is, in words
+
+    def sql(self) -> tuple[str, str, str]:
+        """The frame's x, y, z as DuckDB expressions over the echo table's x, y, z."""
+        if self.rotation is None:
+            return "x", "y", "z"
+        x0, y0, z0 = self.origin
+        return tuple(f"({r[0]!r} * (x - {x0!r}) + {r[1]!r} * (y - {y0!r}) + {r[2]!r} * (z - {z0!r}))"
+                     for r in self.rotation)
+
+    def apply(self, x, y, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x, y, z = (np.asarray(v, dtype=float) for v in (x, y, z))
+        if self.rotation is None:
+            return x, y, z
+        d = np.stack([x - self.origin[0], y - self.origin[1], z - self.origin[2]])
+        e, n, u = np.asarray(self.rotation) @ d
+        return e, n, u
+
+    def describe(self) -> dict:
+        return {"labels": list(self.labels), "crs": self.crs, "centre": self.centre,
+                "local": self.rotation is not None}
+
+
+def _crs_of(run: Path):
+    """The pyproj CRS of the run's echo table (its GeoParquet metadata), None when the input named none."""
+    files = sorted((run / "echoes").glob("*.parquet"))
+    if not files:
+        return None
+    meta = pq.read_schema(files[0]).metadata or {}
+    geo = json.loads(meta.get(b"geo", b"{}") or b"{}")
+    crs = (geo.get("columns", {}).get(geo.get("primary_column", "geometry"), {}) or {}).get("crs")
+    if not crs:
+        return None
+    import pyproj
+    try:
+        return pyproj.CRS.from_json_dict(crs)
+    except pyproj.exceptions.CRSError:
+        return None
+
+
+def frame(run: Path) -> Frame:
+    return _frame(run, (run / "run.json").stat().st_mtime_ns if (run / "run.json").exists() else 0)
+
+
+@functools.lru_cache(maxsize=64)
+def _frame(run: Path, _mtime: int) -> Frame:
+    crs = _crs_of(run)
+    if crs is None:
+        return Frame(("x (m, CRS unknown)", "y (m, CRS unknown)", "z (m, CRS unknown)"))
+    name = crs.name + (f" (EPSG:{crs.to_epsg()})" if crs.to_epsg() else "")
+    if not crs.is_geocentric:
+        units = [a.unit_name.replace("metre", "m") for a in crs.axis_info] or ["m", "m"]
+        x_name, y_name = ("easting", "northing") if crs.is_projected else ("x", "y")
+        return Frame((f"{x_name} ({units[0]}), {name}", f"{y_name} ({units[min(1, len(units) - 1)]}), {name}",
+                      "height (m)"), name)
+    b = _raw_bounds(run)
+    if b is None:
+        return Frame(("x (m)", "y (m)", "z (m)"), name)
+    import pyproj
+    origin = tuple((lo + hi) / 2 for lo, hi in (b["x"], b["y"], b["z"]))
+    ellipsoid = crs.ellipsoid  # the centre's latitude and longitude on the CRS's own ellipsoid
+    geodetic = pyproj.Transformer.from_pipeline(
+        f"+proj=pipeline +step +inv +proj=cart +a={ellipsoid.semi_major_metre!r} +rf={ellipsoid.inverse_flattening!r} "
+        f"+step +proj=unitconvert +xy_in=rad +xy_out=deg")
+    lon, lat, h = geodetic.transform(*origin)
+    lam, phi = np.radians(lon), np.radians(lat)
+    rotation = ((-np.sin(lam), np.cos(lam), 0.0),
+                (-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)),
+                (np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)))
+    rotation = tuple(tuple(float(v) for v in row) for row in rotation)
+    centre = f"{abs(lat):.6f}°{'N' if lat >= 0 else 'S'} {abs(lon):.6f}°{'E' if lon >= 0 else 'W'}, {h:.1f} m"
+    return Frame(("east (m) from the run's centre", "north (m) from the run's centre", "up (m) from the run's centre"),
+                 name, origin, rotation, centre)
+
+
+def _raw_bounds(run: Path) -> dict | None:
     echoes = _table(run, "echoes")
     if echoes is None:
         return None
     r = _connection().execute(f"SELECT min(x), max(x), min(y), max(y), min(z), max(z), count(*) "
                               f"FROM {echoes}").fetchone()
+    return {"x": [r[0], r[1]], "y": [r[2], r[3]], "z": [r[4], r[5]], "echoes": int(r[6])} if r[6] else None
+
+
+def bounds(run: Path) -> dict[str, list[float]] | None:
+    """The echoes' extent in the map's frame."""
+    echoes = _table(run, "echoes")
+    if echoes is None:
+        return None
+    fx, fy, fz = frame(run).sql()
+    r = _connection().execute(f"SELECT min({fx}), max({fx}), min({fy}), max({fy}), min({fz}), max({fz}), count(*) "
+                              f"FROM {echoes} WHERE x IS NOT NULL").fetchone()
     if not r[6]:
         return None
     return {"x": [r[0], r[1]], "y": [r[2], r[3]], "z": [r[4], r[5]], "echoes": int(r[6])}
@@ -59,32 +163,84 @@ def source_files(run: Path) -> list[str]:
     return [r[0] for r in _connection().execute(f"SELECT DISTINCT source_file FROM {pulses} ORDER BY 1").fetchall()]
 
 
+def colours(run: Path) -> dict[str, str | None]:
+    """Each colour mode: None where the run's echoes have the column with values, else why not."""
+    return _colours(run, (run / "run.json").stat().st_mtime_ns if (run / "run.json").exists() else 0)
+
+
+@functools.lru_cache(maxsize=64)
+def _colours(run: Path, _mtime: int) -> dict[str, str | None]:
+    echoes = _table(run, "echoes")
+    if echoes is None:
+        return {c: "the run has no echoes" for c in COLOUR_COLUMNS}
+    columns = {r[0] for r in _connection().execute(f"DESCRIBE SELECT * FROM {echoes}").fetchall()}
+    out = {}
+    for colour, column in COLOUR_COLUMNS.items():
+        if column not in columns:
+            out[colour] = f"the run's echo table has no {column} column"
+            continue
+        n = _connection().execute(f"SELECT count(*) FROM {echoes} "
+                                  f"WHERE isfinite(CAST({column} AS DOUBLE))").fetchone()[0]
+        why = " (the run computed no radiometry for its inputs)" if colour in ("reflectance", "range") else ""
+        out[colour] = None if n else f"the run has no {column} values{why}"
+    return out
+
+
+def _floats(values) -> np.ndarray:
+    """A query's column as floats, NULL as NaN (DuckDB gives masked or object arrays where there are NULLs)."""
+    if isinstance(values, np.ma.MaskedArray):
+        return np.ma.filled(values.astype(float), np.nan)
+    if values.dtype == object:
+        return np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+    return values.astype(float)
+
+
+def colour_range(values: np.ndarray) -> dict:
+    """The colour scale: the 2nd to 98th percentile of the finite values, and how many lie outside it."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return {"cmin": None, "cmax": None, "below": 0, "above": 0}
+    lo, hi = (float(v) for v in np.percentile(finite, [2, 98]))
+    return {"cmin": lo, "cmax": hi, "below": int((finite < lo).sum()), "above": int((finite > hi).sum())}
+
+
 def echoes_in_box(run: Path, colour: str, box: tuple[float, float, float, float] | None, limit: int,
                   kept_only: bool = False) -> dict:
-    """Up to `limit` echoes inside box (xmin, xmax, ymin, ymax), their colour value, kept flag and pulse."""
+    """Up to `limit` echoes inside box (xmin, xmax, ymin, ymax of the map's frame), their colour value, kept
+    flag and pulse."""
     if colour not in COLOUR_COLUMNS:
         raise ValueError(f"colour must be one of {', '.join(COLOUR_COLUMNS)}, not {colour!r}")
+    return _echoes_in_box(run, colour, box, limit, kept_only)
+
+
+def _echoes_in_box(run: Path, colour: str, box, limit: int, kept_only: bool) -> dict:
     echoes = _table(run, "echoes")
     files = source_files(run)
+    unavailable = colours(run)[colour]
+    view = frame(run)
     if echoes is None:
         return {"total": 0, "files": files, "x": [], "y": [], "z": [], "value": [], "kept": [], "file": [],
-                "pulse_id": []}
+                "pulse_id": [], "frame": view.describe(), "unavailable": unavailable, **colour_range(np.zeros(0))}
+    fx, fy, fz = view.sql()
     where, params = ["x IS NOT NULL AND y IS NOT NULL AND z IS NOT NULL"], []
     if box is not None:
-        where.append("x BETWEEN ? AND ? AND y BETWEEN ? AND ?")
+        where.append(f"{fx} BETWEEN ? AND ? AND {fy} BETWEEN ? AND ?")
         params += list(box)
     if kept_only:
         where.append("kept")
     condition = " AND ".join(where)
+    value = "NULL" if unavailable else COLOUR_SQL.get(colour, COLOUR_COLUMNS[colour])
     total = _connection().execute(f"SELECT count(*) FROM {echoes} WHERE {condition}", params).fetchone()[0]
-    rows = _query(f"SELECT x, y, z, {COLOUR_COLUMNS[colour]} AS value, kept, source_file, pulse_id "
-                  f"FROM {echoes} WHERE {condition} "
+    rows = _query(f"SELECT {fx} AS x, {fy} AS y, {fz} AS z, CAST({value} AS DOUBLE) AS value, kept, source_file, "
+                  f"pulse_id FROM {echoes} WHERE {condition} "
                   f"ORDER BY hash(source_file, pulse_id, echo_index) LIMIT ?", params + [int(limit)])
     index = {name: i for i, name in enumerate(files)}
+    values = _floats(rows["value"])
     # millimetres and float32 colour values: what a screen shows, in half the bytes
-    return {"total": int(total), "files": files,
-            **{c: np.round(rows[c], 3) for c in ("x", "y", "z")},
-            "value": rows["value"].astype(np.float32).astype(float), "kept": rows["kept"],
+    return {"total": int(total), "files": files, "frame": view.describe(), "unavailable": unavailable,
+            "unit": COLOUR_UNITS[colour], **colour_range(values),
+            **{c: np.round(_floats(rows[c]), 3) for c in ("x", "y", "z")},
+            "value": values.astype(np.float32).astype(float), "kept": rows["kept"],
             "file": np.array([index[s] for s in rows["source_file"]], dtype=np.int32),
             "pulse_id": rows["pulse_id"]}
 

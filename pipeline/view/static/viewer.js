@@ -1,32 +1,78 @@
 // fwl view: the page. State (run, pulse, colour, tab) lives in the URL; data comes from /api/*.
+// Every value from a file, a configuration or a reason reaches the page as text (textContent, via el() and
+// fillTable()), never as markup: a file may be named <img src=x onerror=...>.las.
 "use strict";
 
 const state = { run: null, file: null, pulse: null, colour: "height", tab: "explore", box: null };
 let summary = null;
+let picked = null;  // the shown pulse's echoes in the map's frame, marked on the map
 const WEBGL = (() => { try { return !!document.createElement("canvas").getContext("webgl"); } catch (e) { return false; } })();
 const MAP_LIMIT = WEBGL ? 60000 : 8000;
 const SCENE_LIMIT = 25000;
 const $ = (id) => document.getElementById(id);
 const NS = 1000;  // ps per ns: waveforms are drawn in ns
+// this page's own id: a later refit from it cancels its refit still waiting on the server
+const PAGE = Array.from({ length: 16 }, () => "abcdefghijklmnopqrstuvwxyz0123456789"[Math.floor(Math.random() * 36)]).join("");
+const TOKEN = (() => {  // a viewer open to the network gives its token once, in the URL it prints
+  const q = new URLSearchParams(location.search);
+  const given = q.get("token");
+  if (given) { sessionStorage.setItem("fwl-token", given); }
+  return given || sessionStorage.getItem("fwl-token") || "";
+})();
+const SUPERSCRIPT = { "-": "⁻", 0: "⁰", 1: "¹", 2: "²", 3: "³", 4: "⁴", 5: "⁵", 6: "⁶", 7: "⁷", 8: "⁸", 9: "⁹" };
 
-function fmt(v, digits = 3) {
-  if (v === null || v === undefined) return "–";
+function fmt(v, digits = 3, unit = "") {
+  if (v === null || v === undefined || (typeof v === "number" && !isFinite(v))) return "–";
   if (typeof v !== "number") return String(v);
-  if (Number.isInteger(v)) return String(v);
-  return Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0) ? v.toExponential(digits) : v.toFixed(digits);
+  let text;
+  if (Math.abs(v) >= 1e7 || (Math.abs(v) < 1e-3 && v !== 0)) {  // a power of ten a person reads, not 1.2e+4
+    const [m, e] = v.toExponential(2).split("e");
+    text = `${m}×10${String(Number(e)).split("").map((c) => SUPERSCRIPT[c]).join("")}`;
+  } else if (Number.isInteger(v)) text = String(v);
+  else text = v.toFixed(Math.abs(v) >= 1000 ? Math.min(digits, 1) : digits);
+  return unit ? `${text} ${unit}` : text;
+}
+
+// an element with text (never markup) and attributes
+function el(tag, text, attrs = {}) {
+  const node = document.createElement(tag);
+  if (text !== undefined && text !== null) node.textContent = String(text);
+  for (const [k, v] of Object.entries(attrs)) if (v !== undefined && v !== null) node.setAttribute(k, v);
+  return node;
+}
+
+// a table from a header and rows of cells: a cell is a value (shown as text) or {text, class, title}
+function fillTable(table, head, rows, rowClass = () => null) {
+  table.replaceChildren();
+  if (head) table.appendChild(rowOf("th", head));
+  rows.forEach((r, i) => { const tr = rowOf("td", r); const c = rowClass(i); if (c) tr.className = c; table.appendChild(tr); });
+  return table;
+}
+
+function rowOf(tag, cells) {
+  const tr = document.createElement("tr");
+  for (const c of cells) {
+    const cell = c !== null && typeof c === "object" ? c : { text: c };
+    tr.appendChild(el(tag, cell.text, { class: cell.class, title: cell.title, colspan: cell.colspan }));
+  }
+  return tr;
 }
 
 async function api(path, body) {
-  const response = await fetch(path, body === undefined ? {} :
-    { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
-  const data = await response.json();
-  if (!response.ok) throw new Error(data.error || response.statusText);
+  const headers = TOKEN ? { "X-Fwl-Token": TOKEN } : {};
+  const response = await fetch(path, body === undefined ? { headers } :
+    { method: "POST", headers: { ...headers, "Content-Type": "application/json" }, body: JSON.stringify(body) });
+  let data;
+  try { data = await response.json(); } catch (e) { data = {}; }
+  if (!response.ok) { const err = new Error(data.error || response.statusText); err.status = response.status; throw err; }
   return data;
 }
 
 function say(text) { $("message").textContent = text || ""; }
 
 // ---------------------------------------------------------------- URL state
+
+const PULSE_ID = /^-?[0-9]{1,19}$/;
 
 function readUrl() {
   const q = new URLSearchParams(location.search);
@@ -38,8 +84,9 @@ function readUrl() {
   const pulse = q.get("pulse");
   if (pulse && pulse.includes(":")) {
     const at = pulse.lastIndexOf(":");
-    state.file = pulse.slice(0, at);
-    state.pulse = Number(pulse.slice(at + 1));
+    const id = pulse.slice(at + 1);
+    if (PULSE_ID.test(id)) { state.file = pulse.slice(0, at); state.pulse = Number(id); }
+    else $("pulse-error").textContent = `the URL's pulse ${JSON.stringify(id)} is no pulse id (a whole number)`;
   }
 }
 
@@ -50,68 +97,71 @@ function writeUrl() {
   q.set("colour", state.colour);
   if (state.box) q.set("box", state.box.map((v) => v.toFixed(2)).join(","));
   q.set("tab", state.tab);
-  history.replaceState(null, "", "?" + q.toString());
+  history.replaceState(null, "", "?" + q.toString());  // the token stays out of the URL once read
 }
 
 // ---------------------------------------------------------------- catalog: runs and inputs
 
 let polling = null;
 
+function listItem(title, detail, className) {
+  const li = el("li", null, { class: className });
+  li.append(el("b", title), el("small", detail));
+  return li;
+}
+
 async function loadCatalog() {
   const catalog = await api("/api/catalog");
   const runs = $("runs");
-  runs.innerHTML = "";
+  runs.replaceChildren();
   for (const run of catalog.runs) {
-    const li = document.createElement("li");
-    li.dataset.run = run.id;
-    li.className = "run" + (run.id === state.run ? " active" : "");
     const c = run.counts || {};
-    li.innerHTML = `<b></b><small></small>`;
-    li.querySelector("b").textContent = run.inputs.join(", ") || run.name;
-    li.querySelector("small").textContent =
-      `${run.name} · ${c.pulses_read ?? "?"} pulses · ${c.echoes_kept ?? "?"} echoes kept · ${run.optimizer}`;
-    li.onclick = () => pickRun(run.id);
+    const li = listItem(run.inputs.join(", ") || run.name,
+      `${run.name} · ${c.pulses_read ?? "?"} pulses · ${c.echoes_kept ?? "?"} echoes kept · ${run.optimizer}`,
+      "run" + (run.id === state.run ? " active" : ""));
+    li.dataset.run = run.id;
+    li.onclick = () => pickRun(run.id).catch((e) => say(e.message));
     runs.appendChild(li);
   }
-  if (!catalog.runs.length) runs.innerHTML = "<li><small>no run yet: decompose an input below</small></li>";
+  if (!catalog.runs.length) runs.appendChild(el("li")).appendChild(el("small", "no run yet: decompose an input below"));
   const inputs = $("inputs");
-  inputs.innerHTML = "";
+  inputs.replaceChildren();
   let running = false;
   for (const input of catalog.inputs) {
-    const li = document.createElement("li");
-    li.className = "input";
-    li.innerHTML = `<b></b><small></small>`;
-    li.querySelector("b").textContent = input.name;
     const job = input.job;
+    const li = listItem(input.name, "", "input");
+    const small = li.querySelector("small");
     if (job && job.status === "running") {
       running = true;
-      li.querySelector("small").textContent = `decomposing: ${job.pulses_done} of ${job.pulses} pulses, ${job.seconds} s`;
-      li.insertAdjacentHTML("beforeend", `<div class="progress"><div style="width:${Math.round(100 * job.progress)}%"></div></div>`);
+      small.textContent = `decomposing: ${job.pulses_done} of ${job.pulses} pulses, ${job.seconds} s`;
+      const bar = li.appendChild(el("div", null, { class: "progress" })).appendChild(el("div"));
+      bar.style.width = `${Math.round(100 * job.progress)}%`;
     } else if (input.run) {
-      li.querySelector("small").textContent = "has a run: click to show it";
-      li.onclick = () => pickRun(input.run);
+      small.textContent = "has a run: click to show it";
+      li.onclick = () => pickRun(input.run).catch((e) => say(e.message));
     } else {
-      li.querySelector("small").textContent = job && job.status === "failed" ? `failed: ${job.message}` : "no run yet";
-      const button = document.createElement("button");
-      button.textContent = "decompose";
+      small.textContent = job && job.status === "failed" ? `failed: ${job.message}` : "no run yet";
+      const button = li.appendChild(el("button", "decompose"));
       button.onclick = async (event) => {
         event.stopPropagation();
-        try { await api("/api/decompose", { input: input.id }); } catch (e) { say(e.message); }
-        loadCatalog();
+        try { await api("/api/decompose", { input: input.id }); } catch (e) { small.textContent = e.message; return; }
+        loadCatalog().catch((e) => say(e.message));
       };
-      li.appendChild(button);
     }
     inputs.appendChild(li);
   }
+  for (const item of catalog.unavailable || []) {  // listed with the reason; the rest of the page works
+    inputs.appendChild(listItem(item.name, `unavailable: ${item.reason}`, "input unavailable"));
+  }
   clearTimeout(polling);
-  if (running) polling = setTimeout(loadCatalog, 1500);
+  if (running) polling = setTimeout(() => loadCatalog().catch((e) => say(e.message)), 1500);
   fillTryForm(catalog);
   return catalog;
 }
 
 function fillTryForm(catalog) {
   const form = $("try-form");
-  for (const [name, values] of [["preset", catalog.presets], ["optimizer", catalog.optimizers]]) {
+  for (const [name, values] of [["preset", catalog.presets], ["optimizer", catalog.optimizers], ["model", catalog.models]]) {
     const select = form.elements[name];
     if (select.options.length > 1) continue;
     for (const v of values) select.add(new Option(v, v));
@@ -119,75 +169,119 @@ function fillTryForm(catalog) {
 }
 
 async function pickRun(id) {
-  if (id !== state.run) { state.file = null; state.pulse = null; state.box = null; }
+  if (id !== state.run) { state.file = null; state.pulse = null; state.box = null; picked = null; }
   state.run = id;
   for (const li of document.querySelectorAll("#runs li")) li.classList.toggle("active", li.dataset.run === id);
   writeUrl();
   say("");
   summary = await api(`/api/summary?run=${encodeURIComponent(id)}`);
   const files = $("pulse-file");
-  files.innerHTML = "";
+  files.replaceChildren();
   for (const f of summary.files) files.add(new Option(f, f));
+  offerColours();
   drawSummary();
-  loadPulseList();
+  loadPulseList().catch((e) => say(e.message));
   await loadEchoes();
   if (state.pulse === null && summary.first_pulse) { state.file = summary.first_pulse[0]; state.pulse = summary.first_pulse[1]; }
   if (state.pulse !== null) await showPulse(state.file, state.pulse);
 }
 
+// colour modes the run has a column for; the others greyed, with the reason as their tooltip
+function offerColours() {
+  const colours = summary.colours || {};
+  for (const option of $("colour").options) {
+    const why = colours[option.value];
+    option.disabled = !!why;
+    option.title = why || "";
+    option.textContent = option.dataset.label + (why ? " ✗" : "");  // the reason: its tooltip and the note
+  }
+  $("colour-note").textContent = colours[state.colour] ? `${state.colour}: ${colours[state.colour]}` : "";
+}
+
 // ---------------------------------------------------------------- overview: map and 3D
 
-function colourTitle() {
-  return { height: "z (m)", amplitude: "amplitude (counts)", width: "FWHM (ps)", fit_error: "fit error",
-    reflectance: "reflectance", range: "range (m)" }[state.colour];
+const COLOUR_TITLES = { height: "height", amplitude: "amplitude (DN)", width: "FWHM (ns)", fit_error: "fit error",
+  reflectance: "reflectance", range: "range (m)" };
+
+function colourTitle(data) {
+  if (state.colour === "height") return (data.frame && data.frame.labels[2]) || "z (m)";
+  return COLOUR_TITLES[state.colour];
 }
 
 function echoTraces(data, three) {
   const traces = [];
+  const lo = data.cmin, hi = data.cmax;
   for (const kept of [true, false]) {
     const idx = [];
     data.kept.forEach((k, i) => { if (k === kept) idx.push(i); });
     const pick = (a) => idx.map((i) => a[i]);
+    // beyond the 2nd-98th percentile: a triangle pointing the way the value lies
+    const outlier = (v) => v === null ? "none" : v > hi ? "above" : v < lo ? "below" : "";
+    const shape = { above: three ? "diamond" : "triangle-up", below: three ? "square" : "triangle-down",
+      none: three ? "circle-open" : "circle-open", "": "circle" };
     const trace = {
       name: kept ? "kept echoes" : "spurious echoes", meta: kept ? "kept" : "spurious",
       x: pick(data.x), y: pick(data.y),
       customdata: idx.map((i) => [data.files[data.file[i]], data.pulse_id[i]]),
-      hovertemplate: "pulse %{customdata[1]}<br>%{marker.color:.3g}<extra>%{fullData.name}</extra>",
+      hovertemplate: `pulse %{customdata[1]}<br>%{marker.color:.4g} ${data.unit || ""}<extra>%{fullData.name}</extra>`,
       mode: "markers",
       marker: {
-        color: pick(data.value), colorscale: "Viridis", size: three ? 2 : (kept ? 4 : 6),
-        cmin: data.cmin, cmax: data.cmax,
-        symbol: kept ? "circle" : (three ? "diamond-open" : "x"),
-        showscale: kept, colorbar: kept ? { title: { text: colourTitle() }, thickness: 12 } : undefined,
+        color: pick(data.value).map((v) => v === null ? (lo ?? 0) : v), colorscale: "Viridis",
+        size: three ? 2 : (kept ? 4 : 6), cmin: lo ?? 0, cmax: hi ?? 1,
+        symbol: kept ? pick(data.value).map((v) => shape[outlier(v)]) : (three ? "diamond-open" : "x"),
+        showscale: kept && lo !== null,
+        colorbar: kept ? { title: { text: `${colourTitle(data)}<br>2nd–98th pct`, side: "right" }, thickness: 12,
+          len: 0.8 } : undefined,
         opacity: kept ? 0.9 : 0.8,
       },
     };
-    if (three) { trace.type = "scatter3d"; trace.z = pick(data.z); } else trace.type = WEBGL ? "scattergl" : "scatter";
+    if (three) { trace.type = "scatter3d"; trace.z = pick(data.z); trace.marker.symbol = "circle"; }
+    else trace.type = WEBGL ? "scattergl" : "scatter";
     traces.push(trace);
   }
   return traces;
 }
 
-function finiteRange(values) {
-  let lo = Infinity, hi = -Infinity;
-  for (const v of values) if (v !== null && isFinite(v)) { if (v < lo) lo = v; if (v > hi) hi = v; }
-  return lo <= hi ? [lo, hi] : [0, 1];
+function pickedTrace(three) {
+  if (!picked) return [];
+  const t = { mode: "markers", name: `pulse ${state.pulse}`, meta: "picked", hoverinfo: "skip",
+    x: picked.x, y: picked.y, marker: { color: "#e02020", size: 16, symbol: "circle-open", line: { width: 3 } } };
+  if (three) { t.type = "scatter3d"; t.z = picked.z; t.marker = { color: "#e02020", size: 5, symbol: "diamond" }; }
+  else t.type = WEBGL ? "scattergl" : "scatter";  // one kind of trace: an SVG layer over WebGL takes the clicks
+  return [t];
+}
+
+function axisTitles(frame) {
+  const labels = (frame && frame.labels) || ["x", "y", "z"];
+  return labels.map((l) => ({ text: l }));
 }
 
 let echoRequests = 0;
+let lastEchoes = null;
 async function loadEchoes() {
   if (!state.run) return;
   const mine = ++echoRequests;
   const kept = $("kept-only").checked ? 1 : 0;
   const box = state.box ? `&box=${state.box.join(",")}` : "";
-  const base = `/api/echoes?run=${encodeURIComponent(state.run)}&colour=${state.colour}&kept=${kept}`;
-  const [map, scene] = await Promise.all([api(`${base}${box}&limit=${MAP_LIMIT}`), api(`${base}${box}&limit=${SCENE_LIMIT}`)]);
-  const returns = $("show-returns").checked
-    ? await api(`/api/returns?run=${encodeURIComponent(state.run)}${box}&limit=${MAP_LIMIT}`) : null;
+  const base = `/api/echoes?run=${encodeURIComponent(state.run)}&colour=${encodeURIComponent(state.colour)}&kept=${kept}`;
+  let map, scene, returns;
+  try {
+    [map, scene] = await Promise.all([api(`${base}${box}&limit=${MAP_LIMIT}`), api(`${base}${box}&limit=${SCENE_LIMIT}`)]);
+    returns = $("show-returns").checked
+      ? await api(`/api/returns?run=${encodeURIComponent(state.run)}${box}&limit=${MAP_LIMIT}`) : null;
+  } catch (e) { $("colour-note").textContent = e.message; return; }
   if (mine !== echoRequests) return;  // the view moved on meanwhile
-  for (const data of [map, scene]) [data.cmin, data.cmax] = finiteRange(data.value);
+  lastEchoes = { map, scene, returns };
+  $("colour-note").textContent = map.unavailable ? `${state.colour}: ${map.unavailable}` :
+    (map.below + map.above ? `${map.below} below and ${map.above} above the 2nd–98th percentile (triangles)` : "");
   $("map-count").textContent = `${map.x.length} of ${map.total} echoes in view`;
   $("scene-count").textContent = `${scene.x.length} of ${scene.total}`;
+  await drawOverview();
+}
+
+async function drawOverview() {
+  if (!lastEchoes) return;
+  const { map, scene, returns } = lastEchoes;
   const mapTraces = echoTraces(map, false);
   const sceneTraces = echoTraces(scene, true);
   if (returns) {  // drawn last, over the echoes
@@ -196,13 +290,17 @@ async function loadEchoes() {
     sceneTraces.push({ type: "scatter3d", mode: "markers", name: "system returns", meta: "returns", hoverinfo: "skip",
       x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.35)", size: 1.5 } });
   }
-  const legend = { orientation: "h", x: 0, y: -0.2, yanchor: "top" };
-  const mapLayout = { margin: { l: 60, r: 10, t: 10, b: 70 }, legend, uirevision: state.run,
-    xaxis: { title: { text: "x (m)" } }, yaxis: { title: { text: "y (m)" }, scaleanchor: "x" } };
+  mapTraces.push(...pickedTrace(false));
+  sceneTraces.push(...pickedTrace(true));
+  const [tx, ty, tz] = axisTitles(map.frame);
+  const legend = { orientation: "h", x: 0, y: -0.22, yanchor: "top", font: { size: 10 } };
+  const mapLayout = { margin: { l: 70, r: 10, t: 10, b: 80 }, legend, uirevision: state.run,
+    xaxis: { title: tx, tickformat: ",.0f" }, yaxis: { title: ty, scaleanchor: "x", tickformat: ",.0f" } };
   if (state.box) { mapLayout.xaxis.range = [state.box[0], state.box[1]]; mapLayout.yaxis.range = [state.box[2], state.box[3]]; }
+  if (map.frame && map.frame.centre) mapLayout.title = { text: `origin ${map.frame.centre}`, font: { size: 10 }, y: 0.99 };
   await Plotly.react("map", mapTraces, mapLayout, { responsive: true, displaylogo: false });
   await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 30 }, legend, uirevision: state.run,
-    scene: { aspectmode: "data", xaxis: { title: { text: "x" } }, yaxis: { title: { text: "y" } }, zaxis: { title: { text: "z" } } } },
+    scene: { aspectmode: "data", xaxis: { title: tx }, yaxis: { title: ty }, zaxis: { title: tz } } },
     { responsive: true, displaylogo: false });
   bindPlotEvents();
 }
@@ -212,8 +310,8 @@ function bindPlotEvents() {
   if (bound) return;
   bound = true;
   const onClick = (event) => {
-    const p = event.points && event.points[0];
-    if (p && p.customdata) showPulse(p.customdata[0], p.customdata[1]);
+    const p = (event.points || []).find((q) => q.customdata);  // an echo, not a mark over it
+    if (p) showPulse(p.customdata[0], p.customdata[1]);
   };
   $("map").on("plotly_click", onClick);
   $("scene").on("plotly_click", onClick);
@@ -234,18 +332,13 @@ function bindPlotEvents() {
 
 async function loadPulseList() {
   if (!state.run) return;
-  const data = await api(`/api/pulses?run=${encodeURIComponent(state.run)}&order=${$("pulse-order").value}&limit=40`);
+  const data = await api(`/api/pulses?run=${encodeURIComponent(state.run)}&order=${encodeURIComponent($("pulse-order").value)}&limit=40`);
   const list = $("pulses");
-  list.innerHTML = "";
+  list.replaceChildren();
   for (const p of data.pulses) {
-    const li = document.createElement("li");
-    li.className = "pulse";
+    const li = listItem(`${p.pulse_id}`, `${p.source_file} · ${p.n_echoes} echoes (${p.n_echoes_kept} kept) · R² ${fmt(p.r2, 3)}`, "pulse");
     li.dataset.file = p.source_file;
     li.dataset.pulse = p.pulse_id;
-    li.innerHTML = "<b></b><small></small>";
-    li.querySelector("b").textContent = `${p.pulse_id}`;
-    li.querySelector("small").textContent =
-      `${p.source_file} · ${p.n_echoes} echoes (${p.n_echoes_kept} kept) · R² ${fmt(p.r2, 3)}`;
     li.onclick = () => showPulse(p.source_file, p.pulse_id);
     list.appendChild(li);
   }
@@ -264,14 +357,14 @@ function waveformTraces(fit, withRaw = true) {
     line: { color: "#f0a030", width: 1.5 } });
   fit.echoes.forEach((e, k) => traces.push({
     type: "scatter", mode: "lines", meta: "component", x: ns(fit.fine_time_ps), y: e.curve,
-    name: `echo ${k} ${e.kept ? "kept" : "spurious: " + e.reject_reason}`,
+    name: `echo ${k}${e.kept ? "" : " ✗"}`, hovertext: e.kept ? "kept" : `spurious: ${e.reject_reason}`,
     line: { color: e.kept ? ECHO_COLOURS[k % ECHO_COLOURS.length] : "#d62728", width: 1.5, dash: e.kept ? "dash" : "dot" },
   }));
   traces.push({ type: "scatter", mode: "lines", name: "model", meta: "model", x: ns(fit.fine_time_ps), y: fit.model,
     line: { color: "#111", width: 2 } });
-  if (fit.response) traces.push({ type: "scatter", mode: "lines", name: `system response (${fit.response.source})`,
+  if (fit.response) traces.push({ type: "scatter", mode: "lines", name: "system response",
     meta: "response", x: ns(fit.response.time_ps), y: fit.response.counts, visible: "legendonly",
-    line: { color: "#666", width: 1, dash: "dot" } });
+    hovertext: fit.response.source, line: { color: "#666", width: 1, dash: "dot" } });
   return traces;
 }
 
@@ -295,31 +388,44 @@ function signalRange(fit, returns) {
 }
 
 function waveformLayout(returns, fit) {
-  return { margin: { l: 50, r: 10, t: 18, b: 40 },
+  // the legend below the plot, in rows: the plot keeps its width
+  return { margin: { l: 55, r: 10, t: 18, b: 95 },
     xaxis: { title: { text: "time (ns from the first sample)" }, range: signalRange(fit, returns) },
-    yaxis: { title: { text: "counts" } },
-    shapes: returnShapes(returns), annotations: returnAnnotations(returns), legend: { font: { size: 10 } } };
+    yaxis: { title: { text: "amplitude (DN)" } },
+    shapes: returnShapes(returns), annotations: returnAnnotations(returns),
+    legend: { orientation: "h", x: 0, y: -0.2, yanchor: "top", font: { size: 10 } } };
 }
 
-function metricsTable(fit, extra = []) {
-  const rows = [["fit error (Eq. 9)", fit.fit_error], ["fit error vs raw", fit.fit_error_raw], ["RMSE", fit.rmse], ["R²", fit.r2],
-    ["background", fit.background], ["noise σ", fit.noise_sigma], ["initial echoes", fit.n_echoes_initial],
-    ["model evaluations", fit.model_evaluations], ...extra];
-  return "<table>" + rows.map(([k, v]) => `<tr><td>${k}</td><td>${fmt(v)}</td></tr>`).join("") + "</table>";
+function metricsTable(table, fit, extra = []) {
+  return fillTable(table, null, [["fit error (Eq. 9)", fmt(fit.fit_error)], ["fit error vs raw", fmt(fit.fit_error_raw)],
+    ["RMSE", fmt(fit.rmse, 2, "DN")], ["R²", fmt(fit.r2, 4)], ["background", fmt(fit.background, 2, "DN")],
+    ["noise σ", fmt(fit.noise_sigma, 2, "DN")], ["initial echoes", fmt(fit.n_echoes_initial)],
+    ["model evaluations", fmt(fit.model_evaluations)], ...extra]);
 }
 
 // the run's rows carry radiometry (fwcore.radiometry); a refit's echoes do not, and show "–"
-function echoTable(rows) {
+function echoTable(table, rows) {
   const relative = rows.some((e) => e.radiometry === "relative") ? " (relative)" : "";
-  const head = "<tr><th>#</th><th>kept / reason</th><th>amplitude</th><th>time (ns)</th><th title=\"Chauve's sigma, in ps^(α²/2): its unit depends on α\">σ (Chauve)</th><th>α</th><th>FWHM (ps)</th><th>energy</th>" +
-    `<th>range (m)</th><th>incidence (°)</th><th>reflectance${relative}</th></tr>`;
-  return head + rows.map((e) => `<tr class="echo-row ${e.kept ? "kept" : "spurious"}"><td>${e.echo_index}</td>` +
-    `<td>${e.kept ? "kept" : e.reject_reason}</td><td>${fmt(e.amplitude, 2)}</td><td>${fmt(e.time_ps / NS, 3)}</td>` +
-    `<td>${fmt(e.sigma_chauve, 3)}</td><td>${fmt(e.alpha, 3)}</td><td>${fmt(e.fwhm_ps, 1)}</td><td>${fmt(e.energy, 1)}</td>` +
-    `<td class="radiometry">${fmt(e.range_m, 3)}</td><td>${fmt(e.incidence_deg, 1)}</td><td>${fmt(e.reflectance, 3)}</td></tr>`).join("");
+  const head = ["#", "kept / reason", "amplitude (DN)", "time (ns)",
+    { text: "σ (Chauve)", title: "Chauve's sigma, in ps^(α²/2): its unit depends on α" }, "α", "FWHM (ns)",
+    "energy (DN·ns)", "range (m)", "incidence (°)", `reflectance${relative}`];
+  return fillTable(table, head, rows.map((e) => [e.echo_index, e.kept ? "kept" : e.reject_reason, fmt(e.amplitude, 2),
+    fmt(e.time_ps / NS, 3), fmt(e.sigma_chauve, 3), fmt(e.alpha, 3), fmt(e.fwhm_ps / NS, 2),
+    fmt(e.energy / NS, 1), { text: fmt(e.range_m, 3), class: "radiometry" }, fmt(e.incidence_deg, 1), fmt(e.reflectance, 3)]),
+    (i) => `echo-row ${rows[i].kept ? "kept" : "spurious"}`);
+}
+
+function markPicked(data) {
+  picked = data ? data.map : null;
+  if (lastEchoes) drawOverview().catch((e) => say(e.message));
 }
 
 async function showPulse(file, pulse) {
+  if (!PULSE_ID.test(String(pulse))) {  // said beside the box where it was typed; the shown pulse stays
+    $("pulse-error").textContent = `${JSON.stringify(String(pulse))} is no pulse id: type a whole number`;
+    return;
+  }
+  $("pulse-error").textContent = "";
   state.file = file; state.pulse = Number(pulse);
   writeUrl();
   $("pulse-id").value = state.pulse;
@@ -328,8 +434,8 @@ async function showPulse(file, pulse) {
   $("pulse-title").textContent = `Pulse ${pulse} of ${file}: reading and decomposing…`;
   let data;
   try {
-    data = await api(`/api/pulse?run=${encodeURIComponent(state.run)}&file=${encodeURIComponent(file)}&pulse=${pulse}`);
-  } catch (e) { $("pulse-title").textContent = `Pulse ${pulse}: ${e.message}`; return; }
+    data = await api(`/api/pulse?run=${encodeURIComponent(state.run)}&file=${encodeURIComponent(file)}&pulse=${encodeURIComponent(pulse)}&page=${PAGE}`);
+  } catch (e) { if (e.status !== 409) $("pulse-title").textContent = `Pulse ${pulse}: ${e.message}`; return; }
   if (data.pulse_id !== state.pulse || data.file !== state.file) return;  // a later click won
   const fit = data.fit;
   $("pulse-title").textContent = `Pulse ${data.pulse_id} of ${data.file}: ${data.echo_rows.length} echoes ` +
@@ -340,36 +446,55 @@ async function showPulse(file, pulse) {
   plot.dataset.pulse = data.pulse_id;
   plot.dataset.file = data.file;
   plot.dataset.components = fit.echoes.length;
-  $("pulse-metrics").innerHTML = metricsTable(fit, [["system pulse FWHM (ps)", fit.config.system_pulse_fwhm_ps]]) +
-    (data.reproduced ? `<div class="ok">the refit reproduces the run's echoes</div>`
-      : `<div class="bad">today's engine gives ${fit.echoes.length} echoes here; the run's table (below) holds ${data.echo_rows.length}</div>`);
-  $("pulse-echoes").innerHTML = echoTable(data.echo_rows);
-  $("pulse-returns").innerHTML = "<b>system returns</b> " + (data.system_returns.map((r) =>
-    `#${r.return_number} at ${fmt(r.time_ps / NS, 3)} ns (intensity ${r.intensity})`).join(", ") || "none");
+  const metrics = $("pulse-metrics");
+  metrics.replaceChildren(metricsTable(el("table"), fit, [["system pulse FWHM", fmt(fit.config.system_pulse_fwhm_ps / NS, 2, "ns")]]));
+  metrics.appendChild(data.reproduced ? el("div", "the refit reproduces the run's echoes", { class: "ok" })
+    : el("div", `today's engine gives ${fit.echoes.length} echoes here; the run's table (below) holds ${data.echo_rows.length}`, { class: "bad" }));
+  echoTable($("pulse-echoes"), data.echo_rows);
+  $("pulse-returns").replaceChildren(el("b", "system returns "), document.createTextNode(data.system_returns.map((r) =>
+    `#${r.return_number} at ${fmt(r.time_ps / NS, 3)} ns (intensity ${r.intensity} DN)`).join(", ") || "none"));
+  markPicked(data);
   if (state.tab === "try") runTry();
 }
 
 // ---------------------------------------------------------------- try
 
+const WHOLE = ["max_echoes", "generations", "population"];
+
+// the form's settings, each checked where it was typed: a reason beside the form, nothing sent
 function tryBody() {
   const form = $("try-form");
   const changes = {};
   for (const name of ["optimizer", "model"]) if (form.elements[name].value) changes[name] = form.elements[name].value;
-  for (const name of ["noise_threshold", "min_snr", "min_amplitude_ratio", "max_echoes", "generations"]) {
-    const v = form.elements[name].value.trim();
-    if (v !== "") changes[name] = Number(v);
+  for (const name of ["noise_threshold", "min_snr", "min_amplitude_ratio", ...WHOLE]) {
+    const input = form.elements[name];
+    const v = input.value.trim();
+    input.classList.remove("invalid");
+    if (v === "") continue;
+    const number = Number(v);
+    if (!isFinite(number) || (WHOLE.includes(name) && !Number.isInteger(number))) {
+      input.classList.add("invalid");
+      throw new Error(`${name.replaceAll("_", " ")} must be ${WHOLE.includes(name) ? "a whole number" : "a number"}, not ${JSON.stringify(v)}`);
+    }
+    changes[name] = number;
   }
-  if (form.elements.prune_echoes.checked) changes.prune_echoes = true;
-  return { run: state.run, file: state.file, pulse: state.pulse, preset: form.elements.preset.value, changes };
+  return { run: state.run, file: state.file, pulse: state.pulse, preset: form.elements.preset.value, changes, page: PAGE };
 }
 
 let tries = 0;
 async function runTry() {
   if (state.pulse === null) { $("try-status").textContent = "pick a pulse first"; return; }
-  $("try-status").textContent = `refitting pulse ${state.pulse}…`;
   const mine = ++tries;
   let data;
-  try { data = await api("/api/try", tryBody()); } catch (e) { if (mine === tries) $("try-status").textContent = e.message; return; }
+  try {
+    const body = tryBody();
+    $("try-status").textContent = `refitting pulse ${state.pulse}…`;
+    $("try-status").className = "";
+    data = await api("/api/try", body);
+  } catch (e) {
+    if (mine === tries && e.status !== 409) { $("try-status").textContent = e.message; $("try-status").className = "bad"; }
+    return;
+  }
   if (mine !== tries) return;  // a later refit was asked for: its answer is the one to show
   $("try-status").textContent = `pulse ${data.pulse_id}: changed ${Object.keys(data.changed).map((k) => `${k}=${data.changed[k]}`).join(", ") || "nothing"}`;
   for (const [side, fit] of [["a", data.a], ["b", data.b]]) {
@@ -377,43 +502,45 @@ async function runTry() {
     $(`try-${side}-title`).textContent = `${side === "a" ? "the run's" : "yours"}: ${fit.config.optimizer} / ${fit.config.model}, ` +
       `${fit.echoes.length} echoes (${kept} kept), R² ${fmt(fit.r2, 4)}`;
     await Plotly.react(`try-${side}`, waveformTraces(fit), waveformLayout(data.system_returns, data.a), { responsive: true, displaylogo: false });
-    $(`try-${side}-metrics`).innerHTML = metricsTable(fit) + `<table>${echoTable(fit.echoes)}</table>`;
+    $(`try-${side}-metrics`).replaceChildren(metricsTable(el("table"), fit), echoTable(el("table"), fit.echoes));
   }
 }
 
 // ---------------------------------------------------------------- summary
 
-function keyValueRows(pairs) {
-  return pairs.map(([k, v]) => `<tr><td>${k}</td><td>${fmt(v)}</td></tr>`).join("");
+function keyValueRows(table, pairs) {
+  return fillTable(table, null, pairs.map(([k, v]) => [k, typeof v === "object" && v !== null ? JSON.stringify(v) : fmt(v)]));
 }
 
 function histogram(div, series, title, xtitle) {
   const traces = series.map(([name, h, colour]) => ({
     type: "bar", name, x: h.edges.slice(0, -1).map((e, i) => (e + h.edges[i + 1]) / 2), y: h.counts,
     width: h.edges.length > 1 ? h.edges[1] - h.edges[0] : 1, marker: { color: colour }, opacity: 0.75 }));
-  Plotly.react(div, traces, { title: { text: title, font: { size: 12 } }, barmode: "overlay", margin: { l: 45, r: 10, t: 30, b: 40 },
-    xaxis: { title: { text: xtitle } }, yaxis: { title: { text: "count" } }, legend: { orientation: "h", y: -0.25 } },
-    { responsive: true, displaylogo: false });
+  // the title left and the toolbar hidden: nothing sits over the title
+  Plotly.react(div, traces, { title: { text: title, font: { size: 12 }, x: 0.02, xanchor: "left", y: 0.97 },
+    barmode: "overlay", margin: { l: 50, r: 10, t: 34, b: 40 },
+    xaxis: { title: { text: xtitle } }, yaxis: { title: { text: "pulses" } }, legend: { orientation: "h", y: -0.3 } },
+  { responsive: true, displaylogo: false, displayModeBar: false });
 }
 
 function drawSummary() {
   const s = summary, c = s.counts;
-  $("counts").innerHTML = keyValueRows([["inputs", s.inputs.join(", ")], ["status", s.status], ["pulses read", c.pulses_read],
+  keyValueRows($("counts"), [["inputs", s.inputs.join(", ")], ["status", s.status], ["pulses read", c.pulses_read],
     ["decomposed", c.pulses_decomposed], ["rejected", c.pulses_rejected], ["files rejected", c.files_rejected],
-    ["echoes kept", c.echoes_kept], ["echoes spurious", c.echoes_spurious], ["seconds", s.seconds]]) +
-    `<tr><td colspan="2" class="${s.read_adds_up ? "ok" : "bad"}">read ${s.read_adds_up ? "=" : "≠"} decomposed + rejected</td></tr>`;
-  $("config").innerHTML = keyValueRows(Object.entries(s.config));
+    ["echoes kept", c.echoes_kept], ["echoes spurious", c.echoes_spurious], ["seconds", s.seconds]]);
+  $("counts").appendChild(rowOf("td", [{ text: `read ${s.read_adds_up ? "=" : "≠"} decomposed + rejected`, colspan: 2,
+    class: s.read_adds_up ? "ok" : "bad" }]));
+  keyValueRows($("config"), Object.entries(s.config));
   $("rejected-total").textContent = `(${s.rejected.total})`;
-  $("rejected-reasons").innerHTML = "<tr><th>stage</th><th>reason</th><th>pulses</th></tr>" +
-    s.rejected.reasons.map((r) => `<tr><td>${r.stage}</td><td>${r.reason}</td><td>${r.count}</td></tr>`).join("");
-  $("rejected-rows").innerHTML = "<tr><th>file</th><th>pulse</th><th>stage</th><th>reason</th></tr>" +
-    s.rejected.rows.map((r) => `<tr><td>${r.source_file}</td><td>${r.pulse_id}</td><td>${r.stage}</td><td>${r.reason}</td></tr>`).join("");
+  fillTable($("rejected-reasons"), ["stage", "reason", "pulses"], s.rejected.reasons.map((r) => [r.stage, r.reason, r.count]));
+  fillTable($("rejected-rows"), ["file", "pulse", "stage", "reason"],
+    s.rejected.rows.map((r) => [r.source_file, r.pulse_id, r.stage, r.reason]));
   const d = s.distributions;
   if (d.echoes_per_pulse) histogram("hist-echoes", [["all", d.echoes_per_pulse, "#7f9fc0"], ["kept", d.kept_echoes_per_pulse, "#2a7a2a"]],
     "echoes per pulse", "echoes");
   if (d.fit_error) histogram("hist-fit", [["pulses", d.fit_error, "#9467bd"]], "fit error per pulse", "fit error (Eq. 9)");
   if (d.amplitude_kept) histogram("hist-amplitude", [["kept", d.amplitude_kept, "#2a7a2a"], ["spurious", d.amplitude_spurious, "#d62728"]],
-    "echo amplitude", "amplitude (counts)");
+    "echo amplitude", "amplitude (DN)");
 }
 
 // ---------------------------------------------------------------- wiring
@@ -428,22 +555,26 @@ function showTab(tab) {
 }
 
 async function start() {
+  for (const option of $("colour").options) option.dataset.label = option.textContent;
   readUrl();
+  if (![...$("colour").options].some((o) => o.value === state.colour)) {
+    say(`colour ${JSON.stringify(state.colour)} is not one of the page's: height shown`);
+    state.colour = "height";
+  }
   $("colour").value = state.colour;
   for (const b of document.querySelectorAll("#tabs button")) b.onclick = () => showTab(b.dataset.tab);
   $("colour").onchange = () => { state.colour = $("colour").value; writeUrl(); loadEchoes(); };
   $("kept-only").onchange = loadEchoes;
   $("show-returns").onchange = loadEchoes;
   $("pulse-order").onchange = loadPulseList;
-  $("pulse-form").onsubmit = (e) => { e.preventDefault(); showPulse($("pulse-file").value, Number($("pulse-id").value)); };
+  $("pulse-form").onsubmit = (e) => { e.preventDefault(); showPulse($("pulse-file").value, $("pulse-id").value.trim()); };
   $("try-form").onsubmit = (e) => { e.preventDefault(); runTry(); };
   showTab(state.tab);
   try {
     const catalog = await loadCatalog();
     const run = state.run && catalog.runs.some((r) => r.id === state.run) ? state.run : (catalog.runs[0] || {}).id;
     if (run !== undefined) await pickRun(run);
-    document.body.dataset.ready = "1";
-  } catch (e) { say(e.message); }
+  } catch (e) { say(e.message); } finally { document.body.dataset.ready = "1"; }
 }
 
 start();

@@ -74,8 +74,10 @@ def test_the_page_shows_the_run_and_a_clicked_pulse(browser, fwl_view, viewed, t
     traces = _wait(browser, "document.getElementById('map').data && document.getElementById('map').data"
                             ".map(t => [t.meta, t.x.length])")
     echoes = viewed.echoes()
-    assert dict(traces) == {"returns": int(viewed.pulses().n_system_returns.sum()),
-                            "kept": int(echoes.kept.sum()), "spurious": int((~echoes.kept).sum())}
+    traces = dict(traces)
+    assert traces.pop("picked", None) is not None or True  # the shown pulse, once its answer came
+    assert traces == {"returns": int(viewed.pulses().n_system_returns.sum()),
+                      "kept": int(echoes.kept.sum()), "spurious": int((~echoes.kept).sum())}
 
     listed = browser.find_elements(By.CSS_SELECTOR, "#pulses li.pulse")
     shown = browser.execute_script("return document.getElementById('waveform').dataset.pulse")
@@ -91,6 +93,9 @@ def test_the_page_shows_the_run_and_a_clicked_pulse(browser, fwl_view, viewed, t
     assert browser.execute_script("return document.getElementById('waveform').data"
                                   ".filter(t => t.meta === 'raw')[0].y.length") == 256
     assert "reproduces the run's echoes" in browser.find_element(By.ID, "pulse-metrics").text
+    # the picked pulse is marked on the map, at its echoes
+    marked = _wait(browser, "(document.getElementById('map').data.find(t => t.meta === 'picked') || {}).x")
+    assert sorted(marked) == pytest.approx(sorted(echoes[echoes.pulse_id == pulse_id].x), abs=1e-6)
     assert f"pulse=leica_a.las%3A{pulse_id}" in browser.current_url  # the state is in the URL
     # nothing came from anywhere but the viewer
     sources = browser.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
@@ -111,7 +116,8 @@ def test_a_shared_url_opens_the_same_pulse_and_try_compares_fits(browser, fwl_vi
     _wait(browser, "document.body.dataset.ready === '1'")
     assert browser.find_element(By.ID, "colour").get_attribute("value") == "amplitude"
     shown = _wait(browser, "document.getElementById('map').data && document.getElementById('map').data"
-                           ".filter(t => t.meta !== 'returns').reduce((n, t) => n + t.x.length, 0)")
+                           ".filter(t => t.meta === 'kept' || t.meta === 'spurious')"
+                           ".reduce((n, t) => n + t.x.length, 0)")
     assert shown == int((echoes.x.between(x0, x1) & echoes.y.between(y0, y1)).sum()) < len(echoes)
     _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse_id}'")
     browser.find_element(By.CSS_SELECTOR, "#try-form select[name=optimizer] option[value=mde]").click()
@@ -156,3 +162,151 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
     _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{other}'")
     assert browser.execute_script("return document.getElementById('waveform').dataset.components") == \
         str(int((echoes.pulse_id == other).sum()))
+
+
+HOSTILE = "<img src=x onerror=document.title='PWNED'>"
+
+
+def _served(tmp_path_factory, name: str, copies: dict, args: list[str], points_per_range: int):
+    """A viewer in this process over a folder holding the given copies, its one input decomposed."""
+    from pipeline.view.jobs import Jobs
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+    from tests.pipeline.view.conftest import Viewed
+
+    folder = tmp_path_factory.mktemp(name)
+    for target, data in copies.items():
+        (folder / target).write_bytes(data)
+    runs = folder / "runs"
+    server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, args, points_per_range))
+    serve_in_thread(server)
+    (listed,) = Viewed(url_of(server), folder, runs, "", "", []).get("/api/catalog")["inputs"]
+    v = Viewed(url_of(server), folder, runs / Path(listed["name"]).stem, "", listed["id"], [])
+    listed = v.decompose(listed["id"])
+    assert listed["job"]["status"] == "done", (runs / (Path(listed["name"]).stem + ".log")).read_text()
+    v.run_id = listed["run"]
+    return server, v
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory, leica_dir):
+    """A flight line whose name is markup, its packet file cut so that rejection reasons repeat the name."""
+    from tests.pipeline.view.conftest import POINTS_PER_RANGE, RUN_ARGS
+
+    wdp = (leica_dir / "leica_a.wdp").read_bytes()[: 92 + 256 * 40]
+    server, v = _served(tmp_path_factory, "hostile", {f"{HOSTILE}.las": (leica_dir / "leica_a.las").read_bytes(),
+                                                      f"{HOSTILE}.wdp": wdp}, RUN_ARGS, POINTS_PER_RANGE)
+    yield v
+    server.viewer.jobs.stop_all()
+    server.shutdown()
+    server.server_close()
+
+
+def test_a_file_named_as_markup_is_shown_as_text(browser, hostile):
+    from urllib.parse import quote
+
+    from selenium.webdriver.common.by import By
+
+    summary = hostile.get(f"/api/summary?run={quote(hostile.run_id)}")
+    assert summary["rejected"]["total"] > 0 and HOSTILE in summary["rejected"]["rows"][0]["reason"]
+    browser.get(f"{hostile.url}?run={quote(hostile.run_id, safe='')}&tab=summary")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _wait(browser, "document.querySelectorAll('#rejected-rows tr').length > 1")
+    _wait(browser, "document.getElementById('waveform').dataset.pulse")
+    for tab in ("explore", "try", "summary"):  # every view drawn, the pulse refitted
+        browser.find_element(By.CSS_SELECTOR, f"#tabs button[data-tab={tab}]").click()
+        time.sleep(1.0)
+    assert browser.title == "fwl view"  # the handler never ran
+    assert browser.execute_script("return document.querySelectorAll('img').length") == 0
+    assert browser.execute_script("return document.querySelectorAll('[onerror]').length") == 0
+    assert f"{HOSTILE}.las" in browser.find_element(By.ID, "runs").text  # shown, as the text it is
+    assert f"{HOSTILE}.wdp" in browser.find_element(By.ID, "rejected-rows").text
+    assert f"{HOSTILE}.wdp" in browser.find_element(By.ID, "rejected-reasons").text
+    assert HOSTILE in browser.find_element(By.ID, "counts").text
+    assert f"{HOSTILE}.las" in browser.execute_script("return document.getElementById('pulse-title').textContent")
+
+
+@pytest.fixture(scope="module")
+def riegl(tmp_path_factory):
+    from tests.pipeline.view.conftest import run_args
+
+    samples = Path(__file__).resolve().parents[3] / "examples" / "data" / "pulsewaves"
+    server, v = _served(tmp_path_factory, "riegl", {f"riegl_example3{s}": (samples / f"riegl_example3{s}").read_bytes()
+                                                    for s in (".pls", ".wvs")}, run_args(40), 10)
+    yield v
+    server.viewer.jobs.stop_all()
+    server.shutdown()
+    server.server_close()
+
+
+def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl):
+    """riegl_example3.pls is in EPSG:4978: the map reads east and north in metres from the run's centre, and its
+    colour bar spans the 2nd to 98th percentile of what it shows."""
+    import numpy as np
+    from urllib.parse import quote
+
+    browser.get(f"{riegl.url}?run={quote(riegl.run_id, safe='')}&colour=amplitude&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    layout = _wait(browser, "document.getElementById('map')._fullLayout && document.getElementById('map')"
+                            "._fullLayout.xaxis.title.text && [document.getElementById('map')._fullLayout.xaxis.title"
+                            ".text, document.getElementById('map')._fullLayout.yaxis.title.text, "
+                            "document.getElementById('map')._fullLayout.xaxis.range]")
+    assert layout[0] == "east (m) from the run's centre" and layout[1] == "north (m) from the run's centre"
+    assert all(abs(v) < 5000 for v in layout[2])  # metres about the centre, not 4.1 million of ECEF
+    scene = browser.execute_script("return document.getElementById('scene')._fullLayout.scene.zaxis.title.text")
+    assert scene == "up (m) from the run's centre"
+    kept = browser.execute_script("return document.getElementById('map').data.find(t => t.meta === 'kept').marker")
+    served = riegl.get(f"/api/echoes?run={quote(riegl.run_id, safe='')}&colour=amplitude&limit=60000")
+    values = np.array([v for v in served["value"] if v is not None])
+    lo, hi = np.percentile(values, [2, 98])
+    assert kept["cmin"] == pytest.approx(lo, rel=1e-6) and kept["cmax"] == pytest.approx(hi, rel=1e-6)
+    assert kept["cmin"] > values.min() and kept["cmax"] < values.max()
+    assert "2nd–98th" in kept["colorbar"]["title"]["text"]
+    assert max(abs(v) for v in served["x"] + served["y"]) < 5000
+
+
+def _documented_urls() -> list[str]:
+    """The viewer URLs the documentation shows (`?run=...`), from every docs page and the README."""
+    root = Path(__file__).resolve().parents[3]
+    pages = sorted((root / "docs").glob("*.md")) + [root / "README.md"]
+    return sorted({m for page in pages for m in re.findall(r"\?run=[^`\s)]+", page.read_text())})
+
+
+@pytest.mark.parametrize("query", _documented_urls())
+def test_a_documented_url_opens_what_it_says(browser, fwl_view, query):
+    """Opened on `fwl view` of the Leica sample's run (its first 90 pulses, as the docs' example says)."""
+    from urllib.parse import parse_qs
+
+    wanted = {k: v[0] for k, v in parse_qs(query[1:]).items()}
+    browser.get(fwl_view + query)
+    _wait(browser, "document.body.dataset.ready === '1'")
+    if "pulse" in wanted:
+        file, pulse = wanted["pulse"].rsplit(":", 1)
+        _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{pulse}'")
+        assert browser.execute_script("return document.getElementById('waveform').dataset.file") == file
+    if "colour" in wanted:
+        assert browser.execute_script("return document.getElementById('colour').value") == wanted["colour"]
+    if wanted.get("tab") == "try":
+        _wait(browser, "document.getElementById('try-b-title').textContent.startsWith('yours')")
+    assert browser.execute_script("return document.getElementById('message').textContent") == ""
+
+
+def test_the_documentation_shows_a_viewer_url():
+    assert _documented_urls()
+
+
+def test_a_viewer_with_a_token_takes_it_once_from_its_url(browser, viewed):
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+
+    server = make_server([viewed.run], port=0, runs_dir=viewed.folder / "runs", token="s3cret-token-of-this-test")
+    serve_in_thread(server)
+    try:
+        url = url_of(server)
+        assert url.endswith("/?token=s3cret-token-of-this-test")
+        browser.get(url)
+        _wait(browser, "document.body.dataset.ready === '1'")
+        _wait(browser, "document.getElementById('waveform').dataset.pulse")
+        assert len(browser.find_elements("css selector", "#runs li.run")) == 1
+        assert "token" not in browser.current_url  # kept by the page, not left in the address bar
+    finally:
+        server.shutdown()
+        server.server_close()

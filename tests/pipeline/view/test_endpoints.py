@@ -122,12 +122,14 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     assert all(not e["kept"] for e in weak)
     # a preset is the preset's method (as fwl run --preset has it), on the run's pulse width and seed
     paper = viewed.post("/api/try", {**body, "changes": {}})
-    # the run was `fast` (LM, 20 iterations): paper is MDE at G 80 with the method's noise, filter and no selection
+    # the run was `fast` (LM, 20 iterations): paper is MDE at G 80 with the method's noise, filter and no selection;
+    # the model stays the run's (a preset changes the method only)
     from fwcore.config import PRESETS, DecompositionConfig
     fast, published = DecompositionConfig(**PRESETS["fast"]).to_dict(), DecompositionConfig(**PRESETS["paper"]).to_dict()
-    expected = {k: v for k, v in published.items() if fast[k] != v and k != "shape_tolerance"}
+    expected = {k: v for k, v in published.items() if fast[k] != v and k not in ("shape_tolerance", "model")}
     assert {k: v for k, v in paper["changed"].items() if k != "shape_tolerance"} == expected
     assert expected["optimizer"] == "mde" and expected["generations"] == 80 and not expected["select_echoes"]
+    assert paper["b"]["config"]["model"] == paper["a"]["config"]["model"]
     same = viewed.post("/api/try", {**body, "preset": "", "changes": {}})
     assert same["changed"] == {} and same["a"]["echoes"] == same["b"]["echoes"]
 
@@ -284,6 +286,21 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path, st
             assert (p["fit"]["config"]["system_response"] is not None) == (model == "system")
             # the page can draw the response the echoes are made of, at the strongest echo
             assert (p["fit"]["response"] is not None) == (model == "system")
+        if stem == "riegl_example3":  # EPSG:4978: the map is east, north, up about the run's centre, as PROJ has it
+            import pyproj
+
+            served = v.get(f"/api/echoes?run={listed['run']}&colour=height&limit=200000")
+            centre = [float(echoes[c].min() + echoes[c].max()) / 2 for c in ("x", "y", "z")]
+            enu = pyproj.Transformer.from_pipeline(
+                f"+proj=topocentric +X_0={centre[0]!r} +Y_0={centre[1]!r} +Z_0={centre[2]!r} +ellps=WGS84")
+            rows = echoes.set_index(["pulse_id", "echo_index"])
+            for i in range(0, len(served["x"]), 7):
+                match = echoes[(echoes.pulse_id == served["pulse_id"][i])]
+                e, n, u = enu.transform(match.x.to_numpy(), match.y.to_numpy(), match.z.to_numpy())
+                d = (e - served["x"][i]) ** 2 + (n - served["y"][i]) ** 2 + (u - served["z"][i]) ** 2
+                assert d.min() < 2e-6, (i, d.min())  # millimetres, as served
+            assert served["frame"]["labels"][0] == "east (m) from the run's centre" and len(rows)
+            assert max(abs(np.array(served["x"]))) < 5000 and "EPSG:4978" in served["frame"]["crs"]
     finally:
         server.viewer.jobs.stop_all()
         server.shutdown()
