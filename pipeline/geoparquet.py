@@ -30,10 +30,11 @@ def spatially_sorted(table: pa.Table, bounds: tuple[float, float, float, float] 
     return table.take(pa.array(spatial_order(x, y, bounds)))
 
 
-def write_echo_part(table: pa.Table, directory: Path, name: str,
-                    row_group_rows: int = ECHO_ROW_GROUP_ROWS) -> Path:
-    """An echo part in Hilbert order, in row groups of `row_group_rows`, with statistics (atomically)."""
-    return write_part(spatially_sorted(table), directory, name, row_group_size=row_group_rows,
+def write_echo_part(table: pa.Table, directory: Path, name: str, row_group_rows: int = ECHO_ROW_GROUP_ROWS,
+                    sort: bool = True) -> Path:
+    """An echo part in Hilbert order over its own extent (or as given, `sort` False), in row groups of
+    `row_group_rows`, with statistics (atomically)."""
+    return write_part(spatially_sorted(table) if sort else table, directory, name, row_group_size=row_group_rows,
                       write_statistics=True)
 
 
