@@ -62,7 +62,8 @@ def row_groups(paths: list[Path]) -> list[RowGroup]:
             stats = [group.column(i).statistics if i is not None else None for i in wanted]
             known = all(s is not None and s.has_min_max for s in stats)
             box = (stats[0].min, stats[1].min, stats[2].max, stats[3].max) if known else None
-            groups.append(RowGroup(str(path), g, group.num_rows, group.total_compressed_size, box))
+            groups.append(RowGroup(str(path), g, group.num_rows,
+                                    sum(group.column(i).total_compressed_size for i in range(group.num_columns)), box))
     return groups
 
 
@@ -72,3 +73,25 @@ def touched(groups: list[RowGroup], box: tuple[float, float, float, float]) -> l
     xmin, ymin, xmax, ymax = box
     return [g for g in groups if g.box is None or not (g.box[2] < xmin or g.box[0] > xmax or g.box[3] < ymin
                                                           or g.box[1] > ymax)]
+
+
+def extent_of(groups: list[RowGroup]) -> tuple[float, float, float, float]:
+    """The box of every row group's statistics together."""
+    boxes = np.array([g.box for g in groups if g.box is not None], dtype=np.float64)
+    if not boxes.size:
+        raise ValueError("no row group has statistics of the bbox column")
+    return float(boxes[:, 0].min()), float(boxes[:, 1].min()), float(boxes[:, 2].max()), float(boxes[:, 3].max())
+
+
+def centre_box(extent: tuple[float, float, float, float], share: float = 0.1) -> tuple[float, float, float, float]:
+    """The box at the extent's centre whose sides are `share` of the extent's (share**2 of its area)."""
+    xmin, ymin, xmax, ymax = extent
+    cx, cy, hx, hy = (xmin + xmax) / 2, (ymin + ymax) / 2, (xmax - xmin) * share / 2, (ymax - ymin) * share / 2
+    return cx - hx, cy - hy, cx + hx, cy + hy
+
+
+def bytes_touched(paths: list[Path], box: tuple[float, float, float, float]) -> float:
+    """The share of the files' row group bytes that a box query must read, judged by the bbox statistics."""
+    groups = row_groups(paths)
+    total = sum(g.bytes for g in groups)
+    return sum(g.bytes for g in touched(groups, box)) / total if total else 0.0
