@@ -57,11 +57,20 @@ def finite_bounds(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, fl
     return float(x[finite].min()), float(y[finite].min()), float(x[finite].max()), float(y[finite].max())
 
 
+def square_bounds(bounds: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The square from the box's lower left corner whose side is the box's longer one: cells square in metres,
+    so that a strip's curve runs along the strip (over the box itself a flight line's strip of a range, 2 m by
+    400 m, is cut in quadrants that all meet at its centre)."""
+    xmin, ymin, xmax, ymax = bounds
+    side = max(xmax - xmin, ymax - ymin)
+    return xmin, ymin, xmin + side, ymin + side
+
+
 def spatial_order(x: np.ndarray, y: np.ndarray, bounds: tuple[float, float, float, float] | None = None
                   ) -> np.ndarray:
-    """The permutation that sorts points along the Hilbert curve over `bounds` (default: their own), stably, so
-    that points in one cell keep their order; points without a finite position last."""
-    bounds = bounds or finite_bounds(x, y)
+    """The permutation that sorts points along the Hilbert curve over `bounds` (default: the square over their
+    own extent), stably, so that points in one cell keep their order; points without a finite position last."""
+    bounds = bounds or (square_bounds(b) if (b := finite_bounds(x, y)) else None)
     if bounds is None:
         return np.arange(len(x))
     return np.argsort(hilbert_key(x, y, bounds), kind="stable")

@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key
+from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, square_bounds
 from pipeline.geoparquet import ECHO_ROW_GROUP_ROWS, write_echo_part
 from pipeline.outputs import earlier_run_files, list_outputs, read_manifest, read_run, write_run_json
 from pipeline.sinks import remove_parts, write_json
@@ -156,7 +156,7 @@ def stage_input(folder: Path, stem: str, tile_rows: int, row_group_rows: int) ->
     stale = re.compile(re.escape(stem) + r"-(bucket|tile)-\d{4,}\.parquet(\.tmp)?")
     remove_parts([p for d in (compact, staged) for p in sorted(d.glob("*")) if stale.fullmatch(p.name)])
     sources = echo_files(folder / "echoes", stem)
-    extent = _extent(sources)
+    extent = square_bounds(found) if (found := _extent(sources)) else None
     counts = np.zeros(4 ** TILE_ORDER + 1, dtype=np.int64)
     for source in sources:  # the tiles' sizes, from the positions alone
         if pq.ParquetFile(source).metadata.num_rows:

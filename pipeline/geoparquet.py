@@ -22,8 +22,8 @@ ECHO_ROW_GROUP_ROWS = 2048
 
 
 def spatially_sorted(table: pa.Table, bounds: tuple[float, float, float, float] | None = None) -> pa.Table:
-    """The echo rows along the Hilbert curve over `bounds` (default: their own extent); rows without a position
-    last; rows in one cell keep their order."""
+    """The echo rows along the Hilbert curve over `bounds` (default: the square over their own extent); rows
+    without a position last; rows in one cell keep their order."""
     if table.num_rows < 2:
         return table
     x, y = (table.column(c).to_numpy(zero_copy_only=False).astype(np.float64) for c in ("x", "y"))

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, spatial_order
+from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, spatial_order, square_bounds
 
 
 def _reference_key(n: int, x: int, y: int) -> int:
@@ -51,3 +51,12 @@ def test_spatial_order_keeps_a_cells_points_in_their_order_and_handles_no_extent
 def test_an_order_out_of_range_is_refused():
     with pytest.raises(ValueError, match="order"):
         hilbert_key(np.zeros(1), np.zeros(1), (0, 0, 1, 1), order=32)
+
+
+def test_a_strip_is_ordered_along_its_length_over_the_square_on_it():
+    assert square_bounds((10.0, -200.0, 12.0, 200.0)) == (10.0, -200.0, 410.0, 200.0)
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(10, 12, 4000), rng.uniform(-200, 200, 4000)  # a range's strip of a flight line
+    thirds = np.array_split(spatial_order(x, y), 3)  # three row groups: each a third of the strip's length
+    assert all(np.ptp(y[t]) < 200 for t in thirds)
+    assert max(np.ptp(y[t]) for t in np.array_split(spatial_order(x, y, (10.0, -200.0, 12.0, 200.0)), 3)) >= 200
