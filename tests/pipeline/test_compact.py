@@ -173,9 +173,26 @@ def test_a_compact_killed_by_a_signal_and_rerun_gives_the_same_tiles(flight, tmp
     assert _digests(run) == _digests(whole)
 
 
-def test_a_box_query_reads_few_row_groups_and_finds_every_echo_in_the_box(flight, tmp_path):
-    """bench/bench_query.py's measure at a small scale: row groups scaled to the flight (64 echoes)."""
-    run = _copy(flight, tmp_path)
+@pytest.fixture(scope="module")
+def square_flight(tmp_path_factory):
+    """A flight over a square, small enough for a test: 100 scan lines of 40 pulses, 24 m by 24 m."""
+    from fwcore.simulate import SceneConfig, SensorConfig
+    from fwcore.studies.truth import write_flight
+
+    folder = tmp_path_factory.mktemp("square")
+    scene = SceneConfig(speed_m_s=600.0, pulses_per_line=40, max_scan_angle_deg=1.4)
+    write_flight(folder / "square.las", 4000, SensorConfig(), scene, 7, "las13-wdp")
+    run = folder / "run"
+    assert main(["run", str(folder / "square.las"), "--output", str(run), "--preset", "fast", "--formats", "parquet",
+                 "--points-per-range", "1000", "--direct_num_workers=1", "--direct_running_mode=in_memory"]) == 0
+    return run
+
+
+def test_a_box_query_reads_few_row_groups_and_finds_every_echo_in_the_box(square_flight, tmp_path):
+    """bench/bench_query.py's measure at a small scale: a box of 1% of the flight's area at its centre, row groups
+    scaled to the flight (64 echoes, as 2,048 to a survey's)."""
+    run = tmp_path / "run"
+    shutil.copytree(square_flight, run)
     compact.compact_run(run, row_group_rows=64)
     files = sorted((run / "echoes").glob("*.parquet"))
     box = centre_box(extent_of(row_groups(files)))
