@@ -419,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder")
     k.add_argument("--tile-rows", dest="tile_rows", type=int, help="echoes per tile (default 1,000,000)")
     k.add_argument("--row-group-rows", dest="row_group_rows", type=int,
-                   help="echoes per row group (default 2048, as fwl run writes them)")
+                   help="echoes per row group (default 8192)")
     k.set_defaults(handler=_compact)
 
     i = sub.add_parser("info", help="format, counts, descriptors and their use, CRS, bounds and times of "

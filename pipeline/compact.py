@@ -27,7 +27,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, square_bounds
-from pipeline.geoparquet import ECHO_ROW_GROUP_ROWS, write_echo_part
+from pipeline.geoparquet import write_echo_part
 from pipeline.outputs import earlier_run_files, list_outputs, read_manifest, read_run, write_run_json
 from pipeline.sinks import remove_parts, write_json
 from pipeline.tables import GEO_METADATA_KEY, geo_metadata
@@ -36,7 +36,11 @@ COMPACT = Path("parts") / "compact"  # the staging, under the run folder
 STAGED = COMPACT / "echoes"  # the new echoes/, complete before it replaces the old
 REPLACED = COMPACT / "replaced"  # the old echoes/, between the two renames
 FINISHED = Path("parts") / "compact-finished"  # the staging of a finished compaction, on its way out
-TILE_ROWS = 1_000_000  # echoes per tile: files of some 100 MB (docs/benchmarks.md)
+TILE_ROWS = 1_000_000  # echoes per tile: files of some 170 MB (the benchmark's 422,133 echoes take 73 MB)
+# echoes per row group of a tile: its row groups follow one curve over the whole input, so larger ones still prune
+# (a centre box of 1% of the 200,000-pulse flight's area: 5.8% of the bytes), and the footer every query parses
+# (836 KB at 2,048, some 20 ms in DuckDB) is 4x smaller (bench/bench_query.py)
+TILE_ROW_GROUP_ROWS = 8192
 TILE_ORDER = 8  # tiles are runs of cells of a 256 x 256 Hilbert grid over the input's extent
 
 
@@ -230,7 +234,7 @@ def _finish(folder: Path, tile_rows: int, marks: dict[str, dict]) -> dict:
     return summary["compacted"]
 
 
-def compact_run(folder: str | Path, tile_rows: int = TILE_ROWS, row_group_rows: int = ECHO_ROW_GROUP_ROWS,
+def compact_run(folder: str | Path, tile_rows: int = TILE_ROWS, row_group_rows: int = TILE_ROW_GROUP_ROWS,
                 say: Callable[[str], None] = lambda line: None) -> dict:
     """A finished run's echo parts -> spatial tiles in echoes/ (the module's steps); a rerun after a kill goes on
     from where it stopped. Refuses a folder that is not a finished run (IncompleteRunError, OutputFolderError),
