@@ -190,8 +190,8 @@ def _marks(folder: Path, stems: list[str]) -> dict[str, dict]:
     for stem in stems:
         try:
             mark = json.loads((folder / COMPACT / f"{stem}.json").read_text())
-            if swapped or all((folder / "echoes" / name).stat().st_size == size
-                                                   for name, size in mark["sources"].items()):
+            sizes = mark["sources"].items()
+            if swapped or all((folder / "echoes" / name).stat().st_size == size for name, size in sizes):
                 marks[stem] = mark
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
