@@ -255,7 +255,7 @@ def compact_run(folder: str | Path, tile_rows: int = TILE_ROWS, row_group_rows: 
         if stem not in marks:
             (folder / STAGED).mkdir(parents=True, exist_ok=True)
             marks[stem] = stage_input(folder, stem, tile_rows, row_group_rows)
-            say(f"fwl compact: {stem}: {len(marks[stem]['sources'])} parts -> {len(marks[stem]['tiles'])} tiles, "
+            say(f"fwl compact: {stem}: {len(marks[stem]['sources'])} files -> {len(marks[stem]['tiles'])} tiles, "
                 f"{marks[stem]['rows']:,} echoes")
     swap(folder, marks)
     return _finish(folder, tile_rows, marks)

@@ -77,6 +77,9 @@ def test_compact_rewrites_the_parts_as_tiles_holding_every_row_once(flight, tmp_
     assert summary["compacted"] == {"tile_rows": 1500, "tiles": 3, "echoes": before.num_rows}
     assert [f for f in summary["files"] if f.startswith("echoes/")] == [f"echoes/{t}" for t in tiles]
     assert not (run / "parts").exists()
+    tiled = _digests(run)
+    assert main(["compact", str(run), "--tile-rows", "1500", "--row-group-rows", "256"]) == 0
+    assert _digests(run) == tiled  # tiles compacted again are the same bytes
 
 
 def test_the_compacted_run_is_still_a_run_for_resume_view_evaluate_and_watch(flight, tmp_path):
