@@ -5,8 +5,8 @@
 
 A simulated flight (`fwl simulate --pulses N --seed S`) run with `fwl run --preset fast --formats parquet` (both
 skipped when their outputs are there). The box is the flight's centre, 10% x 10% of its extent (1% of its area).
-Per layout of the echo table (the parts in pulse order, as before they were indexed; the run's parts; with --compact, `fwl compact`'s tiles; with --sweep, the parts
-rewritten in row groups of each size):
+Per layout of the echo table (the parts in pulse order, as before they were indexed; the run's parts; with
+--compact, `fwl compact`'s tiles; with --sweep, the parts rewritten in row groups of each size):
 
     touched   the share of the row groups' bytes whose bbox statistics meet the box (what a reader must read)
     rows      the box query's rows (DuckDB, on the bbox columns) against a full scan's rows in the box: the same

@@ -1,6 +1,7 @@
 """`fwl compact RUN_DIR`: a finished run's echo parts (one a range, in flight order) rewritten as spatial tiles for
-analysts: per input, runs of its echoes along the Hilbert curve over its extent, each tile in Hilbert order and in
-small row groups (pipeline.geoparquet), so that a box query reads a few row groups of a few files.
+analysts: per input, runs of its echoes along the Hilbert curve over the square on its extent, each tile in
+Hilbert order and in row groups with statistics (pipeline.geoparquet), so that a box query reads a few row groups
+of a few files.
 
     stage   per input: its parts -> buckets (parts/compact/<stem>-bucket-NNNN.parquet, one per tile, in one pass
             over the parts) -> each bucket sorted into its tile under parts/compact/echoes/; the input's mark
@@ -27,7 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, square_bounds
-from pipeline.geoparquet import write_echo_part
+from pipeline.geoparquet import spatially_sorted, write_echo_part
 from pipeline.outputs import earlier_run_files, list_outputs, read_manifest, read_run, write_run_json
 from pipeline.sinks import remove_parts, write_json
 from pipeline.tables import GEO_METADATA_KEY, geo_metadata
@@ -132,8 +133,6 @@ def _conform(table: pa.Table, schema: pa.Schema, source: Path) -> pa.Table:
 def _tile(bucket: Path, extent, staged: Path, name: str, metadata: dict, crs: str | None,
           row_group_rows: int) -> int:
     """A bucket -> its tile: in Hilbert order over the input's extent, with its own GeoParquet bbox."""
-    from pipeline.geoparquet import spatially_sorted
-
     table = spatially_sorted(pq.read_table(bucket), extent)
     x, y, z = (table.column(c).to_numpy(zero_copy_only=False).astype(np.float64) for c in ("x", "y", "z"))
     table = table.replace_schema_metadata({**metadata, **geo_metadata(x, y, z, crs)})
