@@ -25,6 +25,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_survey.py
 	$(BIN)/python bench/bench_radiometry.py
 	$(BIN)/python bench/bench_instrument.py
+	$(BIN)/python bench/bench_query.py --compact
 
 docs: $(STAMP)
 	$(BIN)/python docs/screenshot.py

@@ -53,7 +53,7 @@ def output_columns() -> str:
            "its metadata.", ""]
     for table, names in TABLES.items():
         out += [f"### {where[table]}", "", "| column | type | unit | meaning |", "|---|---|---|---|"]
-        out += [f"| `{c.name}` | {c.type} | {_cell(c.unit)} | {_cell(c.meaning)} |"
+        out += [f"| `{c.name}` | {str(c.type).replace('<', '&lt;')} | {_cell(c.unit)} | {_cell(c.meaning)} |"
                 for c in map(table_column, names)]
         out.append("")
     out += ["### `las/*.las`: Extra Bytes beside the standard point fields", "",

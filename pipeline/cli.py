@@ -232,6 +232,15 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compact(args: argparse.Namespace) -> int:
+    from pipeline.compact import compact_run
+
+    sizes = {k: v for k, v in (("tile_rows", args.tile_rows), ("row_group_rows", args.row_group_rows)) if v}
+    done = compact_run(args.run_dir, say=print, **sizes)
+    print(f"fwl compact: {args.run_dir}: echoes/ holds {done['tiles']} tiles, {done['echoes']:,} echoes")
+    return 0
+
+
 def _info(args: argparse.Namespace) -> int:
     """`fwl info FILE...`: headers and indexes of full-waveform files, never their samples."""
     import json
@@ -411,6 +420,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
     e.set_defaults(handler=_evaluate)
+
+    k = sub.add_parser("compact", help="rewrite a finished run's echo parts as spatial tiles (GeoParquet in Hilbert "
+                                       "order) for box queries; a killed compact is rerun")
+    k.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder")
+    k.add_argument("--tile-rows", dest="tile_rows", type=int, help="echoes per tile (default 1,000,000)")
+    k.add_argument("--row-group-rows", dest="row_group_rows", type=int,
+                   help="echoes per row group (default 8192)")
+    k.set_defaults(handler=_compact)
 
     i = sub.add_parser("info", help="format, counts, descriptors and their use, CRS, bounds and times of "
                                     "full-waveform files (LAS/LAZ, PulseWaves), from headers and indexes only")

@@ -391,8 +391,9 @@ def check_settings(folder: Path, settings: dict) -> dict:
 def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT_DIRS) -> list[Path]:
     """Every file of one input in our folders `dirs` (all: its tables' parts, point cloud, MCAP, parts and
     plan), and the folders under parts/ left empty."""
-    # <stem>.las, <stem>-<range>.parquet, ...: not <stem>.las.las, the file of an input whose stem is <stem>.las
-    own = re.compile(re.escape(stem) + r"(-\d{12})?\.(parquet|las|laz|mcap|json)(\.tmp)?")
+    # <stem>.las, <stem>-<range>.parquet, <stem>-tile-<n>.parquet (fwl compact), ...: not <stem>.las.las, the file
+    # of an input whose stem is <stem>.las
+    own = re.compile(re.escape(stem) + r"(-\d{12}|-(tile|bucket)-\d{4,})?\.(parquet|las|laz|mcap|json)(\.tmp)?")
     gone = []
     for d in dirs:
         for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:

@@ -40,11 +40,12 @@ def _atomic(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
 
 
-def write_part(table: pa.Table, directory: Path, name: str) -> Path:
-    """One deterministic part file per range: reruns and retries overwrite, never duplicate."""
+def write_part(table: pa.Table, directory: Path, name: str, **write_options) -> Path:
+    """One deterministic part file per range: reruns and retries overwrite, never duplicate (`write_options`:
+    pyarrow.parquet.write_table's)."""
     path = directory / f"{name}.parquet"
     tmp = _atomic(path)
-    pq.write_table(table, tmp)
+    pq.write_table(table, tmp, **write_options)
     tmp.replace(path)
     return path
 

@@ -27,6 +27,7 @@ from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry import RadiometryConfig
 from fwcore.records import STATUS_REASONS, WaveformBatch
 from fwcore.survey import model_samples
+from pipeline.geoparquet import write_echo_part
 from pipeline.plan import planned_pulses
 from pipeline.records import DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection
 from pipeline.sinks import remove_parts, write_mcap, write_part
@@ -143,7 +144,7 @@ def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], cal
     task, paths = item.task, part_paths(output, item.task)
     try:
         if "parquet" in formats:
-            write_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
+            write_echo_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
             write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
         if "las" in formats:
             write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated)

@@ -20,6 +20,9 @@ from fwcore.filter import REJECT_REASONS
 CONFIG_METADATA_KEY = b"fwlidar.config"
 GEO_METADATA_KEY = b"geo"  # GeoParquet 1.1: https://geoparquet.org/releases/v1.1.0/
 GEOMETRY_COLUMN = "geometry"
+BBOX_COLUMN = "bbox"  # GeoParquet 1.1's bbox covering of the geometry: its row group statistics prune box queries
+BBOX_FIELDS = ("xmin", "ymin", "xmax", "ymax")
+BBOX_TYPE = pa.struct([(f, pa.float64()) for f in BBOX_FIELDS])
 _WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
 
 
@@ -55,6 +58,14 @@ def wkb_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:
                                  null_count=int(n - finite.sum()))
 
 
+def bbox_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:
+    """Each point's bbox covering (xmin = xmax = x, ymin = ymax = y); null where the geometry is null."""
+    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    return pa.StructArray.from_arrays([pa.array(v) for v in (x, y, x, y)], fields=list(BBOX_TYPE),
+                                      mask=pa.array(~finite))
+
+
 def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str | None) -> dict[bytes, bytes]:
     """GeoParquet 1.1 file metadata for the point geometry column; crs null means unknown (not CRS84)."""
     finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
@@ -63,6 +74,7 @@ def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str 
     if finite.any():
         column["bbox"] = [float(v) for v in (x[finite].min(), y[finite].min(), z[finite].min(),
                                              x[finite].max(), y[finite].max(), z[finite].max())]
+    column["covering"] = {"bbox": {f: [BBOX_COLUMN, f] for f in BBOX_FIELDS}}
     meta = {"version": "1.1.0", "primary_column": GEOMETRY_COLUMN, "columns": {GEOMETRY_COLUMN: column}}
     return {GEO_METADATA_KEY: json.dumps(meta).encode()}
 
@@ -122,6 +134,8 @@ COLUMNS = {c.name: c for c in (
     Column("y", F64, "CRS unit", "as x"),
     Column("z", F64, "CRS unit", "as x"),
     Column(GEOMETRY_COLUMN, pa.binary(), "", "x, y, z as a WKB Point Z (GeoParquet 1.1)"),
+    Column(BBOX_COLUMN, BBOX_TYPE, "CRS unit", "the geometry's bounding box (xmin = xmax = x, ymin = ymax = y), "
+                                               "GeoParquet 1.1's covering: box queries read it"),
     Column("kept", BOOL, "", "false for a spurious echo"),
     Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept)"),
     Column("status", STR, "", "'' when decomposed, else why not"),
@@ -158,7 +172,7 @@ TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
                "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
-               "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
+               "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, BBOX_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
@@ -283,6 +297,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing,
         **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
+        BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         **_kept(result), **_method(config, owner.size)})
     sel = np.flatnonzero(ok)
     table = _table("pulses", {

@@ -253,8 +253,8 @@ def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
     cur = _connection().execute(f"SELECT * FROM {echoes} WHERE source_file = ? AND pulse_id = ? "
                                 f"ORDER BY echo_index", [source_file, int(pulse_id)])
     names = [d[0] for d in cur.description]
-    # the GeoParquet geometry (WKB bytes) repeats x, y, z and is no JSON
-    return [{k: v for k, v in zip(names, row) if k != "geometry"} for row in cur.fetchall()]
+    # the GeoParquet geometry (WKB bytes) and its bbox covering repeat x, y, z
+    return [{k: v for k, v in zip(names, row) if k not in ("geometry", "bbox")} for row in cur.fetchall()]
 
 
 def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | None:

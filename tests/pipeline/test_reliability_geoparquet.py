@@ -73,3 +73,28 @@ def test_wkb_points_are_iso_point_z_and_null_where_not_finite():
     points = wkb_points(np.array([1.5, np.nan]), np.array([2.0, 0.0]), np.array([3.25, 0.0]))
     first = wkb.loads(points[0].as_py())
     assert (first.x, first.y, first.z) == (1.5, 2.0, 3.25) and points[1].as_py() is None
+
+
+def test_the_echo_table_has_a_bbox_covering_that_geopandas_and_duckdb_filter_on(utm_run):
+    from fwcore.spatial import hilbert_key, square_bounds
+
+    for part in sorted((utm_run / "echoes").glob("*.parquet")):
+        column = json.loads(pq.read_schema(part).metadata[b"geo"])["columns"]["geometry"]
+        assert column["covering"] == {"bbox": {f: ["bbox", f] for f in ("xmin", "ymin", "xmax", "ymax")}}
+        table = pq.read_table(part, columns=["x", "y", "bbox"]).to_pandas()
+        bbox = table.bbox.apply(lambda b: (b["xmin"], b["ymin"], b["xmax"], b["ymax"])).tolist()
+        assert bbox == list(zip(table.x, table.y, table.x, table.y))
+        x, y = table.x.to_numpy(), table.y.to_numpy()
+        key = hilbert_key(x, y, square_bounds((x.min(), y.min(), x.max(), y.max())))
+        assert (np.diff(key.astype(np.int64)) >= 0).all()  # each part's rows in Hilbert order
+    every = geopandas.read_parquet(utm_run / "echoes")
+    x0, x1 = np.quantile(every.x, [0.3, 0.7])
+    y0, y1 = np.quantile(every.y, [0.3, 0.7])
+    inside = every[every.x.between(x0, x1) & every.y.between(y0, y1)]
+    found = geopandas.read_parquet(utm_run / "echoes", bbox=(x0, y0, x1, y1))
+    assert 0 < len(found) < len(every) and found.crs.to_epsg() == 32632
+    key = ["pulse_id", "echo_index"]
+    assert found.sort_values(key)[key].values.tolist() == inside.sort_values(key)[key].values.tolist()
+    (count,), = duckdb.sql(f"SELECT count(*) FROM read_parquet('{utm_run}/echoes/*.parquet') WHERE bbox.xmin <= {x1} "
+                           f"AND bbox.xmax >= {x0} AND bbox.ymin <= {y1} AND bbox.ymax >= {y0}").fetchall()
+    assert count == len(inside)
