@@ -142,6 +142,9 @@ class FwlOptions(PipelineOptions):
         g.add_argument("--points-per-range", dest="points_per_range", type=positive_int, default=5000,
                        help="points per unit of work (default 5000)")
         g.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
+        g.add_argument("--crs", help="the inputs' coordinate reference system, for inputs that name none or name it "
+                                     "wrongly: an EPSG code (EPSG:25832), WKT or PROJJSON; every output carries it "
+                                     "instead of what the inputs say")
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
         add_method_arguments(parser)

@@ -29,6 +29,7 @@ import fwcore
 from fwcore.config import DecompositionConfig, Model
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
+from fwcore.io.crs import GIVEN, crs_name, parse_crs
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
@@ -227,11 +228,12 @@ def _run_job(options, build) -> object:
 
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
-                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
+                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
-    fwlidar, whose engine may change them): its fingerprint."""
+    fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
-    return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
+    given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
+    return {**given, "config": config.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
 
@@ -309,7 +311,8 @@ def _planned(plan: FilePlan) -> dict:
             "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
             "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
             "system_response": s.system.response.to_dict() if s.system.response else None,
-            "model": s.system.model or None, "model_choice": s.system.model_choice or None}
+            "model": s.system.model or None, "model_choice": s.system.model_choice or None,
+            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt}}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
@@ -328,7 +331,7 @@ def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, a
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
-        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
+        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -336,14 +339,15 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     resume or add to; OptionError for a mistyped option) then, and nothing is changed. `resume` goes on with
     the folder's interrupted run of the same inputs and settings, keeping every range it finished; `add`
     (fwl watch) adds the inputs to those the folder holds. With `watch`, a start line and a progress bar go
-    to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`).
+    to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
+    code, WKT or PROJJSON) replaces the CRS the inputs say in every output.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs)
     check_radiometry(paths, radiometry)
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -354,10 +358,10 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry)
+                        radiometry, parse_crs(crs) if crs else None)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, matched.not_taken)
+                     taken, radiometry, matched.not_taken, crs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -373,14 +377,14 @@ class JobsDone:
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
-             radiometry: RadiometryConfig = RadiometryConfig()) -> JobsDone:
+             radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
     result, jobs, calibration = None, Jobs(options), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
-            plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
+            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt), config, points_per_range, limit, jobs)
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
@@ -400,6 +404,9 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                           f"{_runner_name(options)}; logs in {output / 'logs'}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
+                crs_said = crs_line(plans)
+                if crs_said:
+                    say.write(f"fwl run: {crs_said}\n")
                 say.flush()
             if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
@@ -420,6 +427,30 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
                      for path, plan in plans.items()}, calibration)
+
+
+def crs_line(plans: dict[str, FilePlan]) -> str | None:
+    """One line for the terminal when a CRS was assigned (--crs) or is unknown (none, or only a unit) for some
+    inputs; None when every input names its own."""
+    sources = [p.source for p in plans.values() if p.source is not None]
+    given = [s for s in sources if s.crs_source == GIVEN]
+    if given:
+        return f"CRS {crs_name(given[0].crs_wkt)} assigned by --crs to {len(given)} input(s), whatever they say"
+    unnamed = [s for s in sources if not s.crs_named and s.crs_wkt]
+    unknown = [s for s in sources if not s.crs_wkt]
+    if not (unnamed or unknown):
+        return None
+    said = []
+    if unnamed:
+        said.append(f"{_names(unnamed)} name(s) no CRS, only its unit: written as {crs_name(unnamed[0].crs_wkt)}")
+    if unknown:
+        said.append(f"{_names(unknown)} name(s) no CRS: written without one")
+    return "; ".join(said) + "; give --crs (an EPSG code, WKT or PROJJSON) to name it"
+
+
+def _names(sources: list, shown: int = 3) -> str:
+    more = f" and {len(sources) - shown} more" if len(sources) > shown else ""
+    return ", ".join(s.name for s in sources[:shown]) + more
 
 
 def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> tuple[dict[str, dict], list[str]]:
@@ -458,7 +489,8 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
 
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
-              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = ()) -> dict:
+              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
+              crs: str | None = None) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -482,6 +514,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
+        "crs": crs,  # --crs as given (each input's CRS, and where it came from, under inputs)
         "ranges": jobs.ranges,
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,

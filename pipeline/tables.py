@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
+from fwcore.io.crs import crs_projjson
 from fwcore.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
@@ -31,13 +32,10 @@ def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes
 def file_crs_projjson(path: str) -> str | None:
     """The input's coordinate reference system as PROJJSON (fwcore.io.crs_wkt, LAS or PulseWaves, read with
     pyproj), or None."""
-    import pyproj
-
     from fwcore.io import crs_wkt
 
     try:
-        wkt = crs_wkt(path)
-        return pyproj.CRS.from_wkt(wkt).to_json() if wkt else None
+        return crs_projjson(crs_wkt(path))
     except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
         return None
 
@@ -261,10 +259,10 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
-                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None
-                 ) -> tuple[pa.Table, pa.Table]:
+                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
+                 crs_wkt: str | None = None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
-    `ok`."""
+    `ok`; the geometry's CRS is `crs_wkt` (the run's, fwcore.io.crs.input_crs), else the input file's."""
     from fwcore.model import sigma_to_time_unit
 
     owner = result.echo_waveform
@@ -292,7 +290,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
         "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})
-    geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], file_crs_projjson(str(pulses.source_file)))
+    projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
+    geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
     return _with_config(echoes, config, geo), _with_config(table, config)
 
 
