@@ -124,10 +124,11 @@ COLUMNS = {c.name: c for c in (
     Column("n_samples", I32, "", "samples in the waveform"),
     Column("sample_spacing_ps", F64, "ps", "time between two samples"),
     Column("noise_sigma", F64, "DN", "the waveform's noise level"),
-    Column("fit_error", F64, "DN^2", "Eq. 9: the sum of squared residuals against the denoised samples"),
-    Column("fit_error_raw", F64, "DN^2", "the same sum against the raw samples"),
-    Column("rmse", F64, "DN", "root mean square residual against the raw samples"),
-    Column("r2", F64, "1", "coefficient of determination against the raw samples"),
+    Column("fit_error", F64, "DN", "the method's objective (Eq. 9): the sum of absolute residuals |model - denoised "
+                                   "sample| over the waveform's valid samples"),
+    Column("fit_error_raw", F64, "DN", "the sum of absolute residuals |model - raw sample| over the valid samples"),
+    Column("rmse", F64, "DN", "root mean square residual against the raw (valid) samples"),
+    Column("r2", F64, "1", "coefficient of determination against the raw (valid) samples"),
     Column("n_echoes_initial", I32, "", "echoes of the initial estimate"),
     Column("n_echoes_dropped", I32, "", "echoes the model-order selection dropped"),
     Column("n_echoes_added", I32, "", "echoes the model-order selection added"),
@@ -145,6 +146,10 @@ COLUMNS = {c.name: c for c in (
     Column("reason", STR, "", "why"),
 )}
 CSV_ENERGY = Column("energy", F64, "DN sample", "the area under the echo")  # decompose-csv's tables are in samples
+# pulses/ is GeoParquet too: a point per pulse where the file anchors its beam
+PULSE_GEOMETRY = Column(GEOMETRY_COLUMN, pa.binary(), "", "the pulse's anchor as a WKB Point Z in the run's CRS "
+                                                          "(GeoParquet 1.1): where the file places its beam (LAS: the "
+                                                          "point its waveform is anchored to; PulseWaves: its anchor)")
 _FIT = ("fit_error", "fit_error_raw", "rmse", "r2")
 _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes", "n_echoes_kept", "model_evaluations",
            "nit", "message")
@@ -155,7 +160,7 @@ TABLES = {
                "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
                "radiometry", "x", "y", "z", GEOMETRY_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
-    "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", "n_samples",
+    "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
@@ -284,6 +289,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],
         "channel": pulses.channels()[sel], "segment": pulses.segments()[sel],
         "packet_offset": pulses.packet_offset[sel], "gps_time": pulses.gps_time[sel],
+        GEOMETRY_COLUMN: wkb_points(*pulses.anchor[sel].T),
         "n_samples": np.diff(pulses.sample_offsets)[sel], "sample_spacing_ps": pulses.sample_spacing_ps[sel],
         "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
         **_record_columns("pulses", result, sel), **_echo_counts(result, sel),
@@ -292,7 +298,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
-    return _with_config(echoes, config, geo), _with_config(table, config)
+    anchors = geo_metadata(*pulses.anchor[sel].T, projjson)
+    return _with_config(echoes, config, geo), _with_config(table, config, anchors)
 
 
 REJECTED_SCHEMA = table_schema("rejected")

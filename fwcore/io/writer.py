@@ -25,7 +25,7 @@ EXTRA_DIMENSIONS = (
     ("echo_width", "echo FWHM [ps]"),
     ("alpha", "alpha [1]; NaN: system model"),
     ("echo_energy", "area under echo [DN x ps]"),
-    ("fit_error", "pulse fit error, Eq. 9 [1]"),
+    ("fit_error", "pulse sum |residual| (Eq.9) [DN]"),
     ("channel", "waveform channel (PulseWaves)"),
 )
 # Radiometry (fwcore.radiometry), NaN where unavailable: (name, description when calibrated, when relative).

@@ -53,6 +53,22 @@ def test_geopandas_opens_the_echo_table_as_points(utm_run):
     assert {"x", "y", "z", "kept", "fwhm_ps"} <= set(frame.columns)
 
 
+def test_the_pulse_table_is_geoparquet_a_point_per_pulse_at_its_anchor(utm_run):
+    from fwcore.io import read_pulses
+
+    frame = geopandas.read_parquet(utm_run / "pulses")
+    assert len(frame) == 30 and frame.crs.to_epsg() == 32632 and frame.geometry.has_z.all()
+    pulses = read_pulses(utm_run.parent / "utm.las")
+    anchor = dict(zip(pulses.pulse_id.tolist(), pulses.anchor.tolist()))
+    np.testing.assert_array_equal(np.stack([frame.geometry.x, frame.geometry.y, frame.geometry.z], axis=1),
+                                  [anchor[p] for p in frame.pulse_id])
+    for part in sorted((utm_run / "pulses").glob("*.parquet")):
+        column = json.loads(pq.read_schema(part).metadata[b"geo"])["columns"]["geometry"]
+        points = geopandas.read_parquet(part).geometry
+        assert column["bbox"] == [points.x.min(), points.y.min(), points.z.min(),
+                                  points.x.max(), points.y.max(), points.z.max()]
+
+
 def test_an_input_without_a_crs_says_unknown_not_crs84(tmp_path, leica_dir):
     las = laspy.read(leica_dir / "leica_a.las")
     las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 34735]  # no GeoTIFF keys: nothing said
@@ -77,6 +93,7 @@ def test_crs_names_the_crs_of_every_output(tmp_path, leica_dir, capfd):
     las = laspy.read(out / "las" / "leica_a.las")
     assert las.header.global_encoding.wkt and las.header.parse_crs().to_epsg() == 25832
     assert geopandas.read_parquet(out / "echoes").crs.to_epsg() == 25832
+    assert geopandas.read_parquet(out / "pulses").crs.to_epsg() == 25832
     with open(out / "mcap" / "leica_a.mcap", "rb") as f:
         reader = make_reader(f)
         wkt = {m.name: m.metadata["wkt"] for m in reader.iter_metadata()}["crs"]
