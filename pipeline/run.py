@@ -30,7 +30,7 @@ from fwcore.config import DecompositionConfig, Model
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
-from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner
+from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files,
@@ -168,13 +168,19 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
     return formats
 
 
-def _runner_name(options) -> str:
+def _runner_name(options, in_process: bool = False) -> str:
     runner = options.view_as(StandardOptions).runner
     name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
+    if name == "DirectRunner" and in_process:
+        return "DirectRunner, in this process"
     if name == "DirectRunner":
         workers = options.view_as(DirectOptions).direct_num_workers
         return f"DirectRunner, {workers} workers"
     return name
+
+
+IN_PROCESS_PULSES = 4000  # a run of this many pulses or fewer decomposes and assembles in the driver's process
+IN_PROCESS_BYTES = 16 << 20  # inputs of this many bytes or fewer (their point records) are planned there
 
 
 class Jobs:
@@ -183,10 +189,16 @@ class Jobs:
     The Dask runner partitions a job's first collection into bags of 128 elements and treats Reshuffle as a
     no-op, so a few dozen ranges (or files) would run in one partition on one worker: each gets its own
     partition, unless the command line partitions them itself.
+
+    Under the default DirectRunner (`small_in_process`: the command line chose no runner), a small job runs
+    in the driver's process: two worker processes take 2-3 s to start (Beam, numba's kernels), more than
+    the few seconds of work they would share (the shared Leica folder: 11.6-16.7 s with them, 2.9-4.1x one
+    file). Results do not depend on where a job runs.
     """
 
-    def __init__(self, options):
+    def __init__(self, options, small_in_process: bool = False):
         self.options = options
+        self.small_in_process = small_in_process
         self.dask = is_dask(options)
         if self.dask:
             from apache_beam.runners.dask.dask_runner import DaskOptions
@@ -196,19 +208,24 @@ class Jobs:
         self.direct_processes = (isinstance(runner, str) and runner.rsplit(".", 1)[-1] == "DirectRunner"
                                  and options.view_as(DirectOptions).direct_running_mode == "multi_processing")
 
-    def run(self, n: int, build):
+    def in_process(self, n: int, small: bool = False) -> bool:
+        """Whether a job of n elements runs in this process: one element, or a small job (`small`) when the
+        runner is the default."""
+        return self.direct_processes and (n == 1 or (small and self.small_in_process))
+
+    def run(self, n: int, build, small: bool = False):
         """One job: `build(pipeline)` adds its transforms; waits for its end."""
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             self.options.view_as(DaskOptions).npartitions = max(1, n)
-        if self.direct_processes and n == 1:
+        if self.in_process(n, small):
             return _run_job(_in_process(self.options), build)
         return _run_job(self.options, build)
 
 
 def _in_process(options):
-    """The DirectRunner's options for a job of one element (one file to plan or assemble): run in this
-    process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
+    """The DirectRunner's options for a job of one element (one file to plan or assemble) or a small one: run in
+    this process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
     the work."""
     single = PipelineOptions.from_dictionary(options.get_all_options(drop_default=True))
     single.view_as(DirectOptions).direct_running_mode = "in_memory"
@@ -284,10 +301,18 @@ def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionCon
     """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker."""
     todo = [i for i in inputs if not plan_path(output, i.stem).is_file()]
     if todo:
+        small = sum(_size(i.path) for i in todo) <= IN_PROCESS_BYTES
         jobs.run(len(todo), lambda p: (p | "Inputs" >> beam.Create(todo)
                                        | "Plan" >> PlanFiles(str(output), config, points_per_range, limit,
-                                                             spread=not jobs.dask)))
+                                                             spread=not jobs.dask)), small)
     return read_plans(output, inputs)
+
+
+def _size(path: str) -> int:
+    try:
+        return Path(path).stat().st_size
+    except OSError:  # gone, or not a file: its plan rejects it
+        return 0
 
 
 def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
@@ -358,7 +383,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry, parse_crs(crs) if crs else None)
+                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []))
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
                      taken, radiometry, matched.not_taken, crs)
@@ -377,11 +402,12 @@ class JobsDone:
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
-             radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None) -> JobsDone:
+             radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
+             small_in_process: bool = False) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration = None, Jobs(options), None
+    result, jobs, calibration = None, Jobs(options, small_in_process), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt), config, points_per_range, limit, jobs)
@@ -395,13 +421,14 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             for task in todo:
                 remove_range_files(output, task)
             total = sum(planned_pulses(t) for t in todo)
+            small = sum(planned_pulses(t) for t in tasks) <= IN_PROCESS_PULSES
             if watch:
                 said = f" ({files_rejected} rejected)" if files_rejected else ""
                 kept = f", {len(reused)} ranges reused" if reused else ""
                 method = f"{config.optimizer.value}/{_models(config, plans)}"
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {method}; "
-                          f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+                          f"{_runner_name(options, jobs.in_process(len(todo), small))}; logs in {output / 'logs'}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
                 crs_said = crs_line(plans)
@@ -414,10 +441,11 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                     result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
                                                             | "DecomposeFlight" >> DecomposeFlight(
                                                                 config, str(output), formats, spread=not jobs.dask,
-                                                                radiometry=radiometry)))
+                                                                radiometry=radiometry)), small)
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
-                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz))
+                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz),
+                         small)
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
