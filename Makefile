@@ -25,6 +25,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_survey.py
 	$(BIN)/python bench/bench_radiometry.py
 	$(BIN)/python bench/bench_instrument.py
+	$(BIN)/python bench/bench_small.py
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict

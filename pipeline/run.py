@@ -139,6 +139,9 @@ def status_of(counts: dict[str, int]) -> str:
 EXIT_CODES = {"complete": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_NOTHING_DONE}
 
 
+INTERRUPTED = threading.Event()  # set on Ctrl-C: a job run in this process fails with Beam's error, not with it
+
+
 @contextlib.contextmanager
 def _quiet_after_interrupt():
     """On Ctrl-C, Beam's teardown (its logged errors, its threads' tracebacks) goes unsaid: the caller
@@ -148,10 +151,12 @@ def _quiet_after_interrupt():
         return
 
     def interrupted(signum, frame):
+        INTERRUPTED.set()
         logging.disable(logging.CRITICAL)  # for the rest of this process, which is ending
         threading.excepthook = lambda args: None
         raise KeyboardInterrupt
 
+    INTERRUPTED.clear()
     previous = signal.signal(signal.SIGINT, interrupted)
     try:
         yield
@@ -218,9 +223,14 @@ class Jobs:
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             self.options.view_as(DaskOptions).npartitions = max(1, n)
-        if self.in_process(n, small):
+        if not self.in_process(n, small):
+            return _run_job(self.options, build)
+        try:
             return _run_job(_in_process(self.options), build)
-        return _run_job(self.options, build)
+        except Exception as err:  # Beam wraps the KeyboardInterrupt raised in its bundle: an interruption still
+            if INTERRUPTED.is_set():
+                raise KeyboardInterrupt from err
+            raise
 
 
 def _in_process(options):
