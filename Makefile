@@ -26,6 +26,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_radiometry.py
 	$(BIN)/python bench/bench_instrument.py
 	$(BIN)/python bench/bench_query.py --compact
+	$(BIN)/python bench/bench_small.py
 
 docs: $(STAMP)
 	$(BIN)/python docs/screenshot.py

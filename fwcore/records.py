@@ -76,8 +76,8 @@ class Decomposition:
     status: str  # "" when decomposed, else why not
     background: float
     noise_sigma: float
-    fit_error: float  # Eq. 9 against the denoised samples
-    fit_error_raw: float  # the same sum against the raw samples
+    fit_error: float  # Eq. 9: the sum of absolute residuals against the denoised samples (DN)
+    fit_error_raw: float  # the same sum of absolute residuals against the raw samples
     rmse: float  # against the raw samples
     r2: float
     nfev: int

@@ -87,7 +87,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     radiometry = radiometry_config(args)
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
-                      beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry)
+                      beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs)
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
               f"rerun the same command with --resume to complete it", file=sys.stderr)
@@ -124,14 +124,14 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     if not args.poll > 0:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
-    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry)
+    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
         running[:] = [paths]  # until it ends: an interruption meanwhile names it
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
-                          beam_args, verbose=args.verbose, add=True, radiometry=radiometry)
+                          beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise

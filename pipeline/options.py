@@ -24,6 +24,13 @@ FORMATS = ("parquet", "las", "mcap")
 # small machine. Any of these can be given on the command line; deploy/README.md shows the others.
 RUNNER_DEFAULTS = {"runner": "DirectRunner", "direct_num_workers": 2, "direct_running_mode": "multi_processing"}
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+RUNNER_FLAGS = ("runner", "direct_num_workers", "direct_running_mode")
+
+
+def runner_given(beam_args: list[str]) -> bool:
+    """Whether the command line chose the runner or its workers (else RUNNER_DEFAULTS, which a small run may
+    leave for the driver's own process: pipeline.run.Jobs)."""
+    return any(a.split("=", 1)[0].lstrip("-") in RUNNER_FLAGS for a in beam_args if a.startswith("-"))
 
 
 class OptionError(ValueError):
@@ -142,6 +149,9 @@ class FwlOptions(PipelineOptions):
         g.add_argument("--points-per-range", dest="points_per_range", type=positive_int, default=5000,
                        help="points per unit of work (default 5000)")
         g.add_argument("--laz", action="store_true", help="write the point clouds as LAZ")
+        g.add_argument("--crs", help="the inputs' coordinate reference system, for inputs that name none or name it "
+                                     "wrongly: an EPSG code (EPSG:25832), WKT or PROJJSON; every output carries it "
+                                     "instead of what the inputs say")
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
         add_method_arguments(parser)

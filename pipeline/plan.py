@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 from fwcore.config import DecompositionConfig
 from fwcore.io import input_summary, open_input, plan_point_ranges
+from fwcore.io.crs import input_crs
 from fwcore.io.records import PointRange
 from fwcore.survey import file_system_pulse
 from pipeline.outputs import InputNames
@@ -34,6 +35,7 @@ class InputToPlan(NamedTuple):
     path: str
     name: str
     stem: str
+    crs: str | None = None  # --crs as WKT (fwcore.io.crs.parse_crs), or None: the file's own
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,13 +69,14 @@ def plan_path(output: str | Path, stem: str) -> Path:
 
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
-              limit: int | None) -> list[ReadTask]:
+              limit: int | None, crs: str | None = None) -> list[ReadTask]:
     opened = open_input(path)  # the header, read once for the ranges and the summary
     ranges = plan_point_ranges(path, points_per_range, opened)
     summary = input_summary(path, opened)  # LAS or PulseWaves
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
-    source = InputFile(path, name, stem, pulse, adjusted)
+    found = input_crs(path, crs)
+    source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:
@@ -89,15 +92,15 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
                limit: int | None = None) -> FilePlan:
     """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception."""
     try:
-        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit)
+        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
         reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
         return FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open", reason))
     return FilePlan(tasks[0].source if tasks else None, tuple(t.point_range for t in tasks))
 
 
-def inputs_to_plan(paths: list[str], names: InputNames) -> list[InputToPlan]:
-    return [InputToPlan(p, names.name(p), names.stem(names.name(p))) for p in paths]
+def inputs_to_plan(paths: list[str], names: InputNames, crs: str | None = None) -> list[InputToPlan]:
+    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs) for p in paths]
 
 
 def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,

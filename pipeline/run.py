@@ -29,7 +29,8 @@ import fwcore
 from fwcore.config import DecompositionConfig, Model
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
-from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner
+from fwcore.io.crs import GIVEN, crs_name, parse_crs
+from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files,
@@ -138,6 +139,9 @@ def status_of(counts: dict[str, int]) -> str:
 EXIT_CODES = {"complete": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_NOTHING_DONE}
 
 
+INTERRUPTED = threading.Event()  # set on Ctrl-C: a job run in this process fails with Beam's error, not with it
+
+
 @contextlib.contextmanager
 def _quiet_after_interrupt():
     """On Ctrl-C, Beam's teardown (its logged errors, its threads' tracebacks) goes unsaid: the caller
@@ -147,10 +151,12 @@ def _quiet_after_interrupt():
         return
 
     def interrupted(signum, frame):
+        INTERRUPTED.set()
         logging.disable(logging.CRITICAL)  # for the rest of this process, which is ending
         threading.excepthook = lambda args: None
         raise KeyboardInterrupt
 
+    INTERRUPTED.clear()
     previous = signal.signal(signal.SIGINT, interrupted)
     try:
         yield
@@ -167,13 +173,19 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
     return formats
 
 
-def _runner_name(options) -> str:
+def _runner_name(options, in_process: bool = False) -> str:
     runner = options.view_as(StandardOptions).runner
     name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
+    if name == "DirectRunner" and in_process:
+        return "DirectRunner, in this process"
     if name == "DirectRunner":
         workers = options.view_as(DirectOptions).direct_num_workers
         return f"DirectRunner, {workers} workers"
     return name
+
+
+IN_PROCESS_PULSES = 4000  # a run of this many pulses or fewer decomposes and assembles in the driver's process
+IN_PROCESS_BYTES = 16 << 20  # inputs of this many bytes or fewer (their point records) are planned there
 
 
 class Jobs:
@@ -182,10 +194,16 @@ class Jobs:
     The Dask runner partitions a job's first collection into bags of 128 elements and treats Reshuffle as a
     no-op, so a few dozen ranges (or files) would run in one partition on one worker: each gets its own
     partition, unless the command line partitions them itself.
+
+    Under the default DirectRunner (`small_in_process`: the command line chose no runner), a small job runs
+    in the driver's process: two worker processes take 2-3 s to start (Beam, numba's kernels), more than
+    the few seconds of work they would share (the shared Leica folder: 11.6-16.7 s with them, 2.9-4.1x one
+    file). Results do not depend on where a job runs.
     """
 
-    def __init__(self, options):
+    def __init__(self, options, small_in_process: bool = False):
         self.options = options
+        self.small_in_process = small_in_process
         self.dask = is_dask(options)
         if self.dask:
             from apache_beam.runners.dask.dask_runner import DaskOptions
@@ -195,19 +213,29 @@ class Jobs:
         self.direct_processes = (isinstance(runner, str) and runner.rsplit(".", 1)[-1] == "DirectRunner"
                                  and options.view_as(DirectOptions).direct_running_mode == "multi_processing")
 
-    def run(self, n: int, build):
+    def in_process(self, n: int, small: bool = False) -> bool:
+        """Whether a job of n elements runs in this process: one element, or a small job (`small`) when the
+        runner is the default."""
+        return self.direct_processes and (n == 1 or (small and self.small_in_process))
+
+    def run(self, n: int, build, small: bool = False):
         """One job: `build(pipeline)` adds its transforms; waits for its end."""
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             self.options.view_as(DaskOptions).npartitions = max(1, n)
-        if self.direct_processes and n == 1:
+        if not self.in_process(n, small):
+            return _run_job(self.options, build)
+        try:
             return _run_job(_in_process(self.options), build)
-        return _run_job(self.options, build)
+        except Exception as err:  # Beam wraps the KeyboardInterrupt raised in its bundle: an interruption still
+            if INTERRUPTED.is_set():
+                raise KeyboardInterrupt from err
+            raise
 
 
 def _in_process(options):
-    """The DirectRunner's options for a job of one element (one file to plan or assemble): run in this
-    process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
+    """The DirectRunner's options for a job of one element (one file to plan or assemble) or a small one: run in
+    this process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
     the work."""
     single = PipelineOptions.from_dictionary(options.get_all_options(drop_default=True))
     single.view_as(DirectOptions).direct_running_mode = "in_memory"
@@ -227,11 +255,12 @@ def _run_job(options, build) -> object:
 
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
-                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
+                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
-    fwlidar, whose engine may change them): its fingerprint."""
+    fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
-    return {"config": config.to_dict(), "formats": sorted(formats), "limit": limit,
+    given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
+    return {**given, "config": config.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
 
@@ -282,10 +311,18 @@ def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionCon
     """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker."""
     todo = [i for i in inputs if not plan_path(output, i.stem).is_file()]
     if todo:
+        small = sum(_size(i.path) for i in todo) <= IN_PROCESS_BYTES
         jobs.run(len(todo), lambda p: (p | "Inputs" >> beam.Create(todo)
                                        | "Plan" >> PlanFiles(str(output), config, points_per_range, limit,
-                                                             spread=not jobs.dask)))
+                                                             spread=not jobs.dask)), small)
     return read_plans(output, inputs)
+
+
+def _size(path: str) -> int:
+    try:
+        return Path(path).stat().st_size
+    except OSError:  # gone, or not a file: its plan rejects it
+        return 0
 
 
 def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
@@ -309,7 +346,8 @@ def _planned(plan: FilePlan) -> dict:
             "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
             "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
             "system_response": s.system.response.to_dict() if s.system.response else None,
-            "model": s.system.model or None, "model_choice": s.system.model_choice or None}
+            "model": s.system.model or None, "model_choice": s.system.model_choice or None,
+            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt}}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
@@ -328,7 +366,7 @@ def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, a
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
-        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig()) -> dict:
+        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -336,14 +374,15 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     resume or add to; OptionError for a mistyped option) then, and nothing is changed. `resume` goes on with
     the folder's interrupted run of the same inputs and settings, keeping every range it finished; `add`
     (fwl watch) adds the inputs to those the folder holds. With `watch`, a start line and a progress bar go
-    to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`).
+    to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
+    code, WKT or PROJJSON) replaces the CRS the inputs say in every output.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs)
     check_radiometry(paths, radiometry)
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -354,10 +393,10 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry)
+                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []))
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, matched.not_taken)
+                     taken, radiometry, matched.not_taken, crs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -373,14 +412,15 @@ class JobsDone:
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
-             radiometry: RadiometryConfig = RadiometryConfig()) -> JobsDone:
+             radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
+             small_in_process: bool = False) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration = None, Jobs(options), None
+    result, jobs, calibration = None, Jobs(options, small_in_process), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
-            plans = plan_files(output, inputs_to_plan(paths, names), config, points_per_range, limit, jobs)
+            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt), config, points_per_range, limit, jobs)
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
@@ -391,15 +431,19 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             for task in todo:
                 remove_range_files(output, task)
             total = sum(planned_pulses(t) for t in todo)
+            small = sum(planned_pulses(t) for t in tasks) <= IN_PROCESS_PULSES
             if watch:
                 said = f" ({files_rejected} rejected)" if files_rejected else ""
                 kept = f", {len(reused)} ranges reused" if reused else ""
                 method = f"{config.optimizer.value}/{_models(config, plans)}"
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {method}; "
-                          f"{_runner_name(options)}; logs in {output / 'logs'}\n")
+                          f"{_runner_name(options, jobs.in_process(len(todo), small))}; logs in {output / 'logs'}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
+                crs_said = crs_line(plans)
+                if crs_said:
+                    say.write(f"fwl run: {crs_said}\n")
                 say.flush()
             if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
@@ -407,10 +451,11 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                     result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
                                                             | "DecomposeFlight" >> DecomposeFlight(
                                                                 config, str(output), formats, spread=not jobs.dask,
-                                                                radiometry=radiometry)))
+                                                                radiometry=radiometry)), small)
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
-                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz))
+                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz),
+                         small)
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
@@ -420,6 +465,30 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
                      for path, plan in plans.items()}, calibration)
+
+
+def crs_line(plans: dict[str, FilePlan]) -> str | None:
+    """One line for the terminal when a CRS was assigned (--crs) or is unknown (none, or only a unit) for some
+    inputs; None when every input names its own."""
+    sources = [p.source for p in plans.values() if p.source is not None]
+    given = [s for s in sources if s.crs_source == GIVEN]
+    if given:
+        return f"CRS {crs_name(given[0].crs_wkt)} assigned by --crs to {len(given)} input(s), whatever they say"
+    unnamed = [s for s in sources if not s.crs_named and s.crs_wkt]
+    unknown = [s for s in sources if not s.crs_wkt]
+    if not (unnamed or unknown):
+        return None
+    said = []
+    if unnamed:
+        said.append(f"{_names(unnamed)} name(s) no CRS, only its unit: written as {crs_name(unnamed[0].crs_wkt)}")
+    if unknown:
+        said.append(f"{_names(unknown)} name(s) no CRS: written without one")
+    return "; ".join(said) + "; give --crs (an EPSG code, WKT or PROJJSON) to name it"
+
+
+def _names(sources: list, shown: int = 3) -> str:
+    more = f" and {len(sources) - shown} more" if len(sources) > shown else ""
+    return ", ".join(s.name for s in sources[:shown]) + more
 
 
 def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> tuple[dict[str, dict], list[str]]:
@@ -458,7 +527,8 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
 
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
-              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = ()) -> dict:
+              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
+              crs: str | None = None) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -482,6 +552,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "formats": sorted(formats),
         "limit": limit,
         "points_per_range": points_per_range,
+        "crs": crs,  # --crs as given (each input's CRS, and where it came from, under inputs)
         "ranges": jobs.ranges,
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,

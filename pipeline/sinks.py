@@ -165,10 +165,14 @@ def _waveform_message(v: dict[str, np.ndarray], i: int) -> bytes:
     }).encode()
 
 
-class _McapFile:
-    """An MCAP writer with the /echoes and /waveform channels registered."""
+CRS_METADATA = "crs"  # the MCAP metadata record (and /echoes channel metadata key) of the points' CRS
 
-    def __init__(self, f, adjusted_standard: bool):
+
+class _McapFile:
+    """An MCAP writer with the /echoes and /waveform channels registered, and the points' CRS (OGC WKT) in a
+    metadata record and the /echoes channel's metadata."""
+
+    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None):
         from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
         from mcap.writer import Writer
         from mcap_protobuf.schema import register_schema
@@ -176,9 +180,12 @@ class _McapFile:
         self.writer = Writer(f)
         self.writer.start(profile="", library="fwlidar")
         meta = {"log_time": TIME_STAMP_UTC if adjusted_standard else TIME_STAMP_WEEK}
+        crs = {CRS_METADATA: crs_wkt} if crs_wkt else {}
+        if crs:
+            self.writer.add_metadata(CRS_METADATA, {"wkt": crs_wkt})
         self.channels = {
             "/echoes": self.writer.register_channel("/echoes", "protobuf", register_schema(self.writer, PointCloud),
-                                                    metadata=meta),
+                                                    metadata={**meta, **crs}),
             "/waveform": self.writer.register_channel(
                 "/waveform", "json",
                 self.writer.register_schema("fwlidar.Waveform", "jsonschema", json.dumps(WAVEFORM_SCHEMA).encode()),
@@ -190,12 +197,13 @@ class _McapFile:
 
 
 def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.ndarray],
-               adjusted_standard: bool) -> Path:
+               adjusted_standard: bool, crs_wkt: str | None = None) -> Path:
     """One range's kept echoes as foxglove.PointCloud messages on /echoes (chunks of consecutive pulses)
-    and each pulse's raw waveform, fitted model and echoes as JSON on /waveform, in pulse order."""
+    and each pulse's raw waveform, fitted model and echoes as JSON on /waveform, in pulse order; their CRS
+    as _McapFile says."""
     tmp = _atomic(path)
     with open(tmp, "wb") as f:
-        out = _McapFile(f, adjusted_standard)
+        out = _McapFile(f, adjusted_standard, crs_wkt)
         pulse_of_echo = cloud["pulse_id"]
         if pulse_of_echo.size:
             starts = np.flatnonzero(np.r_[True, pulse_of_echo[1:] != pulse_of_echo[:-1]])
@@ -213,12 +221,14 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.nda
 
 
 def assemble_mcap(parts: list[Path], path: Path, adjusted_standard: bool) -> Path:
-    """One MCAP from its range parts, in the order given, message by message."""
+    """One MCAP from its range parts, in the order given, message by message; the CRS the first part says."""
     from mcap.reader import make_reader
 
+    with open(parts[0], "rb") as p:
+        crs = next((m.metadata.get("wkt") for m in make_reader(p).iter_metadata() if m.name == CRS_METADATA), None)
     tmp = _atomic(path)
     with open(tmp, "wb") as f:
-        out = _McapFile(f, adjusted_standard)
+        out = _McapFile(f, adjusted_standard, crs)
         for part in parts:
             with open(part, "rb") as p:
                 for _, channel, message in make_reader(p).iter_messages(log_time_order=False):

@@ -126,7 +126,8 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
-    echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, columns)
+    echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, columns,
+                                 source.crs_wkt)
     cloud = decomposed_echoes(pulses, result, xyz)
     kept = result.reject == 0
     cloud.update({name: values[kept] for name, values in columns.items()})
@@ -147,9 +148,10 @@ def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], cal
             write_echo_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
             write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
         if "las" in formats:
-            write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated)
+            write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
         if "mcap" in formats:
-            write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time)
+            write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time,
+                       task.source.crs_wkt)
     except Exception:
         remove_parts(list(paths.values()))  # a range is written whole or not at all
         raise

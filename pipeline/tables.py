@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
+from fwcore.io.crs import crs_projjson
 from fwcore.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
@@ -34,13 +35,10 @@ def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes
 def file_crs_projjson(path: str) -> str | None:
     """The input's coordinate reference system as PROJJSON (fwcore.io.crs_wkt, LAS or PulseWaves, read with
     pyproj), or None."""
-    import pyproj
-
     from fwcore.io import crs_wkt
 
     try:
-        wkt = crs_wkt(path)
-        return pyproj.CRS.from_wkt(wkt).to_json() if wkt else None
+        return crs_projjson(crs_wkt(path))
     except Exception:  # noqa: BLE001  unreadable or unknown CRS records: the CRS is unknown, not invented
         return None
 
@@ -66,15 +64,18 @@ def bbox_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> pa.Array:
                                       mask=pa.array(~finite))
 
 
-def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str | None) -> dict[bytes, bytes]:
-    """GeoParquet 1.1 file metadata for the point geometry column; crs null means unknown (not CRS84)."""
+def geo_metadata(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_projjson: str | None,
+                 covering: bool = True) -> dict[bytes, bytes]:
+    """GeoParquet 1.1 file metadata for the point geometry column; crs null means unknown (not CRS84);
+    `covering` declares the table's bbox column (the echo table has one, the pulse table not)."""
     finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
     column = {"encoding": "WKB", "geometry_types": ["Point Z"],
               "crs": json.loads(crs_projjson) if crs_projjson else None}
     if finite.any():
         column["bbox"] = [float(v) for v in (x[finite].min(), y[finite].min(), z[finite].min(),
                                              x[finite].max(), y[finite].max(), z[finite].max())]
-    column["covering"] = {"bbox": {f: [BBOX_COLUMN, f] for f in BBOX_FIELDS}}
+    if covering:
+        column["covering"] = {"bbox": {f: [BBOX_COLUMN, f] for f in BBOX_FIELDS}}
     meta = {"version": "1.1.0", "primary_column": GEOMETRY_COLUMN, "columns": {GEOMETRY_COLUMN: column}}
     return {GEO_METADATA_KEY: json.dumps(meta).encode()}
 
@@ -142,10 +143,11 @@ COLUMNS = {c.name: c for c in (
     Column("n_samples", I32, "", "samples in the waveform"),
     Column("sample_spacing_ps", F64, "ps", "time between two samples"),
     Column("noise_sigma", F64, "DN", "the waveform's noise level"),
-    Column("fit_error", F64, "DN^2", "Eq. 9: the sum of squared residuals against the denoised samples"),
-    Column("fit_error_raw", F64, "DN^2", "the same sum against the raw samples"),
-    Column("rmse", F64, "DN", "root mean square residual against the raw samples"),
-    Column("r2", F64, "1", "coefficient of determination against the raw samples"),
+    Column("fit_error", F64, "DN", "the method's objective (Eq. 9): the sum of absolute residuals |model - denoised "
+                                   "sample| over the waveform's valid samples"),
+    Column("fit_error_raw", F64, "DN", "the sum of absolute residuals |model - raw sample| over the valid samples"),
+    Column("rmse", F64, "DN", "root mean square residual against the raw (valid) samples"),
+    Column("r2", F64, "1", "coefficient of determination against the raw (valid) samples"),
     Column("n_echoes_initial", I32, "", "echoes of the initial estimate"),
     Column("n_echoes_dropped", I32, "", "echoes the model-order selection dropped"),
     Column("n_echoes_added", I32, "", "echoes the model-order selection added"),
@@ -163,6 +165,10 @@ COLUMNS = {c.name: c for c in (
     Column("reason", STR, "", "why"),
 )}
 CSV_ENERGY = Column("energy", F64, "DN sample", "the area under the echo")  # decompose-csv's tables are in samples
+# pulses/ is GeoParquet too: a point per pulse where the file anchors its beam
+PULSE_GEOMETRY = Column(GEOMETRY_COLUMN, pa.binary(), "", "the pulse's anchor as a WKB Point Z in the run's CRS "
+                                                          "(GeoParquet 1.1): where the file places its beam (LAS: the "
+                                                          "point its waveform is anchored to; PulseWaves: its anchor)")
 _FIT = ("fit_error", "fit_error_raw", "rmse", "r2")
 _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes", "n_echoes_kept", "model_evaluations",
            "nit", "message")
@@ -173,7 +179,7 @@ TABLES = {
                "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
                "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, BBOX_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
-    "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", "n_samples",
+    "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
@@ -278,10 +284,10 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
-                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None
-                 ) -> tuple[pa.Table, pa.Table]:
+                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
+                 crs_wkt: str | None = None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
-    `ok`."""
+    `ok`; the geometry's CRS is `crs_wkt` (the run's, fwcore.io.crs.input_crs), else the input file's."""
     from fwcore.model import sigma_to_time_unit
 
     owner = result.echo_waveform
@@ -304,14 +310,17 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],
         "channel": pulses.channels()[sel], "segment": pulses.segments()[sel],
         "packet_offset": pulses.packet_offset[sel], "gps_time": pulses.gps_time[sel],
+        GEOMETRY_COLUMN: wkb_points(*pulses.anchor[sel].T),
         "n_samples": np.diff(pulses.sample_offsets)[sel], "sample_spacing_ps": pulses.sample_spacing_ps[sel],
         "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
         **_record_columns("pulses", result, sel), **_echo_counts(result, sel),
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
         "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})
-    geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], file_crs_projjson(str(pulses.source_file)))
-    return _with_config(echoes, config, geo), _with_config(table, config)
+    projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
+    geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
+    anchors = geo_metadata(*pulses.anchor[sel].T, projjson, covering=False)
+    return _with_config(echoes, config, geo), _with_config(table, config, anchors)
 
 
 REJECTED_SCHEMA = table_schema("rejected")

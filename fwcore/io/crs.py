@@ -1,14 +1,20 @@
-"""Coordinate reference systems: GeoTIFF keys (LAS, PulseWaves) -> OGC WKT, with pyproj."""
+"""Coordinate reference systems: GeoTIFF keys (LAS, PulseWaves) -> OGC WKT, with pyproj; and the one answer to
+"the CRS of this input, given --crs" (input_crs) that every output (LAS, GeoParquet, MCAP, COPC) writes."""
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import logging
+from pathlib import Path
 
 import numpy as np
 
 LOG = logging.getLogger("fwl")
 MODEL_TYPE, PROJECTED_CS, GEOGRAPHIC_TYPE, VERTICAL_CS = 1024, 3072, 2048, 4096
-MODEL_GEOCENTRIC = 3
+PROJ_LINEAR_UNITS, GEOG_LINEAR_UNITS, VERTICAL_UNITS = 3076, 2052, 4099
+MODEL_PROJECTED, MODEL_GEOCENTRIC = 1, 3
+GIVEN = "--crs"  # the source of a CRS the user gave
 USER_DEFINED = 32767
 EARTH_RADIUS_M = 6_371_000.0
 WGS84_GEOCENTRIC = 4978
@@ -33,6 +39,43 @@ def epsg_from_geokeys(keys: dict[int, int]) -> int | None:
     if keys.get(MODEL_TYPE) == MODEL_GEOCENTRIC:
         return WGS84_GEOCENTRIC  # the keys name no datum code; the files that say geocentric are WGS 84
     return None
+
+
+def _linear_unit(code: int | None) -> tuple[str, float] | None:
+    """(name, metres) of an EPSG linear unit code; None when absent, user-defined or unknown to PROJ."""
+    if not code or code == USER_DEFINED:
+        return None
+    from pyproj.database import get_units_map
+
+    unit = next((u for u in get_units_map(auth_name="EPSG", category="linear").values() if u.code == str(code)), None)
+    return (unit.name, unit.conv_factor) if unit else None
+
+
+def unnamed_wkt_from_geokeys(keys: dict[int, int]) -> str | None:
+    """Keys that say "projected" and a linear unit but name no CRS: an unnamed local (engineering) CRS in that unit,
+    OGC WKT1 LOCAL_CS, which laspy and pyproj parse; None when the keys say less (no model, no unit)."""
+    if keys.get(MODEL_TYPE) != MODEL_PROJECTED:
+        return None
+    unit = next((u for k in (PROJ_LINEAR_UNITS, GEOG_LINEAR_UNITS, VERTICAL_UNITS)
+                 if (u := _linear_unit(keys.get(k)))), None)
+    if unit is None:
+        return None
+    name, metres = unit
+    return (f'LOCAL_CS["unnamed projected CRS ({name})",'
+            f'LOCAL_DATUM["unknown",32767],UNIT["{name}",{metres!r}],'
+            'AXIS["Easting",EAST],AXIS["Northing",NORTH],AXIS["Up",UP]]')
+
+
+def wkt_from_geokeys(keys: dict[int, int]) -> tuple[str | None, str]:
+    """(WKT, where it came from) of GeoTIFF keys: their EPSG code's CRS, else an unnamed CRS in their unit."""
+    code = epsg_from_geokeys(keys)
+    wkt = wkt_from_epsg(code)
+    if wkt:
+        return wkt, f"GeoTIFF keys (EPSG:{code})"
+    unnamed = unnamed_wkt_from_geokeys(keys)
+    if unnamed:
+        return unnamed, "GeoTIFF keys without an EPSG code: an unnamed CRS in their unit"
+    return None, "GeoTIFF keys without an EPSG code or a unit"
 
 
 def wkt_from_epsg(code: int | None) -> str | None:
@@ -66,7 +109,88 @@ def las_crs_wkt(header) -> tuple[str | None, str]:
         if vlr.user_id.rstrip("\0") == "LASF_Projection" and vlr.record_id == 34735:
             keys = {k.id: k.value_offset for k in vlr.geo_keys if k.tiff_tag_location == 0} \
                 if hasattr(vlr, "geo_keys") else geokeys_from_bytes(bytes(vlr.record_data))
-            code = epsg_from_geokeys(keys)
-            wkt = wkt_from_epsg(code)
-            return wkt, f"GeoTIFF keys (EPSG:{code})" if wkt else "GeoTIFF keys without an EPSG code"
+            return wkt_from_geokeys(keys)
     return None, "none"
+
+
+def parse_crs(text: str) -> str:
+    """A CRS as the user gives it (an EPSG code, EPSG:n, WKT or PROJJSON, as pyproj reads them) -> OGC WKT1 as
+    LAS 1.4 asks (WKT2 where WKT1 cannot say it); ValueError naming the problem."""
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_user_input(text.strip())
+    except pyproj.exceptions.CRSError as err:
+        shown = text if len(text) <= 60 else text[:57] + "..."
+        raise ValueError(f"--crs {shown!r} is not a coordinate reference system pyproj reads (an EPSG code such as "
+                         f"EPSG:25832, WKT or PROJJSON): {err}") from None
+    return crs.to_wkt(pyproj.enums.WktVersion.WKT1_GDAL) or crs.to_wkt()
+
+
+@dataclasses.dataclass(frozen=True)
+class InputCrs:
+    """An input's CRS as the outputs write it: OGC WKT (None: unknown), where it came from, and whether it names a
+    CRS (an EPSG code, a WKT record, --crs) rather than only a unit (an unnamed CRS) or nothing."""
+
+    wkt: str | None
+    source: str
+    named: bool
+
+    @property
+    def name(self) -> str | None:
+        return crs_name(self.wkt)
+
+
+def input_crs(path: str | Path, given: str | None = None) -> InputCrs:
+    """The one answer to "the CRS of this input": `given` (--crs, as parse_crs reads it) overrides what the file
+    says, as PDAL's override_srs; else the file's (fwcore.io.crs_wkt: a WKT record, GeoTIFF keys with a code or
+    only a unit, PulseWaves' Earth-centred coordinates)."""
+    if given:
+        return InputCrs(parse_crs(given), GIVEN, True)
+    from fwcore.io.formats import LAS, format_of
+
+    try:
+        fmt = format_of(path)
+        if fmt is LAS:
+            import laspy
+
+            with laspy.open(path) as reader:
+                wkt, source = las_crs_wkt(reader.header)
+        else:
+            opened = fmt.open(path)
+            wkt, source = opened.crs_wkt, opened.crs_source
+    except Exception as err:  # noqa: BLE001  damaged CRS records: the CRS is unknown, not invented; the file may run
+        return InputCrs(None, f"unreadable ({type(err).__name__}: {err})", False)
+    return InputCrs(wkt, source, bool(wkt) and "unnamed CRS" not in source)
+
+
+def input_crs_wkt(path: str | Path, given: str | None = None) -> str | None:
+    """The WKT of this input's CRS, given --crs (input_crs): what a sink writes."""
+    return input_crs(path, given).wkt
+
+
+@functools.lru_cache(maxsize=64)
+def crs_projjson(wkt: str | None) -> str | None:
+    """PROJJSON of a WKT (GeoParquet's crs), None for None or a WKT pyproj cannot read."""
+    if not wkt:
+        return None
+    import pyproj
+
+    try:
+        return pyproj.CRS.from_wkt(wkt).to_json()
+    except pyproj.exceptions.CRSError:
+        return None
+
+
+def crs_name(wkt: str | None) -> str | None:
+    """A CRS's name, with its EPSG code where it has one; None for none."""
+    if not wkt:
+        return None
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_wkt(wkt)
+    except pyproj.exceptions.CRSError:
+        return "(unparsed WKT)"
+    code = crs.to_epsg(min_confidence=90)
+    return f"EPSG:{code} ({crs.name})" if code else crs.name

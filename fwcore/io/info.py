@@ -8,22 +8,11 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from fwcore.io.crs import las_crs_wkt
+from fwcore.io.crs import crs_name, las_crs_wkt
 from fwcore.io.descriptors import ranges_text
 from fwcore.io.las import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
 from fwcore.io.ownership import pulse_ownership
 from fwcore.io.pulsewaves import VARIES, LookupTable, PulseWavesFile, open_pulsewaves
-
-
-def crs_name(wkt: str | None) -> str | None:
-    if not wkt:
-        return None
-    import pyproj
-
-    try:
-        return pyproj.CRS.from_wkt(wkt).name
-    except pyproj.exceptions.CRSError:
-        return "(unparsed WKT)"
 
 
 def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:

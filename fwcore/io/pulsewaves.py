@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.io.crs import epsg_from_geokeys, geokeys_from_bytes, looks_earth_centred, wkt_from_epsg
+from fwcore.io.crs import geokeys_from_bytes, looks_earth_centred, wkt_from_epsg, wkt_from_geokeys
 from fwcore.io.descriptors import warn_unusable
 from fwcore.io.las import WaveformFileError
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
@@ -378,9 +378,7 @@ def open_pulsewaves(path: str | Path) -> PulseWavesFile:
         raise WaveformFileError(f"{waves}: compressed waves (scheme {compression}) are not readable; "
                                 "only uncompressed waves are defined")
     if geokeys:
-        code = epsg_from_geokeys(geokeys)
-        wkt = wkt_from_epsg(code)
-        source = f"GeoTIFF keys (EPSG:{code})" if wkt else "GeoTIFF keys without an EPSG code"
+        wkt, source = wkt_from_geokeys(geokeys)
     elif looks_earth_centred(header.bounds_min, header.bounds_max):
         wkt, source = wkt_from_epsg(4978), "none in the file; Earth-centred by its coordinates' magnitude (EPSG:4978)"
     else:

@@ -25,7 +25,7 @@ EXTRA_DIMENSIONS = (
     ("echo_width", "echo FWHM [ps]"),
     ("alpha", "alpha [1]; NaN: system model"),
     ("echo_energy", "area under echo [DN x ps]"),
-    ("fit_error", "pulse fit error, Eq. 9 [1]"),
+    ("fit_error", "pulse sum |residual| (Eq.9) [DN]"),
     ("channel", "waveform channel (PulseWaves)"),
 )
 # Radiometry (fwcore.radiometry), NaN where unavailable: (name, description when calibrated, when relative).
@@ -59,16 +59,19 @@ def point_cloud_template(template: str | Path) -> dict:
 
 
 def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, np.ndarray],
-                      calibrated: bool = False) -> Path:
+                      calibrated: bool = False, crs_wkt: str | None = None) -> Path:
     """LAS 1.4 point format 6 (7 with colour, 8 with NIR), one point per kept echo; .laz compresses.
 
     Scale, offset, the system identifier and the coordinate reference system come from `template` (the
     input file); the CRS is written as OGC WKT with the global encoding's WKT bit, as formats 6-10 require
-    (converted from GeoTIFF keys where the input has those). Columns: fwcore.pulses.decomposed_echoes, and the
+    (converted from GeoTIFF keys where the input has those), or `crs_wkt` where given (the run's CRS,
+    fwcore.io.crs.input_crs). Columns: fwcore.pulses.decomposed_echoes, and the
     radiometry's (fwcore.radiometry.echo_radiometry) as Extra Bytes, described as calibrated or relative.
     """
     path = Path(path)
     source = point_cloud_template(template)
+    if crs_wkt:
+        source["wkt"] = crs_wkt
     point_format = 8 if "nir" in echoes else 7 if "rgb" in echoes else 6
     header = laspy.LasHeader(point_format=point_format, version="1.4")
     header.scales = np.asarray(source["scales"], dtype=float)
@@ -80,7 +83,7 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
         header.global_encoding.wkt = True
     elif source["geokeys"]:  # keys that name no EPSG code: keep them as they are rather than lose them
         header.vlrs.extend(source["geokeys"])
-        LOG.warning("%s: the input %s's GeoTIFF keys name no EPSG code, so no WKT can be written; "
+        LOG.warning("%s: the input %s's GeoTIFF keys name neither an EPSG code nor a unit, so no WKT can be written; "
                     "its keys are copied as they are", path.name, Path(template).name)
     else:
         LOG.warning("%s: the input %s names no coordinate reference system; %s is written without one",

@@ -268,6 +268,7 @@ def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | 
     if row is None:
         return None
     values = dict(zip([d[0] for d in cur.description], row))
+    values.pop("geometry", None)  # the anchor as WKB bytes: no JSON (the viewer reads the anchor from the file)
     return values, values.pop("filename")
 
 

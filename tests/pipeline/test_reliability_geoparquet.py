@@ -53,12 +53,73 @@ def test_geopandas_opens_the_echo_table_as_points(utm_run):
     assert {"x", "y", "z", "kept", "fwhm_ps"} <= set(frame.columns)
 
 
-def test_an_input_without_a_known_crs_says_unknown_not_crs84(tmp_path, leica_dir):
+def test_the_pulse_table_is_geoparquet_a_point_per_pulse_at_its_anchor(utm_run):
+    from fwcore.io import read_pulses
+
+    frame = geopandas.read_parquet(utm_run / "pulses")
+    assert len(frame) == 30 and frame.crs.to_epsg() == 32632 and frame.geometry.has_z.all()
+    pulses = read_pulses(utm_run.parent / "utm.las")
+    anchor = dict(zip(pulses.pulse_id.tolist(), pulses.anchor.tolist()))
+    np.testing.assert_array_equal(np.stack([frame.geometry.x, frame.geometry.y, frame.geometry.z], axis=1),
+                                  [anchor[p] for p in frame.pulse_id])
+    for part in sorted((utm_run / "pulses").glob("*.parquet")):
+        column = json.loads(pq.read_schema(part).metadata[b"geo"])["columns"]["geometry"]
+        points = geopandas.read_parquet(part).geometry
+        assert column["bbox"] == [points.x.min(), points.y.min(), points.z.min(),
+                                  points.x.max(), points.y.max(), points.z.max()]
+
+
+def test_an_input_without_a_crs_says_unknown_not_crs84(tmp_path, leica_dir):
+    las = laspy.read(leica_dir / "leica_a.las")
+    las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 34735]  # no GeoTIFF keys: nothing said
+    las.write(tmp_path / "bare.las")
+    shutil.copy(leica_dir / "leica_a.wdp", tmp_path / "bare.wdp")
     out = tmp_path / "out"
-    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out)] + QUICK) == 0
+    assert main(["run", str(tmp_path / "bare.las"), "--output", str(out)] + QUICK) == 0
     part = sorted((out / "echoes").glob("*.parquet"))[0]
     assert json.loads(pq.read_schema(part).metadata[b"geo"])["columns"]["geometry"]["crs"] is None
     assert geopandas.read_parquet(part).crs is None
+
+
+def test_crs_names_the_crs_of_every_output(tmp_path, leica_dir, capfd):
+    from mcap.reader import make_reader
+
+    out = tmp_path / "out"
+    args = ["run", str(leica_dir / "leica_a.las"), "--output", str(out), "--crs", "EPSG:25832"]
+    assert main(args + QUICK[:-1] + ["parquet,las,mcap"]) == 0
+    said = [line for line in capfd.readouterr().out.splitlines() if "CRS" in line]
+    assert said == ["fwl run: CRS EPSG:25832 (ETRS89 / UTM zone 32N) assigned by --crs to 1 input(s), whatever "
+                    "they say"]
+    las = laspy.read(out / "las" / "leica_a.las")
+    assert las.header.global_encoding.wkt and las.header.parse_crs().to_epsg() == 25832
+    assert geopandas.read_parquet(out / "echoes").crs.to_epsg() == 25832
+    assert geopandas.read_parquet(out / "pulses").crs.to_epsg() == 25832
+    with open(out / "mcap" / "leica_a.mcap", "rb") as f:
+        reader = make_reader(f)
+        wkt = {m.name: m.metadata["wkt"] for m in reader.iter_metadata()}["crs"]
+        channels = {c.topic: c.metadata for c in reader.get_summary().channels.values()}
+    assert pyproj.CRS.from_wkt(wkt).to_epsg() == 25832 and channels["/echoes"]["crs"] == wkt
+    summary = json.loads((out / "run.json").read_text())
+    assert summary["crs"] == "EPSG:25832" and summary["inputs"][0]["crs"]["source"] == "--crs"
+
+
+def test_keys_with_only_a_unit_give_an_unnamed_crs_said_once(tmp_path, leica_dir, capfd):
+    out = tmp_path / "out"
+    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out)] + QUICK[:-1] + ["parquet,las"]) == 0
+    said = [line for line in capfd.readouterr().out.splitlines() if "CRS" in line]
+    assert said == ["fwl run: leica_a.las name(s) no CRS, only its unit: written as unnamed projected CRS (metre); "
+                    "give --crs (an EPSG code, WKT or PROJJSON) to name it"]
+    las = laspy.read(out / "las" / "leica_a.las")
+    crs = las.header.parse_crs()
+    assert las.header.global_encoding.wkt and crs.is_engineering and crs.axis_info[0].unit_name == "metre"
+    assert geopandas.read_parquet(out / "echoes").crs == crs
+
+
+def test_a_crs_pyproj_cannot_read_is_a_usage_error_before_anything_is_written(tmp_path, leica_dir, capfd):
+    out = tmp_path / "out"
+    assert main(["run", str(leica_dir / "leica_a.las"), "--output", str(out), "--crs", "EPSG:12"] + QUICK) == 2
+    assert "--crs 'EPSG:12' is not a coordinate reference system" in capfd.readouterr().err
+    assert not out.exists()
 
 
 def test_rejected_is_written_without_rows_when_nothing_is_rejected(utm_run):

@@ -1,5 +1,6 @@
 import laspy
 import numpy as np
+import pyproj
 import pytest
 
 from fwcore.config import DecompositionConfig
@@ -73,10 +74,12 @@ def test_decomposed_point_cloud(tmp_path, leica, leica_dir, leica_result):
     # return numbers run 1..n in time order within each pulse
     returns, totals = np.asarray(las.return_number), np.asarray(las.number_of_returns)
     assert (returns >= 1).all() and (returns <= totals).all()
-    # the sample's GeoTIFF keys name a user-defined projection: no WKT can be derived, none is invented;
-    # the keys are kept as they are
-    assert not las.header.global_encoding.wkt
-    assert any(isinstance(v, laspy.vlrs.known.GeoKeyDirectoryVlr) for v in las.header.vlrs)
+    # the sample's GeoTIFF keys say "projected, metres" and name no CRS: an unnamed CRS in metres, as WKT with
+    # the WKT bit (formats 6-10 carry no GeoTIFF keys)
+    crs = las.header.parse_crs()
+    assert las.header.global_encoding.wkt and crs.is_engineering and crs.to_epsg() is None
+    assert {a.unit_name for a in crs.axis_info} == {"metre"}
+    assert not any(isinstance(v, laspy.vlrs.known.GeoKeyDirectoryVlr) for v in las.header.vlrs)
     assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
 
 
@@ -96,6 +99,9 @@ def test_point_cloud_crs_is_ogc_wkt_from_the_inputs_geotiff_keys(tmp_path, leica
     assert len(wkt) == 1 and "WGS 84 / UTM zone 32N" in wkt[0].string
     assert back.header.parse_crs().to_epsg() == 32632
     assert not any(v.record_id == 34735 for v in back.header.vlrs)  # formats 6-10 carry WKT, not GeoTIFF keys
+    given = write_point_cloud(tmp_path / "given.las", template, decomposed_echoes(leica, leica_result),
+                              crs_wkt=pyproj.CRS.from_epsg(25832).to_wkt("WKT1_GDAL"))  # --crs: not the keys
+    assert laspy.read(given).header.parse_crs().to_epsg() == 25832
 
 
 @pytest.mark.parametrize("layout, mixed", [("las13-wdp", False), ("las14-wdp", True), ("las14-internal", True)])

@@ -1,0 +1,15 @@
+"""Where a run's jobs run: a small run under the default runner in the driver's process, real work on workers."""
+
+from pipeline.options import check_beam_args, runner_given
+from pipeline.run import IN_PROCESS_PULSES, Jobs
+
+
+def test_a_small_job_runs_in_process_only_under_the_default_runner():
+    default = Jobs(check_beam_args([]), small_in_process=not runner_given([]))
+    assert default.in_process(2, small=True) and not default.in_process(2, small=False)
+    assert default.in_process(1)  # one file to plan or assemble: always here
+    given = ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]
+    chosen = Jobs(check_beam_args(given), small_in_process=not runner_given(given))
+    assert runner_given(given) and not chosen.in_process(2, small=True)  # the determinism tests' workers stay
+    assert not runner_given(["--crs", "EPSG:25832"]) and runner_given(["--runner=DirectRunner"])
+    assert 1000 < IN_PROCESS_PULSES < 10_000  # a few seconds of work, less than starting two workers
