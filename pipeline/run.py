@@ -109,6 +109,20 @@ def write_empty_rejected(output: Path, stems: list[str]) -> None:
             write_part(empty_rejected_table(), output / "rejected", stem)
 
 
+def whole_file_reasons(output: Path, entries: list[dict], per_input: dict[str, dict]) -> dict[str, str]:
+    """Per input rejected whole, the first reason its rejected/ rows give (stage open), for run.json and the
+    terminal."""
+    reasons = {}
+    for e in entries:
+        if per_input[e["name"]]["files_rejected"]:
+            rows = pq.read_table(output / "rejected" / f"{e['stem']}.parquet", columns=["stage", "reason"])
+            said = [r for s, r in zip(rows.column("stage").to_pylist(), rows.column("reason").to_pylist())
+                    if s == "open"]
+            if said:
+                reasons[e["name"]] = said[0]
+    return reasons
+
+
 def _metric_counts(result) -> dict[str, int]:
     """Beam's counters summed over the steps that increment them (several stages reject pulses)."""
     try:
@@ -472,11 +486,14 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
     # a match given as an input that holds none makes the run partial; the counts stay the files'
     status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
+    reasons = whole_file_reasons(output, entries, per_input)
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
         "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
-                    "counts": per_input[e["name"]], **e.get("planned", {})} for e in entries],
+                    "counts": per_input[e["name"]],
+                    **({"rejected_because": reasons[e["name"]]} if e["name"] in reasons else {}),
+                    **e.get("planned", {})} for e in entries],
         "not_inputs": [{"path": match, "reason": why} for match, why in not_taken],
         "output": str(output),
         "formats": sorted(formats),
