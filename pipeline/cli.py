@@ -261,13 +261,14 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _check_shares_pulses(results: list[str], truth: str) -> None:
     """A run and a truth of different flights share no pulse: their table would read as a method that found
     nothing (0.000 and nan). Refused, naming both."""
+    import pyarrow.compute as pc
     import pyarrow.dataset as ds
     import pyarrow.parquet as pq
 
-    true_pulses = pq.read_table(truth, columns=["pulse_id"]).column("pulse_id").unique()
+    true_pulses = pq.read_table(truth, columns=["pulse_id"]).column("pulse_id").combine_chunks().unique()
     for folder in results:
         pulses = ds.dataset(str(Path(folder) / "pulses"), format="parquet").to_table(columns=["pulse_id"])
-        if not pulses.num_rows or not pulses.column("pulse_id").is_in(value_set=true_pulses).to_numpy().any():
+        if not pc.any(pc.is_in(pulses.column("pulse_id"), value_set=true_pulses)).as_py():
             raise ValueError(f"fwl evaluate: {folder} shares no pulse with {truth} ({pulses.num_rows} pulses "
                              f"decomposed, {len(true_pulses)} in the truth): the truth of another flight?")
 

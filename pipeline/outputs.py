@@ -542,7 +542,7 @@ def claim_command_folder(command: str, folder: Path, overwrite: bool) -> None:
         listed, by = set(manifest["files"]), manifest["written_by"]
     except (OSError, ValueError, KeyError, TypeError):
         listed, by = set(), None
-    foreign = [f for f in files if f != MANIFEST and (by != command or f not in listed)]
+    foreign = [f for f in files if by != command or (f != MANIFEST and f not in listed)]
     if foreign:
         shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
         raise OutputFolderError(f"{command}: {folder}: holds files that {command} did not write: {shown}; "

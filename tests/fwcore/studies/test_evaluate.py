@@ -89,3 +89,14 @@ def test_matching_is_one_to_one_and_within_the_window():
 def test_a_directory_that_is_no_run_is_an_error(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path), "--truth", str(tmp_path / "x.parquet")]) == 2
     assert "not an fwl run output folder" in capsys.readouterr().err
+
+
+def test_evaluate_refuses_the_truth_of_another_flight(high_snr_run, tmp_path, capsys):
+    """A truth that shares no pulse with the run would give a table of 0 and nan: refused, exit 2, nothing written."""
+    other = tmp_path / "other.las"
+    assert main(["simulate", "--pulses", "50", "--seed", "5", "--output", str(other), *HIGH_SNR]) == 0
+    capsys.readouterr()
+    out = tmp_path / "evaluation.md"
+    assert main(["evaluate", str(high_snr_run / "run"), "--truth", str(tmp_path / "other.truth.parquet"),
+                 "--output", str(out)]) == 2
+    assert "shares no pulse with" in capsys.readouterr().err and not out.exists()
