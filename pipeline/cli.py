@@ -105,7 +105,10 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
           f"files rejected {c['files_rejected']}{problems}; echoes kept {c['echoes_kept']}, "
           f"spurious {c['echoes_spurious']}")
-    print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
+    processed = summary.get("pulses_processed", c["pulses_read"])
+    now = f" (of the {processed} processed now; the rest were reused)" if processed != c["pulses_read"] else ""
+    print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s{now}; "
+          f"summary in {args.output}/run.json")
     _say_what_was_not_done(summary, args.output)
     return summary["exit_code"]
 

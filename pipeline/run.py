@@ -365,7 +365,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     began = time.perf_counter()
     done = {e["path"] for e in read_manifest(output)["inputs"] if e.get("done")}
     if taken == "resumed" and done >= set(paths):  # killed after its last job, while counting: nothing to redo
-        jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
+        jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={}, pulses_processed=0)
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
                         radiometry)
@@ -383,6 +383,7 @@ class JobsDone:
     metrics: dict[str, int]
     planned: dict[str, dict]  # input path -> what its plan measured (_planned), and its radiometry
     calibration: dict | None = None  # C_cal found on a reference patch, how many returns, their spread
+    pulses_processed: int | None = None  # the pulses of the ranges this call ran (not those reused): its rate
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
@@ -433,7 +434,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     # the calibration each input's ranges used, kept in the manifest for a run.json written later
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
-                     for path, plan in plans.items()}, calibration)
+                     for path, plan in plans.items()}, calibration, total)
 
 
 def _ranges_from(plans: dict[str, FilePlan], radiometry: RadiometryConfig) -> tuple[dict[str, dict], list[str]]:
@@ -484,6 +485,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
                                          calibration_source=calibration["source"])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
+    processed = counts["pulses_read"] if jobs.pulses_processed is None else jobs.pulses_processed
     # a match given as an input that holds none makes the run partial; the counts stay the files'
     status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
     reasons = whole_file_reasons(output, entries, per_input)
@@ -511,7 +513,9 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "counts": counts,
         "metrics": jobs.metrics,
         "seconds": round(seconds, 3),
-        "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
+        # the pulses this call processed: not a resumed run's reused ranges, nor a watched folder's earlier inputs
+        "pulses_processed": processed,
+        "pulses_per_second": round(processed / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),
     }
     write_run_json(output, summary)
