@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -167,8 +168,11 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     except KeyboardInterrupt:
         if running:
             print(f"fwl watch: interrupted while processing {', '.join(Path(p).name for p in running[0])}; "
-                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr)
-            return EXIT_INTERRUPTED
+                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr, flush=True)
+            sys.stdout.flush()
+            # now: Python ends by SIGINT (-2, not 130) once a KeyboardInterrupt crossed one of Beam's compiled
+            # frames, even caught, and would wait for Beam's threads; the run removed its partial files already
+            os._exit(EXIT_INTERRUPTED)
         print("fwl watch: stopped", flush=True)
     finally:
         signal.signal(signal.SIGINT, previous[0])

@@ -160,7 +160,10 @@ def _quiet_after_interrupt():
         yield
         return
 
+    got = []
+
     def interrupted(signum, frame):
+        got.append(signum)
         logging.disable(logging.CRITICAL)  # for the rest of this process, which is ending
         threading.excepthook = lambda args: None
         raise KeyboardInterrupt
@@ -168,6 +171,10 @@ def _quiet_after_interrupt():
     previous = signal.signal(signal.SIGINT, interrupted)
     try:
         yield
+    except Exception as err:
+        if got:  # Beam wraps an interruption inside a step as its own error (RuntimeError): still an interruption
+            raise KeyboardInterrupt from err
+        raise
     finally:
         signal.signal(signal.SIGINT, previous)
 
