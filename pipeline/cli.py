@@ -364,8 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
-    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ and PulseWaves files with the Beam pipeline",
-                       allow_abbrev=False,
+    said = "decompose full-waveform LAS/LAZ and PulseWaves files with the Beam pipeline"
+    r = sub.add_parser("run", help=said, description=said[0].upper() + said[1:] + ".", allow_abbrev=False,
                        epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
                               "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
                               "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
