@@ -13,6 +13,10 @@ from fwcore.io.records import PulseBatch
 from fwcore.preprocess import median_pulse_fwhm
 from fwcore.rng import pulse_seeds
 
+# LAS class 1, "unclassified", for every echo whatever the sensor: echoes are points the decomposition made and
+# nothing classified (an input point's class, ground say, is its own, not that of every echo of its pulse)
+UNCLASSIFIED = 1
+
 
 def pulse_waveforms(pulses: PulseBatch, seed: int) -> WaveformBatch:
     """The engine's input: one waveform per row, seeded from the run seed, the pulse's identity and
@@ -78,7 +82,6 @@ def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,
     first = np.concatenate([[0], np.cumsum(n_kept)[:-1]])
     return_number = np.arange(owner.size) - first[owner] + 1
     amplitude = result.amplitude[kept]
-    classification = pulses.classification if pulses.classification is not None else np.zeros(len(pulses), np.uint8)
     columns = {
         "pulse_id": pulses.pulse_id[owner],
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
@@ -87,7 +90,7 @@ def decomposed_echoes(pulses: PulseBatch, result: BatchDecomposition,
         "number_of_returns": n_kept[owner],
         # 8-bit digitizers scaled to the 16-bit intensity range
         "intensity": np.clip(np.round(amplitude * 2.0 ** (16 - pulses.bits_per_sample[owner])), 0, 65535),
-        "classification": classification[owner],
+        "classification": np.full(owner.size, UNCLASSIFIED, np.uint8),
         "scan_angle": pulses.scan_angle[owner],
         "scan_direction_flag": pulses.scan_direction_flag[owner],
         "edge_of_flight_line": pulses.edge_of_flight_line[owner],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -18,6 +19,8 @@ quiet_imports()  # before Beam is imported: its import-time warnings are not the
 
 from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config, radiometry_config,  # noqa: E402
                               unknown_option_error)
+from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is,  # noqa: E402
+                              parquet_is_ours, record_command_folder)
 
 
 def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
@@ -39,7 +42,10 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     from pipeline.tables import echo_table, waveform_table
 
     config = _config_from_args(args)
-    waveforms = read_neon_csv(args.input)
+    waveforms = read_neon_csv(args.input)  # a file of another kind is named as such first
+    output = check_suffix("fwl decompose-csv", args.output, (".parquet",), "a Parquet echo table")
+    waveform_path = output.with_name(output.stem + ".waveforms.parquet")
+    claim_files("fwl decompose-csv", [output, waveform_path], parquet_is_ours, args.overwrite)
     system = csv_system_pulse(waveforms.samples, waveforms.valid, args.sample_spacing_ps, config,
                               outgoing=read_neon_csv(args.outgoing) if args.outgoing else None)
     config = system.configure(config)
@@ -57,14 +63,12 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     result = decompose_batch(batch, config, threads=args.threads)
     seconds = time.perf_counter() - start
-    output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     def with_width_source(table):
         return table.replace_schema_metadata({**table.schema.metadata, b"fwlidar.system_pulse_fwhm_source":
                                               width_source.encode()})
 
     pq.write_table(with_width_source(echo_table(ids, result, config)), output)
-    waveform_path = output.with_name(output.stem + ".waveforms.parquet")
     n_samples = np.array([v.sum() for v in waveforms.valid])
     pq.write_table(with_width_source(waveform_table(ids, result, config, n_samples)), waveform_path)
     ok = result.status == 0
@@ -102,12 +106,27 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     print(f"pulses read {c['pulses_read']} = decomposed {c['pulses_decomposed']} + rejected {c['pulses_rejected']}; "
           f"files rejected {c['files_rejected']}{problems}; echoes kept {c['echoes_kept']}, "
           f"spurious {c['echoes_spurious']}")
-    print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s; summary in {args.output}/run.json")
+    processed = summary.get("pulses_processed", c["pulses_read"])
+    now = f" (of the {processed} processed now; the rest were reused)" if processed != c["pulses_read"] else ""
+    print(f"{summary['seconds']:.1f} s, {summary['pulses_per_second']} pulses/s{now}; "
+          f"summary in {args.output}/run.json")
+    _say_what_was_not_done(summary, args.output)
+    return summary["exit_code"]
+
+
+def _say_what_was_not_done(summary: dict, output: str) -> None:
+    """Each input rejected whole with its first reason, each match that is no input with why; rejected/ named
+    only for what only it says (pulses rejected, ranges lost)."""
     for entry in summary.get("not_inputs", []):  # nothing given goes unaccounted
         print(f"not an input: {entry['path']}: {entry['reason']}")
-    if c["pulses_rejected"] or c["files_rejected"] or c.get("problems") or summary.get("not_inputs"):
-        print(f"{summary['status']}: see {args.output}/rejected/ for the reasons (exit code {summary['exit_code']})")
-    return summary["exit_code"]
+    for entry in summary["inputs"]:
+        if "rejected_because" in entry:
+            print(f"rejected: {entry['rejected_because']}")
+    c = summary["counts"]
+    if c["pulses_rejected"] or c.get("problems"):
+        print(f"{summary['status']}: see {output}/rejected/ for the reasons (exit code {summary['exit_code']})")
+    elif summary["status"] != "complete":
+        print(f"{summary['status']}: exit code {summary['exit_code']}")
 
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
@@ -149,8 +168,11 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     except KeyboardInterrupt:
         if running:
             print(f"fwl watch: interrupted while processing {', '.join(Path(p).name for p in running[0])}; "
-                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr)
-            return EXIT_INTERRUPTED
+                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr, flush=True)
+            sys.stdout.flush()
+            # now: Python ends by SIGINT (-2, not 130) once a KeyboardInterrupt crossed one of Beam's compiled
+            # frames, even caught, and would wait for Beam's threads; the run removed its partial files already
+            os._exit(EXIT_INTERRUPTED)
         print("fwl watch: stopped", flush=True)
     finally:
         signal.signal(signal.SIGINT, previous[0])
@@ -167,6 +189,7 @@ def _compare(args: argparse.Namespace) -> int:
     if Model.AUTO in models:  # a comparison names what it compares; auto is a choice between two of them
         raise ValueError("fwl compare --model takes system, generalized, gaussian (auto chooses between the first two)")
     pulses = [int(p) for p in args.pulses.split(",")] if args.pulses else None
+    claim_command_folder("fwl compare", Path(args.output), args.overwrite)
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")
     summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
@@ -178,6 +201,7 @@ def _compare(args: argparse.Namespace) -> int:
         fast = summary["fast"]
         print(f"fastest within 5% of MDE's fit error {summary['paper_fit_error']:.1f}: {fast['family']} "
               f"{fast['setting']} ({fast['fit_error']:.1f}, {fast['waveforms_per_second']:.1f} waveforms/s)")
+    record_command_folder("fwl compare", Path(args.output), summary["written"])
     print(f"wrote {', '.join(summary['written'])} in {args.output}")
     return 0
 
@@ -185,8 +209,13 @@ def _compare(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from fwcore.instrument import SHIPPED_SPACING_PS, named_response
     from fwcore.simulate import SceneConfig, SensorConfig
-    from fwcore.studies.truth import write_flight
+    from fwcore.studies.truth import calibration_path, trajectory_path, truth_path, write_flight
 
+    output = check_suffix("fwl simulate", args.output, (".las", ".laz"), "a LAS file (its truth beside it)")
+    # the flight's files are ours as a whole when its truth is: the one that carries fwl's mark
+    claim_files("fwl simulate", [output, truth_path(output), trajectory_path(output), calibration_path(output)]
+                + ([output.with_suffix(".wdp")] if args.format != "las14-internal" else []),
+                lambda _: parquet_is_ours(truth_path(output)), args.overwrite)
     response = named_response(args.system_response, args.pulse_fwhm_ps) if args.system_response else None
     if response is not None:  # the instrument's own pulse width and, unless given, its digitizer's spacing
         args.pulse_fwhm_ps = response.fwhm_ps
@@ -218,13 +247,17 @@ def _evaluate(args: argparse.Namespace) -> int:
     from pipeline.outputs import read_run
     for folder in args.results:  # an interrupted run's tables would read as a poor method
         read_run(folder)
+    if args.output:
+        output = check_suffix("fwl evaluate", args.output, (".md", ".csv"), "a table (Markdown or CSV)")
+        first = "Echoes matched within" if output.suffix.lower() == ".md" else EVALUATION_COLUMNS[0][0] + ","
+        claim_files("fwl evaluate", [output], lambda p: first_line_is(p, first), args.overwrite)
+    _check_shares_pulses(args.results, args.truth)
     rows = evaluate_runs(args.results, args.truth, args.match_ps)
     table = markdown_table(rows, EVALUATION_COLUMNS)
     print(table, end="")
     if args.output:
-        output = Path(args.output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        if output.suffix == ".csv":
+        if output.suffix.lower() == ".csv":
             write_csv(output, rows)
         else:
             output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
@@ -239,6 +272,21 @@ def _compact(args: argparse.Namespace) -> int:
     done = compact_run(args.run_dir, say=print, **sizes)
     print(f"fwl compact: {args.run_dir}: echoes/ holds {done['tiles']} tiles, {done['echoes']:,} echoes")
     return 0
+
+
+def _check_shares_pulses(results: list[str], truth: str) -> None:
+    """A run and a truth of different flights share no pulse: their table would read as a method that found
+    nothing (0.000 and nan). Refused, naming both."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+    import pyarrow.parquet as pq
+
+    true_pulses = pq.read_table(truth, columns=["pulse_id"]).column("pulse_id").combine_chunks().unique()
+    for folder in results:
+        pulses = ds.dataset(str(Path(folder) / "pulses"), format="parquet").to_table(columns=["pulse_id"])
+        if not pc.any(pc.is_in(pulses.column("pulse_id"), value_set=true_pulses)).as_py():
+            raise ValueError(f"fwl evaluate: {folder} shares no pulse with {truth} ({pulses.num_rows} pulses "
+                             f"decomposed, {len(true_pulses)} in the truth): the truth of another flight?")
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -326,10 +374,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outgoing", help="CSV of outgoing pulses (same layout): measures the system pulse FWHM")
     p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the output files even if not written by an earlier fwl decompose-csv "
+                        "(refused otherwise)")
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
-    r = sub.add_parser("run", help="decompose full-waveform LAS/LAZ files with the Beam pipeline", allow_abbrev=False,
+    said = "decompose full-waveform LAS/LAZ and PulseWaves files with the Beam pipeline"
+    r = sub.add_parser("run", help=said, description=said[0].upper() + said[1:] + ".", allow_abbrev=False,
                        epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
                               "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
                               "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
@@ -356,8 +408,9 @@ def build_parser() -> argparse.ArgumentParser:
     FwlOptions._add_argparse_args(w)
     w.set_defaults(handler=_watch)
 
-    c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ file or a NEON CSV: tables and figures")
-    c.add_argument("input", help="full-waveform LAS/LAZ file, or a NEON-layout CSV")
+    c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ or PulseWaves file or a NEON CSV: tables "
+                                       "and figures")
+    c.add_argument("input", help="full-waveform LAS/LAZ or PulseWaves (.pls) file, or a NEON-layout CSV")
     c.add_argument("--optimizers", default=",".join(o.value for o in Optimizer),
                    help="comma-separated (default: all)")
     c.add_argument("--model", dest="models", default="generalized",
@@ -369,6 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--threads", type=int, default=1, help="numba threads (default 1: per-core speeds)")
     c.add_argument("--outgoing", help="CSV input: outgoing pulses CSV that measures the system pulse FWHM")
     c.add_argument("--output", required=True, help="output directory")
+    c.add_argument("--overwrite", action="store_true",
+                   help="replace files in --output even if not written by an earlier fwl compare (refused otherwise)")
     _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)
 
@@ -378,6 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--format", default="las13-wdp", choices=["las13-wdp", "las14-internal"])
     s.add_argument("--bits", type=int, choices=[8, 16], help="digitizer bits (default 8; 16 with --radiometry)")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace the output files even if not written by an earlier fwl simulate (refused otherwise)")
     sensor = s.add_argument_group("sensor")
     sensor.add_argument("--pulse-fwhm-ps", dest="pulse_fwhm_ps", type=float, default=4000.0)
     sensor.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float,
@@ -419,6 +476,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--match-ps", dest="match_ps", type=float, default=1000.0,
                    help="a true and a decomposed echo match within this time (default 1000 ps)")
     e.add_argument("--output", help="write the table (.md, or .csv)")
+    e.add_argument("--overwrite", action="store_true",
+                   help="replace --output even if not written by an earlier fwl evaluate (refused otherwise)")
     e.set_defaults(handler=_evaluate)
 
     k = sub.add_parser("compact", help="rewrite a finished run's echo parts as spatial tiles (GeoParquet in Hilbert "

@@ -72,18 +72,30 @@ def match_inputs(inputs: list[str]) -> MatchedInputs:
             found = []
             for m in sorted(matched):
                 if Path(m).is_dir():
-                    inside = [str(p) for p in Path(m).iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES]
+                    named = sorted(p for p in Path(m).iterdir() if p.suffix.lower() in INPUT_SUFFIXES)
+                    inside = [str(p) for p in named if p.is_file()]
                     if not inside:
                         not_taken.append((m, "a folder that holds no .las, .laz or .pls file"))
+                    not_taken += [(str(p), _not_a_file(p)) for p in named if not p.is_file()]
                     found += inside
                 elif Path(m).is_file():
                     found.append(m)
+                else:  # a link to a file that is gone, a socket: matched, yet nothing to read
+                    not_taken.append((m, _not_a_file(Path(m))))
             if not found and not matched:
                 raise FileNotFoundError(f"{item}: no file matches this input")
         paths.extend(p if "://" in p else str(Path(p).resolve()) for p in found)
     if not paths:
         raise FileNotFoundError("; ".join(f"{m}: {why}" for m, why in not_taken) or "no input file")
     return MatchedInputs(sorted(set(paths)), not_taken)
+
+
+def _not_a_file(path: Path) -> str:
+    if path.is_dir():
+        return "a folder (folders inside a folder given are not searched)"
+    if path.is_symlink():
+        return f"a link to {os.readlink(path)}, which does not exist"
+    return "not a regular file"
 
 
 def expand_inputs(inputs: list[str]) -> list[str]:
@@ -461,3 +473,93 @@ def read_run(folder: str | Path) -> dict:
         return json.loads(path.read_text())
     except ValueError as err:
         raise IncompleteRunError(f"{path}: unreadable ({err})") from None
+
+
+# ---------------------------------------------------------------- every command's outputs
+
+# One rule for every command that writes: it writes over nothing that is not its own earlier output (exit 2,
+# nothing touched), unless the user says --overwrite; and an output named with a suffix is written in the
+# format that suffix names. Ours is what carries fwl's mark: a run's folder its manifest (above), a folder of
+# another command the same manifest naming that command, a Parquet file fwl's metadata, and the files written
+# beside a first one (a simulated flight's) that first one's mark.
+
+OVERWRITE_HINT = "choose another --output, or give --overwrite to replace it"
+
+
+def check_suffix(command: str, path: str | Path, suffixes: tuple[str, ...], what: str) -> Path:
+    """`path` if its suffix is one of `suffixes` (what the command writes there), else OutputFolderError."""
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise OutputFolderError(f"{command}: --output {path}: writes {what}, so its name ends "
+                                f"{' or '.join(suffixes)}, not {path.suffix or 'without a suffix'}")
+    return path
+
+
+def parquet_is_ours(path: Path) -> bool:
+    """A Parquet file fwl wrote: its schema metadata carries an fwlidar.* key."""
+    import pyarrow.parquet as pq
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except Exception:  # not Parquet, or damaged: not ours to replace
+        return False
+    return any(k.startswith(b"fwlidar.") for k in metadata)
+
+
+def first_line_is(path: Path, first: str) -> bool:
+    """A text file whose first line starts with what fwl writes there."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.readline().startswith(first)
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def claim_files(command: str, files: list[Path], ours, overwrite: bool) -> None:
+    """Refuse (OutputFolderError, before anything is written) to write the files `files` if any of them exists and
+    is not `command`'s earlier output (`ours(path)`), unless `overwrite`; a folder in a file's place always."""
+    there = [f for f in files if f.exists() or f.is_symlink()]
+    folders = [f for f in there if f.is_dir()]
+    if folders:
+        raise OutputFolderError(f"{command}: {folders[0]} is a folder, where a file would be written; "
+                                f"choose another --output")
+    foreign = [f for f in there if not overwrite and (f.is_symlink() or not ours(f))]
+    if foreign:
+        raise OutputFolderError(f"{command}: {', '.join(map(str, foreign))}: exists and is not an earlier output "
+                                f"of {command}; {OVERWRITE_HINT}")
+
+
+def claim_command_folder(command: str, folder: Path, overwrite: bool) -> None:
+    """A folder `command` writes several files into: new, empty, or holding only its earlier output (a manifest
+    naming the command, and the files it lists), unless `overwrite` (which replaces same-named files only)."""
+    if not folder.exists():
+        return
+    if not folder.is_dir():
+        raise OutputFolderError(f"{command}: {folder}: exists and is not a folder; choose another --output")
+    files = [str(f) for f in _files_under(folder)]
+    if not files or overwrite:
+        return
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        listed, by = set(manifest["files"]), manifest["written_by"]
+    except (OSError, ValueError, KeyError, TypeError):
+        listed, by = set(), None
+    foreign = [f for f in files if by != command or (f != MANIFEST and f not in listed)]
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
+        raise OutputFolderError(f"{command}: {folder}: holds files that {command} did not write: {shown}; "
+                                f"{OVERWRITE_HINT}")
+
+
+def record_command_folder(command: str, folder: Path, files: list[str]) -> None:
+    """The manifest of a folder `command` wrote: which files are its own (claim_command_folder reads it)."""
+    earlier: list[str] = []
+    if (folder / MANIFEST).is_file():
+        try:
+            manifest = json.loads((folder / MANIFEST).read_text())
+        except ValueError:
+            manifest = {}
+        if manifest.get("written_by", command) != command:  # another command's (--overwrite): its mark stays
+            return
+        earlier = manifest.get("files", [])
+    kept = sorted(f for f in set(earlier) | set(files) if (folder / f).is_file())
+    _write_atomically(folder / MANIFEST, json.dumps({"written_by": command, "files": kept}, indent=2) + "\n")

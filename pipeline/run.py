@@ -110,6 +110,20 @@ def write_empty_rejected(output: Path, stems: list[str]) -> None:
             write_part(empty_rejected_table(), output / "rejected", stem)
 
 
+def whole_file_reasons(output: Path, entries: list[dict], per_input: dict[str, dict]) -> dict[str, str]:
+    """Per input rejected whole, the first reason its rejected/ rows give (stage open), for run.json and the
+    terminal."""
+    reasons = {}
+    for e in entries:
+        if per_input[e["name"]]["files_rejected"]:
+            rows = pq.read_table(output / "rejected" / f"{e['stem']}.parquet", columns=["stage", "reason"])
+            said = [r for s, r in zip(rows.column("stage").to_pylist(), rows.column("reason").to_pylist())
+                    if s == "open"]
+            if said:
+                reasons[e["name"]] = said[0]
+    return reasons
+
+
 def _metric_counts(result) -> dict[str, int]:
     """Beam's counters summed over the steps that increment them (several stages reject pulses)."""
     try:
@@ -160,6 +174,10 @@ def _quiet_after_interrupt():
     previous = signal.signal(signal.SIGINT, interrupted)
     try:
         yield
+    except Exception as err:
+        if INTERRUPTED.is_set():  # Beam wraps an interruption inside a step as its own error: still one
+            raise KeyboardInterrupt from err
+        raise
     finally:
         signal.signal(signal.SIGINT, previous)
 
@@ -390,7 +408,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     began = time.perf_counter()
     done = {e["path"] for e in read_manifest(output)["inputs"] if e.get("done")}
     if taken == "resumed" and done >= set(paths):  # killed after its last job, while counting: nothing to redo
-        jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={})
+        jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={}, pulses_processed=0)
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
                         radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []))
@@ -408,6 +426,7 @@ class JobsDone:
     metrics: dict[str, int]
     planned: dict[str, dict]  # input path -> what its plan measured (_planned), and its radiometry
     calibration: dict | None = None  # C_cal found on a reference patch, how many returns, their spread
+    pulses_processed: int | None = None  # the pulses of the ranges this call ran (not those reused): its rate
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
@@ -464,7 +483,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     # the calibration each input's ranges used, kept in the manifest for a run.json written later
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
-                     for path, plan in plans.items()}, calibration)
+                     for path, plan in plans.items()}, calibration, total)
 
 
 def crs_line(plans: dict[str, FilePlan]) -> str | None:
@@ -540,13 +559,17 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
                                          calibration_source=calibration["source"])
     counts, per_input = count_outputs(output, [e["name"] for e in entries])
+    processed = counts["pulses_read"] if jobs.pulses_processed is None else jobs.pulses_processed
     # a match given as an input that holds none makes the run partial; the counts stay the files'
     status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
+    reasons = whole_file_reasons(output, entries, per_input)
     summary = {
         "status": status,
         "exit_code": EXIT_CODES[status],
         "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
-                    "counts": per_input[e["name"]], **e.get("planned", {})} for e in entries],
+                    "counts": per_input[e["name"]],
+                    **({"rejected_because": reasons[e["name"]]} if e["name"] in reasons else {}),
+                    **e.get("planned", {})} for e in entries],
         "not_inputs": [{"path": match, "reason": why} for match, why in not_taken],
         "output": str(output),
         "formats": sorted(formats),
@@ -565,7 +588,9 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "counts": counts,
         "metrics": jobs.metrics,
         "seconds": round(seconds, 3),
-        "pulses_per_second": round(counts["pulses_read"] / seconds, 2) if seconds > 0 else None,
+        # the pulses this call processed: not a resumed run's reused ranges, nor a watched folder's earlier inputs
+        "pulses_processed": processed,
+        "pulses_per_second": round(processed / seconds, 2) if seconds > 0 else None,
         "files": list_outputs(output),
     }
     write_run_json(output, summary)

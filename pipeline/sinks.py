@@ -101,9 +101,13 @@ def assemble_las(parts: list[Path], path: Path, laz: bool = False) -> Path:
         for struct in writer.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs if extra else ():
             name = struct.name.rstrip(b"\0").decode()
             if name in low and struct.min_is_relevant() and struct.max_is_relevant():
-                found = np.isfinite(low[name])  # NaN for a column without a value (radiometry unavailable)
-                struct._raw_min()[:] = low[name] if found else np.nan
-                struct._raw_max()[:] = high[name] if found else np.nan
+                if np.isfinite(low[name]):
+                    struct._raw_min()[:] = low[name]
+                    struct._raw_max()[:] = high[name]
+                elif struct._long_type() == np.float64:  # a column without a value (radiometry unavailable)
+                    struct._raw_min()[:] = struct._raw_max()[:] = np.nan
+                else:  # an integer column without a value (a file whose points were all rejected): no min/max
+                    struct.options &= ~(struct.MIN_BIT_MASK | struct.MAX_BIT_MASK)
     tmp.replace(path)
     return path
 

@@ -41,7 +41,8 @@ PACKET_SUFFIXES = {".wdp": "a LAS waveform packet file (.wdp: the samples of the
 
 
 def file_kind(path: str | Path) -> str:
-    """What a file is, in words ("a LAS/LAZ file", "a NEON-layout waveform CSV", ...; "an unknown kind of file")."""
+    """What a file is, in words ("a LAS/LAZ file", "a NEON-layout waveform CSV", ...; a binary file of another
+    format: FOREIGN_BINARY)."""
     path = Path(path)
     if path.suffix.lower() in PACKET_SUFFIXES:
         return PACKET_SUFFIXES[path.suffix.lower()]
@@ -56,13 +57,24 @@ def file_kind(path: str | Path) -> str:
             return kind
     if not head:
         return "an empty file"
+    if head[2:11] == b"LASF_Spec":  # a .wdp's: the header of the record that holds its packets
+        return PACKET_SUFFIXES[".wdp"]
+    return ("a text file" + (" (CSV)" if b"," in head else "")) if _is_text(head) else FOREIGN_BINARY
+
+
+FOREIGN_BINARY = "a binary file of no format fwl reads"
+_CONTROL = bytes(set(range(32)) - {9, 10, 12, 13})  # bytes no text holds (tab, newlines, form feed do)
+
+
+def _is_text(head: bytes) -> bool:
+    """UTF-8 without control bytes; a character cut at the end of `head` is still text."""
+    if any(b in _CONTROL for b in head):
+        return False
     try:
-        if b"\0" in head:  # binary: a damaged header of some format, not text
-            return "an unknown kind of file"
-        head.decode("utf-8", errors="ignore")  # a character cut at byte 64 is still text
-        return "a text file" + (" (CSV)" if b"," in head else "")
-    except UnicodeDecodeError:
-        return "an unknown kind of file"
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        return err.reason == "unexpected end of data" and err.start >= len(head) - 3
+    return True
 
 
 def wrong_kind(path: str | Path, wanted: str) -> str:

@@ -97,10 +97,12 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
         with laspy.open(path) as reader:
             header = reader.header
     except Exception as err:  # laspy raises several types for a damaged header
-        from fwcore.io.formats import file_kind, wrong_kind
-        if file_kind(path) not in ("a LAS/LAZ file", "an unknown kind of file"):  # a known other kind: say which
+        from fwcore.io.formats import FOREIGN_BINARY, file_kind, wrong_kind
+        kind = file_kind(path)
+        if kind not in ("a LAS/LAZ file", FOREIGN_BINARY):  # a known other kind (text, CSV, packets): say which
             raise WaveformFileError(wrong_kind(path, "a LAS/LAZ or PulseWaves file")) from None
-        raise WaveformFileError(f"{path}: not a readable LAS/LAZ file ({err})") from None
+        said = f": {kind}" if kind == FOREIGN_BINARY else ""  # random bytes, or a LAS whose signature is damaged
+        raise WaveformFileError(f"{path}: not a readable LAS/LAZ file{said} ({err})") from None
     fmt = header.point_format.id
     if fmt not in WAVEFORM_POINT_FORMATS:
         raise WaveformFileError(f"{path}: point format {fmt} has no waveform packets "

@@ -114,17 +114,26 @@ def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_p
                              "fwl decompose-csv"),
     (["info", "{wvs}"], "riegl_example3.wvs", "is a PulseWaves waves file (.wvs: the samples of the .pls beside it)"),
     (["info", "{wdp}"], "leica_a.wdp", "is a LAS waveform packet file (.wdp: the samples of the .las beside it)"),
+    (["run", "{noise}", "--output", "{out}", "--direct_num_workers=1", "--direct_running_mode=in_memory"],
+     "noise.las", ": not a readable LAS/LAZ file: a binary file of no format fwl reads"),
+    (["info", "{noise}"], "noise.las", ": not a readable LAS/LAZ file: a binary file of no format fwl reads"),
 ])
 def test_a_file_of_the_wrong_kind_is_named_with_what_it_is(command, given, said, leica_dir, neon_dir, pulsewaves_dir,
                                                           tmp_path, capfd):
     files = {"leica": leica_dir / "leica_a.las", "neon": neon_dir / "return_waveforms.csv",
              "wdp": leica_dir / "leica_a.wdp", "wvs": pulsewaves_dir / "riegl_example3.wvs",
-             "out": tmp_path / "out"}
+             "out": tmp_path / "out", "noise": tmp_path / "noise.las"}
+    # random bytes without a zero byte: named "a text file (CSV)" before
+    files["noise"].write_bytes(np.random.default_rng(5).integers(1, 256, 5000, dtype=np.uint8).tobytes())
     code = main([part.format(**files) for part in command])
-    if command[0] == "run":  # the file is rejected with its reason, the run says so
+    if command[0] == "run":  # the file is rejected with its reason, the run says so, on the terminal too
         assert code == 4
         rejected = pq.read_table(tmp_path / "out" / "rejected").to_pylist()
         assert len(rejected) == 1 and said in rejected[0]["reason"] and given in rejected[0]["reason"]
+        out = capfd.readouterr().out
+        assert f"rejected: {rejected[0]['reason']}" in out and "see " not in out
+        assert json.loads((tmp_path / "out" / "run.json").read_text())["inputs"][0]["rejected_because"] == \
+            rejected[0]["reason"]
         return
     assert code == 2
     err = capfd.readouterr().err
@@ -148,6 +157,7 @@ def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(lei
     assert summary["counts"]["files_rejected"] == 0 and summary["counts"]["pulses_decomposed"] == 20
     said = capfd.readouterr()
     assert "dir.las: a folder that holds no .las, .laz or .pls file" in said.err + said.out
+    assert "rejected/" not in said.out  # nothing there to see: the summary says what happened
 
 
 def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_path, small_csv, neon_dir, capsys):

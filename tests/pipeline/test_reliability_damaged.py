@@ -1,10 +1,14 @@
 """Damaged inputs (tests/damaged.py) in one folder and alone: the run finishes, nothing is lost or invented.
 
-The decomposition method does not matter here, so the runs use `--optimizer none` (initial estimates
-only); the folder run uses the DirectRunner's 2 worker processes, the runs alone the in-memory runner.
+The folder is run as a user runs a survey's folder, `fwl run "in/*.las" "in/*.laz"`: the patterns also match
+a folder named dir.las and a link to a file that is gone, which the run names. The decomposition method does
+not matter here, so the runs use `--optimizer none` (initial estimates only); the folder run uses the
+DirectRunner's 2 worker processes, the runs alone the in-memory runner. The same over three draws of every
+random damage (64 matches): bench/damaged_inputs.py.
 """
 
 import json
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -15,16 +19,21 @@ import pytest
 from pipeline.cli import main
 from pipeline.outputs import read_run
 from pipeline.run import EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL
-from tests.damaged import SAMPLE_PULSES, write_variants
+from tests.damaged import NOT_INPUTS, SAMPLE_PULSES, write_variants
 
 METHOD = ["--optimizer", "none", "--points-per-range", "400"]
 FOLDER_RUNNER = ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]
 ALONE_RUNNER = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
 # rejected whole, each with a reason naming the file
 FILE_REJECTED = {"cut_header", "cut_vlrs", "empty", "foreign_text", "foreign_binary", "missing_wdp", "empty_wdp",
-                 "x_scale_zero", "cut_laz"}
-# damage that may leave a readable file: random bytes of text fields or mantissas, samples, a count too low
-MAY_BE_HARMLESS = {"good", "flip_header", "flip_descriptor", "flip_packets", "low_count"}
+                 "x_scale_zero", "cut_laz", "foreign_csv", "foreign_wdp", "empty_laz"}
+# damage that may leave a readable file: random bytes of text fields or mantissas, samples, a count too low,
+# packets of 1 or 3 samples (what the descriptor says: pulses without an echo)
+MAY_BE_HARMLESS = {"good", "flip_header", "flip_descriptor", "flip_packets", "low_count", "flip_vlrs", "samples_1",
+                   "samples_3"}
+# the descriptor says what no packet can be: every pulse rejected
+DESCRIPTOR_REJECTED = {"samples_0", "samples_257", "spacing_0", "spacing_negative", "inf_gain", "nan_gain", "bits_0",
+                       "bits_12", "bits_136"}
 ALONE = ["good", "cut_points", "flip_points", "x_t_not_finite", "empty_wdp"]
 
 
@@ -48,7 +57,8 @@ def damaged(tmp_path_factory, leica_dir):
     variants = write_variants(leica_dir, root / "in", seed=12)
     before = snapshot(root / "in")
     out = root / "out"
-    code = main(["run", str(root / "in"), "--output", str(out)] + METHOD + FOLDER_RUNNER)
+    code = main(["run", str(root / "in" / "*.las"), str(root / "in" / "*.laz"), "--output", str(out)]
+                + METHOD + FOLDER_RUNNER)
     return root, variants, out, code, before
 
 
@@ -59,6 +69,27 @@ def test_the_run_finishes_with_the_partial_code_and_leaves_the_inputs_alone(dama
     assert summary["status"] == "partial"
     assert sorted(i["name"] for i in summary["inputs"]) == sorted(v.file_name for v in variants)
     assert snapshot(root / "in") == before
+    # what the patterns match and is no file to read: named, with why
+    assert {Path(n["path"]).name: n["reason"] for n in summary["not_inputs"]} == {
+        "dir.las": "a folder that holds no .las, .laz or .pls file",
+        "missing.las": f"a link to {root / 'in' / 'gone.las'}, which does not exist"}
+    assert set(NOT_INPUTS) == {Path(n["path"]).name for n in summary["not_inputs"]}
+
+
+def test_the_intact_file_is_decomposed_whole_and_every_input_is_accounted_for(damaged):
+    _, variants, out, _, _ = damaged
+    summary = read_run(out)
+    per_input = {i["name"]: i for i in summary["inputs"]}
+    good = per_input["good.las"]["counts"]
+    assert good["pulses_decomposed"] == good["pulses_read"] == SAMPLE_PULSES
+    rejected = set(rows(out, "rejected").source_file)
+    decomposed = set(rows(out, "pulses").source_file)
+    for v in variants:  # in pulses/ or rejected/, and a file rejected whole with its reason in run.json
+        assert v.file_name in rejected | decomposed, v
+        if v.name in FILE_REJECTED:
+            assert v.file_name in per_input[v.file_name]["rejected_because"], v
+        if v.name in DESCRIPTOR_REJECTED:
+            assert per_input[v.file_name]["counts"]["pulses_rejected"] == SAMPLE_PULSES, v
 
 
 def test_every_pulse_is_decomposed_or_rejected_and_the_counts_match_the_metrics(damaged):
@@ -90,7 +121,8 @@ def test_rejections_name_the_file_and_the_problem(damaged):
     rejected = rows(out, "rejected")
     assert rejected.reason.str.len().min() > 10
     files = rejected[rejected.stage == "open"]
-    assert {f"{n}.las" for n in FILE_REJECTED - {"cut_laz"}} | {"cut_laz.laz"} <= set(files.source_file)
+    assert {f"{n}.las" for n in FILE_REJECTED - {"cut_laz", "empty_laz"}} | {"cut_laz.laz", "empty_laz.laz"} \
+        <= set(files.source_file)
     for _, row in files.iterrows():
         assert row.source_file in row.reason
     by_file = rejected.groupby("source_file").reason.apply(" | ".join)

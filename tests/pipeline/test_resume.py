@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 
 from pipeline.cli import main
 from pipeline.outputs import MANIFEST, differences, input_identity, is_complete, read_run
@@ -58,6 +59,9 @@ def test_a_killed_run_resumes_to_the_uninterrupted_runs_outputs(tmp_path, leica_
     assert resumed["ranges_reused"] == len(plan.ranges) - len(unmarked) == len(marked)
     assert resumed["counts"] == read_run(clean)["counts"]
     assert resumed["counts"]["pulses_read"] == 924
+    # its rate counts the pulses of the ranges it ran, not those it reused
+    assert 0 < resumed["pulses_processed"] < 924 == read_run(clean)["pulses_processed"]
+    assert resumed["pulses_per_second"] == pytest.approx(resumed["pulses_processed"] / resumed["seconds"], rel=1e-3)
     # the same rows in the same part files, and the same point cloud, byte for byte
     assert outputs(killed) == outputs(clean)
     assert not (killed / "parts").exists()

@@ -134,3 +134,21 @@ def test_the_progress_bar_counts_the_marks_ranges_leave(tmp_path):
     assert (bar.done, bar.rejected) == (500, 2)
     line = bar.line()
     assert "500/1,000 pulses  50%" in line and "rejected 2" in line and "ETA" in line
+
+
+def test_a_file_whose_parts_hold_no_point_is_assembled_with_no_min_or_max(tmp_path, leica_dir):
+    """Every pulse of a file rejected: its parts are point clouds without points, and each Extra Bytes column,
+    float or integer, has no value to bound (an integer one cannot say NaN: its min/max are marked irrelevant)."""
+    from fwcore.io.writer import write_point_cloud
+    from pipeline.sinks import assemble_las
+
+    empty = {k: np.zeros(0) for k in ("x", "y", "z", "gps_time", "return_number", "number_of_returns", "intensity",
+                                      "scan_angle", "scan_direction_flag", "edge_of_flight_line", "point_source_id",
+                                      "user_data")}
+    parts = [write_point_cloud(tmp_path / f"part{i}.las", leica_dir / "leica_a.las", empty) for i in range(2)]
+    path = assemble_las(parts, tmp_path / "file.las")
+    las = laspy.read(path)
+    assert len(las.points) == 0
+    structs = {s.format_name(): s for s in las.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs}
+    assert structs["radiometry"].min is None and structs["radiometry"].max is None
+    assert np.isnan(structs["amplitude"].min).all() and np.isnan(structs["amplitude"].max).all()

@@ -1,11 +1,14 @@
 """`fwl watch`: each flight line processed once it is complete, once, also across restarts; a replaced one again."""
 
 import json
+import os
 import shutil
 import signal
 import subprocess
 import sys
 import time
+
+import pytest
 
 from pipeline.cli import main
 from pipeline.outputs import input_identity, read_run
@@ -103,7 +106,8 @@ def test_watch_processes_a_file_once_complete_once_across_restarts_and_again_whe
     assert (out / "las" / "leica_a.las").stat().st_mtime_ns == first
 
     # a re-delivered flight line under the same name replaces the outputs of the first
-    assert main(["simulate", "--pulses", "60", "--seed", "3", "--output", str(land / "leica_a.las")]) == 0
+    assert main(["simulate", "--pulses", "60", "--seed", "3", "--output", str(land / "leica_a.las"),
+                 "--overwrite"]) == 0  # over the Leica file: fwl simulate writes over no file of another unless told
     (land / "leica_a.truth.parquet").unlink()
     (land / "second.las").write_bytes(b"LASF" + bytes(300))  # damaged: rejected with its reason, not retried
     replaced = fwl_watch(land, out, "--once")
@@ -145,3 +149,49 @@ def test_a_replaced_inputs_outputs_go_and_no_other_inputs(tmp_path):
     assert sorted(p.relative_to(tmp_path).as_posix() for p in gone) == sorted(files[:7])
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == \
         sorted(files[7:])
+
+
+# ---------------------------------------------------------------- Ctrl-C
+
+# when the terminal's Ctrl-C comes: as the batch claims the folder (plan job), after its first range (the ranges'
+# job), once its 11 ranges are done (the files' job), and while idle after it
+CTRL_C_AT = {"claimed": lambda out: (out / "fwl-output.json").is_file(),
+             "first range": lambda out: any((out / "parts").glob("*.json")) if (out / "parts").is_dir() else False,
+             "ranges done": lambda out: len(list((out / "parts").glob("*.json"))) >= 11
+             if (out / "parts").is_dir() else False,
+             "idle": lambda out: (out / "run.json").is_file()}
+
+
+IN_PROCESS, POOL = ["--direct_num_workers=1", "--direct_running_mode=in_memory"], []
+
+
+# in process, a range's step is interrupted in this process's main thread, where Beam wraps the KeyboardInterrupt
+# in a RuntimeError: the watch took it for a failed batch and went on (every time, at "first range")
+@pytest.mark.parametrize("at, runner", [("claimed", IN_PROCESS), ("first range", IN_PROCESS), ("first range", POOL),
+                                        ("ranges done", POOL), ("idle", IN_PROCESS)])
+def test_ctrl_c_stops_the_watch_within_seconds_at_any_moment(tmp_path, leica_dir, at, runner):
+    land, out = tmp_path / "land", tmp_path / "out"
+    land.mkdir()
+    for suffix in (".las", ".wdp"):
+        shutil.copy(leica_dir / f"leica_a{suffix}", land / f"leica_a{suffix}")
+    watcher = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "watch", str(land), "--output", str(out),
+                                "--poll", "0.2", "--preset", "fast", "--formats", "parquet,las",
+                                "--points-per-range", "100", *runner], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True)
+    try:
+        wait_for(lambda: CTRL_C_AT[at](out) or watcher.poll() is not None, seconds=120)
+        os.killpg(watcher.pid, signal.SIGINT)  # to the process group, as a terminal sends it
+        sent = time.monotonic()
+        stdout, stderr = watcher.communicate(timeout=30)
+        seconds = time.monotonic() - sent
+    finally:
+        if watcher.poll() is None:
+            os.killpg(watcher.pid, signal.SIGKILL)
+    assert seconds < 10, seconds
+    assert "did not finish" not in stdout and "Traceback" not in stderr, stderr
+    finished = (out / "run.json").is_file()  # the batch may end before the signal lands
+    assert watcher.returncode == (0 if finished else 130), (at, stdout, stderr)
+    if at in ("claimed", "idle"):  # the batch had seconds to go, or none
+        assert finished == (at == "idle")
+    said = "fwl watch: stopped" in stdout if finished else "interrupted while processing leica_a.las" in stderr
+    assert said, (stdout, stderr)

@@ -67,7 +67,7 @@ def test_decomposed_point_cloud(tmp_path, leica, leica_dir, leica_result):
     assert "sigma" not in las.point_format.extra_dimension_names
     # FWHM in ps: 2 ns sampling
     np.testing.assert_allclose(np.asarray(las.echo_width), result.fwhm[result.reject == 0] * 2000.0, rtol=1e-6)
-    np.testing.assert_array_equal(np.asarray(las.classification), 1)  # the Leica points' class, kept
+    np.testing.assert_array_equal(np.asarray(las.classification), 1)  # unclassified: what the echoes are
     assert las.header.system_identifier.rstrip("\0") == "ALSXX"
     np.testing.assert_allclose(las.x, echoes["x"], atol=5e-4)
     np.testing.assert_allclose(np.asarray(las.amplitude), echoes["amplitude"], rtol=1e-6)
@@ -133,3 +133,15 @@ def test_a_later_batch_with_a_new_descriptor_is_refused_and_the_partial_file_rem
             writer.write(first, 8)
             writer.write(second, 16)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_every_echo_is_unclassified_whatever_its_pulses_points_were(leica, leica_result):
+    """One rule for every sensor (RIEGL and simulated points carry 0, Leica's 1, a classified file 2 or 5):
+    LAS class 1, unclassified, for the echoes the decomposition made."""
+    import dataclasses
+
+    for given in (None, 0, 2):
+        classes = None if given is None else np.full(len(leica.classification), given, np.uint8)
+        echoes = decomposed_echoes(dataclasses.replace(leica, classification=classes), leica_result)
+        assert echoes["classification"].size == (leica_result.reject == 0).sum()
+        np.testing.assert_array_equal(echoes["classification"], 1)

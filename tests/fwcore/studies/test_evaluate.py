@@ -146,3 +146,14 @@ def test_evaluate_reports_resolvable_rows(high_snr_run):
     assert scored.recall > 0.95 and 0.9 < scored.precision <= 1.0
     bins = [r for r in rows if r["split"].endswith("apart, SNR >= 5") and r is not resolvable]
     assert [r["true_echoes"] for r in bins] == [b.true_echoes for b in scored.by_separation]
+
+
+def test_evaluate_refuses_the_truth_of_another_flight(high_snr_run, tmp_path, capsys):
+    """A truth that shares no pulse with the run would give a table of 0 and nan: refused, exit 2, nothing written."""
+    other = tmp_path / "other.las"
+    assert main(["simulate", "--pulses", "50", "--seed", "5", "--output", str(other), *HIGH_SNR]) == 0
+    capsys.readouterr()
+    out = tmp_path / "evaluation.md"
+    assert main(["evaluate", str(high_snr_run / "run"), "--truth", str(tmp_path / "other.truth.parquet"),
+                 "--output", str(out)]) == 2
+    assert "shares no pulse with" in capsys.readouterr().err and not out.exists()
