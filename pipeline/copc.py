@@ -6,12 +6,14 @@ file (chunks, hierarchy, info record); this module decides which node holds whic
 PDAL's untwine does: a node keeps the first point of each of its GRID^3 cells and hands the others to its
 eight children; a node with at most LEAF_POINTS points keeps them all.
 
-Bounded memory, in three passes over the parts (the same points, records and header as las/<stem>.las):
+Bounded memory, in passes over the parts (the same points, records and header as las/<stem>.las) and over
+files spilled under parts/:
 
     1. points per voxel of a fine grid -> the depth whose voxels ("buckets") hold at most BUCKET_POINTS
-    2. the levels above the buckets sampled as the points stream by (only their cells' occupancy is kept),
-       the other points spilled to one file per bucket under parts/
-    3. each bucket loaded alone and split into its nodes
+    2. every point appended to its bucket's file
+    3. each bucket alone: its share of the nodes above it sampled (a cell of those nodes lies in one bucket)
+       and appended to their files; the rest split into the bucket's nodes and written
+    4. the nodes above the buckets, one at a time
 
 The points reach the nodes in the order of the parts, so the file does not depend on how they were split
 into ranges.
@@ -28,13 +30,15 @@ from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
-from pipeline.sinks import LAS_CHUNK_POINTS, ExtraBytesRanges, _atomic
+from pipeline.sinks import ExtraBytesRanges, _atomic
 
 GRID_BITS = 7  # a node's sampling grid: 128 cells a side, as untwine's
 LEAF_POINTS = 100_000  # a node with at most this many points keeps them all
-BUCKET_POINTS = 1_000_000  # the most points pass 3 holds at once (a bucket's), but for a voxel of FINE_DEPTH
+BUCKET_POINTS = 200_000  # the most points pass 3 holds at once (a bucket's), but for a voxel of FINE_DEPTH
+CHUNK_POINTS = 250_000  # points read at once in passes 1 and 2
 FINE_DEPTH = 8  # the finest voxels pass 1 counts in (256 a side)
 MAX_DEPTH = 20  # below this, points that share a place stay together
+LAS14_HEADER_BYTES = 375
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,12 +70,32 @@ def _xyz(records: np.ndarray, header) -> np.ndarray:
     return np.stack([records[a] * s + o for a, s, o in zip("XYZ", header.scales, header.offsets)], axis=1)
 
 
-def _chunks(parts: list[Path]) -> Iterator[np.ndarray]:
-    """Every point record of the parts, in order, a chunk at a time."""
+def _part_header(part: Path) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """Where an uncompressed LAS 1.4 part's points start, how many, and their bounds, from its header's bytes
+    (laspy's reader parses every record of the header: 1 ms a part, thousands of parts)."""
+    with open(part, "rb") as f:
+        head = f.read(LAS14_HEADER_BYTES)
+    offset = int(np.frombuffer(head, "<u4", 1, 96)[0])
+    count = int(np.frombuffer(head, "<u8", 1, 247)[0])
+    high_low = np.frombuffer(head, "<f8", 6, 179).reshape(3, 2)  # max x, min x, max y, ...
+    return offset, count, high_low[:, 1].copy(), high_low[:, 0].copy()
+
+
+def _chunks(parts: list[Path], dtype: np.dtype) -> Iterator[np.ndarray]:
+    """Every point record of the parts, in order, in chunks of about CHUNK_POINTS (a range's part holds a few
+    thousand: each chunk costs a pass over the upper levels' occupancy, which grows with the flight)."""
+    held, n = [], 0
     for part in parts:
-        with laspy.open(part) as reader:
-            for chunk in reader.chunk_iterator(LAS_CHUNK_POINTS):
-                yield chunk.array
+        offset, count, _, _ = _part_header(part)
+        for start in range(0, count, CHUNK_POINTS):
+            held.append(np.fromfile(part, dtype, min(CHUNK_POINTS, count - start), offset=offset
+                                    + start * dtype.itemsize))
+            n += len(held[-1])
+            if n >= CHUNK_POINTS:
+                yield np.concatenate(held)
+                held, n = [], 0
+    if held:
+        yield np.concatenate(held)
 
 
 def has_point_cloud_parts(formats) -> bool:
@@ -100,7 +124,7 @@ def _survey(parts: list[Path], header, cube: Cube) -> _Survey:
     codes, counts = np.zeros(0, np.int64), np.zeros(0, np.int64)
     by_return = np.zeros(16, np.int64)
     ranges = ExtraBytesRanges(header)
-    for records in _chunks(parts):
+    for records in _chunks(parts, header.point_format.dtype()):
         found, n = np.unique(_codes(cube.cells(_xyz(records, header), FINE_DEPTH), FINE_DEPTH), return_counts=True)
         codes, where = np.unique(np.concatenate([codes, found]), return_inverse=True)
         counts = np.bincount(where, weights=np.concatenate([counts, n]), minlength=codes.size).astype(np.int64)
@@ -122,73 +146,59 @@ def bucket_depth(codes: np.ndarray, counts: np.ndarray, bucket_points: int = BUC
 
 # ---------------------------------------------------------------- pass 2
 
-class _UpperLevels:
-    """The nodes above the buckets, sampled as the points stream by: at each depth, a point whose cell no
-    earlier point took stays there; the first such point of each cell, in stream order."""
-
-    def __init__(self, cube: Cube, depth: int, grid_bits: int = GRID_BITS):
-        self.cube, self.depth, self.grid_bits = cube, depth, grid_bits
-        self.taken = [np.zeros(0, np.int64) for _ in range(depth)]
-        self.kept: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(depth)]
-
-    def take(self, records: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-        """Keep the points of these records that the upper levels take; the indices of the others."""
-        rest = np.arange(len(records))
-        for d in range(self.depth):
-            cells = self.cube.cells(xyz[rest], d + self.grid_bits)
-            codes = _codes(cells, d + self.grid_bits)
-            free = np.flatnonzero(~np.isin(codes, self.taken[d]))
-            new, first = np.unique(codes[free], return_index=True)
-            chosen = free[first]
-            self.taken[d] = np.union1d(self.taken[d], new)
-            chosen.sort()  # stream order within the node
-            self.kept[d].append((cells[chosen] >> self.grid_bits, records[rest[chosen]]))
-            rest = np.delete(rest, chosen)
-        return rest
-
-    def nodes(self) -> Iterator[tuple[tuple[int, int, int, int], np.ndarray]]:
-        for d, pieces in enumerate(self.kept):
-            if not pieces:
-                continue
-            keys = np.concatenate([k for k, _ in pieces])
-            records = np.concatenate([r for _, r in pieces])
-            codes = _codes(keys, max(d, 1))
-            order = np.argsort(codes, kind="stable")
-            starts = np.flatnonzero(np.r_[True, np.diff(codes[order]) != 0])
-            for lo, hi in zip(starts, np.r_[starts[1:], order.size]):
-                rows = order[lo:hi]
-                yield (d, *(int(v) for v in keys[rows[0]])), records[rows]
+Key = tuple[int, int, int, int]  # a node: depth, x, y, z
 
 
-def _spill_path(spill: Path, stem: str, key: tuple[int, int, int, int]) -> Path:
+def _spill_path(spill: Path, stem: str, key: Key) -> Path:
     return spill / f"{stem}-copc-{'-'.join(str(v) for v in key)}.bin"
 
 
-def _spill(parts: list[Path], header, cube: Cube, depth: int, spill: Path, stem: str,
-           grid_bits: int) -> tuple[_UpperLevels, list]:
-    """Pass 2: the upper levels' points kept; every other point appended to its bucket's file."""
-    upper = _UpperLevels(cube, depth, grid_bits)
-    buckets: set[tuple[int, int, int, int]] = set()
-    for records in _chunks(parts):
-        xyz = _xyz(records, header)
-        rest = upper.take(records, xyz)
-        cells = cube.cells(xyz[rest], depth)
-        codes = _codes(cells, max(depth, 1))
-        order = np.argsort(codes, kind="stable")
-        starts = np.flatnonzero(np.r_[True, np.diff(codes[order]) != 0]) if order.size else np.zeros(0, int)
-        for lo, hi in zip(starts, np.r_[starts[1:], order.size]):
-            rows = rest[order[lo:hi]]
-            key = (depth, *(int(v) for v in cells[order[lo]]))
+def _append(path: Path, records: np.ndarray) -> None:
+    with open(path, "ab") as f:
+        records.tofile(f)
+
+
+def _groups(codes: np.ndarray) -> Iterator[np.ndarray]:
+    """The rows of each distinct code, in code order, each in its original order."""
+    order = np.argsort(codes, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(codes[order]) != 0]) if order.size else np.zeros(0, int)
+    for lo, hi in zip(starts, np.r_[starts[1:], order.size]):
+        yield order[lo:hi]
+
+
+def _spill(parts: list[Path], header, cube: Cube, depth: int, spill: Path, stem: str) -> list[Key]:
+    """Pass 2: every point appended, in order, to the file of its bucket (its voxel at `depth`)."""
+    buckets: set[Key] = set()
+    for records in _chunks(parts, header.point_format.dtype()):
+        cells = cube.cells(_xyz(records, header), depth)
+        for rows in _groups(_codes(cells, max(depth, 1))):
+            key = (depth, *(int(v) for v in cells[rows[0]]))
             buckets.add(key)
-            with open(_spill_path(spill, stem, key), "ab") as f:
-                records[rows].tofile(f)
-    return upper, sorted(buckets)
+            _append(_spill_path(spill, stem, key), records[rows])
+    return sorted(buckets)
+
+
+def _take_upper(records: np.ndarray, xyz: np.ndarray, cube: Cube, depth: int,
+                grid_bits: int) -> tuple[list[tuple[Key, np.ndarray]], np.ndarray]:
+    """A bucket's share of the nodes above it: at each depth, the first point of each cell not taken higher up,
+    in stream order; and the rows of the points left to the bucket. A cell of a node above the bucket lies in
+    one bucket (depth <= grid_bits), so the buckets are sampled apart as the whole stream would be."""
+    taken, rest = [], np.arange(len(records))
+    for d in range(depth):
+        if not rest.size:
+            break
+        cells = cube.cells(xyz[rest], d + grid_bits)
+        _, first = np.unique(_codes(cells, d + grid_bits), return_index=True)
+        first.sort()  # stream order within the node
+        taken.append(((d, *(int(v) for v in cells[first[0]] >> grid_bits)), records[rest[first]]))
+        rest = np.delete(rest, first)
+    return taken, rest
 
 
 # ---------------------------------------------------------------- pass 3
 
-def _split(key: tuple[int, int, int, int], records: np.ndarray, header, cube: Cube,
-           leaf_points: int, grid_bits: int) -> Iterator[tuple[tuple[int, int, int, int], np.ndarray]]:
+def _split(key: Key, records: np.ndarray, header, cube: Cube, leaf_points: int,
+           grid_bits: int) -> Iterator[tuple[Key, np.ndarray]]:
     """A bucket's nodes: each keeps the first point of each of its grid's cells, its children the rest."""
     stack = [(key, records)]
     while stack:
@@ -238,9 +248,11 @@ def _writer(path: Path, header, cube: Cube, wkt: str, grid_bits: int):
     return copclib.FileWriter(str(path), config)
 
 
-def _add(writer, key: tuple[int, int, int, int], records: np.ndarray) -> None:
+def _add(writer, key: Key, records: np.ndarray) -> None:
     import copclib
 
+    if not len(records):  # a bucket whose points all went up (it has no children either)
+        return
     writer.AddNode(copclib.VoxelKey(*key), copclib.VectorChar(np.ascontiguousarray(records).view(np.int8)))
 
 
@@ -281,15 +293,11 @@ def _patch_extra_bytes(path: Path, header, ranges: ExtraBytesRanges) -> None:
 
 def assemble_copc(parts: list[Path], path: Path, leaf_points: int = LEAF_POINTS, bucket_points: int = BUCKET_POINTS,
                   grid_bits: int = GRID_BITS) -> Path:
-    """copc/<stem>.copc.laz from an input's LAS parts (in range order), holding at most a bucket's points (and
-    the levels above the buckets) at once; the spilled buckets go under the parts' folder and are removed."""
+    """copc/<stem>.copc.laz from an input's LAS parts (in range order), holding at most a bucket's points or a
+    node's at once; the spilled buckets and nodes go under the parts' folder and are removed."""
     with laspy.open(parts[0]) as first:
         header = first.header
-    bounds = []
-    for part in parts:
-        with laspy.open(part) as reader:
-            if reader.header.point_count:
-                bounds.append((reader.header.mins, reader.header.maxs))
+    bounds = [(low, high) for _, count, low, high in map(_part_header, parts) if count]
     low = np.min([b[0] for b in bounds], axis=0) if bounds else np.zeros(3)
     high = np.max([b[1] for b in bounds], axis=0) if bounds else np.zeros(3)
     cube = Cube.around(low, high, np.asarray(header.scales))
@@ -297,20 +305,25 @@ def assemble_copc(parts: list[Path], path: Path, leaf_points: int = LEAF_POINTS,
     spill = parts[0].parent
     tmp = _atomic(path)
     survey = _survey(parts, header, cube)
-    depth = bucket_depth(survey.codes, survey.counts, bucket_points)
+    depth = min(bucket_depth(survey.codes, survey.counts, bucket_points), grid_bits)
     try:
         for stale in spill.glob(f"{stem}-copc-*.bin"):  # an interrupted attempt's: appended to, they would double
             stale.unlink()
-        upper, buckets = _spill(parts, header, cube, depth, spill, stem, grid_bits)
+        buckets = _spill(parts, header, cube, depth, spill, stem)
         writer = _writer(tmp, header, cube, crs_wkt(header), grid_bits)
-        for key, records in upper.nodes():
-            _add(writer, key, records)
-        del upper
-        for key in buckets:
+        upper: set[Key] = set()
+        for key in buckets:  # pass 3: each bucket's share of the upper nodes spilled, its own nodes written
             records = np.fromfile(_spill_path(spill, stem, key), dtype=header.point_format.dtype())
             _spill_path(spill, stem, key).unlink()
-            for node, points in _split(key, records, header, cube, leaf_points, grid_bits):
+            taken, rest = _take_upper(records, _xyz(records, header), cube, depth, grid_bits)
+            for node, points in taken:
+                upper.add(node)
+                _append(_spill_path(spill, stem, node), points)
+            for node, points in _split(key, records[rest], header, cube, leaf_points, grid_bits):
                 _add(writer, node, points)
+        for key in sorted(upper):  # pass 4: the nodes above the buckets, one at a time
+            _add(writer, key, np.fromfile(_spill_path(spill, stem, key), dtype=header.point_format.dtype()))
+            _spill_path(spill, stem, key).unlink()
         _finish_header(writer, header, survey, low, high)
         writer.Close()
     finally:
