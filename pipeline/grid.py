@@ -113,7 +113,7 @@ def claim_output(output: Path) -> None:
     output.mkdir(parents=True, exist_ok=True)
 
 
-def _write_cog(path: Path, bands: np.ndarray, grid: Grid, crs: str | None, dtype: str, nodata,
+def _write_cog(path: Path, bands: list[np.ndarray], grid: Grid, crs: str | None, dtype: str, nodata,
                descriptions: list[str], tags: dict[str, str]) -> None:
     """One Cloud Optimized GeoTIFF (GDAL's COG driver: tiled, overviews, IFDs before the data), atomically."""
     import rasterio
@@ -180,7 +180,8 @@ def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats:
         "count.tif": ([grid.raster(stats.count)], "uint32", None, ["kept echoes"]),
         f"{value}.tif": ([grid.raster(stats.mean(value))], "float32", np.nan,
                          [f"mean {value} [{COLUMNS[value].unit}]"]),
-        "profile.tif": ([grid.raster(np.where(empty, np.nan, profile.sums[:, k])) for k in range(profile.bins)],
+        "profile.tif": ([grid.raster(np.where(empty, np.float32(np.nan), profile.sums[:, k].astype(np.float32)))
+                         for k in range(profile.bins)],
                         "float32", np.nan,
                         [f"energy [{COLUMNS['energy'].unit}] {lo:g}-{hi:g} m above the lowest echo"
                          if math.isfinite(hi) else f"energy [{COLUMNS['energy'].unit}] {lo:g} m and more above the "
@@ -188,7 +189,7 @@ def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats:
     }
     tags = {"SOFTWARE": "fwlidar fwl grid", "RUN": str(run_dir.resolve()), "CELL_M": f"{grid.cell:g}"}
     for name, (bands, dtype, nodata, descriptions) in maps.items():
-        _write_cog(output / name, np.stack(bands), grid, wkt, dtype, nodata, descriptions, tags)
+        _write_cog(output / name, bands, grid, wkt, dtype, nodata, descriptions, tags)
     summary = {"run": str(run_dir.resolve()), "cell_m": grid.cell, "width": grid.width, "height": grid.height,
                "west": grid.west, "north": grid.north, "crs": wkt, "crs_source": "--crs" if crs_given else
                ("the run's echo table" if wkt else "none: the run's inputs name no CRS (give --crs)"),
