@@ -95,6 +95,8 @@ class ExtraBytesRanges:
             name = struct.name.rstrip(b"\0").decode()
             if name in self.low and struct.min_is_relevant() and struct.max_is_relevant():
                 found = np.isfinite(self.low[name])  # NaN for a column without a value (radiometry unavailable)
+                if not found and struct._raw_min().dtype.kind != "f":  # no point at all: an integer has no NaN
+                    continue
                 struct._raw_min()[:] = self.low[name] if found else np.nan
                 struct._raw_max()[:] = self.high[name] if found else np.nan
 

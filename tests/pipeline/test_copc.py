@@ -127,3 +127,13 @@ def test_the_bucket_depth_keeps_each_bucket_under_its_budget():
     assert bucket_depth(codes, counts, 2000) == 0
     assert bucket_depth(codes, counts, 1000) == 1  # the 300 points at (10, 10, 10) and their octant's share
     assert bucket_depth(codes, counts, 100) == 8  # 300 points at one place: no depth splits them
+
+
+def test_an_input_without_kept_echoes_gives_an_empty_copc(tmp_path, leica_run):
+    las = laspy.read(leica_run / "las" / "leica_a.las")
+    empty = laspy.LasData(las.header)
+    empty.points = las.points[:0].copy()
+    part = tmp_path / "leica_a-000000000000.las"
+    empty.write(part)
+    with laspy.CopcReader.open(assemble_copc([part], tmp_path / "leica_a.copc.laz")) as reader:
+        assert reader.header.point_count == 0 and len(reader.query()) == 0
