@@ -85,7 +85,8 @@ def _batches(files: list[Path], columns: list[str]) -> Iterator[dict[str, np.nda
     """The kept echoes' columns with coordinates, a record batch at a time (nulls as NaN)."""
     for f in files:
         for batch in pq.ParquetFile(f).iter_batches(batch_size=BATCH_ROWS, columns=[*columns, "kept"]):
-            keep = pc.and_(batch.column("kept"), pc.and_(pc.is_finite(batch.column("x")), pc.is_finite(batch.column("y"))))
+            placed = pc.and_(pc.is_finite(batch.column("x")), pc.is_finite(batch.column("y")))
+            keep = pc.and_(batch.column("kept"), placed)
             kept = batch.filter(pc.fill_null(keep, False))  # null coordinates: not placed, not mapped
             if kept.num_rows:
                 yield {c: kept.column(c).to_numpy(zero_copy_only=False) for c in columns}

@@ -22,8 +22,8 @@ DEEP = {"leaf_points": 40, "bucket_points": 300, "grid_bits": 2}
 @pytest.fixture(scope="module")
 def leica_run(tmp_path_factory, leica_dir):
     out = tmp_path_factory.mktemp("copc") / "run"
-    run([str(leica_dir / "leica_a.las")], out, FAST, ("parquet", "las", "copc"), points_per_range=400, beam_args=IN_PROCESS,
-        watch=False)
+    run([str(leica_dir / "leica_a.las")], out, FAST, ("parquet", "las", "copc"), points_per_range=400,
+        beam_args=IN_PROCESS, watch=False)
     return out
 
 
