@@ -331,6 +331,17 @@ def _response_line(response: dict | None) -> str:
     return f"  system response: FWHM {r.fwhm_ps / 1000:.2f} ns{after}; from {r.source}"
 
 
+def _grid(args: argparse.Namespace) -> int:
+    from pipeline.grid import grid_run
+
+    summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height)
+    print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
+          f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
+          f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
+          f"{args.output}")
+    return 0
+
+
 def _view(args: argparse.Namespace) -> int:
     import secrets
     import webbrowser
@@ -496,6 +507,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also measure the instrument's response on the file's first records, as fwl run --model "
                         "system does (reads samples); --json gives the JSON --system-response FILE accepts")
     i.set_defaults(handler=_info)
+
+    g = sub.add_parser("grid", help="maps of a run's kept echoes as Cloud Optimized GeoTIFFs: highest and lowest "
+                                    "echo, echo count, mean reflectance (or amplitude), vertical energy profile")
+    g.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
+    g.add_argument("--cell", type=float, required=True, help="cell size, in the CRS's units (metres)")
+    g.add_argument("--output", required=True, help="folder for the GeoTIFFs: new, empty or an earlier fwl grid's")
+    g.add_argument("--crs", help="the CRS to declare (e.g. EPSG:25832) where the run's inputs name none")
+    g.add_argument("--bin-height", dest="bin_height", type=float, default=1.0,
+                   help="height of the profile's bins above each cell's lowest echo (default 1 m)")
+    g.set_defaults(handler=_grid)
 
     v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
     v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",

@@ -19,7 +19,8 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
 from fwcore.instrument import named_response
 
-FORMATS = ("parquet", "las", "mcap")
+FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
+DEFAULT_FORMATS = ("parquet", "las", "mcap")
 # The runner when the command line names none: the DirectRunner with a worker process per core of a
 # small machine. Any of these can be given on the command line; deploy/README.md shows the others.
 RUNNER_DEFAULTS = {"runner": "DirectRunner", "direct_num_workers": 2, "direct_running_mode": "multi_processing"}
@@ -143,8 +144,8 @@ class FwlOptions(PipelineOptions):
         g.add_argument("--output", default="out/run",
                        help="output folder (default out/run): new, empty, or an earlier run's, which is replaced "
                              "(with --resume: an interrupted run's, which is completed)")
-        g.add_argument("--formats", type=output_formats, default=",".join(FORMATS),
-                       help="comma-separated: parquet, las, mcap (default all)")
+        g.add_argument("--formats", type=output_formats, default=",".join(DEFAULT_FORMATS),
+                       help="comma-separated: parquet, las, mcap, copc (default parquet,las,mcap)")
         g.add_argument("--limit", type=positive_int, help="at most N pulses per input file")
         g.add_argument("--points-per-range", dest="points_per_range", type=positive_int, default=5000,
                        help="points per unit of work (default 5000)")

@@ -29,7 +29,7 @@ from typing import Any
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
 # the folders a run writes into; nothing else under the output folder is ours
-OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "logs", "parts")  # parts: per-range LAS/MCAP
+OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "copc", "logs", "parts")  # parts: per-range LAS/MCAP
 INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
 
 
@@ -405,7 +405,7 @@ def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT
     plan), and the folders under parts/ left empty."""
     # <stem>.las, <stem>-<range>.parquet, <stem>-tile-<n>.parquet (fwl compact), ...: not <stem>.las.las, the file
     # of an input whose stem is <stem>.las
-    own = re.compile(re.escape(stem) + r"(-\d{12}|-(tile|bucket)-\d{4,})?\.(parquet|las|laz|mcap|json)(\.tmp)?")
+    own = re.compile(re.escape(stem) + r"(-\d{12}|-(tile|bucket)-\d{4,})?\.(parquet|las|laz|copc\.laz|mcap|json)(\.tmp)?")
     gone = []
     for d in dirs:
         for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:

@@ -74,6 +74,36 @@ def stamp_ns(gps_time: float, adjusted_standard: bool) -> int:
 
 # ---------------------------------------------------------------- LAS
 
+class ExtraBytesRanges:
+    """Each Extra Bytes dimension's lowest and highest value over all the points seen (NaN ignored), set on a
+    header's Extra Bytes record: laspy's running statistics depend on how the points were split into parts."""
+
+    def __init__(self, header):
+        self.names = list(header.point_format.extra_dimension_names)
+        self.low = {name: np.inf for name in self.names}
+        self.high = {name: -np.inf for name in self.names}
+
+    def add(self, points) -> None:
+        for name in self.names:
+            values = np.asarray(points[name])
+            values = values[~np.isnan(values)] if values.dtype.kind == "f" else values
+            if values.size:
+                self.low[name] = min(self.low[name], float(values.min()))
+                self.high[name] = max(self.high[name], float(values.max()))
+
+    def set_on(self, vlrs) -> None:
+        for struct in vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs if self.names else ():
+            name = struct.name.rstrip(b"\0").decode()
+            if name in self.low and struct.min_is_relevant() and struct.max_is_relevant():
+                if np.isfinite(self.low[name]):
+                    struct._raw_min()[:] = self.low[name]
+                    struct._raw_max()[:] = self.high[name]
+                elif struct._long_type() == np.float64:  # a column without a value (radiometry unavailable)
+                    struct._raw_min()[:] = struct._raw_max()[:] = np.nan
+                else:  # an integer column without a value (a file whose points were all rejected): no min/max
+                    struct.options &= ~(struct.MIN_BIT_MASK | struct.MAX_BIT_MASK)
+
+
 def assemble_las(parts: list[Path], path: Path, laz: bool = False) -> Path:
     """One point cloud from its range parts, in the order given, one chunk of one part at a time.
 
@@ -82,32 +112,15 @@ def assemble_las(parts: list[Path], path: Path, laz: bool = False) -> Path:
     """
     with laspy.open(parts[0]) as first:
         header = first.header
-    extra = [name for name in header.point_format.extra_dimension_names]
-    low = {name: np.inf for name in extra}
-    high = {name: -np.inf for name in extra}
+    ranges = ExtraBytesRanges(header)
     tmp = _atomic(path)
     with laspy.open(tmp, mode="w", header=header, do_compress=laz) as writer:
         for part in parts:
             with laspy.open(part) as reader:
                 for chunk in reader.chunk_iterator(LAS_CHUNK_POINTS):
                     writer.write_points(chunk)
-                    for name in extra:
-                        values = np.asarray(chunk[name])
-                        values = values[~np.isnan(values)] if values.dtype.kind == "f" else values
-                        if values.size:
-                            low[name] = min(low[name], float(values.min()))
-                            high[name] = max(high[name], float(values.max()))
-        # laspy's running Extra Bytes statistics depend on how the points were split: set them from all points
-        for struct in writer.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs if extra else ():
-            name = struct.name.rstrip(b"\0").decode()
-            if name in low and struct.min_is_relevant() and struct.max_is_relevant():
-                if np.isfinite(low[name]):
-                    struct._raw_min()[:] = low[name]
-                    struct._raw_max()[:] = high[name]
-                elif struct._long_type() == np.float64:  # a column without a value (radiometry unavailable)
-                    struct._raw_min()[:] = struct._raw_max()[:] = np.nan
-                else:  # an integer column without a value (a file whose points were all rejected): no min/max
-                    struct.options &= ~(struct.MIN_BIT_MASK | struct.MAX_BIT_MASK)
+                    ranges.add(chunk)
+        ranges.set_on(writer.header.vlrs)
     tmp.replace(path)
     return path
 

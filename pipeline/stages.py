@@ -27,6 +27,7 @@ from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry import RadiometryConfig
 from fwcore.records import STATUS_REASONS, WaveformBatch
 from fwcore.survey import model_samples
+from pipeline.copc import has_point_cloud_parts
 from pipeline.geoparquet import write_echo_part
 from pipeline.plan import planned_pulses
 from pipeline.records import DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection
@@ -147,7 +148,7 @@ def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], cal
         if "parquet" in formats:
             write_echo_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
             write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
-        if "las" in formats:
+        if has_point_cloud_parts(formats):
             write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
         if "mcap" in formats:
             write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time,
@@ -155,7 +156,8 @@ def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], cal
     except Exception:
         remove_parts(list(paths.values()))  # a range is written whole or not at all
         raise
-    return RangePart(task.source.stem, task.source.path, task.start, str(paths["las"]) if "las" in formats else "",
+    return RangePart(task.source.stem, task.source.path, task.start,
+                     str(paths["las"]) if has_point_cloud_parts(formats) else "",
                      str(paths["mcap"]) if "mcap" in formats else "", task.source.adjusted_standard_gps_time)
 
 

@@ -4,7 +4,7 @@
     ranges: ReadTasks -> Spread -> RangeStages: stages.run_range (read -> decompose -> geolocate -> write)
             -> the range's parts, its rejected/<stem>-<range>.parquet, and its mark parts/<stem>-<range>.json,
             written last
-    files:  written_parts -> AssembleFiles -> las/<stem>.las, mcap/<stem>.mcap
+    files:  written_parts -> AssembleFiles -> las/<stem>.las, copc/<stem>.copc.laz, mcap/<stem>.mcap
 
 One dead-letter path: a stage hands on its record and Rejections, and an
 exception in a stage turns what its range still holds into Rejections with
@@ -38,6 +38,7 @@ from apache_beam.metrics import Metrics
 
 from fwcore.config import DecompositionConfig
 from fwcore.radiometry import RadiometryConfig
+from pipeline.copc import assemble_copc, has_point_cloud_parts
 from pipeline.plan import InputToPlan, plan_input, plan_path, planned_pulses
 from pipeline.records import RangePart, ReadTask, Rejection
 from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_part
@@ -152,15 +153,18 @@ class RangeStages(beam.DoFn):
 
 # ---------------------------------------------------------------- per file
 
-def assemble_file(item: tuple[str, list[RangePart]], output: str, laz: bool) -> str:
-    """One input's RangeParts -> las/<stem>.las (or .laz) and mcap/<stem>.mcap, streamed from the parts in
-    range order; the parts are removed once in the file."""
+def assemble_file(item: tuple[str, list[RangePart]], output: str, laz: bool,
+                  formats: frozenset[str] = frozenset(("las", "mcap"))) -> str:
+    """One input's RangeParts -> las/<stem>.las (or .laz), copc/<stem>.copc.laz and mcap/<stem>.mcap, streamed
+    from the parts in range order; the parts are removed once in the files."""
     stem, ranges = item
     ranges = sorted(ranges, key=lambda r: r.range_start)
     las = [Path(r.las) for r in ranges if r.las]
     mcap = [Path(r.mcap) for r in ranges if r.mcap]
-    if las:
+    if las and "las" in formats:
         assemble_las(las, Path(output) / "las" / f"{stem}{'.laz' if laz else '.las'}", laz)
+    if las and "copc" in formats:
+        assemble_copc(las, Path(output) / "copc" / f"{stem}.copc.laz")
     if mcap:
         assemble_mcap(mcap, Path(output) / "mcap" / f"{stem}.mcap", ranges[0].adjusted_standard_gps_time)
     remove_parts(las + mcap)
@@ -175,7 +179,7 @@ def written_parts(output: str, tasks: list[ReadTask], formats: frozenset[str]) -
     for task in tasks:
         name = part_name(task.source.stem, task.start)
         las, mcap = parts / f"{name}.las", parts / f"{name}.mcap"
-        las = str(las) if "las" in formats and las.exists() else ""
+        las = str(las) if has_point_cloud_parts(formats) and las.exists() else ""
         mcap = str(mcap) if "mcap" in formats and mcap.exists() else ""
         if las or mcap:
             files.setdefault(task.source.stem, []).append(RangePart(
@@ -244,6 +248,7 @@ class AssembleFiles(beam.PTransform):
 
     output: str
     laz: bool = False
+    formats: frozenset[str] = frozenset(("las", "mcap"))
 
     def expand(self, files):
-        return files | "Assemble" >> beam.Map(assemble_file, self.output, self.laz)
+        return files | "Assemble" >> beam.Map(assemble_file, self.output, self.laz, self.formats)

@@ -1,0 +1,203 @@
+"""`fwl grid RUN_DIR --cell METRES --output DIR`: maps of a run's kept echoes as Cloud Optimized GeoTIFFs.
+
+    highest.tif      the highest kept echo's z per cell (float64, NaN: no echo)
+    lowest.tif       the lowest kept echo's z per cell
+    count.tif        kept echoes per cell
+    reflectance.tif  their mean reflectance (amplitude.tif, their mean amplitude, where the run has no radiometry)
+    profile.tif      echo energy in height bins above the cell's lowest echo, one band a bin (NaN: no echo)
+    fwl-grid.json    what was gridded, how, and the files: the mark of the folder as fwl grid's
+
+The echo table is read a record batch at a time (pyarrow), twice: the statistics, then the profile (its heights
+are above each cell's lowest echo, known after the first pass). Only the grids are held: memory grows with
+the cells and bins, not with the echoes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from fwcore.grid import CellStatistics, Grid, HeightProfile
+from pipeline.outputs import OutputFolderError, read_run
+from pipeline.tables import COLUMNS, GEO_METADATA_KEY
+
+MARK = "fwl-grid.json"
+BATCH_ROWS = 1_000_000
+DEFAULT_BIN_HEIGHT_M = 1.0
+BLOCK = 256  # COG tiles, pixels a side
+
+
+def echo_files(run_dir: Path) -> list[Path]:
+    """The run's echo table: its Parquet files under echoes/ (parts or tiles)."""
+    files = sorted((run_dir / "echoes").rglob("*.parquet"))
+    if not files:
+        raise ValueError(f"{run_dir}: the run has no echo table (echoes/*.parquet): run it with --formats parquet")
+    return files
+
+
+def run_crs_wkt(files: list[Path]) -> str | None:
+    """The run's CRS as WKT, from its echo table's GeoParquet metadata (pipeline.tables.file_crs_projjson,
+    written from each input's CRS); None where no input names one. Inputs in different CRSs cannot share a map."""
+    import pyproj
+
+    found = set()
+    for f in files:
+        geo = (pq.read_schema(f).metadata or {}).get(GEO_METADATA_KEY)
+        crs = json.loads(geo)["columns"]["geometry"].get("crs") if geo else None
+        if crs:
+            found.add(pyproj.CRS.from_json_dict(crs).to_wkt())
+    if len(found) > 1:
+        raise ValueError(f"{files[0].parent.parent}: its inputs are in {len(found)} different CRSs; grid one at a time")
+    return found.pop() if found else None
+
+
+def _bounds(files: list[Path]) -> tuple[float, float, float, float] | None:
+    """The echoes' x, y bounds from the row groups' statistics (no rows read); None without echoes."""
+    low, high = [math.inf, math.inf], [-math.inf, -math.inf]
+    for f in files:
+        meta = pq.ParquetFile(f).metadata
+        names = [meta.schema.column(i).name for i in range(meta.num_columns)]
+        for g in range(meta.num_row_groups):
+            for axis, name in enumerate(("x", "y")):
+                stats = meta.row_group(g).column(names.index(name)).statistics
+                if stats is None or not stats.has_min_max:
+                    return _bounds_read(files)
+                low[axis], high[axis] = min(low[axis], stats.min), max(high[axis], stats.max)
+    return None if not math.isfinite(low[0]) else (low[0], low[1], high[0], high[1])
+
+
+def _bounds_read(files: list[Path]) -> tuple[float, float, float, float] | None:
+    low, high = [math.inf, math.inf], [-math.inf, -math.inf]
+    for batch in _batches(files, ["x", "y"]):
+        for axis, name in enumerate(("x", "y")):
+            low[axis] = min(low[axis], float(np.min(batch[name])))
+            high[axis] = max(high[axis], float(np.max(batch[name])))
+    return None if not math.isfinite(low[0]) else (low[0], low[1], high[0], high[1])
+
+
+def _batches(files: list[Path], columns: list[str]) -> Iterator[dict[str, np.ndarray]]:
+    """The kept echoes' columns with coordinates, a record batch at a time (nulls as NaN)."""
+    for f in files:
+        for batch in pq.ParquetFile(f).iter_batches(batch_size=BATCH_ROWS, columns=[*columns, "kept"]):
+            placed = pc.and_(pc.is_finite(batch.column("x")), pc.is_finite(batch.column("y")))
+            keep = pc.and_(batch.column("kept"), placed)
+            kept = batch.filter(pc.fill_null(keep, False))  # null coordinates: not placed, not mapped
+            if kept.num_rows:
+                yield {c: kept.column(c).to_numpy(zero_copy_only=False) for c in columns}
+
+
+def claim_output(output: Path) -> None:
+    """The output folder: new, empty, or an earlier fwl grid's (its files are replaced); anything else is
+    refused, untouched."""
+    if output.exists() and not output.is_dir():
+        raise OutputFolderError(f"{output}: exists and is not a folder")
+    if output.is_dir() and any(output.iterdir()):
+        mark = output / MARK
+        try:
+            own = set(json.loads(mark.read_text())["files"]) | {MARK}
+        except (OSError, ValueError, KeyError, TypeError):
+            raise OutputFolderError(f"{output}: not empty and not an fwl grid output folder (no readable {MARK}); "
+                                    f"choose a new or empty folder") from None
+        foreign = sorted(p.name for p in output.iterdir() if p.name not in own and p.name.removesuffix(".tmp")
+                         not in own)
+        if foreign:
+            raise OutputFolderError(f"{output}: holds files fwl grid did not write: {', '.join(foreign[:5])}")
+        for name in own:
+            for path in (output / name, output / (name + ".tmp")):
+                path.unlink(missing_ok=True)
+    output.mkdir(parents=True, exist_ok=True)
+
+
+def _write_cog(path: Path, bands: list[np.ndarray], grid: Grid, crs: str | None, dtype: str, nodata,
+               descriptions: list[str], tags: dict[str, str]) -> None:
+    """One Cloud Optimized GeoTIFF (GDAL's COG driver: tiled, overviews, IFDs before the data), atomically."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    tmp = path.with_name(path.name + ".tmp")
+    with rasterio.open(tmp, "w", driver="COG", width=grid.width, height=grid.height, count=len(bands), dtype=dtype,
+                       crs=crs, transform=Affine(*grid.transform()), nodata=nodata, BLOCKSIZE=BLOCK,
+                       COMPRESS="DEFLATE", OVERVIEWS="AUTO", RESAMPLING="NEAREST") as out:
+        for i, (band, text) in enumerate(zip(bands, descriptions), start=1):
+            out.write(np.asarray(band, dtype=dtype), i)
+            out.set_band_description(i, text)
+        out.update_tags(**tags)
+    tmp.replace(path)
+
+
+def _statistics(files: list[Path], grid: Grid) -> CellStatistics:
+    stats = CellStatistics(grid, ("reflectance", "amplitude"))
+    for b in _batches(files, ["x", "y", "z", "amplitude", "reflectance"]):
+        stats.add(b["x"], b["y"], b["z"], amplitude=b["amplitude"], reflectance=b["reflectance"])
+    return stats
+
+
+def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: float) -> HeightProfile:
+    highest, lowest = stats.heights()
+    profile = HeightProfile(grid, lowest, bin_height, HeightProfile.bins_for(highest, lowest, bin_height))
+    for b in _batches(files, ["x", "y", "z", "energy"]):
+        profile.add(b["x"], b["y"], b["z"], b["energy"])
+    return profile
+
+
+def grid_run(run_dir: str | Path, cell: float, output: str | Path, crs: str | None = None,
+             bin_height: float = DEFAULT_BIN_HEIGHT_M) -> dict:
+    """The maps of a finished run's kept echoes into `output` (see the module); what was written, as in
+    fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where the run's inputs name
+    none or name it wrongly."""
+    import pyproj
+
+    run_dir, output = Path(run_dir), Path(output)
+    read_run(run_dir)  # a folder that is not a finished run is refused here
+    files = echo_files(run_dir)
+    wkt = pyproj.CRS.from_user_input(crs).to_wkt() if crs else run_crs_wkt(files)
+    bounds = _bounds(files)
+    if bounds is None:
+        raise ValueError(f"{run_dir}: the run kept no echo with coordinates: nothing to map")
+    grid = Grid.covering(*bounds, cell)
+    HeightProfile(grid, np.zeros(0), bin_height, 1)  # the bin height checked before the folder is touched
+    claim_output(output)
+    stats = _statistics(files, grid)
+    profile = _profile(files, grid, stats, bin_height)
+    return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs))
+
+
+def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats: CellStatistics,
+                profile: HeightProfile, crs_given: bool) -> dict:
+    highest, lowest = stats.heights()
+    empty = stats.count == 0
+    z_unit = COLUMNS["z"].unit
+    has_reflectance = bool(stats.counts["reflectance"].any())
+    value = "reflectance" if has_reflectance else "amplitude"
+    maps = {
+        "highest.tif": ([grid.raster(highest)], "float64", np.nan, [f"highest kept echo z [{z_unit}]"]),
+        "lowest.tif": ([grid.raster(lowest)], "float64", np.nan, [f"lowest kept echo z [{z_unit}]"]),
+        "count.tif": ([grid.raster(stats.count)], "uint32", None, ["kept echoes"]),
+        f"{value}.tif": ([grid.raster(stats.mean(value))], "float32", np.nan,
+                         [f"mean {value} [{COLUMNS[value].unit}]"]),
+        "profile.tif": ([grid.raster(np.where(empty, np.float32(np.nan), profile.sums[:, k].astype(np.float32)))
+                         for k in range(profile.bins)],
+                        "float32", np.nan,
+                        [f"energy [{COLUMNS['energy'].unit}] {lo:g}-{hi:g} m above the lowest echo"
+                         if math.isfinite(hi) else f"energy [{COLUMNS['energy'].unit}] {lo:g} m and more above the "
+                         "lowest echo" for lo, hi in profile.edges()]),
+    }
+    tags = {"SOFTWARE": "fwlidar fwl grid", "RUN": str(run_dir.resolve()), "CELL_M": f"{grid.cell:g}"}
+    for name, (bands, dtype, nodata, descriptions) in maps.items():
+        _write_cog(output / name, bands, grid, wkt, dtype, nodata, descriptions, tags)
+    summary = {"run": str(run_dir.resolve()), "cell_m": grid.cell, "width": grid.width, "height": grid.height,
+               "west": grid.west, "north": grid.north, "crs": wkt, "crs_source": "--crs" if crs_given else
+               ("the run's echo table" if wkt else "none: the run's inputs name no CRS (give --crs)"),
+               "echoes": int(stats.count.sum()), "cells_with_echoes": int((~empty).sum()),
+               "mean_of": value, "bin_height_m": profile.bin_height, "bins": profile.bins,
+               "files": sorted(maps)}
+    tmp = output / (MARK + ".tmp")
+    tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    tmp.replace(output / MARK)
+    return summary
