@@ -109,6 +109,8 @@ def test_the_file_does_not_depend_on_how_the_points_were_split(tmp_path, leica_r
 def test_the_crs_is_declared_as_wkt(tmp_path, leica_run):
     las = laspy.read(leica_run / "las" / "leica_a.las")
     wkt = pyproj.CRS.from_epsg(25832).to_wkt(pyproj.enums.WktVersion.WKT1_GDAL)
+    # the run's own WKT record (the sample's unnamed local CRS) replaced by a named one
+    las.header.vlrs = [v for v in las.header.vlrs if getattr(v, "record_id", None) != 2112]
     las.header.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT", wkt.encode() + b"\0"))
     las.header.global_encoding.wkt = True
     part = tmp_path / "leica_a-000000000000.las"
