@@ -7,14 +7,15 @@ format: they look it up there, and both give the same PulseBatch; `info.py` desc
 """
 
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.formats import (FORMATS, Format, InputSummary, crs_wkt, describe_file, file_kind, format_of,
+from fwcore.io.formats import (FORMATS, Format, InputSummary, crs_wkt, describe_file, format_of,
                                input_summary, is_pulsewaves, needs_packet_file, open_input, packet_file,
                                plan_point_ranges, read_pulses)
 from fwcore.io.geolocate import geolocate
-from fwcore.io.las import WaveformFile, WaveformFileError, open_waveform_file
+from fwcore.io.errors import WaveformFileError
+from fwcore.io.las import WaveformFile, open_waveform_file
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
 __all__ = ["FORMATS", "Format", "InputSummary", "PointRange", "PulseBatch", "WaveformDescriptor", "WaveformFile",
-           "WaveformFileError", "crs_wkt", "describe_file", "file_kind", "format_of", "geolocate", "input_summary",
-           "is_pulsewaves", "needs_packet_file", "open_input", "open_waveform_file", "packet_file",
+           "WaveformFileError", "crs_wkt", "describe_file", "format_of", "geolocate", "input_summary",
+           "is_pulsewaves", "kind_of", "needs_packet_file", "open_input", "open_waveform_file", "packet_file",
            "plan_point_ranges", "pulse_identity", "read_pulses"]
