@@ -3,7 +3,8 @@
 LAS/LAZ 1.3/1.4 (point formats 4, 5, 9, 10; packets in .wdp, .wdz or internal: `las.py`),
 PulseWaves (.pls + .wvs: `pulsewaves.py`) and NEON-layout CSV (`neon.py`), one entry each in
 the table of formats (`formats.py`). `plan_point_ranges` and `read_pulses` take either flight-line
-format: they look it up there, and both give the same PulseBatch; `info.py` describes files.
+format: they look it up there, and both give the same PulseBatch; `info.py` describes files. A file they
+cannot read raises one of `errors.py`'s errors, which name the file and the problem.
 """
 
 from fwcore.io.descriptors import WaveformDescriptor
