@@ -29,14 +29,12 @@ import pyarrow.parquet as pq
 
 from fwcore.spatial import NO_POSITION, finite_bounds, hilbert_key, square_bounds
 from pipeline.geoparquet import spatially_sorted, write_echo_part
+from pipeline.layout import (BUCKET_SUFFIX, COMPACT, ECHOES, FINISHED, PARTS, RANGE_SUFFIX, REPLACED, STAGED,
+                             TILE_SUFFIX, bucket_name, tile_name)
 from pipeline.outputs import earlier_run_files, list_outputs, read_manifest, read_run, write_run_json
 from pipeline.sinks import remove_parts, write_json
 from pipeline.tables import GEO_METADATA_KEY, geo_metadata
 
-COMPACT = Path("parts") / "compact"  # the staging, under the run folder
-STAGED = COMPACT / "echoes"  # the new echoes/, complete before it replaces the old
-REPLACED = COMPACT / "replaced"  # the old echoes/, between the two renames
-FINISHED = Path("parts") / "compact-finished"  # the staging of a finished compaction, on its way out
 TILE_ROWS = 1_000_000  # echoes per tile: files of some 170 MB (the benchmark's 422,133 echoes take 73 MB)
 # echoes per row group of a tile: its row groups follow one curve over the whole input, so larger ones still prune
 # (a centre box of 1% of the 200,000-pulse flight's area: 5.8% of the bytes), and the footer every query parses
@@ -45,13 +43,9 @@ TILE_ROW_GROUP_ROWS = 8192
 TILE_ORDER = 8  # tiles are runs of cells of a 256 x 256 Hilbert grid over the input's extent
 
 
-def tile_name(stem: str, index: int) -> str:
-    return f"{stem}-tile-{index:04d}"
-
-
 def echo_files(echoes: Path, stem: str) -> list[Path]:
     """An input's echo files in echoes/: its range parts (<stem>-<12 digits>) or its tiles (<stem>-tile-NNNN)."""
-    own = re.compile(re.escape(stem) + r"-(\d{12}|tile-\d{4,})\.parquet")
+    own = re.compile(re.escape(stem) + rf"({RANGE_SUFFIX}|{TILE_SUFFIX})\.parquet")
     return sorted(p for p in echoes.glob("*.parquet") if own.fullmatch(p.name)) if echoes.is_dir() else []
 
 
@@ -115,7 +109,7 @@ def _buckets(folder: Path, stem: str, sources: list[Path], tile_of: np.ndarray, 
             for lo, hi in zip(bounds[:-1], bounds[1:]):
                 tile = int(tiles[order[lo]])
                 if tile not in writers:
-                    paths[tile] = folder / COMPACT / f"{stem}-bucket-{tile:04d}.parquet"
+                    paths[tile] = folder / COMPACT / f"{bucket_name(stem, tile)}.parquet"
                     writers[tile] = pq.ParquetWriter(paths[tile], schema)
                 writers[tile].write_table(table.take(pa.array(order[lo:hi])))
     finally:
@@ -156,9 +150,9 @@ def _rows(paths: list[Path]) -> int:
 def stage_input(folder: Path, stem: str, tile_rows: int, row_group_rows: int) -> dict:
     """One input's tiles under parts/compact/echoes/, then its mark; what an earlier attempt left goes first."""
     compact, staged = folder / COMPACT, folder / STAGED
-    stale = re.compile(re.escape(stem) + r"-(bucket|tile)-\d{4,}\.parquet(\.tmp)?")
+    stale = re.compile(re.escape(stem) + rf"({BUCKET_SUFFIX}|{TILE_SUFFIX})\.parquet(\.tmp)?")
     remove_parts([p for d in (compact, staged) for p in sorted(d.glob("*")) if stale.fullmatch(p.name)])
-    sources = echo_files(folder / "echoes", stem)
+    sources = echo_files(folder / ECHOES, stem)
     extent = square_bounds(found) if (found := _extent(sources)) else None
     counts = np.zeros(4 ** TILE_ORDER + 1, dtype=np.int64)
     for source in sources:  # the tiles' sizes, from the positions alone
@@ -190,7 +184,7 @@ def _marks(folder: Path, stems: list[str]) -> dict[str, dict]:
         try:
             mark = json.loads((folder / COMPACT / f"{stem}.json").read_text())
             sizes = mark["sources"].items()
-            if swapped or all((folder / "echoes" / name).stat().st_size == size for name, size in sizes):
+            if swapped or all((folder / ECHOES / name).stat().st_size == size for name, size in sizes):
                 marks[stem] = mark
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
@@ -200,7 +194,7 @@ def _marks(folder: Path, stems: list[str]) -> dict[str, dict]:
 def swap(folder: Path, marks: dict[str, dict]) -> None:
     """The staged tiles become echoes/ by two renames; the replaced parts go. Goes on from any point it was
     killed at."""
-    echoes, staged, replaced = folder / "echoes", folder / STAGED, folder / REPLACED
+    echoes, staged, replaced = folder / ECHOES, folder / STAGED, folder / REPLACED
     if staged.is_dir():
         if not replaced.exists():
             read = {name for mark in marks.values() for name in mark["sources"]}
@@ -228,8 +222,8 @@ def _finish(folder: Path, tile_rows: int, marks: dict[str, dict]) -> dict:
     write_run_json(folder, summary)
     (folder / COMPACT).rename(folder / FINISHED)  # at once: a kill here leaves no half of the marks
     shutil.rmtree(folder / FINISHED)
-    if (folder / "parts").is_dir() and not any((folder / "parts").iterdir()):
-        (folder / "parts").rmdir()
+    if (folder / PARTS).is_dir() and not any((folder / PARTS).iterdir()):
+        (folder / PARTS).rmdir()
     return summary["compacted"]
 
 
@@ -247,7 +241,7 @@ def compact_run(folder: str | Path, tile_rows: int = TILE_ROWS, row_group_rows: 
     earlier_run_files(folder)  # nothing in it that a run did not write
     stems = [e["stem"] for e in read_manifest(folder)["inputs"]]
     shutil.rmtree(folder / FINISHED, ignore_errors=True)
-    if not (folder / "echoes").is_dir() and not (folder / COMPACT).is_dir():
+    if not (folder / ECHOES).is_dir() and not (folder / COMPACT).is_dir():
         raise ValueError(f"{folder}: has no echoes/ to compact (run with --formats including parquet)")
     marks = _marks(folder, stems)
     for stem in stems:

@@ -30,7 +30,7 @@ from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 
 from fwcore.io.crs import las_crs_wkt
-from pipeline.sinks import ExtraBytesRanges, _atomic
+from pipeline.sinks import ExtraBytesRanges, temporary_path
 
 GRID_BITS = 7  # a node's sampling grid: 128 cells a side, as untwine's
 LEAF_POINTS = 100_000  # a node with at most this many points keeps them all
@@ -303,7 +303,7 @@ def assemble_copc(parts: list[Path], path: Path, leaf_points: int = LEAF_POINTS,
     cube = Cube.around(low, high, np.asarray(header.scales))
     stem = path.name.removesuffix(".copc.laz")
     spill = parts[0].parent
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     survey = _survey(parts, header, cube)
     depth = min(bucket_depth(survey.codes, survey.counts, bucket_points), grid_bits)
     try:

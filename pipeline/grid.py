@@ -24,6 +24,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
+from pipeline.layout import ECHOES
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
@@ -35,7 +36,7 @@ BLOCK = 256  # COG tiles, pixels a side
 
 def echo_files(run_dir: Path) -> list[Path]:
     """The run's echo table: its Parquet files under echoes/ (parts or tiles)."""
-    files = sorted((run_dir / "echoes").rglob("*.parquet"))
+    files = sorted((run_dir / ECHOES).rglob("*.parquet"))
     if not files:
         raise ValueError(f"{run_dir}: the run has no echo table (echoes/*.parquet): run it with --formats parquet")
     return files

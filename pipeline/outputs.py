@@ -26,10 +26,8 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-MANIFEST = "fwl-output.json"
-RUN_JSON = "run.json"
-# the folders a run writes into; nothing else under the output folder is ours
-OUTPUT_DIRS = ("echoes", "pulses", "rejected", "las", "mcap", "copc", "logs", "parts")  # parts: per-range LAS/MCAP
+from pipeline.layout import BUCKET_SUFFIX, LOGS, MANIFEST, OUTPUT_DIRS, PARTS, RANGE_SUFFIX, RUN_JSON, TILE_SUFFIX
+
 INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
 
 
@@ -187,7 +185,7 @@ def _is_ours(relative: PurePosixPath, stems: set[str], listed: set[str]) -> bool
     if len(relative.parts) < 2 or relative.parts[0] not in OUTPUT_DIRS:
         return False
     name = relative.name
-    return relative.parts[0] == "logs" or any(name.startswith(s + ".") or name.startswith(s + "-") for s in stems)
+    return relative.parts[0] == LOGS or any(name.startswith(s + ".") or name.startswith(s + "-") for s in stems)
 
 
 def _files_under(folder: Path) -> list[PurePosixPath]:
@@ -405,14 +403,15 @@ def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT
     plan), and the folders under parts/ left empty."""
     # <stem>.las, <stem>-<range>.parquet, <stem>-tile-<n>.parquet (fwl compact), ...: not <stem>.las.las, the file
     # of an input whose stem is <stem>.las
-    own = re.compile(re.escape(stem) + r"(-\d{12}|-(tile|bucket)-\d{4,})?\.(parquet|las|laz|copc\.laz|mcap|json)(\.tmp)?")
+    own = re.compile(re.escape(stem) + rf"({RANGE_SUFFIX}|{TILE_SUFFIX}|{BUCKET_SUFFIX})?"
+                     + r"\.(parquet|las|laz|copc\.laz|mcap|json)(\.tmp)?")
     gone = []
     for d in dirs:
-        for p in sorted((folder / d).rglob("*")) if d != "logs" and (folder / d).is_dir() else []:
+        for p in sorted((folder / d).rglob("*")) if d != LOGS and (folder / d).is_dir() else []:
             if p.is_file() and own.fullmatch(p.name):
                 p.unlink()
                 gone.append(p)
-    parts = folder / "parts"
+    parts = folder / PARTS
     for d in sorted((p for p in parts.rglob("*") if p.is_dir()), reverse=True) if parts.is_dir() else []:
         if not any(d.iterdir()):
             d.rmdir()

@@ -23,11 +23,9 @@ from fwcore.io import input_summary, open_input, plan_point_ranges
 from fwcore.io.crs import input_crs
 from fwcore.io.records import PointRange
 from fwcore.survey import file_system_pulse
+from pipeline.layout import plan_path
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
-
-PLANS = Path("parts") / "plans"  # under the output folder
-
 
 class InputToPlan(NamedTuple):
     """The driver -> plan: an input as listed, under its output names."""
@@ -62,10 +60,6 @@ class FilePlan:
         return cls(InputFile.from_dict(value["source"]) if value["source"] else None,
                    tuple(point_range(r) for r in value["ranges"]),
                    Rejection(**value["rejection"]) if value["rejection"] else None)
-
-
-def plan_path(output: str | Path, stem: str) -> Path:
-    return Path(output) / PLANS / f"{stem}.json"
 
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,

@@ -17,6 +17,8 @@ import time
 from pathlib import Path
 from typing import Iterable, TextIO
 
+from pipeline.layout import LOGS
+
 # Beam and its dependencies' warnings that say nothing about the run.
 HARMLESS = ("apitools not found", "Discarding unparseable args", "semi_persistent_directory",
             "The new default partition size", "Make sure that locally built Python SDK docker image",
@@ -55,7 +57,7 @@ def quiet_imports() -> None:
 def watched_logs(output: Path, verbose: bool):
     """Logs of the run to output/logs/ (driver.log: the driver's records; workers.log: what worker processes
     print); yields the terminal's stdout and stderr for the start line and the progress bar. With verbose, the terminal gets everything too."""
-    logs = output / "logs"
+    logs = output / LOGS
     logs.mkdir(parents=True, exist_ok=True)
     root = logging.getLogger()
     saved_level, saved_handlers = root.level, list(root.handlers)

@@ -35,12 +35,14 @@ from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files,
                               resume_output_folder, take_output_folder, write_run_json)
-from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, plan_path, planned_pulses, read_plans
+from pipeline.layout import (ECHOES, LOGS, PARTS, PULSES, REJECTED, file_rejected, plan_path, progress_mark,
+                             range_is_complete, rejected_files, remove_range_files, write_file_rejection,
+                             written_parts)
+from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, planned_pulses, read_plans
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
 from pipeline.tables import empty_rejected_table
-from pipeline.transforms import (NAMESPACE, PARTS, AssembleFiles, DecomposeFlight, PlanFiles, progress_mark,
-                                 range_is_complete, remove_range_files, write_file_rejection, written_parts)
+from pipeline.transforms import NAMESPACE, AssembleFiles, DecomposeFlight, PlanFiles
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
            "OutputFolderError", "ResumeError", "is_complete", "read_run", "run", "run_settings"]
@@ -81,9 +83,9 @@ def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[
     A rejected row is a file (stage open), a pulse (pulse_id >= 0), or a problem: a range that failed
     as a whole, or point records the header promises and the file lacks (pulse_id -1).
     """
-    per_pulses = _counts_by_input(output / "pulses", ["source_file"], [("source_file", "count")])
-    per_echoes = _counts_by_input(output / "echoes", ["source_file", "kept"], [("kept", "count"), ("kept", "sum")])
-    per_rejected = _counts_by_input(output / "rejected", ["source_file", "stage", "pulse_id"],
+    per_pulses = _counts_by_input(output / PULSES, ["source_file"], [("source_file", "count")])
+    per_echoes = _counts_by_input(output / ECHOES, ["source_file", "kept"], [("kept", "count"), ("kept", "sum")])
+    per_rejected = _counts_by_input(output / REJECTED, ["source_file", "stage", "pulse_id"],
                                     [("is_file", "count"), ("is_file", "sum"), ("is_pulse", "sum")], _rejection_kinds)
     per_input = {}
     for name in names:
@@ -104,10 +106,8 @@ def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[
 def write_empty_rejected(output: Path, stems: list[str]) -> None:
     """rejected/<stem>.parquet without rows for every input of which nothing was rejected."""
     for stem in stems:
-        written = [output / "rejected" / f"{stem}.parquet"] + list((output / "rejected").glob(f"{stem}-" + "[0-9]" * 12
-                                                                                               + ".parquet"))
-        if not any(p.exists() for p in written):
-            write_part(empty_rejected_table(), output / "rejected", stem)
+        if not any(p.exists() for p in rejected_files(output, stem)):
+            write_part(empty_rejected_table(), output / REJECTED, stem)
 
 
 def whole_file_reasons(output: Path, entries: list[dict], per_input: dict[str, dict]) -> dict[str, str]:
@@ -116,7 +116,7 @@ def whole_file_reasons(output: Path, entries: list[dict], per_input: dict[str, d
     reasons = {}
     for e in entries:
         if per_input[e["name"]]["files_rejected"]:
-            rows = pq.read_table(output / "rejected" / f"{e['stem']}.parquet", columns=["stage", "reason"])
+            rows = pq.read_table(file_rejected(output, e["stem"]), columns=["stage", "reason"])
             said = [r for s, r in zip(rows.column("stage").to_pylist(), rows.column("reason").to_pylist())
                     if s == "open"]
             if said:
@@ -457,7 +457,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 method = f"{config.optimizer.value}/{_models(config, plans)}"
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {method}; "
-                          f"{_runner_name(options, jobs.in_process(len(todo), small))}; logs in {output / 'logs'}\n")
+                          f"{_runner_name(options, jobs.in_process(len(todo), small))}; logs in {output / LOGS}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
                 crs_said = crs_line(plans)
@@ -540,7 +540,7 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
     """rejected/<stem>.parquet for a file whose plan was lost (the plan job writes it for a file it rejects)."""
     for plan in plans.values():
         r = plan.rejection
-        if r is not None and not (output / "rejected" / f"{r.stem}.parquet").exists():
+        if r is not None and not file_rejected(output, r.stem).exists():
             write_file_rejection(output, r)
 
 

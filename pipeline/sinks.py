@@ -35,7 +35,8 @@ TIME_STAMP_WEEK = ("GPS seconds of the week, as nanoseconds (the file records no
                    "viewers show these as the first week of 1970)")
 
 
-def _atomic(path: Path) -> Path:
+def temporary_path(path: Path) -> Path:
+    """Where `path` is written before it is renamed into place (its folder made): a reader never sees half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     return path.with_name(path.name + ".tmp")
 
@@ -44,14 +45,14 @@ def write_part(table: pa.Table, directory: Path, name: str, **write_options) -> 
     """One deterministic part file per range: reruns and retries overwrite, never duplicate (`write_options`:
     pyarrow.parquet.write_table's)."""
     path = directory / f"{name}.parquet"
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     pq.write_table(table, tmp, **write_options)
     tmp.replace(path)
     return path
 
 
 def write_json(path: Path, value: dict) -> Path:
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     tmp.write_text(json.dumps(value))
     tmp.replace(path)
     return path
@@ -113,7 +114,7 @@ def assemble_las(parts: list[Path], path: Path, laz: bool = False) -> Path:
     with laspy.open(parts[0]) as first:
         header = first.header
     ranges = ExtraBytesRanges(header)
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     with laspy.open(tmp, mode="w", header=header, do_compress=laz) as writer:
         for part in parts:
             with laspy.open(part) as reader:
@@ -218,7 +219,7 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.nda
     """One range's kept echoes as foxglove.PointCloud messages on /echoes (chunks of consecutive pulses)
     and each pulse's raw waveform, fitted model and echoes as JSON on /waveform, in pulse order; their CRS
     as _McapFile says."""
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     with open(tmp, "wb") as f:
         out = _McapFile(f, adjusted_standard, crs_wkt)
         pulse_of_echo = cloud["pulse_id"]
@@ -243,7 +244,7 @@ def assemble_mcap(parts: list[Path], path: Path, adjusted_standard: bool) -> Pat
 
     with open(parts[0], "rb") as p:
         crs = next((m.metadata.get("wkt") for m in make_reader(p).iter_metadata() if m.name == CRS_METADATA), None)
-    tmp = _atomic(path)
+    tmp = temporary_path(path)
     with open(tmp, "wb") as f:
         out = _McapFile(f, adjusted_standard, crs)
         for part in parts:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -29,19 +28,13 @@ from fwcore.records import STATUS_REASONS, WaveformBatch
 from fwcore.survey import model_samples
 from pipeline.copc import has_point_cloud_parts
 from pipeline.geoparquet import write_echo_part
+from pipeline.layout import ECHOES, LAS, MCAP, PULSES, part_paths
 from pipeline.plan import planned_pulses
 from pipeline.records import DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection
 from pipeline.sinks import remove_parts, write_mcap, write_part
 from pipeline.tables import pulse_tables
 
 LOG = logging.getLogger("fwl")
-PARTS = "parts"  # under the output folder: range parts and progress marks, removed once the files are assembled
-
-
-def part_name(stem: str, range_start: int) -> str:
-    return f"{stem}-{range_start:012d}"
-
-
 @dataclasses.dataclass(frozen=True)
 class RangeSettings:
     """What every range of a run shares: one object, from the driver to the DoFn to these functions."""
@@ -135,30 +128,24 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     return GeolocatedRange(item.task, echoes, table, cloud, waveform_views(pulses, result) if with_views else None)
 
 
-def part_paths(output: str | Path, task: ReadTask) -> dict[str, Path]:
-    name, out = part_name(task.source.stem, task.start), Path(output)
-    return {"echoes": out / "echoes" / f"{name}.parquet", "pulses": out / "pulses" / f"{name}.parquet",
-            "las": out / PARTS / f"{name}.las", "mcap": out / PARTS / f"{name}.mcap"}
-
-
 def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], calibrated: bool) -> RangePart:
     """The range's Parquet parts, and its LAS and MCAP parts under parts/: all of them or none."""
     task, paths = item.task, part_paths(output, item.task)
     try:
         if "parquet" in formats:
-            write_echo_part(item.echoes, paths["echoes"].parent, paths["echoes"].stem)
-            write_part(item.pulses, paths["pulses"].parent, paths["pulses"].stem)
+            write_echo_part(item.echoes, paths[ECHOES].parent, paths[ECHOES].stem)
+            write_part(item.pulses, paths[PULSES].parent, paths[PULSES].stem)
         if has_point_cloud_parts(formats):
-            write_point_cloud(paths["las"], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
+            write_point_cloud(paths[LAS], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
         if "mcap" in formats:
-            write_mcap(paths["mcap"], item.cloud, item.views, task.source.adjusted_standard_gps_time,
+            write_mcap(paths[MCAP], item.cloud, item.views, task.source.adjusted_standard_gps_time,
                        task.source.crs_wkt)
     except Exception:
         remove_parts(list(paths.values()))  # a range is written whole or not at all
         raise
     return RangePart(task.source.stem, task.source.path, task.start,
-                     str(paths["las"]) if has_point_cloud_parts(formats) else "",
-                     str(paths["mcap"]) if "mcap" in formats else "", task.source.adjusted_standard_gps_time)
+                     str(paths[LAS]) if has_point_cloud_parts(formats) else "",
+                     str(paths[MCAP]) if "mcap" in formats else "", task.source.adjusted_standard_gps_time)
 
 
 # ---------------------------------------------------------------- a range, all four

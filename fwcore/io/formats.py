@@ -2,6 +2,7 @@
 and the entry points that look a file's format up in it instead of branching on it.
 
     format_of(path)          -> Format         by the file's first bytes (and name)
+    kind_of(path)            -> Kind           what any file is (its Format, if one reads it), for messages
     plan_point_ranges(path)  -> [PointRange]   every pulse in exactly one range
     read_pulses(range)       -> PulseBatch     the same record whatever the format
     input_summary(path)      -> InputSummary   what a run needs before reading
@@ -15,54 +16,32 @@ import importlib
 from pathlib import Path
 from typing import Any, Callable
 
+from fwcore.io.errors import WaveformFileError
 from fwcore.io.records import PointRange, PulseBatch
 
-PULSEWAVES_SIGNATURE = b"PulseWavesPulse"
+LAS_SIGNATURE = b"LASF"
+PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"  # a .pls's and a .wvs's first bytes
+NEON_CSV_HEADER = b"waveform_id,n_samples"
 
 
-def is_pulsewaves(path: str | Path) -> bool:
-    """A .pls file, or any file that starts with the PulseWaves signature."""
-    path = Path(path)
-    if path.suffix.lower() == ".pls":
-        return True
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(PULSEWAVES_SIGNATURE)) == PULSEWAVES_SIGNATURE
-    except OSError:
-        return False
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """What a file is, from its first bytes (or its name): the format that reads it (None: no format fwl reads),
+    and in words, for messages only ("a LAS/LAZ file", "a NEON-layout waveform CSV", ...)."""
+
+    words: str
+    format: "Format | None" = None
+    text: bool = False  # text: a CSV of another layout, a note
+    beside: bool = False  # the samples of the file beside it, which is the one to give
 
 
-# What a file is, by its first bytes (or name): a command given the wrong kind says which kind it got.
-KINDS = ((b"LASF", "a LAS/LAZ file"), (PULSEWAVES_SIGNATURE, "a PulseWaves pulse file (.pls)"),
-         (b"PulseWavesWaves", "a PulseWaves waves file (.wvs: the samples of the .pls beside it)"),
-         (b"waveform_id,n_samples", "a NEON-layout waveform CSV"))
-PACKET_SUFFIXES = {".wdp": "a LAS waveform packet file (.wdp: the samples of the .las beside it)",
-                   ".wdz": "a LASzip waveform packet file (.wdz: the samples of the .laz beside it)"}
-
-
-def file_kind(path: str | Path) -> str:
-    """What a file is, in words ("a LAS/LAZ file", "a NEON-layout waveform CSV", ...; a binary file of another
-    format: FOREIGN_BINARY)."""
-    path = Path(path)
-    if path.suffix.lower() in PACKET_SUFFIXES:
-        return PACKET_SUFFIXES[path.suffix.lower()]
-    try:
-        with open(path, "rb") as f:
-            head = f.read(64)
-    except OSError:
-        return "an unreadable file"
-    head = head.removeprefix(b"\xef\xbb\xbf")  # a CSV saved with a byte-order mark
-    for signature, kind in KINDS:
-        if head.startswith(signature):
-            return kind
-    if not head:
-        return "an empty file"
-    if head[2:11] == b"LASF_Spec":  # a .wdp's: the header of the record that holds its packets
-        return PACKET_SUFFIXES[".wdp"]
-    return ("a text file" + (" (CSV)" if b"," in head else "")) if _is_text(head) else FOREIGN_BINARY
-
-
-FOREIGN_BINARY = "a binary file of no format fwl reads"
+UNREADABLE, EMPTY = Kind("an unreadable file"), Kind("an empty file")
+TEXT, CSV_TEXT = Kind("a text file", text=True), Kind("a text file (CSV)", text=True)
+FOREIGN_BINARY = Kind("a binary file of no format fwl reads")
+WAVES_FILE = Kind("a PulseWaves waves file (.wvs: the samples of the .pls beside it)", beside=True)
+WDP_FILE = Kind("a LAS waveform packet file (.wdp: the samples of the .las beside it)", beside=True)
+WDZ_FILE = Kind("a LASzip waveform packet file (.wdz: the samples of the .laz beside it)", beside=True)
+SAMPLE_SUFFIXES = {".wdp": WDP_FILE, ".wdz": WDZ_FILE}
 _CONTROL = bytes(set(range(32)) - {9, 10, 12, 13})  # bytes no text holds (tab, newlines, form feed do)
 
 
@@ -77,14 +56,34 @@ def _is_text(head: bytes) -> bool:
     return True
 
 
+def kind_of(path: str | Path) -> Kind:
+    """What a file is, from one read of its first 64 bytes (a packet file by its name)."""
+    path = Path(path)
+    if path.suffix.lower() in SAMPLE_SUFFIXES:
+        return SAMPLE_SUFFIXES[path.suffix.lower()]
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64)
+    except OSError:
+        return UNREADABLE
+    head = head.removeprefix(b"\xef\xbb\xbf")  # a CSV saved with a byte-order mark
+    for fmt in FORMATS:
+        if head.startswith(fmt.signature):
+            return Kind(fmt.kind, fmt)
+    if head.startswith(WAVES_SIGNATURE):
+        return WAVES_FILE
+    if not head:
+        return EMPTY
+    if head[2:11] == b"LASF_Spec":  # a .wdp's: the header of the record that holds its packets
+        return WDP_FILE
+    return (CSV_TEXT if b"," in head else TEXT) if _is_text(head) else FOREIGN_BINARY
+
+
 def wrong_kind(path: str | Path, wanted: str) -> str:
     """ "PATH is a NEON-layout waveform CSV, not WANTED" with the command that reads it, where one does."""
-    kind = file_kind(path)
-    reader = {"a LAS/LAZ file": "fwl run reads it", "a PulseWaves pulse file (.pls)": "fwl run reads it",
-              "a NEON-layout waveform CSV": "fwl decompose-csv reads it"}.get(kind)
-    if kind.startswith(("a PulseWaves waves", "a LAS waveform", "a LASzip waveform")):
-        reader = "give the file beside it"
-    return f"{path} is {kind}, not {wanted}" + (f" ({reader})" if reader else "")
+    kind = kind_of(path)
+    reader = f"{kind.format.reads_with} reads it" if kind.format else "give the file beside it" if kind.beside else None
+    return f"{path} is {kind.words}, not {wanted}" + (f" ({reader})" if reader else "")
 
 
 LAS_GLOBAL_ENCODING_AT = 6  # uint16 in the public header block; bit 2 (value 4): waveform packets external
@@ -104,16 +103,18 @@ def packet_file(path: str | Path) -> Path | None:
 def needs_packet_file(path: str | Path) -> bool:
     """Whether the samples of `path` live in a file beside it: always for PulseWaves; for LAS, as the header's
     global encoding says (read from its bytes, so a file still being copied answers too)."""
-    if is_pulsewaves(path):
-        return True
+    path = Path(path)
     try:
         with open(path, "rb") as f:
-            head = f.read(LAS_GLOBAL_ENCODING_AT + 2)
+            head = f.read(len(PULSE_SIGNATURE))
     except OSError:
-        return False
-    if len(head) < LAS_GLOBAL_ENCODING_AT + 2 or head[:4] != b"LASF":
+        head = b""
+    if path.suffix.lower() in PULSEWAVES.suffixes or head.startswith(PULSE_SIGNATURE):
+        return True
+    if len(head) < LAS_GLOBAL_ENCODING_AT + 2 or not head.startswith(LAS_SIGNATURE):
         return False  # not LAS (yet): whoever opens it says what is wrong
-    return bool(int.from_bytes(head[LAS_GLOBAL_ENCODING_AT:], "little") & LAS_EXTERNAL_PACKETS)
+    return bool(int.from_bytes(head[LAS_GLOBAL_ENCODING_AT:LAS_GLOBAL_ENCODING_AT + 2], "little")
+                & LAS_EXTERNAL_PACKETS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,7 +127,7 @@ class InputSummary:
 
 @dataclasses.dataclass(frozen=True)
 class Format:
-    """One input format: its name, the files it spans, and what each entry point does with it (None: it cannot).
+    """One input format, as data: how a file shows it, and what each entry point does with it (None: it cannot).
 
     open(path) -> the opened header; plan(path, points_per_range, opened) -> [PointRange];
     read(range_or_path, opened) -> PulseBatch; summary(path, opened) -> InputSummary;
@@ -134,9 +135,12 @@ class Format:
     """
 
     name: str
+    kind: str  # what a file of it is, in words: for messages only
+    signature: bytes  # its files' first bytes
     reads_with: str  # the command that takes it
     open: Callable[[Path], Any]
     describe: Callable[[Path], dict]
+    suffixes: tuple[str, ...] = ()  # names that say the format whatever the first bytes (lower case)
     plan: Callable[..., list[PointRange]] | None = None
     read: Callable[..., PulseBatch] | None = None
     summary: Callable[..., InputSummary] | None = None
@@ -183,30 +187,39 @@ def _neon_describe(path):
             "samples": {"min": min(lengths), "max": max(lengths)}, "problems": []}
 
 
-LAS = Format("LAS/LAZ", "fwl run", _lazy("fwcore.io.las", "open_waveform_file"),
-             _lazy("fwcore.io.info", "describe_las"), _las_plan, _lazy("fwcore.io.las", "read_las_pulses"),
-             _las_summary, _las_crs, lambda path: _lazy("fwcore.io.packets", "external_packet_file")(Path(path)))
-PULSEWAVES = Format("PulseWaves", "fwl run", _lazy("fwcore.io.pulsewaves", "open_pulsewaves"),
-                    _lazy("fwcore.io.info", "describe_pulsewaves"), _lazy("fwcore.io.pulsewaves", "plan_pulse_ranges"),
-                    _lazy("fwcore.io.pulsewaves", "read_pulsewaves"), _pw_summary, _pw_crs,
-                    lambda path: _lazy("fwcore.io.pulsewaves", "waves_file")(Path(path)))
-NEON_CSV = Format("NEON waveform CSV", "fwl decompose-csv", _lazy("fwcore.io.neon", "read_neon_csv"), _neon_describe)
+LAS = Format(name="LAS/LAZ", kind="a LAS/LAZ file", signature=LAS_SIGNATURE, reads_with="fwl run",
+             open=_lazy("fwcore.io.las", "open_waveform_file"), describe=_lazy("fwcore.io.info", "describe_las"),
+             plan=_las_plan, read=_lazy("fwcore.io.las", "read_las_pulses"), summary=_las_summary, crs=_las_crs,
+             samples_beside=lambda path: _lazy("fwcore.io.packets", "external_packet_file")(Path(path)))
+PULSEWAVES = Format(name="PulseWaves", kind="a PulseWaves pulse file (.pls)", signature=PULSE_SIGNATURE,
+                    reads_with="fwl run", open=_lazy("fwcore.io.pulsewaves", "open_pulsewaves"),
+                    describe=_lazy("fwcore.io.info", "describe_pulsewaves"), suffixes=(".pls",),
+                    plan=_lazy("fwcore.io.pulsewaves", "plan_pulse_ranges"),
+                    read=_lazy("fwcore.io.pulsewaves", "read_pulsewaves"), summary=_pw_summary, crs=_pw_crs,
+                    samples_beside=lambda path: _lazy("fwcore.io.pulsewaves", "waves_file")(Path(path)))
+NEON_CSV = Format(name="NEON waveform CSV", kind="a NEON-layout waveform CSV", signature=NEON_CSV_HEADER,
+                  reads_with="fwl decompose-csv", open=_lazy("fwcore.io.neon", "read_neon_csv"),
+                  describe=_neon_describe)
 FORMATS = (LAS, PULSEWAVES, NEON_CSV)
 
 
 def format_of(path: str | Path) -> Format:
-    """The format of a file by its first bytes (a .pls by its name too); LAS otherwise, whose opener names
-    what else a file is."""
-    if is_pulsewaves(path):
-        return PULSEWAVES
-    return NEON_CSV if file_kind(path) == "a NEON-layout waveform CSV" else LAS
+    """The format of a file by its name (.pls) or first bytes; LAS otherwise, whose opener names what else a
+    file is."""
+    by_name = [fmt for fmt in FORMATS if Path(path).suffix.lower() in fmt.suffixes]
+    return by_name[0] if by_name else kind_of(path).format or LAS
+
+
+def is_pulsewaves(path: str | Path) -> bool:
+    """A .pls file, or any file that starts with the PulseWaves signature."""
+    return format_of(path) is PULSEWAVES
 
 
 def _able(fmt: Format, path, what: str):
     action = getattr(fmt, what)
     if action is None:
-        raise ValueError(f"{path} is {file_kind(path)}, not a flight line of full waveforms: give it to "
-                         f"{fmt.reads_with}")
+        raise WaveformFileError(f"{path} is {kind_of(path).words}, not a flight line of full waveforms: give it to "
+                                f"{fmt.reads_with}")
     return action
 
 

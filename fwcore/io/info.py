@@ -10,7 +10,7 @@ import numpy as np
 
 from fwcore.io.crs import crs_name, las_crs_wkt
 from fwcore.io.descriptors import ranges_text
-from fwcore.io.las import _OFFSET_MASK, _Points, _packet_keys, open_waveform_file
+from fwcore.io.las import OFFSET_MASK, PointRecords, packet_keys, open_waveform_file
 from fwcore.io.ownership import pulse_ownership
 from fwcore.io.pulsewaves import VARIES, LookupTable, PulseWavesFile, open_pulsewaves
 
@@ -28,16 +28,16 @@ def describe_las(path: str | Path, chunk_points: int = 1_000_000) -> dict:
 
     def key_chunks(points):  # the pass also finds the GPS time range and the largest packet offset
         for at, rows in points.chunks(chunk_points):
-            keys = _packet_keys(rows)
+            keys = packet_keys(rows)
             gps = np.asarray(rows["gps_time"])
             gps = gps[np.isfinite(gps)]
             if gps.size:
                 seen["gps"] = [min(seen["gps"][0], gps.min()), max(seen["gps"][1], gps.max())]
             if (keys >= 0).any():
-                seen["offset"] = max(seen["offset"], int((keys[keys >= 0] & _OFFSET_MASK).max()))
+                seen["offset"] = max(seen["offset"], int((keys[keys >= 0] & OFFSET_MASK).max()))
             yield at, keys
 
-    with _Points(wf) as points:  # one pulse per distinct packet, counted in bounded memory
+    with PointRecords(wf) as points:  # one pulse per distinct packet, counted in bounded memory
         owned = pulse_ownership(key_chunks(points), wf.point_count, max(1, wf.point_count))
     t_min, t_max = (float(t) for t in seen["gps"]) if np.isfinite(seen["gps"][0]) else (None, None)
     per_descriptor = {i: int(c) for i, c in enumerate(owned.descriptor_pulses) if c}

@@ -23,6 +23,7 @@ import laspy
 import numpy as np
 
 from fwcore.io.descriptors import WaveformDescriptor, read_descriptors, warn_unusable
+from fwcore.io.errors import WaveformFileError
 from fwcore.io.ownership import BUCKET_POINTS, KEY_SHIFT, pulse_ownership
 from fwcore.io.packets import PacketStore, external_packet_file, lastools_compression
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
@@ -30,7 +31,7 @@ from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 LOG = logging.getLogger("fwl")
 MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
 MAX_GPS_TIME_S = 2e9  # adjusted standard GPS time spans 1980-2043 within +-1e9 s; week time < 604800 s
-_OFFSET_MASK = np.int64((1 << 48) - 1)
+OFFSET_MASK = np.int64((1 << 48) - 1)  # a packet key's byte offset bits (ownership.KEY_SHIFT)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,10 +51,6 @@ POINT_FORMATS = {
     10: PointFormat("scan_angle", 0.006, rgb=True, nir=True),
 }
 WAVEFORM_POINT_FORMATS = tuple(POINT_FORMATS)
-
-
-class WaveformFileError(ValueError):
-    """A file that cannot be read as full-waveform LAS; the message names the file."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,11 +94,11 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
         with laspy.open(path) as reader:
             header = reader.header
     except Exception as err:  # laspy raises several types for a damaged header
-        from fwcore.io.formats import FOREIGN_BINARY, file_kind, wrong_kind
-        kind = file_kind(path)
-        if kind not in ("a LAS/LAZ file", FOREIGN_BINARY):  # a known other kind (text, CSV, packets): say which
+        from fwcore.io.formats import FOREIGN_BINARY, LAS, kind_of, wrong_kind
+        kind = kind_of(path)
+        if kind.format is not LAS and kind is not FOREIGN_BINARY:  # a known other kind (text, CSV, packets): say which
             raise WaveformFileError(wrong_kind(path, "a LAS/LAZ or PulseWaves file")) from None
-        said = f": {kind}" if kind == FOREIGN_BINARY else ""  # random bytes, or a LAS whose signature is damaged
+        said = f": {kind.words}" if kind is FOREIGN_BINARY else ""  # random bytes, or a LAS whose signature is damaged
         raise WaveformFileError(f"{path}: not a readable LAS/LAZ file{said} ({err})") from None
     fmt = header.point_format.id
     if fmt not in WAVEFORM_POINT_FORMATS:
@@ -162,7 +159,7 @@ def _point_records(data: np.ndarray | None, reader, start: int, stop: int, extra
     return laspy.PackedPointRecord(np.concatenate(parts), point_format)
 
 
-class _Points:
+class PointRecords:
     """An open file's point records: a memory map for LAS, laspy's reader for LAZ."""
 
     def __init__(self, wf: WaveformFile):
@@ -205,10 +202,11 @@ class _Points:
                 yield at, self.read(at, stop).array
 
 
-def _packet_keys(points) -> np.ndarray:
+def packet_keys(points) -> np.ndarray:
+    """Each point's packet as one int64 (descriptor index << KEY_SHIFT | byte offset); -1: it points at none."""
     index = np.asarray(points["wavepacket_index"]).astype(np.int64)
     offset = np.asarray(points["wavepacket_offset"]).astype(np.int64)
-    return np.where((index > 0) & (offset >= 0) & (offset <= _OFFSET_MASK), (index << KEY_SHIFT) | offset, -1)
+    return np.where((index > 0) & (offset >= 0) & (offset <= OFFSET_MASK), (index << KEY_SHIFT) | offset, -1)
 
 
 # ---------------------------------------------------------------- plan
@@ -228,8 +226,8 @@ def plan_las_ranges(path: str | Path, points_per_range: int = 10_000, chunk_poin
     n = wf.point_count
     if n == 0:
         return [PointRange(str(path), 0, 0, n_pulses=0, problems=wf.problems)] if wf.problems else []
-    with _Points(wf) as points:
-        key_chunks = ((at, _packet_keys(rows)) for at, rows in points.chunks(chunk_points))
+    with PointRecords(wf) as points:
+        key_chunks = ((at, packet_keys(rows)) for at, rows in points.chunks(chunk_points))
         owned = pulse_ownership(key_chunks, n, points_per_range, bucket_points)
     warn_unusable(wf.path.name, {i: d.problem for i, d in wf.descriptors.items() if d.problem},
                   owned.descriptor_points, "points' pulses")
@@ -267,14 +265,14 @@ def read_las_pulses(point_range: PointRange | str | Path, wf: WaveformFile | Non
     wf = wf or open_waveform_file(point_range.path)
     stop = min(point_range.stop, wf.point_count)
     extra = tuple(p for p in point_range.extra_points if p < wf.point_count)
-    with _Points(wf) as source:
+    with PointRecords(wf) as source:
         points = source.read(point_range.start, stop, extra) if stop > point_range.start or extra else None
         scale, offset = source.reader.header.scales, source.reader.header.offsets
     rejected = [(-1, reason) for reason in point_range.problems]
     if points is None or len(points) == 0:
         return _empty_batch(str(wf.path), tuple(rejected))
     index = np.concatenate([np.arange(point_range.start, stop), np.asarray(extra, dtype=np.int64)])
-    keys = _packet_keys(points)
+    keys = packet_keys(points)
     keep = keys >= 0
     if point_range.foreign_points:
         keep &= ~np.isin(index, np.asarray(point_range.foreign_points))
@@ -284,34 +282,55 @@ def read_las_pulses(point_range: PointRange | str | Path, wf: WaveformFile | Non
                              "point at no waveform packet (descriptor index 0, or an impossible offset)"))
     xyz = np.stack([_field(points, "X") * scale[0] + offset[0], _field(points, "Y") * scale[1] + offset[1],
                     _field(points, "Z") * scale[2] + offset[2]], axis=1)
-    return_number = _field(points, "return_number", np.int64)
-    sel = np.flatnonzero(keep)
-    # group points by packet; within a pulse, order by return number so the first is the anchor
-    order = sel[np.lexsort((return_number[sel], index[sel], keys[sel]))]
-    pulse_keys, starts = np.unique(keys[order], return_index=True)
-    bounds = np.append(starts, order.size)
-    # pulses in file order of their first point, as a reader would meet them
-    first_point = np.minimum.reduceat(index[order], starts) if order.size else np.zeros(0, np.int64)
-    pulse_order = np.argsort(first_point, kind="stable")[:point_range.max_pulses]
-    pulse_keys, first_of = pulse_keys[pulse_order], bounds[pulse_order]
-    n_points = (bounds[1:] - bounds[:-1])[pulse_order]
+    order, pulse_keys, first_of, n_points = _pulses_of(points, index, keys, keep, point_range.max_pulses)
     anchors = order[first_of]
-
     gps_time = _field(points, "gps_time")[anchors]
     direction = np.stack([_field(points, c)[anchors] for c in ("x_t", "y_t", "z_t")], axis=1)
     location = _field(points, "return_point_wave_location")[anchors]
     pulse_id = pulse_identity(gps_time, xyz[anchors])
     d_index = (pulse_keys >> KEY_SHIFT).astype(np.int64)
-    byte_offset = pulse_keys & _OFFSET_MASK
+    byte_offset = pulse_keys & OFFSET_MASK
     sizes = _field(points, "wavepacket_size", np.int64)[anchors]
+    reason = _implausible(wf, gps_time, direction, location)
+    got = _read_packets(wf, d_index, byte_offset, sizes, direction, location, reason)
+    good = np.flatnonzero(reason == None)  # noqa: E711 (object array)
+    rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
+    samples, sample_offsets = _flat_samples(got, good, pulse_keys.size)
+    return _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index,
+                  gps_time, direction, location, samples, sample_offsets, tuple(rejected))
 
-    reason = np.full(pulse_keys.size, None, dtype=object)
+
+def _pulses_of(points, index: np.ndarray, keys: np.ndarray, keep: np.ndarray, max_pulses: int | None):
+    """The kept points grouped by packet (`order`), and per pulse its key, where its points start in `order`
+    and how many they are; pulses in file order of their first point, as a reader would meet them."""
+    return_number = _field(points, "return_number", np.int64)
+    sel = np.flatnonzero(keep)
+    # within a pulse, order by return number so the first is the anchor
+    order = sel[np.lexsort((return_number[sel], index[sel], keys[sel]))]
+    pulse_keys, starts = np.unique(keys[order], return_index=True)
+    bounds = np.append(starts, order.size)
+    first_point = np.minimum.reduceat(index[order], starts) if order.size else np.zeros(0, np.int64)
+    pulse_order = np.argsort(first_point, kind="stable")[:max_pulses]
+    n_points = (bounds[1:] - bounds[:-1])[pulse_order]
+    return order, pulse_keys[pulse_order], bounds[pulse_order], n_points
+
+
+def _implausible(wf: WaveformFile, gps_time: np.ndarray, direction: np.ndarray, location: np.ndarray) -> np.ndarray:
+    """Per pulse None, or why its fields rule it out (non-finite, a GPS time no flight has)."""
+    reason = np.full(gps_time.size, None, dtype=object)
     finite = np.isfinite(direction).all(axis=1) & np.isfinite(location) & np.isfinite(gps_time)
     reason[~finite] = f"{wf.path.name}: non-finite x_t/y_t/z_t, return point location or GPS time"
     timeless = finite & ~(np.abs(gps_time) <= MAX_GPS_TIME_S)
     reason[timeless] = [f"{wf.path.name}: implausible GPS time {t:.6g} s" for t in gps_time[timeless]]
-    finite &= ~timeless
-    got = {}  # descriptor -> (rows of its pulses that were read, their samples (k, n))
+    return reason
+
+
+def _read_packets(wf: WaveformFile, d_index: np.ndarray, byte_offset: np.ndarray, sizes: np.ndarray,
+                  direction: np.ndarray, location: np.ndarray, reason: np.ndarray) -> dict:
+    """The samples of the pulses `reason` leaves (None), descriptor by descriptor: {descriptor: (rows read,
+    samples (k, n))}; why each other pulse is lost goes into `reason`."""
+    finite = reason == None  # noqa: E711 (object array)
+    got = {}
     data = wf.packets.open()
     for d in np.unique(d_index):
         mine = np.flatnonzero((d_index == d) & finite)
@@ -334,22 +353,23 @@ def read_las_pulses(point_range: PointRange | str | Path, wf: WaveformFile | Non
         lost = np.array([p is not None for p in problems], dtype=bool)
         reason[mine[lost]] = np.array([p for p in problems if p is not None], dtype=object)
         got[int(d)] = (mine[~lost], values[~lost])
-    good = np.flatnonzero(reason == None)  # noqa: E711 (object array)
-    rejected += [(int(pulse_id[i]), str(reason[i])) for i in np.flatnonzero(reason != None)]  # noqa: E711
-    # the samples of the good pulses, flat, in pulse order
-    n_samples = np.zeros(pulse_keys.size, np.int64)
+    return got
+
+
+def _flat_samples(got: dict, good: np.ndarray, n_pulses: int) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of the good pulses, flat, in pulse order, and the offset of each pulse's first sample."""
+    n_samples = np.zeros(n_pulses, np.int64)
     for d, (rows, values) in got.items():
         n_samples[rows] = values.shape[1]
     sample_offsets = np.zeros(good.size + 1, dtype=np.int64)
     np.cumsum(n_samples[good], out=sample_offsets[1:])
     samples = np.empty(sample_offsets[-1], np.float64)
-    position = np.full(pulse_keys.size, -1, np.int64)
+    position = np.full(n_pulses, -1, np.int64)
     position[good] = np.arange(good.size)
     for d, (rows, values) in got.items():
         if rows.size:
             samples[sample_offsets[position[rows]][:, None] + np.arange(values.shape[1])] = values
-    return _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index,
-                  gps_time, direction, location, samples, sample_offsets, tuple(rejected))
+    return samples, sample_offsets
 
 
 def _batch(wf, points, xyz, order, first_of, n_points, anchors, good, pulse_id, byte_offset, d_index, gps_time,

@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fwcore.io.errors import WaveformCsvError
+from fwcore.io.formats import NEON_CSV, kind_of, wrong_kind
+
 NEON_SAMPLE_SPACING_PS = 1000.0
 
 
@@ -29,14 +32,14 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such waveform CSV")
     ids, samples, valid = [], [], []
-    from fwcore.io.formats import file_kind, wrong_kind
-    if not file_kind(path).startswith(("a NEON", "a text")):
-        raise ValueError(wrong_kind(path, "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"))
+    kind = kind_of(path)
+    if kind.format is not NEON_CSV and not kind.text:
+        raise WaveformCsvError(wrong_kind(path, "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"))
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(f)
         header = next(reader, None)
         if not header or header[:3] != ["waveform_id", "n_samples", "s0"]:
-            raise ValueError(f"{path}: not a NEON waveform CSV (expected header waveform_id, n_samples, s0, ...)")
+            raise WaveformCsvError(f"{path}: not a NEON waveform CSV (expected header waveform_id, n_samples, s0, ...)")
         for line, row in enumerate(reader, start=2):
             if not row:
                 continue
@@ -44,7 +47,7 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
                 values = np.array([float(v) if v not in ("", "NA") else np.nan for v in row[2:]])
                 wid = int(float(row[0]))
             except ValueError as err:
-                raise ValueError(f"{path}:{line}: unreadable value ({err})") from None
+                raise WaveformCsvError(f"{path}:{line}: unreadable value ({err})") from None
             present = (values != 0) & ~np.isnan(values)
             end = int(np.flatnonzero(present)[-1]) + 1 if present.any() else 0
             ids.append(wid)
@@ -52,5 +55,5 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
             mask = values[:end] != 0  # NaN stays "valid" so that the engine reports it
             valid.append(mask)
     if not ids:
-        raise ValueError(f"{path}: no waveforms")
+        raise WaveformCsvError(f"{path}: no waveforms")
     return CsvWaveforms(np.array(ids, dtype=np.int64), samples, valid)

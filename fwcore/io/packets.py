@@ -16,13 +16,10 @@ import numpy as np
 
 from fwcore.io import wdz
 from fwcore.io.descriptors import WaveformDescriptor
+from fwcore.io.errors import PacketError, WdzError
 
 EVLR_HEADER_BYTES = 60
 LASTOOLS_SIGNATURE = b"LAStools waveform "
-
-
-class PacketError(ValueError):
-    """A packet of one pulse cannot be read: the pulse is rejected, the file goes on."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,7 +53,7 @@ class PacketStore:
             for j, at in enumerate(start.tolist()):
                 try:
                     out[j] = wdz.decode_packet(data, at, n, descriptor.bits_per_sample)
-                except wdz.WdzError as err:
+                except WdzError as err:
                     problems[j] = f"{self.path.name}: {err}"
             return out, problems
         short = (sizes > 0) & (sizes < need)

@@ -34,10 +34,10 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.io.crs import geokeys_from_bytes, looks_earth_centred, wkt_from_epsg, wkt_from_geokeys
 from fwcore.io.descriptors import warn_unusable
-from fwcore.io.las import WaveformFileError
+from fwcore.io.errors import WaveformFileError
+from fwcore.io.formats import PULSE_SIGNATURE, WAVES_SIGNATURE
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
-PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"
 WAVES_HEADER_BYTES = 60
 VLR_HEADER_BYTES = 96
 OUTGOING, RETURNING = 1, 2
@@ -371,7 +371,7 @@ def open_pulsewaves(path: str | Path) -> PulseWavesFile:
     waves = waves_file(path)
     with open(waves, "rb") as f:
         head = f.read(WAVES_HEADER_BYTES)
-    if len(head) < 20 or head[:16] != WAVES_SIGNATURE:
+    if len(head) < 20 or not head.startswith(WAVES_SIGNATURE):
         raise WaveformFileError(f"{waves}: not a PulseWaves waves file (signature {head[:15]!r})")
     compression = struct.unpack_from("<I", head, 16)[0]
     if compression != 0:

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
+from fwcore.io.errors import WdzError
 
 _MIN_LENGTH = np.uint64(0x01000000)
 _MAX_LENGTH = np.uint64(0xFFFFFFFF)
@@ -24,10 +25,6 @@ _BM_LENGTH_SHIFT = 13
 _BM_MAX_COUNT = 1 << 13
 _DM_LENGTH_SHIFT = 15
 _DM_MAX_COUNT = 1 << 15
-
-
-class WdzError(ValueError):
-    """A compressed packet that cannot be decoded (truncated or not LASzip-coded)."""
 
 
 # A symbol model is a row of int64 state plus arrays: counts, distribution, decoder table.

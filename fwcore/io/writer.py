@@ -206,9 +206,11 @@ class WaveformLasWriter:
         n = len(pulses)
         bits = np.broadcast_to(np.asarray(bits), (n,))
         if not np.isin(bits, (8, 16)).all():
-            raise ValueError("bits per sample must be 8 or 16")
+            raise ValueError(f"{self.path.name}: bits per sample must be 8 or 16, not "
+                             f"{sorted(set(bits.tolist()) - {8, 16})}")
         if np.any(np.diff(pulses.return_offsets) < 1):
-            raise ValueError("every pulse needs at least one point (system return) to carry its packet")
+            raise ValueError(f"{self.path.name}: every pulse needs at least one point (system return) to carry its "
+                             "packet")
         lengths = np.diff(pulses.sample_offsets)
         kinds = list(zip(bits.tolist(), lengths.tolist(), pulses.sample_spacing_ps.tolist(),
                          pulses.digitizer_gain.tolist(), pulses.digitizer_offset.tolist()))

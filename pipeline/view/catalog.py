@@ -16,9 +16,8 @@ import glob
 import os
 from pathlib import Path
 
+from pipeline.layout import ECHOES, RUN_JSON
 from pipeline.outputs import INPUT_SUFFIXES, is_complete, read_run
-
-RUN_PARTS = ("echoes", "pulses", "rejected", "las", "mcap")
 
 
 class OutsideRoots(PermissionError):
@@ -27,7 +26,7 @@ class OutsideRoots(PermissionError):
 
 def is_complete_run(folder: Path) -> bool:
     """A finished run (`fwl run` writes run.json last) with an echo table to show."""
-    return is_complete(folder) and (folder / "echoes").is_dir()
+    return is_complete(folder) and (folder / ECHOES).is_dir()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,7 +108,7 @@ class Roots:
     def runs(self) -> list[Path]:
         found = set()
         for root in self.folders:
-            for marker in root.rglob("run.json"):
+            for marker in root.rglob(RUN_JSON):
                 folder = marker.parent.resolve()
                 if folder.is_relative_to(root) and is_complete_run(folder):
                     found.add(folder)

@@ -19,8 +19,8 @@ import threading
 import time
 from pathlib import Path
 
+from pipeline.layout import PARTS, RUN_JSON
 from pipeline.progress import ProgressBar
-from pipeline.transforms import PARTS
 from pipeline.view.catalog import is_complete_run
 
 POINTS_PER_RANGE = 5000  # fwl run's default unit of work
@@ -37,9 +37,9 @@ def _owner(output: Path) -> Path | None:
     claim = _claim(output)
     if claim.is_file():
         return Path(claim.read_text().strip())
-    if (output / "run.json").is_file():
+    if (output / RUN_JSON).is_file():
         try:
-            inputs = json.loads((output / "run.json").read_text()).get("inputs", [])
+            inputs = json.loads((output / RUN_JSON).read_text()).get("inputs", [])
         except (OSError, ValueError):
             return Path("/")  # unreadable: someone's, not to be replaced
         paths = [e["path"] if isinstance(e, dict) else e for e in inputs]

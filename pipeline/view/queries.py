@@ -17,6 +17,8 @@ import duckdb
 import numpy as np
 import pyarrow.parquet as pq
 
+from pipeline.layout import ECHOES, PULSES, REJECTED, RUN_JSON
+
 # the page's colour choices -> echo table columns
 COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "fit_error": "fit_error",
                   "reflectance": "reflectance", "range": "range_m"}
@@ -84,7 +86,7 @@ class Frame:
 
 def _crs_of(run: Path):
     """The pyproj CRS of the run's echo table (its GeoParquet metadata), None when the input named none."""
-    files = sorted((run / "echoes").glob("*.parquet"))
+    files = sorted((run / ECHOES).glob("*.parquet"))
     if not files:
         return None
     meta = pq.read_schema(files[0]).metadata or {}
@@ -100,7 +102,7 @@ def _crs_of(run: Path):
 
 
 def frame(run: Path) -> Frame:
-    return _frame(run, (run / "run.json").stat().st_mtime_ns if (run / "run.json").exists() else 0)
+    return _frame(run, (run / RUN_JSON).stat().st_mtime_ns if (run / RUN_JSON).exists() else 0)
 
 
 @functools.lru_cache(maxsize=64)
@@ -135,7 +137,7 @@ def _frame(run: Path, _mtime: int) -> Frame:
 
 
 def _raw_bounds(run: Path) -> dict | None:
-    echoes = _table(run, "echoes")
+    echoes = _table(run, ECHOES)
     if echoes is None:
         return None
     r = _connection().execute(f"SELECT min(x), max(x), min(y), max(y), min(z), max(z), count(*) "
@@ -145,7 +147,7 @@ def _raw_bounds(run: Path) -> dict | None:
 
 def bounds(run: Path) -> dict[str, list[float]] | None:
     """The echoes' extent in the map's frame."""
-    echoes = _table(run, "echoes")
+    echoes = _table(run, ECHOES)
     if echoes is None:
         return None
     fx, fy, fz = frame(run).sql()
@@ -157,7 +159,7 @@ def bounds(run: Path) -> dict[str, list[float]] | None:
 
 
 def source_files(run: Path) -> list[str]:
-    pulses = _table(run, "pulses")
+    pulses = _table(run, PULSES)
     if pulses is None:
         return []
     return [r[0] for r in _connection().execute(f"SELECT DISTINCT source_file FROM {pulses} ORDER BY 1").fetchall()]
@@ -165,12 +167,12 @@ def source_files(run: Path) -> list[str]:
 
 def colours(run: Path) -> dict[str, str | None]:
     """Each colour mode: None where the run's echoes have the column with values, else why not."""
-    return _colours(run, (run / "run.json").stat().st_mtime_ns if (run / "run.json").exists() else 0)
+    return _colours(run, (run / RUN_JSON).stat().st_mtime_ns if (run / RUN_JSON).exists() else 0)
 
 
 @functools.lru_cache(maxsize=64)
 def _colours(run: Path, _mtime: int) -> dict[str, str | None]:
-    echoes = _table(run, "echoes")
+    echoes = _table(run, ECHOES)
     if echoes is None:
         return {c: "the run has no echoes" for c in COLOUR_COLUMNS}
     columns = {r[0] for r in _connection().execute(f"DESCRIBE SELECT * FROM {echoes}").fetchall()}
@@ -214,7 +216,7 @@ def echoes_in_box(run: Path, colour: str, box: tuple[float, float, float, float]
 
 
 def _echoes_in_box(run: Path, colour: str, box, limit: int, kept_only: bool) -> dict:
-    echoes = _table(run, "echoes")
+    echoes = _table(run, ECHOES)
     files = source_files(run)
     unavailable = colours(run)[colour]
     view = frame(run)
@@ -247,7 +249,7 @@ def _echoes_in_box(run: Path, colour: str, box, limit: int, kept_only: bool) -> 
 
 def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
     """The echo table's rows of one pulse, in echo order."""
-    echoes = _table(run, "echoes")
+    echoes = _table(run, ECHOES)
     if echoes is None:
         return []
     cur = _connection().execute(f"SELECT * FROM {echoes} WHERE source_file = ? AND pulse_id = ? "
@@ -259,7 +261,7 @@ def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:
 
 def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | None:
     """The pulse table's row of one pulse and the part file that holds it."""
-    pulses = _table(run, "pulses", filename=True)
+    pulses = _table(run, PULSES, filename=True)
     if pulses is None:
         return None
     cur = _connection().execute(f"SELECT * FROM {pulses} WHERE source_file = ? AND pulse_id = ? LIMIT 1",
@@ -274,7 +276,7 @@ def pulse_row(run: Path, source_file: str, pulse_id: int) -> tuple[dict, str] | 
 
 def first_pulse(run: Path) -> tuple[str, int] | None:
     """The pulse with the most echoes (the first such in file order): a telling one to show first."""
-    pulses = _table(run, "pulses")
+    pulses = _table(run, PULSES)
     if pulses is None:
         return None
     row = _connection().execute(f"SELECT source_file, pulse_id FROM {pulses} "
@@ -284,7 +286,7 @@ def first_pulse(run: Path) -> tuple[str, int] | None:
 
 def rejected(run: Path, limit: int = 500) -> dict:
     """The rejected pulses (first `limit`) and how many of each reason."""
-    table = _table(run, "rejected")
+    table = _table(run, REJECTED)
     if table is None:
         return {"total": 0, "reasons": [], "rows": []}
     con = _connection()
@@ -313,7 +315,7 @@ def _histogram(values: np.ndarray, integer: bool = False) -> dict:
 
 def distributions(run: Path) -> dict:
     """Echoes per pulse (all and kept), fit error per pulse, amplitude per echo (kept and spurious)."""
-    pulses, echoes = _table(run, "pulses"), _table(run, "echoes")
+    pulses, echoes = _table(run, PULSES), _table(run, ECHOES)
     out = {}
     if pulses is not None:
         p = _query(f"SELECT n_echoes, n_echoes_kept, fit_error FROM {pulses}")
@@ -340,7 +342,7 @@ def pulse_list(run: Path, order: str, limit: int) -> list[dict]:
     """The pulses worth a look first: most kept echoes, most echoes, most spurious, or the worst fits (lowest R²)."""
     if order not in PULSE_ORDERS:
         raise ValueError(f"order must be one of {', '.join(PULSE_ORDERS)}, not {order!r}")
-    pulses = _table(run, "pulses")
+    pulses = _table(run, PULSES)
     if pulses is None:
         return []
     cur = _connection().execute(f"SELECT source_file, pulse_id, n_echoes, n_echoes_kept, fit_error, r2 FROM {pulses} "
@@ -350,7 +352,7 @@ def pulse_list(run: Path, order: str, limit: int) -> list[dict]:
 
 
 def gps_time_range(run: Path, source_file: str) -> tuple[float, float] | None:
-    pulses = _table(run, "pulses")
+    pulses = _table(run, PULSES)
     if pulses is None:
         return None
     lo, hi = _connection().execute(f"SELECT min(gps_time), max(gps_time) FROM {pulses} WHERE source_file = ?",

@@ -37,6 +37,7 @@ from urllib.parse import parse_qs, unquote, urlsplit
 import numpy as np
 
 from fwcore.config import PRESETS, Model, Optimizer
+from pipeline.layout import RUN_JSON
 from pipeline.view import params, queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
@@ -212,7 +213,7 @@ class Viewer:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
         colour = params.choice(query, "colour", tuple(queries.COLOUR_COLUMNS), "height")
         box, limit, kept = params.box(query), params.limit(query, 20000), params.flag(query, "kept")
-        marker = run / "run.json"  # a run written again is another run
+        marker = run / RUN_JSON  # a run written again is another run
         key = ("echoes", str(run), marker.stat().st_mtime_ns, colour, box, limit, kept)
         return self.answers.get(key, lambda: queries.echoes_in_box(run, colour, box, limit, kept))
 

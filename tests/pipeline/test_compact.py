@@ -18,6 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import pipeline.compact as compact
+import pipeline.layout as layout
 from fwcore.spatial import hilbert_key, square_bounds
 from pipeline.cli import main
 from pipeline.geoparquet import bytes_touched, centre_box, extent_of, row_groups
@@ -167,7 +168,7 @@ def test_a_compact_killed_by_a_signal_and_rerun_gives_the_same_tiles(flight, tmp
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "compact", str(run), "--tile-rows", "100"],
                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    first = run / compact.STAGED / "flight-tile-0000.parquet"
+    first = run / layout.STAGED / "flight-tile-0000.parquet"
     while process.poll() is None and not first.exists():
         time.sleep(0.001)
     process.send_signal(signal.SIGKILL)

@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.cli import main
-from pipeline.outputs import MANIFEST
+from pipeline.layout import MANIFEST
 
 NOTES = b"flight notes: the user's own file\n"
 SIMULATE = ["simulate", "--pulses", "30", "--seed", "1"]

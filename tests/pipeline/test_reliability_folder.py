@@ -12,8 +12,9 @@ import pyarrow.dataset as ds
 import pytest
 
 from pipeline.cli import main
-from pipeline.outputs import (MANIFEST, IncompleteRunError, InputNames, OutputFolderError, expand_inputs,
-                              is_complete, read_run, take_output_folder)
+from pipeline.layout import MANIFEST
+from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete, read_run,
+                              take_output_folder)
 from pipeline.run import EXIT_INTERRUPTED, EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
 
 QUICK = ["--preset", "fast", "--limit", "20", "--points-per-range", "300", "--direct_num_workers=1",

@@ -11,8 +11,9 @@ import time
 import pytest
 
 from pipeline.cli import main
-from pipeline.outputs import MANIFEST, differences, input_identity, is_complete, read_run
-from pipeline.plan import FilePlan, plan_path
+from pipeline.layout import MANIFEST, plan_path
+from pipeline.outputs import differences, input_identity, is_complete, read_run
+from pipeline.plan import FilePlan
 from pipeline.run import EXIT_OK, EXIT_USAGE
 
 # 19 ranges of the Leica sample's 1125 points: a kill lands among them
@@ -134,8 +135,8 @@ def test_an_inputs_identity_is_its_bytes_not_its_times(leica_copy):
 
 def test_a_range_is_finished_only_with_its_mark_and_every_file_it_lists_at_its_size(tmp_path, leica_dir):
     from fwcore.config import DecompositionConfig
-    from pipeline.plan import InputToPlan, plan_input
-    from pipeline.transforms import mark_range_done, progress_mark, range_files, range_is_complete, remove_range_files
+    from pipeline.layout import mark_range_done, progress_mark, range_files, range_is_complete, remove_range_files
+    from pipeline.plan import InputToPlan, plan_input, planned_pulses
 
     task = plan_input(InputToPlan(str(leica_dir / "leica_a.las"), "leica_a.las", "leica_a"),
                       DecompositionConfig(), 400).tasks[1]
@@ -144,7 +145,7 @@ def test_a_range_is_finished_only_with_its_mark_and_every_file_it_lists_at_its_s
         f.parent.mkdir(parents=True, exist_ok=True)
         f.write_bytes(data)
     assert not range_is_complete(tmp_path, task)  # parts without their mark: never trusted
-    mark_range_done(tmp_path, task, [])
+    mark_range_done(tmp_path, task, planned_pulses(task), 0)
     mark = json.loads(progress_mark(tmp_path, "leica_a", 400).read_text())
     assert mark == {"pulses": 310, "rejected": 0, "files": {"echoes/leica_a-000000000400.parquet": 9,
                                                              "parts/leica_a-000000000400.las": 11}}

@@ -9,12 +9,12 @@ from apache_beam.testing.test_pipeline import TestPipeline
 from apache_beam.testing.util import assert_that, equal_to
 
 from fwcore.config import DecompositionConfig
+from pipeline.layout import assemble_file, written_parts
 from pipeline.outputs import InputNames
 from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import RangePart
 from pipeline.stages import RangeSettings, decompose_range, read_range, run_range
-from pipeline.transforms import (RangeStages, assemble_file,
-                                 written_parts)
+from pipeline.transforms import RangeStages
 
 
 def plan_inputs(paths, config, points_per_range, limit=None):

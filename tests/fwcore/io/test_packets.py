@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.packets import PacketError, PacketStore
+from fwcore.io.errors import PacketError
+from fwcore.io.packets import PacketStore
 
 
 def _store(tmp_path, payload: bytes) -> tuple[PacketStore, np.ndarray]:

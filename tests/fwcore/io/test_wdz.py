@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from fwcore.io.wdz import WdzError, decode_packet
+from fwcore.io.errors import WdzError
+from fwcore.io.wdz import decode_packet
 
 
 def test_wdz_decodes_to_exactly_the_wdp_samples(leica_dir):
