@@ -329,18 +329,23 @@ class DecompositionConfig:
     def pulse_fwhm_ps(self) -> float:
         return self.system_pulse_fwhm_ps if self.system_pulse_fwhm_ps is not None else self.default_pulse_fwhm_ps
 
-    def kernel_params(self, **measured: float) -> "KernelParams":
-        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples), with the file's
-        measurements the kernels read too (MEASURED_KERNEL_VALUES) as the caller gives them."""
-        measured = {"shape_tolerance": self.shape_tolerance or 0.0, **measured}  # the config's, unless given
+    def kernel_params(self, **from_file: Any) -> "KernelParams":
+        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples). `from_file`: what
+        the file's pulse says, given by the caller: its measurements (MEASURED_KERNEL_VALUES) and the settings it
+        decides (the model, where the config's is auto), in place of the config's."""
+        from_file = {"shape_tolerance": self.shape_tolerance or 0.0, **from_file}  # the config's, unless given
         values = {}
         for field in dataclasses.fields(self):
             kernel = field.metadata.get("kernel")
+            value = from_file.pop(field.name) if kernel and field.name in from_file else getattr(self, field.name)
             if kernel is True:
-                values[field.name] = getattr(self, field.name)
+                values[field.name] = value
             elif kernel:
-                values.update(kernel(getattr(self, field.name)))
-        return KernelParams.typed(**values, **measured)
+                values.update(kernel(value))
+        unknown = sorted(set(from_file) - set(MEASURED_KERNEL_VALUES))
+        if unknown:
+            raise TypeError(f"kernel_params: {unknown} are neither kernel settings nor a file's measurements")
+        return KernelParams.typed(**values, **from_file)
 
     def replace(self, **changes: Any) -> "DecompositionConfig":
         return dataclasses.replace(self, **changes)

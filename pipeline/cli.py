@@ -27,6 +27,10 @@ def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
     return decomposition_config(args)
 
 
+def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
+    add_method_arguments(parser, compare)
+
+
 def _decompose_csv(args: argparse.Namespace) -> int:
     import pyarrow.parquet as pq
 
@@ -398,7 +402,7 @@ def _add_decompose_csv(sub) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the output files even if not written by an earlier fwl decompose-csv "
                         "(refused otherwise)")
-    add_method_arguments(p)
+    _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
 
@@ -451,7 +455,7 @@ def _add_compare(sub) -> None:
     c.add_argument("--output", required=True, help="output directory")
     c.add_argument("--overwrite", action="store_true",
                    help="replace files in --output even if not written by an earlier fwl compare (refused otherwise)")
-    add_method_arguments(c, compare=True)
+    _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)
 
 

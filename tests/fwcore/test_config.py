@@ -113,3 +113,10 @@ def test_the_catalogue_says_what_the_kernels_do_for_every_optimizer():
         assert params.method == spec.code and params.noise_weighted == spec.noise_weighted
     # L-BFGS fits the plain sum of squares, LM the noise-weighted one (docs/method.md)
     assert not OPTIMIZERS[Optimizer.LBFGS].noise_weighted and OPTIMIZERS[Optimizer.LM].noise_weighted
+
+
+def test_the_file_decides_the_model_under_auto():
+    auto = DecompositionConfig(model="auto")
+    assert auto.kernel_params(model=Model.SYSTEM).alpha_fixed and not auto.kernel_params().alpha_fixed
+    with pytest.raises(TypeError, match="neither kernel settings"):
+        auto.kernel_params(shape_tolerence=0.1)
