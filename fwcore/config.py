@@ -126,9 +126,11 @@ def setting(default: Any, help: str | None = None, *, symbol: str = "", option: 
     value to the KernelParams fields it becomes; within: its interval, "[0, 1]", "(0, inf)", checked
     with `why` said after the message.
     """
+    if within:
+        _interval(within)  # a mistyped interval fails at import, not at the first check
     return dataclasses.field(default=default, metadata={
-        "help": help or symbol or None, "symbol": symbol, "option": option, "kernel": kernel,
-        "within": _interval(within) if within else None, "why": why})
+        "help": help or symbol or None, "symbol": symbol, "option": option, "kernel": kernel, "within": within,
+        "why": why})
 
 
 def _interval(text: str) -> tuple[float, float, bool, bool]:
@@ -141,7 +143,7 @@ def _interval(text: str) -> tuple[float, float, bool, bool]:
 
 def _interval_error(name: str, value: Any, metadata: dict) -> str | None:
     """The message for a value outside the setting's interval (None: inside, or no interval)."""
-    lo, hi, lo_closed, hi_closed = metadata["within"]
+    lo, hi, lo_closed, hi_closed = _interval(metadata["within"])
     if value is None or ((lo <= value if lo_closed else lo < value) and (value <= hi if hi_closed else value < hi)):
         return None
     label = f"{name} ({metadata['symbol']})" if metadata["symbol"] else name
@@ -149,7 +151,7 @@ def _interval_error(name: str, value: Any, metadata: dict) -> str | None:
         bound = (f"at least {lo:g}" if lo_closed else "positive" if lo == 0 else f"above {lo:g}")
         message = f"{label} must be {bound}"
     else:
-        message = f"{label} must lie in {'[' if lo_closed else '('}{lo:g}, {hi:g}{']' if hi_closed else ')'}"
+        message = f"{label} must lie in {metadata['within']}"
     return message + (f": {metadata['why']}" if metadata["why"] else "")
 
 
