@@ -2,9 +2,10 @@
 
 Every method starts from the same initial estimate and bounds and hands back the
 same things: the best individual, model evaluations, iterations and a message.
-`run_optimizer` is the one place the kernels branch on the method's code; the
-methods that choose their own echoes (the patent's GA, deconvolution) run in
-`find_own_echoes`.
+`run_optimizer` is the one place the kernels branch on what the catalogue says
+of the method (its search, its local fit, whether that weighs the samples by the
+noise); the methods that choose their own echoes (the patent's GA,
+deconvolution) run in `find_own_echoes`.
 """
 
 from __future__ import annotations
