@@ -2,6 +2,10 @@
 
 Strings from the command line or a TOML file become enums here, once, and
 every value is validated up front with an error that says how to fix it.
+Each setting is declared once, as a field whose metadata (`setting`) says its
+command-line help, whether it is a command-line option, whether the numba
+kernels read it and its bounds: `KernelParams` and the options of
+pipeline.options are generated from it.
 """
 
 from __future__ import annotations
@@ -12,64 +16,81 @@ import math
 import operator
 import tomllib
 from pathlib import Path
-from typing import Any, NamedTuple, get_type_hints
+from typing import Any, Callable, NamedTuple, get_type_hints
 
 from fwcore.instrument import SystemResponse, gaussian_response
 
 
 class Optimizer(str, enum.Enum):
-    NONE = "none"  # the initial estimate as is
-    LM = "lm"  # Levenberg-Marquardt from the initial estimate
-    LBFGS = "lbfgs"  # projected L-BFGS from the initial estimate
-    GA = "ga"  # real-coded genetic algorithm
-    PSO = "pso"  # particle swarm
-    DE = "de"  # differential evolution, the method's Eq. 4
-    MDE = "mde"  # modified DE with chaotic scale factors
-    MDE_LM = "mde-lm"  # MDE, then LM polish of its best individual
-    GA_ITERATIVE = "ga-iterative"  # the patent: binary GA, echoes added until R^2 is reached
-    LM_MDE = "lm-mde"  # LM; MDE around it where LM does not settle and its fit fails the noise model (the default)
-    GOLD = "gold"  # Gold deconvolution with the system response, echoes from the recovered profile
-    RICHARDSON_LUCY = "richardson-lucy"  # Richardson-Lucy deconvolution, likewise
+    """The optimizers of the catalogue; OPTIMIZERS says what each one does."""
+
+    NONE = "none"
+    LM = "lm"
+    LBFGS = "lbfgs"
+    GA = "ga"
+    PSO = "pso"
+    DE = "de"
+    MDE = "mde"
+    MDE_LM = "mde-lm"
+    GA_ITERATIVE = "ga-iterative"
+    LM_MDE = "lm-mde"
+    GOLD = "gold"
+    RICHARDSON_LUCY = "richardson-lucy"
 
 
-# The catalogue: each optimizer's kernel code and kind (the kernels: fwcore.optimizers).
+# The catalogue: each optimizer's kernel code (the kernels: fwcore.optimizers).
 (OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE, OPT_LM_MDE, OPT_GOLD,
  OPT_RICHARDSON_LUCY) = range(12)
+# The least-squares fits on the valid samples that end (or are) an optimizer.
+LOCAL_NONE, LOCAL_LM, LOCAL_LBFGS = range(3)
 # Per-waveform messages (records.MESSAGES spells them out).
 MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_OPTIMIZED = range(5)
 
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSpec:
-    """A catalogue entry: its kernel code, and what kind of search it is."""
+    """A catalogue entry: what the kernels do for this optimizer (fwcore.optimizers.run_optimizer and
+    find_own_echoes branch on these, never on lists of codes). All but the description reach KernelParams."""
 
     code: int
-    population: bool  # a population of individuals on Eq. 9, or not
-    local: bool  # ends with (or is) a least-squares local optimizer on the valid samples
-    description: str
+    description: str  # the command line's help for --optimizer
+    search: bool = False  # a population search on Eq. 9 over the whole waveform (its kind: the code)
+    local: int = LOCAL_NONE  # the least-squares fit on the valid samples that ends it, or is it
+    # The local fit weights each sample by 1 / its noise sigma. L-BFGS fits the plain sum of squares,
+    # as its rows of docs/compare.md were measured (LM weighs by the noise model).
+    noise_weighted: bool = True
+    search_where_local_fails: bool = False  # the local fit first; the search only where it fails (lm-mde)
     own_echoes: bool = False  # finds its own echoes (not the initial estimate's); no selection after it
+    deconvolution: bool = False  # its echoes are the lobes of a deconvolved profile
+
+    def kernel_values(self) -> dict[str, Any]:
+        """The entry as KernelParams holds it: the code as `method`, without the description."""
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "description"}
+        return {"method": values.pop("code"), **values}
 
 
 OPTIMIZERS: dict[Optimizer, OptimizerSpec] = {
-    Optimizer.NONE: OptimizerSpec(OPT_NONE, False, False, "the initial estimate as is"),
-    Optimizer.DE: OptimizerSpec(OPT_DE, True, False, "differential evolution, DE/rand/1 (the method's Eq. 4)"),
-    Optimizer.MDE: OptimizerSpec(OPT_MDE, True, False, "modified DE with chaotic scale factors"),
-    Optimizer.GA: OptimizerSpec(OPT_GA, True, False, "real-coded genetic algorithm"),
-    Optimizer.PSO: OptimizerSpec(OPT_PSO, True, False, "global-best particle swarm"),
-    Optimizer.LM: OptimizerSpec(OPT_LM, False, True, "Levenberg-Marquardt from the initial estimate"),
-    Optimizer.LBFGS: OptimizerSpec(OPT_LBFGS, False, True, "projected L-BFGS from the initial estimate"),
-    Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, True, True, "MDE, then an LM polish of its best individual"),
-    Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, False, True,
-                                          "the patent's binary GA, adding echoes until R^2 is reached", True),
-    Optimizer.LM_MDE: OptimizerSpec(OPT_LM_MDE, True, True,
-                                    "LM; where it does not converge and its fit fails the noise model's chi^2 "
-                                    "test, MDE around it, polished by LM, kept when clearly better"),
-    Optimizer.GOLD: OptimizerSpec(OPT_GOLD, False, False, "Gold deconvolution with the system response, echoes "
-                                  "from the recovered profile's lobes", True),
-    Optimizer.RICHARDSON_LUCY: OptimizerSpec(OPT_RICHARDSON_LUCY, False, False, "Richardson-Lucy deconvolution "
-                                             "with the system response, echoes from the profile's lobes", True),
+    Optimizer.NONE: OptimizerSpec(OPT_NONE, "the initial estimate as is"),
+    Optimizer.LM: OptimizerSpec(OPT_LM, "Levenberg-Marquardt from the initial estimate", local=LOCAL_LM),
+    Optimizer.LBFGS: OptimizerSpec(OPT_LBFGS, "projected L-BFGS from the initial estimate", local=LOCAL_LBFGS,
+                                   noise_weighted=False),
+    Optimizer.GA: OptimizerSpec(OPT_GA, "real-coded genetic algorithm", search=True),
+    Optimizer.PSO: OptimizerSpec(OPT_PSO, "global-best particle swarm", search=True),
+    Optimizer.DE: OptimizerSpec(OPT_DE, "differential evolution, DE/rand/1 (the method's Eq. 4)", search=True),
+    Optimizer.MDE: OptimizerSpec(OPT_MDE, "modified DE with chaotic scale factors", search=True),
+    Optimizer.MDE_LM: OptimizerSpec(OPT_MDE_LM, "MDE, then an LM polish of its best individual", search=True,
+                                    local=LOCAL_LM),
+    Optimizer.GA_ITERATIVE: OptimizerSpec(OPT_GA_ITERATIVE, "the patent's binary GA, adding echoes until R^2 is "
+                                          "reached", local=LOCAL_LM, own_echoes=True),
+    Optimizer.LM_MDE: OptimizerSpec(OPT_LM_MDE, "LM; where it does not converge and its fit fails the noise model's "
+                                    "chi^2 test, MDE around it, polished by LM, kept when clearly better",
+                                    search=True, local=LOCAL_LM, search_where_local_fails=True),
+    Optimizer.GOLD: OptimizerSpec(OPT_GOLD, "Gold deconvolution with the system response, echoes from the "
+                                  "recovered profile's lobes", own_echoes=True, deconvolution=True),
+    Optimizer.RICHARDSON_LUCY: OptimizerSpec(OPT_RICHARDSON_LUCY, "Richardson-Lucy deconvolution with the system "
+                                             "response, echoes from the profile's lobes", own_echoes=True,
+                                             deconvolution=True),
 }
-
 
 
 class Model(str, enum.Enum):
@@ -95,29 +116,75 @@ class NoiseEstimator(str, enum.Enum):
     ROBUST = "robust"
 
 
+def setting(default: Any, help: str | None = None, *, symbol: str = "", option: bool = False,
+            kernel: bool | Callable[[Any], dict[str, Any]] = False, within: str = "", why: str = "") -> Any:
+    """A DecompositionConfig field and what the rest of the code needs to know of it, in its metadata.
+
+    help: the command line's help (default: the symbol); symbol: the paper's name of it (NP, G, CR);
+    option: a command-line option --the-name (pipeline.options.add_method_arguments); kernel: True
+    when the numba kernels read it as is (a KernelParams field of its name), or a function from its
+    value to the KernelParams fields it becomes; within: its interval, "[0, 1]", "(0, inf)", checked
+    with `why` said after the message.
+    """
+    if within:
+        _interval(within)  # a mistyped interval fails at import, not at the first check
+    return dataclasses.field(default=default, metadata={
+        "help": help or symbol or None, "symbol": symbol, "option": option, "kernel": kernel, "within": within,
+        "why": why})
+
+
+def _interval(text: str) -> tuple[float, float, bool, bool]:
+    """'[0, 1)' -> (0.0, 1.0, True, False): the bounds and whether each is included."""
+    lo, hi = (float(v.strip()) for v in text[1:-1].split(","))
+    if text[0] not in "[(" or text[-1] not in "])":
+        raise ValueError(f"an interval is written [a, b], (a, b], [a, b) or (a, b), not {text!r}")
+    return lo, hi, text[0] == "[", text[-1] == "]"
+
+
+def _interval_error(name: str, value: Any, metadata: dict) -> str | None:
+    """The message for a value outside the setting's interval (None: inside, or no interval)."""
+    lo, hi, lo_closed, hi_closed = _interval(metadata["within"])
+    if value is None or ((lo <= value if lo_closed else lo < value) and (value <= hi if hi_closed else value < hi)):
+        return None
+    label = f"{name} ({metadata['symbol']})" if metadata["symbol"] else name
+    if hi == math.inf:
+        bound = (f"at least {lo:g}" if lo_closed else "positive" if lo == 0 else f"above {lo:g}")
+        message = f"{label} must be {bound}"
+    else:
+        message = f"{label} must lie in {metadata['within']}"
+    return message + (f": {metadata['why']}" if metadata["why"] else "")
+
+
 @dataclasses.dataclass(frozen=True)
 class DecompositionConfig:
     """Every method parameter of a decomposition run."""
 
-    optimizer: Optimizer = Optimizer.LM_MDE
-    model: Model = Model.AUTO
+    optimizer: Optimizer = setting(Optimizer.LM_MDE, option=True,
+                                   kernel=lambda optimizer: OPTIMIZERS[optimizer].kernel_values())
+    model: Model = setting(Model.AUTO, "the echoes' shape: system (the instrument's measured response), generalized "
+                           "(the method's generalized Gaussian), gaussian; default auto: per file, the one of system "
+                           "and generalized that predicts its held-out samples better (run.json says which and why)",
+                           option=True,
+                           # the system model's alpha comes from its table, the Gaussian's is sqrt(2)
+                           kernel=lambda model: {"alpha_fixed": model in (Model.SYSTEM, Model.GAUSSIAN)})
     # Evolution: population NP and generations G (the MDE paper: 60 and 80); with tol > 0,
     # G is the most a waveform may take.
-    population: int = 60
-    generations: int = 200
-    crossover_rate: float = 0.9  # CR
+    population: int = setting(60, symbol="NP", option=True, kernel=True, within="[5, inf)",
+                              why="MDE draws 4 distinct partners")
+    generations: int = setting(200, symbol="G", option=True, kernel=True, within="[0, inf)")
+    crossover_rate: float = setting(0.9, symbol="CR", option=True, kernel=True, within="[0, 1]")
     # MDE's chaotic scale factors: t seeds, k logistic-map iterations, range [a, b].
-    chaos_seeds: int = 1  # t
-    chaos_iterations: int = 5  # k
-    scale_min: float = 0.2  # a
-    scale_max: float = 1.0  # b
+    chaos_seeds: int = setting(1, symbol="t", option=True, kernel=True, within="[1, inf)")
+    chaos_iterations: int = setting(5, symbol="k", option=True, kernel=True, within="[1, inf)")
+    scale_min: float = setting(0.2, symbol="a", option=True, kernel=True)
+    scale_max: float = setting(1.0, symbol="b", option=True, kernel=True)
     # Plain DE's fixed scale factor (the paper's Eq. 4).
-    de_scale_factor: float = 0.5
+    de_scale_factor: float = setting(0.5, kernel=True)
     # Write each DE/MDE winner back at once (asynchronous DE) instead of once per generation.
-    immediate: bool = False
+    immediate: bool = setting(False, kernel=True)
     # Half size of the box around the initial estimate that seeds the population,
     # as a fraction of each parameter's bound range.
-    init_spread: float = 0.25
+    init_spread: float = setting(0.25, kernel=True, within="[0, 1]")
     # System: the emitted pulse's FWHM in ps; None lets the caller derive it
     # (from outgoing pulses) or falls back to `default_pulse_fwhm_ps`.
     system_pulse_fwhm_ps: float | None = None
@@ -127,20 +194,24 @@ class DecompositionConfig:
     system_response: SystemResponse | None = None
     # Denoising: Gaussian filter sigma = smoothing_factor * system pulse sigma,
     # unless smoothing_sigma_ps is given (0 turns smoothing off).
-    smoothing_factor: float = 0.25
-    smoothing_sigma_ps: float | None = None
-    fit_target: FitTarget = FitTarget.DENOISED
+    smoothing_factor: float = setting(0.25)
+    smoothing_sigma_ps: float | None = setting(None, option=True)
+    fit_target: FitTarget = setting(FitTarget.DENOISED, option=True,
+                                    kernel=lambda target: {"fit_denoised": target is FitTarget.DENOISED})
     # With the denoised target: where the final fit's chi^2 per degree of freedom on the raw samples,
     # under the noise model, exceeds raw_polish_gate, LM refits the raw samples from it (the smoothing's
     # bias on steep, high-count rises; NEON raw error 254 -> 239 DN, Leica and the flight unchanged).
-    raw_polish: bool = True
-    raw_polish_gate: float = 1.5
+    raw_polish: bool = setting(True, "LM refits the raw samples where the denoised fit fails the noise model there "
+                               "(default on)", option=True, kernel=True)
+    raw_polish_gate: float = setting(1.5, "chi^2 per degree of freedom on the raw samples above which the raw polish "
+                                     "runs (1.5)", option=True, kernel=True, within="[0, inf)")
     # Initial estimate: an echo must rise noise_threshold x the noise at its sample above background.
-    noise_threshold: float = 3.0
-    noise_estimator: NoiseEstimator = NoiseEstimator.ROBUST
+    noise_threshold: float = setting(3.0, kernel=True, within="(0, inf)")
+    noise_estimator: NoiseEstimator = setting(NoiseEstimator.ROBUST, option=True,
+                                              kernel=lambda e: {"robust_noise": e is NoiseEstimator.ROBUST})
     # sigma_noise is floored here (digitizer units): the quantisation of an integer digitizer is
     # uniform noise of 1/sqrt(12) DN whatever the analogue noise below it.
-    min_noise_sigma: float = 1.0 / math.sqrt(12.0)
+    min_noise_sigma: float = setting(1.0 / math.sqrt(12.0), kernel=True, within="[0, inf)")
     # The noise model of a sample with signal s above background (digitizer units):
     # variance = sigma_noise**2 + g s + (shape_tolerance s)**2. g (Poisson-like shot noise) is
     # fitted per waveform to the residual of the optimizer's fit; shape_tolerance is how far the
@@ -148,67 +219,76 @@ class DecompositionConfig:
     # caller measures it on the system's single returns (fwcore.survey; Leica 0.05), 0 where there
     # are none (the model taken as exact). 0 and signal_dependent_noise=False give the method's
     # constant noise.
-    signal_dependent_noise: bool = True
+    signal_dependent_noise: bool = setting(True, kernel=True)
     shape_tolerance: float | None = None
-    max_echoes: int = 12
-    alpha_min: float = 1.0
-    alpha_max: float = 2.6
+    max_echoes: int = setting(12, option=True, kernel=True, within="[1, inf)")
+    alpha_min: float = setting(1.0, kernel=True)
+    alpha_max: float = setting(2.6, kernel=True)
     # Filter of spurious echoes (the method's section 1.2). The paper's values are 0.2, -, 1.0, 1.0, 3.0.
     # The paper's 20% drops weak ground returns under canopy (measured on the Leica system returns);
     # the SNR floor is low because the BIC selection already decides which echoes the data supports:
     # on the simulated flight a floor of 6 sigma loses half the true echoes between 5 and 10 sigma
     # (recall 0.88), 2 sigma keeps them at the same precision (README, "Presets").
-    min_amplitude_ratio: float = 0.05
-    min_snr: float = 2.0  # amplitude below min_snr x sigma_noise is weak too
-    min_separation_factor: float = 1.0  # x system pulse FWHM
-    min_width_factor: float = 0.5  # x system pulse FWHM
-    max_width_factor: float = 3.0  # x system pulse FWHM
+    min_amplitude_ratio: float = setting(0.05, kernel=True)
+    min_snr: float = setting(2.0, "echoes below this x sigma_noise are weak", option=True, kernel=True)
+    min_separation_factor: float = setting(1.0, kernel=True)  # x system pulse FWHM
+    min_width_factor: float = setting(0.5, kernel=True)  # x system pulse FWHM
+    max_width_factor: float = setting(3.0, kernel=True)  # x system pulse FWHM
     # Of two echoes closer than the separation (one unresolved return), the earlier is kept when it is at
     # least this share of the later's amplitude; otherwise the weaker. 1 (the method's rule): the weaker
     # goes. 0.35 reports an unresolved return at its first surface, as the Leica system's detector does
     # (its returns recovered 0.973 -> 0.980), but costs the simulated flight 0.7 points of recall and
     # 0.9 of precision (README, "Decisions where the method is silent").
-    first_echo_ratio: float = 1.0
+    first_echo_ratio: float = setting(1.0, "of two echoes closer than the pulse width, the earlier stays when its "
+                                      "amplitude is at least this share of the later's (default 1: the weaker goes; "
+                                      "0.35: the first surface)", option=True, kernel=True, within="[0, inf)")
     # Model-order selection after the optimizer: drop the echoes the filter flags when the raw
     # samples do not need them, add one where the residual holds an echo, each by the Bayesian
     # information criterion under the noise model, with warm-started LM refits.
-    select_echoes: bool = True
-    max_added_echoes: int = 2  # echoes the selection may add per waveform
-    lm_iterations: int = 50  # LM iterations (L-BFGS gets 4x as many)
+    select_echoes: bool = setting(True, "model-order selection: drop and add echoes by the BIC with LM refits "
+                                  "(default on)", option=True, kernel=True)
+    max_added_echoes: int = setting(2, kernel=True, within="[0, inf)")  # echoes the selection may add per waveform
+    lm_iterations: int = setting(50, option=True, kernel=True, within="[1, inf)")  # LM's (L-BFGS gets 4x as many)
     # LM stops when an accepted step lowers the weighted sum of squares (chi^2) by less than this share of
     # it: 1e-4 of a chi^2 of m samples is a few hundredths, far below what the data tell apart. 1e-6 kept
     # the tabulated model's LM creeping over its table's kinks (RIEGL: 11% of fits ran out of iterations),
     # for the same echoes: Leica's returns, RIEGL's ghosts and the flights alike, NEON's raw error within 0.2%.
-    lm_tolerance: float = 1e-4
+    lm_tolerance: float = setting(1e-4, "LM stops when a step lowers the sum of squares by less than this share of "
+                                  "it", option=True, kernel=True, within="(0, 1)")
     # Population methods stop when the spread of the population's fitness is small
     # (SciPy's rule: std(fitness) <= atol + tol |mean(fitness)|), at most after `generations`.
     # tol = atol = 0 runs every generation (the paper's fixed G).
-    tol: float = 0.01
-    atol: float = 0.0
+    tol: float = setting(0.01, "MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)| (with tol > 0, atol "
+                         "grows by noise_tol x the noise's spread of the fitness)", option=True, kernel=True,
+                         within="[0, inf)")
+    atol: float = setting(0.0, kernel=True, within="[0, inf)")
     # With tol > 0, atol grows by noise_tol x the spread that the noise alone gives Eq. 9's fitness,
     # sigma_noise sqrt(m (1 - 2 / pi)): a population that agrees to within the noise has converged
     # (RIEGL, system model: MDE 2.7x faster, the same echoes). White noise's figure: the default fits the
     # denoised samples, whose correlated noise spreads the fitness less, so this stops a little early.
-    noise_tol: float = 1.0
+    noise_tol: float = setting(1.0, kernel=True, within="[0, inf)")
     # With tol > 0, DE and MDE also stop when their best individual improved by no more than that atol over
     # the last stall_generations generations (pymoo's ftol over a period): a search whose best moves by
     # less than the noise's share of the fitness has found what it will find. 0: off. RIEGL (system model):
     # two waveforms' wandering baselines kept lm-mde's MDE searching 142-200 generations for no better fit,
     # 40% of the default's time; the same raw error on RIEGL and NEON with 10, 20 or no stall rule.
-    stall_generations: int = 20
+    stall_generations: int = setting(20, "with tol > 0, MDE/DE also stop when their best fitness fell by no more "
+                                     "than atol over this many generations (0: never)", option=True, kernel=True,
+                                     within="[0, inf)")
     # GA: probability that a parameter mutates (the crossover rate is CR above).
-    ga_mutation_rate: float = 0.1
+    ga_mutation_rate: float = setting(0.1, kernel=True, within="[0, 1]")
     # ga-iterative (the patent): add echoes while R^2 is below this; generations per GA fit.
-    ga_iterative_r2: float = 0.98
-    ga_iterative_generations: int = 1000
+    ga_iterative_r2: float = setting(0.98, option=True, kernel=True, within="(0, 1]")
+    ga_iterative_generations: int = setting(1000, option=True, kernel=True, within="[1, inf)")
     # gold, richardson-lucy: multiplicative iterations of the deconvolution
-    deconvolution_iterations: int = 200
+    deconvolution_iterations: int = setting(200, kernel=True, within="[1, inf)")
     # lm-mde: MDE searches where LM did not converge in lm_iterations and its fit's chi^2 per degree of
     # freedom on the raw samples, under the noise model with its Poisson-like term, exceeds this. Where LM
     # converged, a failing fit is the model's misfit, which MDE ends in too: after a converged LM it
     # improved the raw error by more than 1% on 2 of 1,037 waveforms (NEON, Leica, RIEGL; docs/decisions.md).
-    mde_gate: float = 2.0
-    seed: int = 0
+    mde_gate: float = setting(2.0, "lm-mde: MDE searches where LM did not converge and its fit's chi^2 per degree "
+                              "of freedom exceeds this", option=True, kernel=True, within="[0, inf)")
+    seed: int = setting(0, option=True)
 
     def __post_init__(self) -> None:
         for name, kind in (("optimizer", Optimizer), ("model", Model), ("fit_target", FitTarget),
@@ -220,14 +300,12 @@ class DecompositionConfig:
                 except ValueError:
                     allowed = ", ".join(m.value for m in kind)
                     raise ValueError(f"{name} must be one of {allowed}, not {value!r}") from None
-        self._check(self.population >= 5, "population (NP) must be at least 5: MDE draws 4 distinct partners")
-        self._check(self.generations >= 0, "generations (G) must be >= 0")
-        self._check(0.0 <= self.crossover_rate <= 1.0, "crossover_rate (CR) must lie in [0, 1]")
-        self._check(self.chaos_seeds >= 1 and self.chaos_iterations >= 1,
-                    "chaos_seeds (t) and chaos_iterations (k) must be >= 1")
+        for field in dataclasses.fields(self):
+            if field.metadata.get("within"):
+                message = _interval_error(field.name, getattr(self, field.name), field.metadata)
+                self._check(message is None, message or "")
         self._check(0.0 <= self.scale_min < self.scale_max,
                     "the scale factor range [scale_min, scale_max] must satisfy 0 <= a < b")
-        self._check(self.max_echoes >= 1, "max_echoes must be >= 1")
         self._check(0.5 <= self.alpha_min <= math.sqrt(2) <= self.alpha_max <= 4.0,
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
         self._check(self.default_pulse_fwhm_ps > 0, "default_pulse_fwhm_ps must be positive (ps)")
@@ -236,24 +314,9 @@ class DecompositionConfig:
                     "leave system_pulse_fwhm_ps unset to measure it from the data")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
-        self._check(self.noise_threshold > 0, "noise_threshold must be positive")
-        self._check(self.min_noise_sigma >= 0, "min_noise_sigma must be >= 0")
         self._check(self.shape_tolerance is None or self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
         self._check(0 <= self.min_width_factor < self.max_width_factor and self.max_width_factor > 1,
                     "need 0 <= min_width_factor < max_width_factor and max_width_factor > 1 (x the pulse FWHM)")
-        self._check(self.first_echo_ratio >= 0, "first_echo_ratio must be >= 0")
-        self._check(self.raw_polish_gate >= 0, "raw_polish_gate must be >= 0")
-        self._check(self.max_added_echoes >= 0, "max_added_echoes must be >= 0")
-        self._check(self.tol >= 0 and self.atol >= 0 and self.noise_tol >= 0, "tol, atol and noise_tol must be >= 0")
-        self._check(self.stall_generations >= 0, "stall_generations must be >= 0")
-        self._check(self.lm_iterations >= 1, "lm_iterations must be >= 1")
-        self._check(0 < self.lm_tolerance < 1, "lm_tolerance must lie in (0, 1)")
-        self._check(0.0 <= self.ga_mutation_rate <= 1.0, "ga_mutation_rate must lie in [0, 1]")
-        self._check(0.0 < self.ga_iterative_r2 <= 1.0, "ga_iterative_r2 must lie in (0, 1]")
-        self._check(self.ga_iterative_generations >= 1, "ga_iterative_generations must be >= 1")
-        self._check(self.deconvolution_iterations >= 1, "deconvolution_iterations must be >= 1")
-        self._check(0 <= self.init_spread <= 1, "init_spread must lie in [0, 1]")
-        self._check(self.mde_gate >= 0, "mde_gate must be >= 0")
 
     @staticmethod
     def _check(ok: bool, message: str) -> None:
@@ -268,31 +331,23 @@ class DecompositionConfig:
     def pulse_fwhm_ps(self) -> float:
         return self.system_pulse_fwhm_ps if self.system_pulse_fwhm_ps is not None else self.default_pulse_fwhm_ps
 
-    def kernel_params(self) -> "KernelParams":
-        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
-        return KernelParams.typed(
-            method=OPTIMIZERS[self.optimizer].code, own_echoes=OPTIMIZERS[self.optimizer].own_echoes,
-            deconvolution_iterations=self.deconvolution_iterations,
-            gaussian=self.model in (Model.SYSTEM, Model.GAUSSIAN),
-            fit_denoised=self.fit_target is FitTarget.DENOISED,
-            robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
-            population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
-            chaos_seeds=self.chaos_seeds, chaos_iterations=self.chaos_iterations, scale_min=self.scale_min,
-            scale_max=self.scale_max, de_scale_factor=self.de_scale_factor, immediate=self.immediate,
-            init_spread=self.init_spread,
-            tol=self.tol, atol=self.atol, noise_tol=self.noise_tol, stall_generations=self.stall_generations,
-            noise_threshold=self.noise_threshold,
-            min_noise_sigma=self.min_noise_sigma, signal_dependent_noise=self.signal_dependent_noise,
-            shape_tolerance=self.shape_tolerance or 0.0, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
-            alpha_max=self.alpha_max, min_snr=self.min_snr, min_amplitude_ratio=self.min_amplitude_ratio,
-            min_separation_factor=self.min_separation_factor, min_width_factor=self.min_width_factor,
-            max_width_factor=self.max_width_factor, first_echo_ratio=self.first_echo_ratio,
-            raw_polish=self.raw_polish, raw_polish_gate=self.raw_polish_gate,
-            select_echoes=self.select_echoes,
-            max_added_echoes=self.max_added_echoes, lm_iterations=self.lm_iterations,
-            lm_tolerance=self.lm_tolerance,
-            ga_mutation_rate=self.ga_mutation_rate, ga_iterative_r2=self.ga_iterative_r2,
-            ga_iterative_generations=self.ga_iterative_generations, mde_gate=self.mde_gate)
+    def kernel_params(self, **from_file: Any) -> "KernelParams":
+        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples). `from_file`: what
+        the file's pulse says, given by the caller: its measurements (MEASURED_KERNEL_VALUES) and the settings it
+        decides (the model, where the config's is auto), in place of the config's."""
+        from_file = {"shape_tolerance": self.shape_tolerance or 0.0, **from_file}  # the config's, unless given
+        values = {}
+        for field in dataclasses.fields(self):
+            kernel = field.metadata.get("kernel")
+            value = from_file.pop(field.name) if kernel and field.name in from_file else getattr(self, field.name)
+            if kernel is True:
+                values[field.name] = value
+            elif kernel:
+                values.update(kernel(value))
+        unknown = sorted(set(from_file) - set(MEASURED_KERNEL_VALUES))
+        if unknown:
+            raise TypeError(f"kernel_params: {unknown} are neither kernel settings nor a file's measurements")
+        return KernelParams.typed(**values, **from_file)
 
     def replace(self, **changes: Any) -> "DecompositionConfig":
         return dataclasses.replace(self, **changes)
@@ -332,52 +387,29 @@ class DecompositionConfig:
             raise ValueError(f"{path}: {err}") from None
 
 
-class KernelParams(NamedTuple):
-    """DecompositionConfig as the kernels see it: enums as codes and flags, nothing else."""
+# What the kernels read that is no method setting: the file's own measurements, given to kernel_params.
+MEASURED_KERNEL_VALUES: dict[str, type] = {"shape_tolerance": float}
 
-    method: int
-    own_echoes: bool
-    deconvolution_iterations: int
-    gaussian: bool
-    fit_denoised: bool
-    robust_noise: bool
-    population: int
-    generations: int
-    crossover_rate: float
-    chaos_seeds: int
-    chaos_iterations: int
-    scale_min: float
-    scale_max: float
-    de_scale_factor: float
-    immediate: bool
-    init_spread: float
-    tol: float
-    atol: float
-    noise_tol: float
-    stall_generations: int
-    noise_threshold: float
-    min_noise_sigma: float
-    signal_dependent_noise: bool
-    shape_tolerance: float
-    max_echoes: int
-    alpha_min: float
-    alpha_max: float
-    min_snr: float
-    min_amplitude_ratio: float
-    min_separation_factor: float
-    min_width_factor: float
-    max_width_factor: float
-    first_echo_ratio: float
-    raw_polish: bool
-    raw_polish_gate: float
-    select_echoes: bool
-    max_added_echoes: int
-    lm_iterations: int
-    lm_tolerance: float
-    ga_mutation_rate: float
-    ga_iterative_r2: float
-    ga_iterative_generations: int
-    mde_gate: float
+
+def _kernel_fields() -> list[tuple[str, type]]:
+    """KernelParams' fields: the kernel settings (their names and types from the defaults), then the file's."""
+    default = DecompositionConfig()
+    kinds = get_type_hints(DecompositionConfig)
+    fields: list[tuple[str, type]] = []
+    for field in dataclasses.fields(DecompositionConfig):
+        kernel = field.metadata.get("kernel")
+        if kernel is True:
+            fields.append((field.name, kinds[field.name]))
+        elif kernel:
+            fields += [(name, type(value)) for name, value in kernel(getattr(default, field.name)).items()]
+    return fields + list(MEASURED_KERNEL_VALUES.items())
+
+
+class KernelParams(NamedTuple("_KernelFields", _kernel_fields())):
+    """DecompositionConfig as the kernels see it: the settings whose metadata says `kernel`, enums as codes
+    and flags, and the file's measurements (MEASURED_KERNEL_VALUES); generated from the config's fields."""
+
+    __slots__ = ()
 
     @classmethod
     def typed(cls, **values: Any) -> "KernelParams":

@@ -150,7 +150,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     upper = np.empty(d)
     local_upper = np.empty(d)
     parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed, first, last,
-                     p.gaussian, p.alpha_min, p.alpha_max, shape, scale, x0, lower, upper, local_upper)
+                     p.alpha_fixed, p.alpha_min, p.alpha_max, shape, scale, x0, lower, upper, local_upper)
 
     if p.own_echoes:  # the patent's GA and deconvolution choose their echoes themselves
         best, n_echoes, n_initial, nfev, nit, message = find_own_echoes(

@@ -65,7 +65,7 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
                          pulse_fwhm, noise):
     """Drop flagged echoes, weakest first, while a refit without one raises chi^2 by no more than
     the BIC's price of an echo. Returns (best, lower, upper, n_echoes, dropped, Jacobians)."""
-    penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
+    penalty = (3 if p.alpha_fixed else PARAMS_PER_ECHO) * math.log(times.size)
     chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
     dropped = 0
     n_jacobians = 0
@@ -100,7 +100,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     """Where the residual, matched-filtered with the system pulse, rises above the noise threshold and its
     height clears the filter's weak-echo floor, try one more echo there; keep it when chi^2 falls by more
     than its BIC price. At most p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
-    penalty = (3 if p.gaussian else PARAMS_PER_ECHO) * math.log(times.size)
+    penalty = (3 if p.alpha_fixed else PARAMS_PER_ECHO) * math.log(times.size)
     chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
     n = samples.size
     model = np.empty(times.size)
@@ -150,7 +150,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         # the residual's peak is where the echo, widened by the smoothing, peaks; a tabulated echo's position
         # is its lobe's centroid
         position = peak - table_peak_offset(shape, math.hypot(shape.s_min, pulse_sigma))
-        echo_bounds(amplitude, position, pulse_sigma, amplitude, noise, first, last, p.gaussian, p.alpha_min,
+        echo_bounds(amplitude, position, pulse_sigma, amplitude, noise, first, last, p.alpha_fixed, p.alpha_min,
                     p.alpha_max, shape, d, trial, trial_lower, scratch, trial_upper)
         _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, shape, target, weights, trial_lower, trial_upper,
                                          p.lm_iterations, p.lm_tolerance)

@@ -379,6 +379,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
     parser.add_argument("--version", action="version", version=f"fwl {fwcore.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_decompose_csv(sub)
+    _add_run(sub)
+    _add_watch(sub)
+    _add_compare(sub)
+    _add_simulate(sub)
+    _add_evaluate(sub)
+    _add_compact(sub)
+    _add_info(sub)
+    _add_grid(sub)
+    _add_view(sub)
+    return parser
+
+
+def _add_decompose_csv(sub) -> None:
     p = sub.add_parser("decompose-csv", help="decompose waveforms of a NEON-layout CSV into a Parquet echo table")
     p.add_argument("input", help="CSV with columns waveform_id, n_samples, s0, s1, ...")
     p.add_argument("--output", required=True, help="echo table (.parquet); waveforms go beside it")
@@ -391,6 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.set_defaults(handler=_decompose_csv)
 
+
+def _add_run(sub) -> None:
     said = "decompose full-waveform LAS/LAZ and PulseWaves files with the Beam pipeline"
     r = sub.add_parser("run", help=said, description=said[0].upper() + said[1:] + ".", allow_abbrev=False,
                        epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
@@ -407,6 +423,8 @@ def build_parser() -> argparse.ArgumentParser:
     FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
 
+
+def _add_watch(sub) -> None:
     w = sub.add_parser("watch", help="process the full-waveform files that land in a folder, each once, as they "
                                      "become complete", allow_abbrev=False,
                        epilog="Run options and Beam pipeline options are those of fwl run; each batch of new files "
@@ -419,6 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
     FwlOptions._add_argparse_args(w)
     w.set_defaults(handler=_watch)
 
+
+def _add_compare(sub) -> None:
     c = sub.add_parser("compare", help="compare optimizers on a LAS/LAZ or PulseWaves file or a NEON CSV: tables "
                                        "and figures")
     c.add_argument("input", help="full-waveform LAS/LAZ or PulseWaves (.pls) file, or a NEON-layout CSV")
@@ -438,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(c, compare=True)
     c.set_defaults(handler=_compare)
 
+
+def _add_simulate(sub) -> None:
     s = sub.add_parser("simulate", help="write a synthetic full-waveform flight and the truth of its echoes")
     s.add_argument("--pulses", type=int, required=True)
     s.add_argument("--output", required=True, help="FILE.las; the truth goes to FILE.truth.parquet")
@@ -481,6 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="the calibration patch's diffuse reflectance (default 0.25)")
     s.set_defaults(handler=_simulate)
 
+
+def _add_evaluate(sub) -> None:
     e = sub.add_parser("evaluate", help="accuracy of fwl run outputs against a simulated flight's truth")
     e.add_argument("results", nargs="+", help="fwl run output directories")
     e.add_argument("--truth", required=True, help="FILE.truth.parquet from fwl simulate")
@@ -491,6 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="replace --output even if not written by an earlier fwl evaluate (refused otherwise)")
     e.set_defaults(handler=_evaluate)
 
+
+def _add_compact(sub) -> None:
     k = sub.add_parser("compact", help="rewrite a finished run's echo parts as spatial tiles (GeoParquet in Hilbert "
                                        "order) for box queries; a killed compact is rerun")
     k.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder")
@@ -499,6 +525,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="echoes per row group (default 8192)")
     k.set_defaults(handler=_compact)
 
+
+def _add_info(sub) -> None:
     i = sub.add_parser("info", help="format, counts, descriptors and their use, CRS, bounds and times of "
                                     "full-waveform files (LAS/LAZ, PulseWaves), from headers and indexes only")
     i.add_argument("files", nargs="+", help="LAS/LAZ or PulseWaves (.pls) files")
@@ -508,6 +536,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "system does (reads samples); --json gives the JSON --system-response FILE accepts")
     i.set_defaults(handler=_info)
 
+
+def _add_grid(sub) -> None:
     g = sub.add_parser("grid", help="maps of a run's kept echoes as Cloud Optimized GeoTIFFs: highest and lowest "
                                     "echo, echo count, mean reflectance (or amplitude), vertical energy profile")
     g.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
@@ -518,6 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="height of the profile's bins above each cell's lowest echo (default 1 m)")
     g.set_defaults(handler=_grid)
 
+
+def _add_view(sub) -> None:
     v = sub.add_parser("view", help="a local web viewer of runs and their pulses (offline)")
     v.add_argument("paths", nargs="*", metavar="RUN_DIR|FOLDER|INPUT",
                    help="run folders, folders to search for runs and inputs, or .las/.laz/.pls inputs (default .)")
@@ -530,7 +562,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where runs of picked inputs are written (default out/view)")
     v.add_argument("--no-browser", dest="no_browser", action="store_true", help="do not open a browser")
     v.set_defaults(handler=_view)
-    return parser
 
 
 def _parser_flags(parser: argparse.ArgumentParser, command: str) -> list[str]:

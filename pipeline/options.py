@@ -11,12 +11,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import difflib
+import enum
+import typing
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, get_type_hints
 
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
-from fwcore.config import PRESETS, DecompositionConfig, Model, Optimizer
+from fwcore.config import OPTIMIZERS, PRESETS, DecompositionConfig
 from fwcore.instrument import named_response
 
 FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
@@ -66,60 +68,45 @@ def output_formats(text: str) -> list[str]:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
+# fwl compare takes several of each (--optimizers, --model), not one
+COMPARED = ("optimizer", "model")
+
+
 def add_method_arguments(parser, compare: bool = False) -> None:
-    """The decomposition's flags (shared by run, decompose-csv and compare); None means "not given"."""
+    """The decomposition's flags (shared by run, decompose-csv and compare), one per DecompositionConfig field
+    whose metadata says `option`; None means "not given"."""
     g = parser.add_argument_group("method (defaults: the built-in configuration, then --preset, then --config)")
     g.add_argument("--config", help="TOML file with a [decomposition] table")
     g.add_argument("--preset", choices=sorted(PRESETS), help="a named configuration (see the README)")
-    if not compare:
-        g.add_argument("--optimizer", choices=[o.value for o in Optimizer])
-        g.add_argument("--model", choices=[m.value for m in Model],
-                       help="the echoes' shape: system (the instrument's measured response), generalized (the "
-                            "method's generalized Gaussian), gaussian; default auto: per file, the one of system and "
-                            "generalized that predicts its held-out samples better (run.json says which and why)")
-    g.add_argument("--population", type=int, help="NP")
-    g.add_argument("--generations", type=int, help="G")
-    g.add_argument("--crossover-rate", dest="crossover_rate", type=float, help="CR")
-    g.add_argument("--chaos-seeds", dest="chaos_seeds", type=int, help="t")
-    g.add_argument("--chaos-iterations", dest="chaos_iterations", type=int, help="k")
-    g.add_argument("--scale-min", dest="scale_min", type=float, help="a")
-    g.add_argument("--scale-max", dest="scale_max", type=float, help="b")
+    kinds = get_type_hints(DecompositionConfig)
+    for field in dataclasses.fields(DecompositionConfig):
+        if field.metadata.get("option") and not (compare and field.name in COMPARED):
+            g.add_argument("--" + field.name.replace("_", "-"), dest=field.name, help=_option_help(field),
+                           **_option_kind(kinds[field.name]))
     g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float,
                    help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
     g.add_argument("--system-response", dest="system_response",
                    help="the instrument's response for --model system, instead of measuring it on each file: leica or "
                         "riegl (shipped), gaussian (of --system-pulse-fwhm-ps), a CSV whose first column holds it at "
                         "1 ns a sample (NEON's system_impulse.csv) or the JSON fwl info --system-response --json gives")
-    g.add_argument("--smoothing-sigma-ps", dest="smoothing_sigma_ps", type=float)
-    g.add_argument("--fit-target", dest="fit_target", choices=["denoised", "raw"])
-    g.add_argument("--raw-polish", dest="raw_polish", action=argparse.BooleanOptionalAction,
-                   help="LM refits the raw samples where the denoised fit fails the noise model there (default on)")
-    g.add_argument("--raw-polish-gate", dest="raw_polish_gate", type=float,
-                   help="chi^2 per degree of freedom on the raw samples above which the raw polish runs (1.5)")
-    g.add_argument("--max-echoes", dest="max_echoes", type=int)
-    g.add_argument("--select-echoes", dest="select_echoes", action=argparse.BooleanOptionalAction,
-                   help="model-order selection: drop and add echoes by the BIC with LM refits (default on)")
-    g.add_argument("--noise-estimator", dest="noise_estimator", choices=["robust", "residual"])
     g.add_argument("--shape-tolerance", dest="shape_tolerance", type=float,
                    help="relative departure of the pulse from the model that is not another echo (Leica: 0.06)")
-    g.add_argument("--min-snr", dest="min_snr", type=float, help="echoes below this x sigma_noise are weak")
-    g.add_argument("--first-echo-ratio", dest="first_echo_ratio", type=float,
-                   help="of two echoes closer than the pulse width, the earlier stays when its amplitude is at "
-                        "least this share of the later's (default 1: the weaker goes; 0.35: the first surface)")
-    g.add_argument("--tol", type=float, help="MDE/DE stop when std(fitness) <= atol + tol |mean(fitness)| "
-                   "(with tol > 0, atol grows by noise_tol x the noise's spread of the fitness)")
-    g.add_argument("--stall-generations", dest="stall_generations", type=int,
-                   help="with tol > 0, MDE/DE also stop when their best fitness fell by no more than atol over "
-                        "this many generations (0: never)")
-    g.add_argument("--lm-iterations", dest="lm_iterations", type=int)
-    g.add_argument("--lm-tolerance", dest="lm_tolerance", type=float,
-                   help="LM stops when a step lowers the sum of squares by less than this share of it")
-    g.add_argument("--mde-gate", dest="mde_gate", type=float,
-                   help="lm-mde: MDE searches where LM did not converge and its fit's chi^2 per degree of "
-                        "freedom exceeds this")
-    g.add_argument("--ga-iterative-generations", dest="ga_iterative_generations", type=int)
-    g.add_argument("--ga-iterative-r2", dest="ga_iterative_r2", type=float)
-    g.add_argument("--seed", type=int)
+
+
+def _option_kind(kind: Any) -> dict[str, Any]:
+    """argparse's type, choices or action for a field of this type (X | None: X's)."""
+    kind = next((k for k in typing.get_args(kind) if k is not type(None)), kind)
+    if kind is bool:
+        return {"action": argparse.BooleanOptionalAction}
+    if isinstance(kind, type) and issubclass(kind, enum.Enum):
+        return {"choices": [m.value for m in kind]}
+    return {"type": kind}
+
+
+def _option_help(field: dataclasses.Field) -> str | None:
+    if field.name == "optimizer":  # the catalogue's own words for each
+        return "; ".join(f"{o.value}: {spec.description}" for o, spec in OPTIMIZERS.items())
+    return field.metadata["help"]
 
 
 def decomposition_config(args: Any) -> DecompositionConfig:

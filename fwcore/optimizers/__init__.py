@@ -2,9 +2,10 @@
 
 Every method starts from the same initial estimate and bounds and hands back the
 same things: the best individual, model evaluations, iterations and a message.
-`run_optimizer` is the one place the kernels branch on the method's code; the
-methods that choose their own echoes (the patent's GA, deconvolution) run in
-`find_own_echoes`.
+`run_optimizer` is the one place the kernels branch on what the catalogue says
+of the method (its search, its local fit, whether that weighs the samples by the
+noise); the methods that choose their own echoes (the patent's GA,
+deconvolution) run in `find_own_echoes`.
 """
 
 from __future__ import annotations
@@ -15,9 +16,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.config import (MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NO_ECHOES,
-                           MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_LBFGS, OPT_LM, OPT_LM_MDE, OPT_MDE,
-                           OPT_GA_ITERATIVE, OPT_GOLD, OPT_MDE_LM, OPT_NONE, OPT_PSO)
+from fwcore.config import (LOCAL_LBFGS, LOCAL_NONE, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS,
+                           MSG_NO_ECHOES, MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_GOLD, OPT_MDE, OPT_PSO)
 from fwcore.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
 from fwcore.optimizers.evolution import evolve, init_population
 from fwcore.optimizers.ga import evolve_ga
@@ -49,7 +49,7 @@ def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samp
     init_population(start, lower, upper, p.init_spread, state, pop)
     fitness = np.empty(p.population)
     for i in range(p.population):
-        fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
+        fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
     nfev = p.population
     done = True
     if method == OPT_GA:
@@ -81,7 +81,7 @@ def find_own_echoes(p, shape, samples, valid, smoothed, background, noise, first
     """The methods that choose their own echoes (p.own_echoes): the patent's GA, which adds echoes until R^2
     is reached, and deconvolution, whose echoes are the recovered profile's lobes. Returns (best, echoes,
     echoes first estimated, model evaluations, iterations, message)."""
-    if p.method == OPT_GA_ITERATIVE:
+    if not p.deconvolution:
         best, n_echoes, n_initial, nfev = ga_iterative(
             valid, smoothed, background, noise, p.noise_threshold, p.max_echoes, first, last, times, fit_target,
             raw, p.ga_iterative_r2, p.population, p.ga_iterative_generations, seed)
@@ -96,67 +96,77 @@ def find_own_echoes(p, shape, samples, valid, smoothed, background, noise, first
 
 
 @njit(**JIT)
+def _local_fit(p, x, n_echoes, times, shape, target, weights, lower, upper):
+    """The optimizer's local fit (p.local) of x in place; L-BFGS gets 4x LM's iterations, which its cheaper
+    steps afford. Returns (model evaluations, converged)."""
+    if p.local == LOCAL_LBFGS:
+        _, used, done = lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, 4 * p.lm_iterations, 10,
+                              1e-9)
+    else:
+        _, used, done = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper,
+                                            p.lm_iterations, p.lm_tolerance)
+    return used, done
+
+
+@njit(**JIT)
+def _search_where_local_fails(p, shape, best, lower, upper, local_upper, n_echoes, fit_samples, valid, times,
+                              fit_target, raw, signal, variance, weights, noise, eps, seed):
+    """lm-mde: the local fit first; MDE only where it did not converge and its fit fails the gate, polished
+    by the local fit and kept when it lowers chi^2 by more than one parameter's BIC price, ln m.
+    Returns (best, model evaluations, MDE's generations, message)."""
+    nfev, done = _local_fit(p, best, n_echoes, times, shape, fit_target, weights, lower, local_upper)
+    message = MSG_CONVERGED if done else MSG_MAX_ITERATIONS
+    # a fit LM settled is where MDE would end too (its misfit is the model's): MDE only where LM could not
+    if done or reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
+        return best, nfev, 0, message
+    searched, used, nit, done = _population_search(p, shape, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
+                                                   valid, noise, eps, seed)
+    nfev += used
+    used, polished = _local_fit(p, searched, n_echoes, times, shape, fit_target, weights, lower, local_upper)
+    nfev += used
+    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+    if squared_error(searched, n_echoes, times, shape, raw, weights) < chi2 - math.log(times.size):
+        best = searched
+        message = MSG_CONVERGED if done and polished else (MSG_MAX_GENERATIONS if not done else MSG_MAX_ITERATIONS)
+    return best, nfev, nit, message
+
+
+@njit(**JIT)
 def run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid, times, fit_target, raw, signal,
                   variance, noise, eps, seed):
-    """Optimise individual x0 of n_echoes echoes with method p.method.
+    """Optimise individual x0 of n_echoes echoes as the catalogue says (p's OptimizerSpec fields).
 
-    Population methods fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples weighted 0)
-    within [lower, upper]; local ones least squares over the valid samples (times, fit_target,
-    weights 1 / sqrt(variance)) within [lower, local_upper]. lm-mde fits LM first and searches with
-    MDE only where LM did not converge in p.lm_iterations and its fit's reduced chi^2 on the raw
-    samples exceeds p.mde_gate; MDE's polished result replaces LM's only when it lowers chi^2 by more
-    than one parameter's BIC price, ln m.
-    Returns (best, model evaluations, iterations, message); lm-mde's iterations are MDE's
-    generations (0: LM's fit stands, MDE did not run)."""
+    Population searches (p.search) fit Eq. 9 over `fit_samples` (the whole waveform, invalid samples
+    weighted 0) within [lower, upper]; local fits (p.local) least squares over the valid samples (times,
+    fit_target; weights 1 / sqrt(variance) where p.noise_weighted, else 1) within [lower, local_upper],
+    after the search if there is one. p.search_where_local_fails (lm-mde): _search_where_local_fails.
+    Returns (best, model evaluations, iterations, message); iterations are the search's generations, or
+    the local fit's evaluations when it runs alone."""
     best = x0.copy()
-    method = p.method
     if n_echoes == 0:
         return best, 0, 0, MSG_NO_ECHOES
-    if method == OPT_NONE:
+    if not p.search and p.local == LOCAL_NONE:
         return best, 0, 0, MSG_NOT_OPTIMIZED
     weights = 1.0 / np.sqrt(variance)
+    if p.search_where_local_fails:
+        return _search_where_local_fails(p, shape, best, lower, upper, local_upper, n_echoes, fit_samples, valid,
+                                         times, fit_target, raw, signal, variance, weights, noise, eps, seed)
     nfev = 0
     nit = 0
     message = MSG_CONVERGED
-    if method == OPT_LM_MDE:
-        _, used, done = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
-                                            p.lm_iterations, p.lm_tolerance)
-        nfev += used
-        message = MSG_CONVERGED if done else MSG_MAX_ITERATIONS
-        # a fit LM settled is where MDE would end too (its misfit is the model's): MDE only where LM could not
-        if done or reduced_chi2(best, n_echoes, times, shape, raw, signal, variance) <= p.mde_gate:
-            return best, nfev, 0, message
-        searched, used, nit, done = _population_search(p, shape, OPT_MDE, best, lower, upper, n_echoes, fit_samples,
-                                                       valid, noise, eps, seed)
-        nfev += used
-        _, used, polished = levenberg_marquardt(searched, n_echoes, times, shape, fit_target, weights, lower,
-                                                local_upper, p.lm_iterations, p.lm_tolerance)
-        nfev += used
-        chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
-        if squared_error(searched, n_echoes, times, shape, raw, weights) < chi2 - math.log(times.size):
-            best = searched
-            message = MSG_CONVERGED if done and polished else (MSG_MAX_GENERATIONS if not done else
-                                                                MSG_MAX_ITERATIONS)
-        return best, nfev, nit, message
-    if method in (OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_MDE_LM):
-        best, used, nit, done = _population_search(p, shape, method, x0, lower, upper, n_echoes, fit_samples, valid,
-                                                   noise, eps, seed)
+    if p.search:
+        best, used, nit, done = _population_search(p, shape, p.method, x0, lower, upper, n_echoes, fit_samples,
+                                                   valid, noise, eps, seed)
         nfev += used
         if not done:
             message = MSG_MAX_GENERATIONS
-    if method == OPT_LM or method == OPT_MDE_LM:
-        _, used, done = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
-                                            p.lm_iterations, p.lm_tolerance)
+    if p.local != LOCAL_NONE:
+        # L-BFGS fits the plain sum of squares (OPTIMIZERS: its noise_weighted is False)
+        used, done = _local_fit(p, best, n_echoes, times, shape, fit_target,
+                                weights if p.noise_weighted else np.ones(times.size), lower, local_upper)
         nfev += used
-        if method == OPT_LM:
+        if not p.search:
             nit = used
         if not done and message == MSG_CONVERGED:
-            message = MSG_MAX_ITERATIONS
-    elif method == OPT_LBFGS:
-        _, used, done = lbfgs(best, n_echoes, times, shape, fit_target, lower, local_upper, 4 * p.lm_iterations, 10,
-                              1e-9)
-        nfev += used
-        nit = used
-        if not done:
             message = MSG_MAX_ITERATIONS
     return best, nfev, nit, message

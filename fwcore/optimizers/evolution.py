@@ -165,7 +165,7 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
                 best_candidate = np.inf
                 for c in range(n_candidates):
                     _mde_candidate(best_x, diff1, diff2, f1s[c], f2s[c], lower, upper, candidate)
-                    err = fit_error(candidate, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
+                    err = fit_error(candidate, n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
                     nfev += 1
                     if err < best_candidate:
                         best_candidate = err
@@ -174,7 +174,7 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
                 _distinct_partners(state, np_, i, 3, partners)
                 mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], p.de_scale_factor, lower, upper, mutant)
             binomial_crossover(pop[i], mutant, p.crossover_rate, state, trial)
-            err = fit_error(trial, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
+            err = fit_error(trial, n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 next_pop[i] = trial

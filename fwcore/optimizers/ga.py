@@ -59,7 +59,7 @@ def evolve_ga(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weig
                 if uniform(state) < p.ga_mutation_rate:
                     v += _GA_MUTATION_SCALE * (upper[j] - lower[j]) * _normal(state)
                 child[j] = min(max(v, lower[j]), upper[j])
-            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
+            next_fit[i] = fit_error(child, n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
             nfev += 1
         pop[:] = next_pop
         fitness[:] = next_fit

@@ -225,6 +225,23 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
 
 
 @njit(**JIT)
+def _damping_after_gain(lam, gain, grad, jtj, x, trial):
+    """Nielsen's damping update after an accepted step x -> trial: by how well the linear model predicted
+    the gain, so that a step into a curved valley (overlapping echoes trading amplitude) is not followed
+    by a bolder one."""
+    d = x.size
+    predicted = 0.0
+    for r in range(d):
+        delta = trial[r] - x[r]
+        predicted -= 2.0 * grad[r] * delta
+        for c in range(d):
+            predicted -= delta * jtj[r, c] * (trial[c] - x[c])
+    # a clipped step's prediction means little: ratio 0.5 leaves the damping as it is
+    ratio = gain / predicted if predicted > 0.0 else 0.5
+    return max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
+
+
+@njit(**JIT)
 def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance):
     """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
     (weights: 1 / the noise sigma of each sample, or ones).
@@ -279,17 +296,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             trial_ssr += r * r
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
-            # Nielsen's damping update: by how well the linear model predicted the gain, so that a step into
-            # a curved valley (overlapping echoes trading amplitude) is not followed by a bolder one
-            predicted = 0.0
-            for r in range(d):
-                delta = trial[r] - x[r]
-                predicted -= 2.0 * grad[r] * delta
-                for c in range(d):
-                    predicted -= delta * jtj[r, c] * (trial[c] - x[c])
-            # a clipped step's prediction means little: ratio 0.5 leaves the damping as it is
-            ratio = gain / predicted if predicted > 0.0 else 0.5
-            lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
+            lam = _damping_after_gain(lam, gain, grad, jtj, x, trial)
             growth = 2.0
             x[:] = trial
             jac, trial_jac = trial_jac, jac  # the trial's Jacobian becomes the current one
@@ -311,17 +318,18 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
 
 
 @njit(**JIT)
-def _ssr_and_gradient(x, n_echoes, times, shape, target, free, model, jac, grad):
+def _ssr_and_gradient(x, n_echoes, times, shape, target, weights, free, model, jac, grad):
+    """sum (weights (model - target))**2 at x and its gradient (0 for the parameters that never move)."""
     windows = np.empty((n_echoes, 2), dtype=np.int64)
     model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for j in range(x.size):
         grad[j] = 0.0
     for i in range(times.size):
-        r = model[i] - target[i]
+        r = weights[i] * (model[i] - target[i])
         ssr += r * r
         for j in range(x.size):
-            grad[j] += 2.0 * r * jac[i, j]
+            grad[j] += 2.0 * r * weights[i] * jac[i, j]
     for j in range(x.size):
         if not free[j]:
             grad[j] = 0.0
@@ -329,8 +337,52 @@ def _ssr_and_gradient(x, n_echoes, times, shape, target, free, model, jac, grad)
 
 
 @njit(**JIT)
-def lbfgs(x, n_echoes, times, shape, target, lower, upper, max_iterations, memory, tolerance):
-    """Projected L-BFGS on sum (model - target)**2 inside [lower, upper], x updated in place.
+def _two_loop_direction(x, grad, lower, upper, free, s_hist, y_hist, rho, alpha_hist, stored, head, active,
+                        direction):
+    """The L-BFGS direction from the `stored` newest (s, y) pairs by the two-loop recursion, zero for the
+    parameters held (`active`, set here: fixed, or at a bound with the gradient pushing outwards)."""
+    d = x.size
+    memory = rho.size
+    for j in range(d):
+        active[j] = (not free[j]) or (x[j] <= lower[j] and grad[j] > 0.0) or (x[j] >= upper[j] and grad[j] < 0.0)
+        direction[j] = 0.0 if active[j] else -grad[j]
+    for q in range(stored):  # newest pair first
+        slot = (head - 1 - q) % memory
+        a = rho[slot] * np.dot(s_hist[slot], direction)
+        alpha_hist[slot] = a
+        direction -= a * y_hist[slot]
+    if stored > 0:
+        last = (head - 1) % memory
+        direction *= np.dot(s_hist[last], y_hist[last]) / np.dot(y_hist[last], y_hist[last])
+    for q in range(stored - 1, -1, -1):
+        slot = (head - 1 - q) % memory
+        b = rho[slot] * np.dot(y_hist[slot], direction)
+        direction += (alpha_hist[slot] - b) * s_hist[slot]
+    for j in range(d):
+        if active[j]:
+            direction[j] = 0.0
+
+
+@njit(**JIT)
+def _line_search(x, direction, ssr, grad, n_echoes, times, shape, target, weights, lower, upper, free, model, jac,
+                 trial, new_grad):
+    """A backtracking (Armijo) search along the projected path from x: (sum of squares at `trial`, accepted,
+    gradients evaluated); `new_grad` holds the gradient at `trial`."""
+    step = 1.0
+    new_ssr = ssr
+    for k in range(30):
+        for j in range(x.size):
+            trial[j] = min(max(x[j] + step * direction[j], lower[j]), upper[j])
+        new_ssr = _ssr_and_gradient(trial, n_echoes, times, shape, target, weights, free, model, jac, new_grad)
+        if new_ssr <= ssr + 1e-4 * np.dot(grad, trial - x):
+            return new_ssr, True, k + 1
+        step *= 0.5
+    return new_ssr, False, 30
+
+
+@njit(**JIT)
+def lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, memory, tolerance):
+    """Projected L-BFGS on sum (weights (model - target))**2 inside [lower, upper], x updated in place.
 
     The two-loop recursion gives the direction; parameters held at a bound with the
     gradient pushing outwards are frozen for the step; a backtracking (Armijo) line
@@ -352,30 +404,13 @@ def lbfgs(x, n_echoes, times, shape, target, lower, upper, max_iterations, memor
     alpha_hist = np.zeros(memory)
     stored = 0
     head = 0
-    ssr = _ssr_and_gradient(x, n_echoes, times, shape, target, free, model, jac, grad)
+    ssr = _ssr_and_gradient(x, n_echoes, times, shape, target, weights, free, model, jac, grad)
     n_gradients = 1
     done = False
     for _ in range(max_iterations):
         active = np.zeros(d, dtype=np.bool_)
-        for j in range(d):
-            active[j] = (not free[j]) or (x[j] <= lower[j] and grad[j] > 0.0) or (x[j] >= upper[j] and grad[j] < 0.0)
-            direction[j] = 0.0 if active[j] else -grad[j]
-        # two-loop recursion, newest pair first
-        for q in range(stored):
-            slot = (head - 1 - q) % memory
-            a = rho[slot] * np.dot(s_hist[slot], direction)
-            alpha_hist[slot] = a
-            direction -= a * y_hist[slot]
-        if stored > 0:
-            last = (head - 1) % memory
-            direction *= np.dot(s_hist[last], y_hist[last]) / np.dot(y_hist[last], y_hist[last])
-        for q in range(stored - 1, -1, -1):
-            slot = (head - 1 - q) % memory
-            b = rho[slot] * np.dot(y_hist[slot], direction)
-            direction += (alpha_hist[slot] - b) * s_hist[slot]
-        for j in range(d):
-            if active[j]:
-                direction[j] = 0.0
+        _two_loop_direction(x, grad, lower, upper, free, s_hist, y_hist, rho, alpha_hist, stored, head, active,
+                            direction)
         slope = np.dot(grad, direction)
         if slope >= 0.0:  # not a descent direction: restart from steepest descent
             stored = 0
@@ -385,18 +420,9 @@ def lbfgs(x, n_echoes, times, shape, target, lower, upper, max_iterations, memor
             if slope >= 0.0:
                 done = True
                 break
-        step = 1.0
-        accepted = False
-        new_ssr = ssr
-        for _ in range(30):
-            for j in range(d):
-                trial[j] = min(max(x[j] + step * direction[j], lower[j]), upper[j])
-            new_ssr = _ssr_and_gradient(trial, n_echoes, times, shape, target, free, model, jac, new_grad)
-            n_gradients += 1
-            if new_ssr <= ssr + 1e-4 * np.dot(grad, trial - x):
-                accepted = True
-                break
-            step *= 0.5
+        new_ssr, accepted, used = _line_search(x, direction, ssr, grad, n_echoes, times, shape, target, weights,
+                                               lower, upper, free, model, jac, trial, new_grad)
+        n_gradients += used
         if not accepted:  # no step lowers the sum: a minimum to the line search's precision
             done = True
             break
@@ -444,9 +470,9 @@ def fit_lbfgs(x0, n_echoes: int, times, target, lower, upper, max_iterations: in
     """Projected L-BFGS from x0 inside the bounds: (best individual, sum of squares, gradients evaluated)."""
     x = np.clip(np.array(x0, dtype=np.float64), lower, upper)
     shape = analytic_shape() if shape is None else shape
-    ssr, n_gradients, _ = lbfgs(x, int(n_echoes), np.ascontiguousarray(times, dtype=np.float64), shape,
-                             np.ascontiguousarray(target, dtype=np.float64),
-                             np.ascontiguousarray(lower, dtype=np.float64),
-                             np.ascontiguousarray(upper, dtype=np.float64), int(max_iterations), int(memory),
-                             float(tolerance))
+    times = np.ascontiguousarray(times, dtype=np.float64)
+    ssr, n_gradients, _ = lbfgs(x, int(n_echoes), times, shape, np.ascontiguousarray(target, dtype=np.float64),
+                                np.ones(times.size), np.ascontiguousarray(lower, dtype=np.float64),
+                                np.ascontiguousarray(upper, dtype=np.float64), int(max_iterations), int(memory),
+                                float(tolerance))
     return x, float(ssr), int(n_gradients)

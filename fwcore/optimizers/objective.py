@@ -42,7 +42,7 @@ def padded_length(n: int) -> int:
 
 
 @njit(**SIMD_JIT)
-def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
+def fill_model(x, n_echoes, tpos, alpha_fixed, shape, eps, model):
     """Write the model of individual x into `model` (float32, padded to whole blocks),
     evaluating each echo only over the aligned blocks where it exceeds eps (a tabulated shape over
     its table's support, scalar: a gather does not vectorise)."""
@@ -79,7 +79,7 @@ def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
         u32 = _F32(u)
         inv_h = _F32(1.0 / h)
         # unsigned indices: signed ones make numba emit wraparound checks that block SIMD
-        if gaussian:
+        if alpha_fixed:  # alpha = sqrt(2): the Gaussian, exp2(-z**2)
             for j in range(hi - lo):
                 i = np.uint64(lo + j)
                 z = (tpos[i] - u32) * inv_h
@@ -93,9 +93,9 @@ def fill_model(x, n_echoes, tpos, gaussian, shape, eps, model):
 
 
 @njit(**SIMD_JIT)
-def fit_error(x, n_echoes, tpos, target, weight, gaussian, shape, eps, model):
+def fit_error(x, n_echoes, tpos, target, weight, alpha_fixed, shape, eps, model):
     """Eq. 9: sum of |model - target| over valid samples (weight 1, else 0). `model` is scratch."""
-    fill_model(x, n_echoes, tpos, gaussian, shape, eps, model)
+    fill_model(x, n_echoes, tpos, alpha_fixed, shape, eps, model)
     acc = _ZERO32
     for i in range(model.size):
         acc += weight[i] * abs(model[i] - target[i])

@@ -40,7 +40,7 @@ def swarm(pop, fitness, lower, upper, p, state, n_echoes, tpos, target, weight, 
                 v = min(max(v, -limit), limit)
                 velocity[i, j] = v
                 x[i, j] = min(max(x[i, j] + v, lower[j]), upper[j])
-            err = fit_error(x[i], n_echoes, tpos, target, weight, p.gaussian, shape, eps, model)
+            err = fit_error(x[i], n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
             nfev += 1
             if err <= fitness[i]:
                 fitness[i] = err

@@ -162,14 +162,3 @@ def test_gaussian_model_fixes_alpha():
     y = synthetic([100.0], [70.0], [3.0], [1.8], 1.0)
     r = decompose_waveform(y, SPACING, config=CONFIG.replace(model="gaussian"))
     np.testing.assert_array_equal(r.alpha, SQ2)
-
-
-def test_kernel_params_have_one_type_per_field_whatever_the_input():
-    # an integral float setting from JSON or TOML (min_snr = 8) must not be a new numba signature:
-    # that is a fresh compile of the whole engine (about 50 s) in the viewer's try endpoint
-    given = DecompositionConfig(min_snr=8, tol=0, generations=30).kernel_params()
-    default = DecompositionConfig().kernel_params()
-    assert [type(v) for v in given] == [type(v) for v in default]
-    assert given.min_snr == 8.0 and type(given.min_snr) is float and type(given.generations) is int
-    with pytest.raises(TypeError):
-        DecompositionConfig(population=60.5).kernel_params()

@@ -131,3 +131,27 @@ def test_lm_mde_leaves_a_fit_lm_settled_to_lm_even_at_gate_zero():
 def test_mde_gate_must_not_be_negative():
     with pytest.raises(ValueError, match="mde_gate"):
         DecompositionConfig(mde_gate=-1.0)
+
+
+@pytest.mark.parametrize("optimizer, weighted", [("lm", True), ("lbfgs", False)])
+def test_the_local_fit_weighs_the_samples_by_the_noise_where_the_catalogue_says(optimizer, weighted):
+    from fwcore.instrument import analytic_shape
+    from fwcore.optimizers import run_optimizer
+    from tests.fwcore.naive import model_of_individual
+
+    times = np.arange(60.0)
+    truth = np.array([10.0, 100.0, 25.0, 3.0, SQ2, 60.0, 35.0, 3.0, SQ2])
+    target = model_of_individual(truth, times) + np.random.default_rng(3).normal(0.0, 2.0, times.size)
+    start = truth + np.array([1.0, -20.0, 1.0, 0.5, 0.0, 10.0, -1.0, -0.5, 0.0])
+    lower = truth - np.array([50.0, 100.0, 5.0, 2.0, 0.0, 100.0, 5.0, 2.0, 0.0])
+    upper = truth + np.array([50.0, 100.0, 5.0, 2.0, 0.0, 100.0, 5.0, 2.0, 0.0])
+    p = CONFIG.replace(optimizer=optimizer, model="gaussian").kernel_params()
+    assert p.noise_weighted == weighted
+
+    def fit(variance):
+        best, *_ = run_optimizer(p, analytic_shape(), start, lower, upper, upper, 2, target, np.ones(60, bool), times,
+                                 target, target, np.zeros(60), variance, 2.0, 0.01, 1)
+        return best
+
+    uneven = np.where(times < 30, 1.0, 100.0)  # the second echo's samples 10x noisier
+    assert np.array_equal(fit(np.ones(60)), fit(uneven)) != weighted

@@ -1,0 +1,122 @@
+"""DecompositionConfig: each setting declared once, and KernelParams generated from the declarations."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import re
+from pathlib import Path
+
+import pytest
+
+from fwcore.config import (LOCAL_NONE, MEASURED_KERNEL_VALUES, OPTIMIZERS, DecompositionConfig, KernelParams, Model,
+                           Optimizer)
+
+DEFAULT = DecompositionConfig()
+FIELDS = dataclasses.fields(DecompositionConfig)
+
+
+def other_value(name: str):
+    """A valid value of the setting other than its default (the first candidate the config accepts)."""
+    default = getattr(DEFAULT, name)
+    if isinstance(default, bool):
+        candidates = [not default]
+    elif isinstance(default, enum.Enum):
+        candidates = [m for m in type(default) if m is not default]
+    elif isinstance(default, int):
+        candidates = [default + 1]
+    else:
+        base = default or 0.0
+        candidates = [base * 0.5, base * 1.5, base + 1.0, 0.5]
+    for value in candidates:
+        try:
+            DEFAULT.replace(**{name: value})
+        except ValueError:
+            continue
+        if value != default:
+            return value
+    raise AssertionError(f"no valid value of {name} besides its default")
+
+
+@pytest.mark.parametrize("field", [f for f in FIELDS if f.metadata.get("kernel") is True], ids=lambda f: f.name)
+def test_every_kernel_setting_reaches_kernel_params(field):
+    value = other_value(field.name)
+    assert getattr(DEFAULT.replace(**{field.name: value}).kernel_params(), field.name) == value
+
+
+@pytest.mark.parametrize("field", [f for f in FIELDS if callable(f.metadata.get("kernel"))], ids=lambda f: f.name)
+def test_every_enum_setting_the_kernels_read_changes_kernel_params(field):
+    seen = {DEFAULT.replace(**{field.name: member}).kernel_params() for member in type(getattr(DEFAULT, field.name))}
+    assert len(seen) > 1
+
+
+def test_kernel_params_hold_the_declared_settings_and_nothing_else():
+    declared = set(MEASURED_KERNEL_VALUES)
+    for field in FIELDS:
+        kernel = field.metadata.get("kernel")
+        if kernel is True:
+            declared.add(field.name)
+        elif kernel:
+            declared |= set(kernel(getattr(DEFAULT, field.name)))
+    assert set(KernelParams._fields) == declared
+
+
+def test_every_kernel_param_is_read_by_a_kernel():
+    # a field no kernel reads is a setting that does nothing
+    source = "".join(p.read_text() for p in Path("fwcore").rglob("*.py") if p.name != "config.py")
+    unread = [name for name in KernelParams._fields if not re.search(rf"\bp\.{name}\b", source)]
+    assert not unread
+
+
+def test_the_files_measurements_are_given_by_the_caller():
+    assert DEFAULT.kernel_params(shape_tolerance=0.05).shape_tolerance == 0.05
+    assert DEFAULT.replace(shape_tolerance=0.02).kernel_params().shape_tolerance == 0.02
+
+
+def test_kernel_params_have_one_type_per_field_whatever_the_input():
+    # an integral float setting from JSON or TOML (min_snr = 8) must not be a new numba signature:
+    # that is a fresh compile of the whole engine (about 50 s) in the viewer's try endpoint
+    given = DecompositionConfig(min_snr=8, tol=0, generations=30).kernel_params()
+    assert [type(v) for v in given] == [type(v) for v in DEFAULT.kernel_params()]
+    assert given.min_snr == 8.0 and type(given.min_snr) is float and type(given.generations) is int
+    with pytest.raises(TypeError):
+        DecompositionConfig(population=60.5).kernel_params()
+
+
+def test_alpha_is_fixed_under_the_system_and_gaussian_models():
+    fixed = {m for m in Model if DEFAULT.replace(model=m).kernel_params().alpha_fixed}
+    assert fixed == {Model.SYSTEM, Model.GAUSSIAN}
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"population": 4}, "population (NP) must be at least 5: MDE draws 4 distinct partners"),
+    ({"generations": -1}, "generations (G) must be at least 0"),
+    ({"crossover_rate": 1.5}, "crossover_rate (CR) must lie in [0, 1]"),
+    ({"noise_threshold": 0.0}, "noise_threshold must be positive"),
+    ({"lm_tolerance": 1.0}, "lm_tolerance must lie in (0, 1)"),
+    ({"ga_iterative_r2": 0.0}, "ga_iterative_r2 must lie in (0, 1]"),
+    ({"scale_min": 0.5, "scale_max": 0.4}, "0 <= a < b"),
+])
+def test_a_value_outside_its_interval_is_refused_with_the_interval(changes, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        DEFAULT.replace(**changes)
+
+
+def test_the_catalogue_says_what_the_kernels_do_for_every_optimizer():
+    assert set(OPTIMIZERS) == set(Optimizer)
+    assert len({spec.code for spec in OPTIMIZERS.values()}) == len(OPTIMIZERS)
+    for optimizer, spec in OPTIMIZERS.items():
+        assert spec.description
+        assert not spec.search_where_local_fails or (spec.search and spec.local != LOCAL_NONE), optimizer
+        assert not spec.deconvolution or spec.own_echoes, optimizer
+        params = DEFAULT.replace(optimizer=optimizer).kernel_params()
+        assert params.method == spec.code and params.noise_weighted == spec.noise_weighted
+    # L-BFGS fits the plain sum of squares, LM the noise-weighted one (docs/method.md)
+    assert not OPTIMIZERS[Optimizer.LBFGS].noise_weighted and OPTIMIZERS[Optimizer.LM].noise_weighted
+
+
+def test_the_file_decides_the_model_under_auto():
+    auto = DecompositionConfig(model="auto")
+    assert auto.kernel_params(model=Model.SYSTEM).alpha_fixed and not auto.kernel_params().alpha_fixed
+    with pytest.raises(TypeError, match="neither kernel settings"):
+        auto.kernel_params(shape_tolerence=0.1)

@@ -1,0 +1,50 @@
+"""The method's command-line options, generated from DecompositionConfig's fields: each reaches the config."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import enum
+
+import pytest
+
+from fwcore.config import DecompositionConfig
+from pipeline.cli import build_parser
+from pipeline.options import COMPARED, decomposition_config
+from tests.fwcore.test_config import other_value
+
+OPTIONS = [f for f in dataclasses.fields(DecompositionConfig) if f.metadata.get("option")]
+
+
+def _flags(command: str) -> set[str]:
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    return {s for a in sub._actions for s in a.option_strings}
+
+
+@pytest.mark.parametrize("field", OPTIONS, ids=lambda f: f.name)
+def test_every_option_reaches_the_config(field):
+    value = other_value(field.name)
+    flag = "--" + field.name.replace("_", "-")
+    if isinstance(value, bool):
+        given = [flag if value else "--no-" + flag[2:]]
+    else:
+        given = [flag, str(value.value if isinstance(value, enum.Enum) else value)]
+    config = decomposition_config(build_parser().parse_args(["run", *given]))
+    assert getattr(config, field.name) == value
+    assert config.replace(**{field.name: getattr(DecompositionConfig(), field.name)}) == DecompositionConfig()
+
+
+def test_every_method_command_has_the_options_and_compare_chooses_its_own_optimizers_and_models():
+    flags = {"--" + f.name.replace("_", "-") for f in OPTIONS}
+    for command in ("run", "watch", "decompose-csv"):
+        assert flags <= _flags(command), command
+    compared = {"--" + name.replace("_", "-") for name in COMPARED}
+    assert flags - compared <= _flags("compare") and not compared & _flags("compare") - {"--model"}
+    assert "--optimizers" in _flags("compare")
+
+
+def test_a_flag_not_given_leaves_the_preset_and_toml_values(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[decomposition]\nraw_polish = false\nmin_snr = 4\n")
+    config = decomposition_config(build_parser().parse_args(["run", "--preset", "paper", "--config", str(path)]))
+    assert config.raw_polish is False and config.min_snr == 4 and config.generations == 80
