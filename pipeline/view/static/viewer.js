@@ -363,10 +363,12 @@ async function loadLayer() {
 function gridTrace(layer) {
   const unit = layer.unit ? ` (${layer.unit})` : "";
   return { type: "heatmap", name: layer.label, meta: "grid", x0: layer.x0, dx: layer.dx, y0: layer.y0, dy: layer.dy,
-    z: layer.z, zmin: layer.cmin ?? 0, zmax: layer.cmax ?? 1, colorscale: "Greys", hoverongaps: false,
-    hovertemplate: `%{z:.4g}${layer.unit ? " " + layer.unit : ""}<extra>grid</extra>`,
-    colorbar: { title: { text: `${layer.label}${unit}<br>2nd–98th pct`, side: "right" }, thickness: 12, len: 0.8,
-      x: 1.2, xanchor: "left" } };
+    // greys from light (low) to dark (high): the echoes' colours (dark low, yellow high) stay readable over them
+    z: layer.z, zmin: layer.cmin ?? 0, zmax: layer.cmax ?? 1, colorscale: [[0, "#f4f4f4"], [1, "#5a5a5a"]],
+    hoverongaps: false, hovertemplate: `%{z:.4g}${layer.unit ? " " + layer.unit : ""}<extra>grid</extra>`,
+    // across the top: the echoes' colour bar keeps the right side
+    colorbar: { title: { text: `grid: ${layer.label}${unit}, 2nd–98th pct`, side: "top" }, orientation: "h",
+      thickness: 10, len: 0.7, x: 0.5, xanchor: "center", y: 1.02, yanchor: "bottom" } };
 }
 
 let bound = false;

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -164,6 +165,38 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
         str(int((echoes.pulse_id == other).sum()))
 
 
+def test_a_grid_picked_as_a_layer_is_drawn_under_the_echoes(browser, fwl_view, viewed, gridded, tmp_path):
+    import rasterio
+    from selenium.webdriver.support.ui import Select
+
+    browser.get(f"{fwl_view}?run=0/&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    select = Select(browser.find_element("id", "grid-layer"))
+    _wait(browser, "document.getElementById('grid-layer').options.length > 1")
+    wanted = next(o.get_attribute("value") for o in select.options if '"highest.tif"' in o.get_attribute("value"))
+    select.select_by_value(wanted)
+    drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    with rasterio.open(gridded / "highest.tif") as tif:
+        height, width, west, cell = tif.height, tif.width, tif.transform.c, tif.transform.a
+        cells = tif.read(1)[::-1]
+    assert drawn["type"] == "heatmap" and len(drawn["z"]) == height and {len(r) for r in drawn["z"]} == {width}
+    assert drawn["x0"] - drawn["dx"] / 2 == west and drawn["dx"] == cell
+    assert [v is None for row in drawn["z"] for v in row] == list(np.isnan(cells).ravel())  # nodata: not drawn
+    assert "highest kept echo z" in drawn["colorbar"]["title"]["text"]
+    metas = browser.execute_script("return document.getElementById('map').data.map(t => t.meta)")
+    assert metas[0] == "grid" and "kept" in metas  # the first trace: under the echoes
+    # the layer is in the URL: a reload shows it again
+    assert "layer=" in browser.current_url
+    browser.get(browser.current_url)
+    _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    shot = tmp_path / "fwl-view-grid.png"
+    browser.save_screenshot(str(shot))
+    print(f"screenshot: {shot}")
+    select = Select(browser.find_element("id", "grid-layer"))
+    select.select_by_value("")
+    _wait(browser, "!document.getElementById('map').data.some(t => t.meta === 'grid')")
+
+
 HOSTILE = "<img src=x onerror=document.title='PWNED'>"
 
 
@@ -262,6 +295,21 @@ def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl
     assert kept["cmin"] > values.min() and kept["cmax"] < values.max()
     assert "2nd–98th" in kept["colorbar"]["title"]["text"]
     assert max(abs(v) for v in served["x"] + served["y"]) < 5000
+
+
+def test_an_earth_centred_runs_grid_is_offered_with_why_it_cannot_be_drawn(riegl):
+    """The map draws east and north about the run's centre; a grid of its earth-centred x and y cannot lie there."""
+    from urllib.parse import quote
+
+    from pipeline.cli import main
+    from tests.pipeline.view.test_endpoints import _status
+
+    assert main(["grid", str(riegl.run), "--cell", "5"]) == 0
+    (grid,) = riegl.get(f"/api/grids?run={quote(riegl.run_id, safe='')}")["grids"]
+    assert "earth-centred" in grid["unavailable"] and grid["layers"]
+    status, data = _status(riegl, "GET", f"/api/grid?run={quote(riegl.run_id, safe='')}&grid={quote(grid['id'])}"
+                                         f"&map=highest.tif")
+    assert status == 400 and b"earth-centred" in data
 
 
 def _documented_urls() -> list[str]:
