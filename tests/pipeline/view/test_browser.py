@@ -167,6 +167,7 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
 
 def test_a_grid_picked_as_a_layer_is_drawn_under_the_echoes(browser, fwl_view, viewed, gridded, tmp_path):
     import rasterio
+    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.support.ui import Select
 
     browser.get(f"{fwl_view}?run=0/&colour=height&tab=explore")
@@ -192,6 +193,22 @@ def test_a_grid_picked_as_a_layer_is_drawn_under_the_echoes(browser, fwl_view, v
     shot = tmp_path / "fwl-view-grid.png"
     browser.save_screenshot(str(shot))
     print(f"screenshot: {shot}")
+    # an echo over the layer is still the one a click picks
+    echoes = viewed.echoes()
+    shown = browser.execute_script("return document.getElementById('waveform').dataset.pulse")
+    kept = echoes[echoes.kept & (echoes.pulse_id.astype(str) != shown)]
+    target = kept.iloc[len(kept) // 3]
+    dx, dy = browser.execute_script("""
+        const div = document.getElementById('map'), L = div._fullLayout, r = div.getBoundingClientRect();
+        return [L.xaxis._offset + L.xaxis.l2p(arguments[0]) - r.width / 2, L.yaxis._offset + L.yaxis.l2p(arguments[1])
+                - r.height / 2];
+    """, float(target.x), float(target.y))
+    ActionChains(browser).move_to_element_with_offset(browser.find_element("id", "map"), dx, dy).pause(0.5) \
+        .click().perform()
+    clicked = int(_wait(browser, f"document.getElementById('waveform').dataset.pulse !== '{shown}' && "
+                                 "document.getElementById('waveform').dataset.pulse"))
+    near = echoes[echoes.pulse_id == clicked]
+    assert ((near.x - target.x) ** 2 + (near.y - target.y) ** 2).min() ** 0.5 < 2.0
     select = Select(browser.find_element("id", "grid-layer"))
     select.select_by_value("")
     _wait(browser, "!document.getElementById('map').data.some(t => t.meta === 'grid')")
