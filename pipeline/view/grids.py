@@ -7,7 +7,8 @@ draws transparent, with the cells' centres in the map's coordinates. fwl grid ma
 a grid lines up with the echoes wherever the map draws them as they are (a projected CRS, or none named); the
 map of an earth-centred run draws east and north about its centre, where a grid of its x and y has no place.
 
-A grid of more than MAX_CELLS cells is served coarser: blocks of k x k cells, each the highest of its cells
+A layer may be asked for within a box of the map (a zoom): only the cells it touches are read. More than
+MAX_CELLS cells are served coarser: blocks of k x k cells, each the highest of its cells
 (highest.tif), the lowest (lowest.tif), their sum (count and profile: the block's echoes and energy) or their
 mean (the mean maps), read k rows at a time.
 """
@@ -143,8 +144,19 @@ def _reduce(block: np.ndarray, k: int, how: str) -> np.ndarray:
     return np.where(empty, np.nan, out)
 
 
-def read_layer(path: Path, band: int, max_cells: int = MAX_CELLS) -> dict:
-    """One band of a map as the page draws it: rows from the south, cell centres x0 + i dx, y0 + j dy."""
+def _window(box, west: float, north: float, cell: float, width: int, height: int) -> tuple[int, int, int, int]:
+    """The columns and rows [col0, col1) x [row0, row1) of the cells a box (xmin, xmax, ymin, ymax) touches."""
+    if box is None:
+        return 0, width, 0, height
+    xmin, xmax, ymin, ymax = box
+    cols = np.clip([math.floor((xmin - west) / cell), math.ceil((xmax - west) / cell)], 0, width)
+    rows = np.clip([math.floor((north - ymax) / cell), math.ceil((north - ymin) / cell)], 0, height)
+    return int(cols[0]), int(cols[1]), int(rows[0]), int(rows[1])
+
+
+def read_layer(path: Path, band: int, max_cells: int | None = None, box=None) -> dict:
+    """One band of a map as the page draws it, the cells within `box` (all: None): rows from the south, cell
+    centres x0 + i dx, y0 + j dy."""
     import rasterio
     from rasterio.windows import Window
 
@@ -153,11 +165,13 @@ def read_layer(path: Path, band: int, max_cells: int = MAX_CELLS) -> dict:
         t = tif.transform
         if t.b or t.d or not t.a > 0 or not t.e < 0:
             raise ValueError(f"{path.name}: not a north-up grid of square cells (transform {tuple(t)[:6]})")
-        width, height, nodata = tif.width, tif.height, tif.nodata
-        k = max(1, math.ceil(math.sqrt(width * height / max_cells)))
+        nodata = tif.nodata
+        col0, col1, row0, row1 = _window(box, t.c, t.f, t.a, tif.width, tif.height)
+        width, height = col1 - col0, row1 - row0
+        k = max(1, math.ceil(math.sqrt(width * height / (max_cells or MAX_CELLS))))
         rows = []
-        for top in range(0, height, k):
-            block = tif.read(band, window=Window(0, top, width, min(k, height - top))).astype(float)
+        for top in range(row0, row1, k):
+            block = tif.read(band, window=Window(col0, top, width, min(k, row1 - top))).astype(float)
             if nodata is not None and not math.isnan(nodata):
                 block[block == nodata] = np.nan
             if path.name == "count.tif":
@@ -165,7 +179,7 @@ def read_layer(path: Path, band: int, max_cells: int = MAX_CELLS) -> dict:
             rows.append(_reduce(block, k, how) if k > 1 else block[0])
         description = tif.descriptions[band - 1]
         crs = tif.crs.to_string() if tif.crs else None
-    values = np.vstack(rows)[::-1]  # from the south: the page's y grows upwards
+    values = np.vstack(rows)[::-1] if width * height else np.zeros((0, 0))  # from the south: y grows upwards
     what, unit = label(description, path.stem)
     size = k * t.a
     finite = values[np.isfinite(values)]
@@ -173,11 +187,11 @@ def read_layer(path: Path, band: int, max_cells: int = MAX_CELLS) -> dict:
         values = np.round(values, 3)  # heights in millimetres, as the echoes
     elif finite.size:  # six significant digits: what a colour shows, in fewer bytes
         values = np.round(values, int(np.clip(5 - math.floor(math.log10(max(np.abs(finite).max(), 1e-300))), 0, 15)))
-    south = t.f + t.e * height
-    return {"map": path.name, "band": band, "label": what, "unit": unit, "crs": crs,
+    west, north = t.c + col0 * t.a, t.f - row0 * t.a  # the window's corner
+    return {"map": path.name, "band": band, "label": what, "unit": unit, "crs": crs, "box": box,
             "cell_m": float(t.a), "block": k, "shown_cell_m": float(size), "how": how if k > 1 else None,
-            "x0": float(t.c + size / 2), "dx": float(size), "y0": float(t.f - values.shape[0] * size + size / 2),
-            "dy": float(size), "west": float(t.c), "north": float(t.f), "east": float(t.c + width * t.a),
-            "south": float(south), "width": int(values.shape[1]), "height": int(values.shape[0]),
+            "x0": float(west + size / 2), "dx": float(size), "y0": float(north - values.shape[0] * size + size / 2),
+            "dy": float(size), "west": float(west), "north": float(north), "east": float(west + width * t.a),
+            "south": float(north - height * t.a), "width": int(values.shape[1]), "height": int(values.shape[0]),
             "cells_with_values": int(finite.size), **colour_range(finite),
             "z": [[None if v != v else v for v in row] for row in values.tolist()]}

@@ -14,7 +14,7 @@ is fetched from the network.
                                         most spurious, worst fit)
     GET  /api/pulse?run=&file=&pulse=   one pulse: samples, denoised, model, components, echo table rows
     GET  /api/grids?run=                the run's maps (fwl grid's folders), each band a layer for the map
-    GET  /api/grid?run=&grid=&map=&band= one layer: its cells' values and where the map draws them
+    GET  /api/grid?run=&grid=&map=&band=&box= one layer: its cells' values (in a box) and where the map draws them
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
 """
@@ -251,8 +251,9 @@ class Viewer:
     def grid(self, query) -> dict:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
         path, band = layers.request(self.roots, run, query, queries.frame(run).rotation is None)
-        key = ("grid", str(path), path.stat().st_mtime_ns, band)
-        return self.answers.get(key, lambda: layers.read_layer(path, band))
+        box = params.box(query)
+        key = ("grid", str(path), path.stat().st_mtime_ns, band, box)
+        return self.answers.get(key, lambda: layers.read_layer(path, band, box=box))
 
     def try_fit(self, body) -> dict:
         ident = params.name(body.get("run"), "run")

@@ -313,11 +313,13 @@ async function drawOverview() {
 
 let lastLayer = null;  // the shown layer's cells, as /api/grid gives them
 let layerRequests = 0;
+let layerCoarse = false;  // the whole grid came in blocks: a zoom asks again for the cells of its box
 
 async function loadGrids() {
   const select = $("grid-layer");
   select.replaceChildren(new Option("none", ""));
   lastLayer = null;
+  layerCoarse = false;
   $("grid-note").textContent = "";
   const run = state.run;
   const data = await api(`/api/grids?run=${encodeURIComponent(run)}`);
@@ -337,6 +339,7 @@ async function loadGrids() {
   } else select.disabled = false;
   const unavailable = data.grids.find((g) => g.unavailable);
   if (unavailable) $("grid-note").textContent = unavailable.unavailable;
+  try { state.layer = state.layer && JSON.stringify(JSON.parse(state.layer)); } catch (e) { state.layer = null; }
   const wanted = [...select.options].find((o) => o.value === state.layer && !o.disabled);
   select.value = wanted ? state.layer : "";
   if (state.layer && !wanted) { state.layer = null; writeUrl(); }
@@ -347,13 +350,15 @@ async function loadLayer() {
   const mine = ++layerRequests;
   if (!state.layer) { lastLayer = null; $("grid-note").textContent = ""; return drawOverview(); }
   const [grid, map, band] = JSON.parse(state.layer);
+  const box = layerCoarse && state.box ? `&box=${state.box.join(",")}` : "";
   $("grid-note").textContent = "reading the grid…";
   let layer;
   try {
     layer = await api(`/api/grid?run=${encodeURIComponent(state.run)}&grid=${encodeURIComponent(grid)}` +
-      `&map=${encodeURIComponent(map)}&band=${encodeURIComponent(band)}`);
+      `&map=${encodeURIComponent(map)}&band=${encodeURIComponent(band)}${box}`);
   } catch (e) { if (mine === layerRequests) $("grid-note").textContent = e.message; return; }
   if (mine !== layerRequests) return;  // another layer was picked meanwhile
+  if (!box && layer.block > 1) { layerCoarse = true; if (state.box) return loadLayer(); }
   lastLayer = layer;
   $("grid-note").textContent = `${layer.cells_with_values} cells with values` + (layer.block > 1 ?
     `; shown in blocks of ${layer.block} × ${layer.block} cells (${fmt(layer.shown_cell_m)} m: their ${layer.how})` : "");
@@ -390,7 +395,10 @@ function bindPlotEvents() {
     else return;
     clearTimeout(timer);
     writeUrl();
-    timer = setTimeout(loadEchoes, 250);
+    timer = setTimeout(() => {
+      loadEchoes();
+      if (lastLayer && layerCoarse) loadLayer().catch((e) => say(e.message));  // the box's cells, finer
+    }, 250);
   });
 }
 
@@ -632,7 +640,12 @@ async function start() {
   $("colour").onchange = () => { state.colour = $("colour").value; writeUrl(); loadEchoes(); };
   $("kept-only").onchange = loadEchoes;
   $("show-returns").onchange = loadEchoes;
-  $("grid-layer").onchange = () => { state.layer = $("grid-layer").value || null; writeUrl(); loadLayer().catch((e) => say(e.message)); };
+  $("grid-layer").onchange = () => {
+    state.layer = $("grid-layer").value || null;
+    layerCoarse = false;
+    writeUrl();
+    loadLayer().catch((e) => say(e.message));
+  };
   $("pulse-order").onchange = loadPulseList;
   $("pulse-form").onsubmit = (e) => { e.preventDefault(); showPulse($("pulse-file").value, $("pulse-id").value.trim()); };
   $("try-form").onsubmit = (e) => { e.preventDefault(); runTry(); };

@@ -214,6 +214,34 @@ def test_a_grid_picked_as_a_layer_is_drawn_under_the_echoes(browser, fwl_view, v
     _wait(browser, "!document.getElementById('map').data.some(t => t.meta === 'grid')")
 
 
+def test_a_zoom_into_a_grid_served_in_blocks_draws_its_cells(browser, viewed, gridded, monkeypatch):
+    """A grid larger than the page takes comes in blocks; a zoom (here the URL's box) asks for the box's cells."""
+    import json
+    from urllib.parse import quote
+
+    from pipeline.view import grids
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+
+    monkeypatch.setattr(grids, "MAX_CELLS", 30)  # the 14 x 10 cells of the test's grid: blocks of 3 x 3
+    server = make_server([viewed.run], port=0, runs_dir=viewed.folder / "runs")
+    serve_in_thread(server)
+    try:
+        echoes = viewed.echoes()
+        box = [echoes.x.min(), echoes.x.min() + 9, echoes.y.min(), echoes.y.min() + 7]  # within 6 x 5 cells
+        layer = json.dumps(["0/grid", "highest.tif", 1])
+        browser.get(f"{url_of(server)}?run=0/&layer={quote(layer)}&box={','.join(f'{v:.2f}' for v in box)}")
+        _wait(browser, "document.body.dataset.ready === '1'")
+        drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid' && "
+                               "t.dx === 2)")
+        assert len(drawn["z"]) <= 5 and max(len(r) for r in drawn["z"]) <= 6
+        assert drawn["x0"] - 1 <= box[0] < drawn["x0"] + 1 and drawn["y0"] - 1 <= box[2] < drawn["y0"] + 1
+        browser.execute_script("Plotly.relayout('map', {'xaxis.autorange': true, 'yaxis.autorange': true})")
+        _wait(browser, "document.getElementById('map').data.some(t => t.meta === 'grid' && t.dx === 6)")
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 HOSTILE = "<img src=x onerror=document.title='PWNED'>"
 
 

@@ -84,6 +84,30 @@ def test_each_echo_as_the_page_draws_it_falls_in_a_cell_that_holds_it(viewed, gr
     assert empty.sum() == np.isnan(cells).sum()  # no echo drawn in an empty cell
 
 
+def test_a_zoom_gets_the_cells_of_its_box(viewed, gridded):
+    grid_id = _own_grid(viewed)
+    with rasterio.open(gridded / "highest.tif") as tif:
+        cells, west, north, cell = tif.read(1), tif.transform.c, tif.transform.f, tif.transform.a
+    h, w = cells.shape
+    # a box from inside column 3 to inside column 9, row 2 to row 6 (from the north)
+    box = (west + 3.5 * cell, west + 8.2 * cell, north - 6.9 * cell, north - 2.1 * cell)
+    layer = viewed.get(f"/api/grid?run={quote(viewed.run_id)}&grid={quote(grid_id)}&map=highest.tif"
+                       f"&box={','.join(map(str, box))}")
+    expected = cells[2:7, 3:9][::-1]
+    np.testing.assert_array_equal(np.isnan(_cells(layer)), np.isnan(expected))
+    assert np.nanmax(np.abs(_cells(layer) - expected)) < 0.001
+    assert layer["x0"] - layer["dx"] / 2 == west + 3 * cell and layer["y0"] - layer["dy"] / 2 == north - 7 * cell
+    # at most max_cells cells: the 30 of the box, finer than the whole grid's blocks of 3 x 3
+    whole = grids.read_layer(gridded / "highest.tif", 1, max_cells=30)
+    zoomed = grids.read_layer(gridded / "highest.tif", 1, max_cells=30, box=box)
+    assert whole["block"] == 3 and zoomed["block"] == 1 and _cells(zoomed).shape == expected.shape
+    outside = grids.read_layer(gridded / "highest.tif", 1, box=(west - 100, west - 50, north - 10, north))
+    assert outside["z"] == [] and outside["cells_with_values"] == 0
+    got, data = _status(viewed, "GET", f"/api/grid?run={quote(viewed.run_id)}&grid={quote(grid_id)}"
+                                       f"&map=highest.tif&box=1,0,0,1")
+    assert got == 400 and "xmin <= xmax" in json.loads(data)["error"]
+
+
 def test_a_large_grid_is_served_in_blocks(gridded):
     """Blocks of k x k cells: the highest of their cells, the sum of their counts; a ragged edge padded empty."""
     with rasterio.open(gridded / "highest.tif") as tif:
