@@ -240,8 +240,8 @@ def earlier_run_files(folder: Path) -> list[PurePosixPath]:
             pass  # a damaged run.json lists nothing; the names decide
     listed |= _grid_files(folder)
     foreign = [f for f in files if Path(folder, f).is_symlink() or not _is_ours(f, stems, listed)]
-    foreign += [PurePosixPath(p.name) for p in folder.iterdir()
-                if p.is_dir() and p.name not in (*OUTPUT_DIRS, GRID_DIR) and not any(f.parts[0] == p.name for f in files)]
+    foreign += [PurePosixPath(p.name) for p in folder.iterdir() if p.is_dir() and p.name not in (*OUTPUT_DIRS, GRID_DIR)
+                and not any(f.parts[0] == p.name for f in files)]
     if foreign:
         shown = ", ".join(str(f) for f in foreign[:5]) + (" ..." if len(foreign) > 5 else "")
         raise OutputFolderError(f"{folder}: holds files that fwl run did not write: {shown}. Move them, or "

@@ -88,7 +88,6 @@ def test_a_zoom_gets_the_cells_of_its_box(viewed, gridded):
     grid_id = _own_grid(viewed)
     with rasterio.open(gridded / "highest.tif") as tif:
         cells, west, north, cell = tif.read(1), tif.transform.c, tif.transform.f, tif.transform.a
-    h, w = cells.shape
     # a box from inside column 3 to inside column 9, row 2 to row 6 (from the north)
     box = (west + 3.5 * cell, west + 8.2 * cell, north - 6.9 * cell, north - 2.1 * cell)
     layer = viewed.get(f"/api/grid?run={quote(viewed.run_id)}&grid={quote(grid_id)}&map=highest.tif"
