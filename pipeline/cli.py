@@ -333,12 +333,13 @@ def _response_line(response: dict | None) -> str:
 
 def _grid(args: argparse.Namespace) -> int:
     from pipeline.grid import grid_run
+    from pipeline.layout import GRID_DIR
 
     summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
           f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
           f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
-          f"{args.output}")
+          f"{args.output or Path(args.run_dir) / GRID_DIR}")
     return 0
 
 
@@ -542,7 +543,8 @@ def _add_grid(sub) -> None:
                                     "echo, echo count, mean reflectance (or amplitude), vertical energy profile")
     g.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
     g.add_argument("--cell", type=float, required=True, help="cell size, in the CRS's units (metres)")
-    g.add_argument("--output", required=True, help="folder for the GeoTIFFs: new, empty or an earlier fwl grid's")
+    g.add_argument("--output", help="folder for the GeoTIFFs: new, empty or an earlier fwl grid's (default: the run's "
+                                    "own grid/ folder, where fwl view finds them)")
     g.add_argument("--crs", help="the CRS to declare (e.g. EPSG:25832) where the run's inputs name none")
     g.add_argument("--bin-height", dest="bin_height", type=float, default=1.0,
                    help="height of the profile's bins above each cell's lowest echo (default 1 m)")

@@ -1,4 +1,5 @@
-"""`fwl grid RUN_DIR --cell METRES --output DIR`: maps of a run's kept echoes as Cloud Optimized GeoTIFFs.
+"""`fwl grid RUN_DIR --cell METRES [--output DIR]`: maps of a run's kept echoes as Cloud Optimized GeoTIFFs,
+by default in the run's own grid/ folder (where `fwl view` finds them; a new run into the folder removes them).
 
     highest.tif      the highest kept echo's z per cell (float64, NaN: no echo)
     lowest.tif       the lowest kept echo's z per cell
@@ -24,11 +25,11 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
-from pipeline.layout import ECHOES
+from pipeline.layout import ECHOES, GRID_DIR, GRID_MARK
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
-MARK = "fwl-grid.json"
+MARK = GRID_MARK
 BATCH_ROWS = 1_000_000
 DEFAULT_BIN_HEIGHT_M = 1.0
 BLOCK = 256  # COG tiles, pixels a side
@@ -147,14 +148,15 @@ def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: f
     return profile
 
 
-def grid_run(run_dir: str | Path, cell: float, output: str | Path, crs: str | None = None,
+def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None, crs: str | None = None,
              bin_height: float = DEFAULT_BIN_HEIGHT_M) -> dict:
-    """The maps of a finished run's kept echoes into `output` (see the module); what was written, as in
-    fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where the run's inputs name
-    none or name it wrongly."""
+    """The maps of a finished run's kept echoes into `output` (None: the run's grid/ folder; see the module);
+    what was written, as in fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where
+    the run's inputs name none or name it wrongly."""
     import pyproj
 
-    run_dir, output = Path(run_dir), Path(output)
+    run_dir = Path(run_dir)
+    output = run_dir / GRID_DIR if output is None else Path(output)
     read_run(run_dir)  # a folder that is not a finished run is refused here
     files = echo_files(run_dir)
     wkt = pyproj.CRS.from_user_input(crs).to_wkt() if crs else run_crs_wkt(files)

@@ -39,6 +39,8 @@ PARTS = "parts"  # range parts and marks, removed once the files are assembled
 # the folders a run writes into; nothing else under the output folder is ours
 OUTPUT_DIRS = (ECHOES, PULSES, REJECTED, LAS, MCAP, COPC, LOGS, PARTS)
 TABLES = (ECHOES, PULSES, REJECTED)
+# fwl grid's default output inside a run (pipeline.grid): its files are those its mark lists, and go with the run
+GRID_DIR, GRID_MARK = "grid", "fwl-grid.json"
 PLANS = Path(PARTS) / "plans"
 COMPACT = Path(PARTS) / "compact"  # fwl compact's staging
 STAGED = COMPACT / ECHOES  # the new echoes/, complete before it replaces the old

@@ -26,7 +26,8 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from pipeline.layout import BUCKET_SUFFIX, LOGS, MANIFEST, OUTPUT_DIRS, PARTS, RANGE_SUFFIX, RUN_JSON, TILE_SUFFIX
+from pipeline.layout import (BUCKET_SUFFIX, GRID_DIR, GRID_MARK, LOGS, MANIFEST, OUTPUT_DIRS, PARTS, RANGE_SUFFIX,
+                             RUN_JSON, TILE_SUFFIX)
 
 INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
 
@@ -188,6 +189,15 @@ def _is_ours(relative: PurePosixPath, stems: set[str], listed: set[str]) -> bool
     return relative.parts[0] == LOGS or any(name.startswith(s + ".") or name.startswith(s + "-") for s in stems)
 
 
+def _grid_files(folder: Path) -> set[str]:
+    """fwl grid's files in the run's grid/ folder: its mark and the maps the mark lists (each maybe half-written)."""
+    try:
+        names = [str(n) for n in json.loads((folder / GRID_DIR / GRID_MARK).read_text())["files"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        names = []
+    return {f"{GRID_DIR}/{n}{tmp}" for n in (GRID_MARK, *names) if "/" not in n for tmp in ("", ".tmp")}
+
+
 def _files_under(folder: Path) -> list[PurePosixPath]:
     out = []
     for root, dirs, files in os.walk(folder):
@@ -225,9 +235,10 @@ def earlier_run_files(folder: Path) -> list[PurePosixPath]:
             listed = set(json.loads((folder / RUN_JSON).read_text()).get("files", []))
         except ValueError:
             pass  # a damaged run.json lists nothing; the names decide
+    listed |= _grid_files(folder)
     foreign = [f for f in files if Path(folder, f).is_symlink() or not _is_ours(f, stems, listed)]
-    foreign += [PurePosixPath(p.name) for p in folder.iterdir()
-                if p.is_dir() and p.name not in OUTPUT_DIRS and not any(f.parts[0] == p.name for f in files)]
+    foreign += [PurePosixPath(p.name) for p in folder.iterdir() if p.is_dir() and p.name not in (*OUTPUT_DIRS, GRID_DIR)
+                and not any(f.parts[0] == p.name for f in files)]
     if foreign:
         shown = ", ".join(str(f) for f in foreign[:5]) + (" ..." if len(foreign) > 5 else "")
         raise OutputFolderError(f"{folder}: holds files that fwl run did not write: {shown}. Move them, or "
@@ -259,7 +270,7 @@ def take_output_folder(folder: Path, names: InputNames, inputs: list[str], setti
     for f in files:
         if str(f) not in (MANIFEST, RUN_JSON):
             (folder / f).unlink()
-    for d in OUTPUT_DIRS:
+    for d in (*OUTPUT_DIRS, GRID_DIR):
         if (folder / d).is_dir():
             for sub in sorted((p for p in (folder / d).rglob("*") if p.is_dir()), reverse=True):
                 sub.rmdir()

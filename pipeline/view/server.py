@@ -13,6 +13,8 @@ is fetched from the network.
     GET  /api/pulses?run=&order=&limit= the pulses to look at first (most kept echoes, most echoes,
                                         most spurious, worst fit)
     GET  /api/pulse?run=&file=&pulse=   one pulse: samples, denoised, model, components, echo table rows
+    GET  /api/grids?run=                the run's maps (fwl grid's folders), each band a layer for the map
+    GET  /api/grid?run=&grid=&map=&band=&box= one layer: its cells' values (in a box) and where the map draws them
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
 """
@@ -38,6 +40,7 @@ import numpy as np
 
 from fwcore.config import PRESETS, Model, Optimizer
 from pipeline.layout import RUN_JSON
+from pipeline.view import grids as layers
 from pipeline.view import params, queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
@@ -241,6 +244,18 @@ class Viewer:
                 "map": {"x": mx, "y": my, "z": mz}, "fit": fit, "system_returns": system_returns(raw),
                 "reproduced": reproduces(fit, rows)}
 
+    def grids(self, query) -> dict:
+        ident = params.name(params.query_value(query, "run"), "run")
+        run = self.roots.run_of(ident)
+        return {"run": ident, "grids": layers.listing(self.roots, run, queries.frame(run).rotation is None)}
+
+    def grid(self, query) -> dict:
+        run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
+        path, band = layers.request(self.roots, run, query, queries.frame(run).rotation is None)
+        box = params.box(query)
+        key = ("grid", str(path), path.stat().st_mtime_ns, band, box)
+        return self.answers.get(key, lambda: layers.read_layer(path, band, box=box))
+
     def try_fit(self, body) -> dict:
         ident = params.name(body.get("run"), "run")
         run = self.roots.run_of(ident)
@@ -275,7 +290,8 @@ class Handler(BaseHTTPRequestHandler):
     viewer: Viewer  # set on the subclass that serve() makes
 
     GET_ROUTES = {"/api/catalog": "catalog", "/api/summary": "summary", "/api/echoes": "echoes",
-                  "/api/returns": "returns", "/api/pulses": "pulses", "/api/pulse": "pulse"}
+                  "/api/returns": "returns", "/api/pulses": "pulses", "/api/pulse": "pulse",
+                  "/api/grids": "grids", "/api/grid": "grid"}
     POST_ROUTES = {"/api/try": "try_fit", "/api/decompose": "decompose"}
 
     def log_message(self, format, *args):  # quiet: the terminal shows the URL, not every request

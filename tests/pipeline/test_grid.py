@@ -122,3 +122,24 @@ def test_it_refuses_what_is_not_a_run_and_folders_not_its_own(leica_run, maps, t
     assert main(["grid", str(leica_run), "--cell", "4", "--output", str(maps.parent / "again")]) == 0
     assert main(["grid", str(leica_run), "--cell", "8", "--output", str(maps.parent / "again")]) == 0
     assert json.loads((maps.parent / "again" / "fwl-grid.json").read_text())["cell_m"] == 8.0
+
+
+def test_by_default_the_maps_go_into_the_run_and_leave_with_it(leica_run, leica_dir, tmp_path):
+    """fwl grid RUN_DIR writes RUN_DIR/grid/ (where fwl view finds it); the run folder stays a run's folder that
+    resume, compact and watch take, and a new run into it removes the maps of the run it replaces."""
+    import shutil
+
+    from pipeline.outputs import InputNames, OutputFolderError, earlier_run_files, take_output_folder
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(leica_run, run_dir)
+    assert main(["grid", str(run_dir), "--cell", "4"]) == 0
+    assert json.loads((run_dir / "grid" / "fwl-grid.json").read_text())["cell_m"] == 4.0
+    assert {"grid/highest.tif", "grid/fwl-grid.json"} <= {str(f) for f in earlier_run_files(run_dir)}
+    (run_dir / "grid" / "notes.txt").write_text("mine")  # what fwl grid did not write is no run's
+    with pytest.raises(OutputFolderError, match="grid/notes.txt"):
+        earlier_run_files(run_dir)
+    (run_dir / "grid" / "notes.txt").unlink()
+    leica = str(leica_dir / "leica_a.las")
+    take_output_folder(run_dir, InputNames.of([leica]), [leica])
+    assert not (run_dir / "grid").exists() and not (run_dir / "echoes").exists()

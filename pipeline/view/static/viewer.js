@@ -3,7 +3,7 @@
 // fillTable()), never as markup: a file may be named <img src=x onerror=...>.las.
 "use strict";
 
-const state = { run: null, file: null, pulse: null, colour: "height", tab: "explore", box: null };
+const state = { run: null, file: null, pulse: null, colour: "height", tab: "explore", box: null, layer: null };
 let summary = null;
 let picked = null;  // the shown pulse's echoes in the map's frame, marked on the map
 const WEBGL = (() => { try { return !!document.createElement("canvas").getContext("webgl"); } catch (e) { return false; } })();
@@ -79,6 +79,7 @@ function readUrl() {
   state.run = q.get("run");
   state.colour = q.get("colour") || "height";
   state.tab = q.get("tab") || "explore";
+  state.layer = q.get("layer");  // a grid's map under the echoes: JSON [grid, map, band]
   const box = (q.get("box") || "").split(",").map(Number);
   state.box = box.length === 4 && box.every(isFinite) ? box : null;
   const pulse = q.get("pulse");
@@ -96,6 +97,7 @@ function writeUrl() {
   if (state.pulse !== null) q.set("pulse", `${state.file}:${state.pulse}`);
   q.set("colour", state.colour);
   if (state.box) q.set("box", state.box.map((v) => v.toFixed(2)).join(","));
+  if (state.layer) q.set("layer", state.layer);
   q.set("tab", state.tab);
   history.replaceState(null, "", "?" + q.toString());  // the token stays out of the URL once read
 }
@@ -169,7 +171,7 @@ function fillTryForm(catalog) {
 }
 
 async function pickRun(id) {
-  if (id !== state.run) { state.file = null; state.pulse = null; state.box = null; picked = null; }
+  if (id !== state.run) { state.file = null; state.pulse = null; state.box = null; state.layer = null; picked = null; }
   state.run = id;
   for (const li of document.querySelectorAll("#runs li")) li.classList.toggle("active", li.dataset.run === id);
   writeUrl();
@@ -181,6 +183,7 @@ async function pickRun(id) {
   offerColours();
   drawSummary();
   loadPulseList().catch((e) => say(e.message));
+  loadGrids().catch((e) => { $("grid-note").textContent = e.message; });
   await loadEchoes();
   if (state.pulse === null && summary.first_pulse) { state.file = summary.first_pulse[0]; state.pulse = summary.first_pulse[1]; }
   if (state.pulse !== null) await showPulse(state.file, state.pulse);
@@ -290,6 +293,7 @@ async function drawOverview() {
     sceneTraces.push({ type: "scatter3d", mode: "markers", name: "system returns", meta: "returns", hoverinfo: "skip",
       x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.35)", size: 1.5 } });
   }
+  if (lastLayer) mapTraces.unshift(gridTrace(lastLayer));  // first: drawn under the echoes
   mapTraces.push(...pickedTrace(false));
   sceneTraces.push(...pickedTrace(true));
   const [tx, ty, tz] = axisTitles(map.frame);
@@ -303,6 +307,73 @@ async function drawOverview() {
     scene: { aspectmode: "data", xaxis: { title: tx }, yaxis: { title: ty }, zaxis: { title: tz } } },
     { responsive: true, displaylogo: false });
   bindPlotEvents();
+}
+
+// ---------------------------------------------------------------- grids: fwl grid's maps under the echoes
+
+let lastLayer = null;  // the shown layer's cells, as /api/grid gives them
+let layerRequests = 0;
+let layerCoarse = false;  // the whole grid came in blocks: a zoom asks again for the cells of its box
+
+async function loadGrids() {
+  const select = $("grid-layer");
+  select.replaceChildren(new Option("none", ""));
+  lastLayer = null;
+  layerCoarse = false;
+  $("grid-note").textContent = "";
+  const run = state.run;
+  const data = await api(`/api/grids?run=${encodeURIComponent(run)}`);
+  if (run !== state.run) return;
+  for (const grid of data.grids) {
+    const group = el("optgroup", null, { label: `${grid.name}: ${fmt(grid.cell_m)} m cells` });
+    for (const layer of grid.layers) {
+      const option = new Option(layer.label, JSON.stringify([grid.id, layer.map, layer.band]));
+      if (grid.unavailable) { option.disabled = true; option.title = grid.unavailable; }
+      group.appendChild(option);
+    }
+    select.appendChild(group);
+  }
+  if (!data.grids.length) {
+    select.disabled = true;
+    select.title = "this run has no grid: fwl grid RUN_DIR --cell 2 writes one into the run's grid/ folder";
+  } else select.disabled = false;
+  const unavailable = data.grids.find((g) => g.unavailable);
+  if (unavailable) $("grid-note").textContent = unavailable.unavailable;
+  try { state.layer = state.layer && JSON.stringify(JSON.parse(state.layer)); } catch (e) { state.layer = null; }
+  const wanted = [...select.options].find((o) => o.value === state.layer && !o.disabled);
+  select.value = wanted ? state.layer : "";
+  if (state.layer && !wanted) { state.layer = null; writeUrl(); }
+  if (wanted) await loadLayer();
+}
+
+async function loadLayer() {
+  const mine = ++layerRequests;
+  if (!state.layer) { lastLayer = null; $("grid-note").textContent = ""; return drawOverview(); }
+  const [grid, map, band] = JSON.parse(state.layer);
+  const box = layerCoarse && state.box ? `&box=${state.box.join(",")}` : "";
+  $("grid-note").textContent = "reading the grid…";
+  let layer;
+  try {
+    layer = await api(`/api/grid?run=${encodeURIComponent(state.run)}&grid=${encodeURIComponent(grid)}` +
+      `&map=${encodeURIComponent(map)}&band=${encodeURIComponent(band)}${box}`);
+  } catch (e) { if (mine === layerRequests) $("grid-note").textContent = e.message; return; }
+  if (mine !== layerRequests) return;  // another layer was picked meanwhile
+  if (!box && layer.block > 1) { layerCoarse = true; if (state.box) return loadLayer(); }
+  lastLayer = layer;
+  $("grid-note").textContent = `${layer.cells_with_values} cells with values` + (layer.block > 1 ?
+    `; shown in blocks of ${layer.block} × ${layer.block} cells (${fmt(layer.shown_cell_m)} m: their ${layer.how})` : "");
+  await drawOverview();
+}
+
+function gridTrace(layer) {
+  const unit = layer.unit ? ` (${layer.unit})` : "";
+  return { type: "heatmap", name: layer.label, meta: "grid", x0: layer.x0, dx: layer.dx, y0: layer.y0, dy: layer.dy,
+    // greys from light (low) to dark (high): the echoes' colours (dark low, yellow high) stay readable over them
+    z: layer.z, zmin: layer.cmin ?? 0, zmax: layer.cmax ?? 1, colorscale: [[0, "#f4f4f4"], [1, "#5a5a5a"]],
+    hoverongaps: false, hovertemplate: `%{z:.4g}${layer.unit ? " " + layer.unit : ""}<extra>grid</extra>`,
+    // across the top: the echoes' colour bar keeps the right side
+    colorbar: { title: { text: `grid: ${layer.label}${unit}, 2nd–98th pct`, side: "top" }, orientation: "h",
+      thickness: 10, len: 0.7, x: 0.5, xanchor: "center", y: 1.02, yanchor: "bottom" } };
 }
 
 let bound = false;
@@ -324,7 +395,10 @@ function bindPlotEvents() {
     else return;
     clearTimeout(timer);
     writeUrl();
-    timer = setTimeout(loadEchoes, 250);
+    timer = setTimeout(() => {
+      loadEchoes();
+      if (lastLayer && layerCoarse) loadLayer().catch((e) => say(e.message));  // the box's cells, finer
+    }, 250);
   });
 }
 
@@ -566,6 +640,12 @@ async function start() {
   $("colour").onchange = () => { state.colour = $("colour").value; writeUrl(); loadEchoes(); };
   $("kept-only").onchange = loadEchoes;
   $("show-returns").onchange = loadEchoes;
+  $("grid-layer").onchange = () => {
+    state.layer = $("grid-layer").value || null;
+    layerCoarse = false;
+    writeUrl();
+    loadLayer().catch((e) => say(e.message));
+  };
   $("pulse-order").onchange = loadPulseList;
   $("pulse-form").onsubmit = (e) => { e.preventDefault(); showPulse($("pulse-file").value, $("pulse-id").value.trim()); };
   $("try-form").onsubmit = (e) => { e.preventDefault(); runTry(); };

@@ -83,3 +83,17 @@ def viewed(tmp_path_factory, leica_dir):
         server.viewer.jobs.stop_all()
         server.shutdown()
         server.server_close()
+
+
+GRID_CELL = 2.0
+
+
+@pytest.fixture(scope="session")
+def gridded(viewed):
+    """`fwl grid` on the viewed run: its own grid/ folder (2 m cells, the default output) and a second grid (5 m)
+    elsewhere in the viewed folder, whose mark names the run."""
+    from pipeline.cli import main
+
+    assert main(["grid", str(viewed.run), "--cell", str(GRID_CELL), "--bin-height", "2"]) == 0
+    assert main(["grid", str(viewed.run), "--cell", "5", "--output", str(viewed.folder / "maps")]) == 0
+    return viewed.run / "grid"

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -164,6 +165,83 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
         str(int((echoes.pulse_id == other).sum()))
 
 
+def test_a_grid_picked_as_a_layer_is_drawn_under_the_echoes(browser, fwl_view, viewed, gridded, tmp_path):
+    import rasterio
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.support.ui import Select
+
+    browser.get(f"{fwl_view}?run=0/&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    select = Select(browser.find_element("id", "grid-layer"))
+    _wait(browser, "document.getElementById('grid-layer').options.length > 1")
+    wanted = next(o.get_attribute("value") for o in select.options if '"highest.tif"' in o.get_attribute("value"))
+    select.select_by_value(wanted)
+    drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    with rasterio.open(gridded / "highest.tif") as tif:
+        height, width, west, cell = tif.height, tif.width, tif.transform.c, tif.transform.a
+        cells = tif.read(1)[::-1]
+    assert drawn["type"] == "heatmap" and len(drawn["z"]) == height and {len(r) for r in drawn["z"]} == {width}
+    assert drawn["x0"] - drawn["dx"] / 2 == west and drawn["dx"] == cell
+    assert [v is None for row in drawn["z"] for v in row] == list(np.isnan(cells).ravel())  # nodata: not drawn
+    assert "highest kept echo z" in drawn["colorbar"]["title"]["text"]
+    metas = browser.execute_script("return document.getElementById('map').data.map(t => t.meta)")
+    assert metas[0] == "grid" and "kept" in metas  # the first trace: under the echoes
+    # the layer is in the URL: a reload shows it again
+    assert "layer=" in browser.current_url
+    browser.get(browser.current_url)
+    _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    shot = tmp_path / "fwl-view-grid.png"
+    browser.save_screenshot(str(shot))
+    print(f"screenshot: {shot}")
+    # an echo over the layer is still the one a click picks
+    echoes = viewed.echoes()
+    shown = browser.execute_script("return document.getElementById('waveform').dataset.pulse")
+    kept = echoes[echoes.kept & (echoes.pulse_id.astype(str) != shown)]
+    target = kept.iloc[len(kept) // 3]
+    dx, dy = browser.execute_script("""
+        const div = document.getElementById('map'), L = div._fullLayout, r = div.getBoundingClientRect();
+        return [L.xaxis._offset + L.xaxis.l2p(arguments[0]) - r.width / 2, L.yaxis._offset + L.yaxis.l2p(arguments[1])
+                - r.height / 2];
+    """, float(target.x), float(target.y))
+    ActionChains(browser).move_to_element_with_offset(browser.find_element("id", "map"), dx, dy).pause(0.5) \
+        .click().perform()
+    clicked = int(_wait(browser, f"document.getElementById('waveform').dataset.pulse !== '{shown}' && "
+                                 "document.getElementById('waveform').dataset.pulse"))
+    near = echoes[echoes.pulse_id == clicked]
+    assert ((near.x - target.x) ** 2 + (near.y - target.y) ** 2).min() ** 0.5 < 2.0
+    select = Select(browser.find_element("id", "grid-layer"))
+    select.select_by_value("")
+    _wait(browser, "!document.getElementById('map').data.some(t => t.meta === 'grid')")
+
+
+def test_a_zoom_into_a_grid_served_in_blocks_draws_its_cells(browser, viewed, gridded, monkeypatch):
+    """A grid larger than the page takes comes in blocks; a zoom (here the URL's box) asks for the box's cells."""
+    import json
+    from urllib.parse import quote
+
+    from pipeline.view import grids
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+
+    monkeypatch.setattr(grids, "MAX_CELLS", 30)  # the 14 x 10 cells of the test's grid: blocks of 3 x 3
+    server = make_server([viewed.run], port=0, runs_dir=viewed.folder / "runs")
+    serve_in_thread(server)
+    try:
+        echoes = viewed.echoes()
+        box = [echoes.x.min(), echoes.x.min() + 9, echoes.y.min(), echoes.y.min() + 7]  # within 6 x 5 cells
+        layer = json.dumps(["0/grid", "highest.tif", 1])
+        browser.get(f"{url_of(server)}?run=0/&layer={quote(layer)}&box={','.join(f'{v:.2f}' for v in box)}")
+        _wait(browser, "document.body.dataset.ready === '1'")
+        drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid' && "
+                               "t.dx === 2)")
+        assert len(drawn["z"]) <= 5 and max(len(r) for r in drawn["z"]) <= 6
+        assert drawn["x0"] - 1 <= box[0] < drawn["x0"] + 1 and drawn["y0"] - 1 <= box[2] < drawn["y0"] + 1
+        browser.execute_script("Plotly.relayout('map', {'xaxis.autorange': true, 'yaxis.autorange': true})")
+        _wait(browser, "document.getElementById('map').data.some(t => t.meta === 'grid' && t.dx === 6)")
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 HOSTILE = "<img src=x onerror=document.title='PWNED'>"
 
 
@@ -262,6 +340,21 @@ def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl
     assert kept["cmin"] > values.min() and kept["cmax"] < values.max()
     assert "2nd–98th" in kept["colorbar"]["title"]["text"]
     assert max(abs(v) for v in served["x"] + served["y"]) < 5000
+
+
+def test_an_earth_centred_runs_grid_is_offered_with_why_it_cannot_be_drawn(riegl):
+    """The map draws east and north about the run's centre; a grid of its earth-centred x and y cannot lie there."""
+    from urllib.parse import quote
+
+    from pipeline.cli import main
+    from tests.pipeline.view.test_endpoints import _status
+
+    assert main(["grid", str(riegl.run), "--cell", "5"]) == 0
+    (grid,) = riegl.get(f"/api/grids?run={quote(riegl.run_id, safe='')}")["grids"]
+    assert "earth-centred" in grid["unavailable"] and grid["layers"]
+    status, data = _status(riegl, "GET", f"/api/grid?run={quote(riegl.run_id, safe='')}&grid={quote(grid['id'])}"
+                                         f"&map=highest.tif")
+    assert status == 400 and b"earth-centred" in data
 
 
 def _documented_urls() -> list[str]:
