@@ -14,8 +14,6 @@ import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple, get_type_hints
 
-from fwcore.instrument import SystemResponse, gaussian_response
-
 
 class Optimizer(str, enum.Enum):
     NONE = "none"  # the initial estimate as is
@@ -77,7 +75,7 @@ class Model(str, enum.Enum):
     GENERALIZED = "generalized"  # the method's generalized Gaussian
     GAUSSIAN = "gaussian"
     # per file, the one of system and generalized whose echoes predict its held-out samples better
-    # (fwcore.survey.choose_system_pulse); waveforms with no file around them get the generalized Gaussian
+    # (fwcore.instrument.measure.choose_system_pulse); waveforms with no file around them get the generalized Gaussian
     AUTO = "auto"
 
 
@@ -118,13 +116,6 @@ class DecompositionConfig:
     # Half size of the box around the initial estimate that seeds the population,
     # as a fraction of each parameter's bound range.
     init_spread: float = 0.25
-    # System: the emitted pulse's FWHM in ps; None lets the caller derive it
-    # (from outgoing pulses) or falls back to `default_pulse_fwhm_ps`.
-    system_pulse_fwhm_ps: float | None = None
-    default_pulse_fwhm_ps: float = 4000.0
-    # The instrument's response (fwcore.instrument), for the system model: measured per file by the
-    # caller (fwcore.survey); None: the Gaussian of the system pulse FWHM, said so in the result.
-    system_response: SystemResponse | None = None
     # Denoising: Gaussian filter sigma = smoothing_factor * system pulse sigma,
     # unless smoothing_sigma_ps is given (0 turns smoothing off).
     smoothing_factor: float = 0.25
@@ -143,13 +134,11 @@ class DecompositionConfig:
     min_noise_sigma: float = 1.0 / math.sqrt(12.0)
     # The noise model of a sample with signal s above background (digitizer units):
     # variance = sigma_noise**2 + g s + (shape_tolerance s)**2. g (Poisson-like shot noise) is
-    # fitted per waveform to the residual of the optimizer's fit; shape_tolerance is how far the
-    # system's pulse may depart from a generalized Gaussian without being another echo. None: the
-    # caller measures it on the system's single returns (fwcore.survey; Leica 0.05), 0 where there
-    # are none (the model taken as exact). 0 and signal_dependent_noise=False give the method's
-    # constant noise.
+    # fitted per waveform to the residual of the optimizer's fit; shape_tolerance, how far the
+    # system's pulse may depart from a generalized Gaussian without being another echo, is the file's
+    # (fwcore.instrument.pulse.SystemPulse). A shape tolerance of 0 and signal_dependent_noise=False give
+    # the method's constant noise.
     signal_dependent_noise: bool = True
-    shape_tolerance: float | None = None
     max_echoes: int = 12
     alpha_min: float = 1.0
     alpha_max: float = 2.6
@@ -230,15 +219,10 @@ class DecompositionConfig:
         self._check(self.max_echoes >= 1, "max_echoes must be >= 1")
         self._check(0.5 <= self.alpha_min <= math.sqrt(2) <= self.alpha_max <= 4.0,
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
-        self._check(self.default_pulse_fwhm_ps > 0, "default_pulse_fwhm_ps must be positive (ps)")
-        self._check(self.system_pulse_fwhm_ps is None or self.system_pulse_fwhm_ps > 0,
-                    f"system pulse FWHM must be positive (ps), not {self.system_pulse_fwhm_ps}; "
-                    "leave system_pulse_fwhm_ps unset to measure it from the data")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
         self._check(self.noise_threshold > 0, "noise_threshold must be positive")
         self._check(self.min_noise_sigma >= 0, "min_noise_sigma must be >= 0")
-        self._check(self.shape_tolerance is None or self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
         self._check(0 <= self.min_width_factor < self.max_width_factor and self.max_width_factor > 1,
                     "need 0 <= min_width_factor < max_width_factor and max_width_factor > 1 (x the pulse FWHM)")
         self._check(self.first_echo_ratio >= 0, "first_echo_ratio must be >= 0")
@@ -265,15 +249,13 @@ class DecompositionConfig:
         """k x t: candidate mutants tried per MDE mutation."""
         return self.chaos_seeds * self.chaos_iterations
 
-    def pulse_fwhm_ps(self) -> float:
-        return self.system_pulse_fwhm_ps if self.system_pulse_fwhm_ps is not None else self.default_pulse_fwhm_ps
-
-    def kernel_params(self) -> "KernelParams":
-        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples)."""
+    def kernel_params(self, model: Model, shape_tolerance: float) -> "KernelParams":
+        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples), with what the file's
+        pulse says (fwcore.instrument.pulse.SystemPulse): its echo model and shape tolerance."""
         return KernelParams.typed(
             method=OPTIMIZERS[self.optimizer].code, own_echoes=OPTIMIZERS[self.optimizer].own_echoes,
             deconvolution_iterations=self.deconvolution_iterations,
-            gaussian=self.model in (Model.SYSTEM, Model.GAUSSIAN),
+            gaussian=model in (Model.SYSTEM, Model.GAUSSIAN),
             fit_denoised=self.fit_target is FitTarget.DENOISED,
             robust_noise=self.noise_estimator is NoiseEstimator.ROBUST,
             population=self.population, generations=self.generations, crossover_rate=self.crossover_rate,
@@ -283,7 +265,7 @@ class DecompositionConfig:
             tol=self.tol, atol=self.atol, noise_tol=self.noise_tol, stall_generations=self.stall_generations,
             noise_threshold=self.noise_threshold,
             min_noise_sigma=self.min_noise_sigma, signal_dependent_noise=self.signal_dependent_noise,
-            shape_tolerance=self.shape_tolerance or 0.0, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
+            shape_tolerance=shape_tolerance, max_echoes=self.max_echoes, alpha_min=self.alpha_min,
             alpha_max=self.alpha_max, min_snr=self.min_snr, min_amplitude_ratio=self.min_amplitude_ratio,
             min_separation_factor=self.min_separation_factor, min_width_factor=self.min_width_factor,
             max_width_factor=self.max_width_factor, first_echo_ratio=self.first_echo_ratio,
@@ -303,12 +285,8 @@ class DecompositionConfig:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if getattr(self, f.name) != getattr(default, f.name)}
 
-    def response(self) -> SystemResponse:
-        """The echoes' response under the system model: the configured one, or the Gaussian of the pulse FWHM."""
-        return self.system_response or gaussian_response(self.pulse_fwhm_ps())
-
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: (v.value if isinstance(v, enum.Enum) else v.to_dict() if isinstance(v, SystemResponse) else v)
+        return {f.name: (v.value if isinstance(v, enum.Enum) else v)
                 for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
 
     @classmethod
@@ -317,8 +295,6 @@ class DecompositionConfig:
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown decomposition settings {unknown}; known: {sorted(known)}")
-        if isinstance(values.get("system_response"), dict):
-            values = {**values, "system_response": SystemResponse.from_dict(values["system_response"])}
         return cls(**values)
 
     @classmethod
@@ -391,12 +367,13 @@ class KernelParams(NamedTuple):
 # Named configurations (README, "Presets"): the defaults are the best we know.
 # "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant
 # noise, its filter (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
-# polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate,
+# polish (neither LM's nor the raw one), no selection; its model taken as exact (a shape tolerance of 0:
+# fwcore.instrument.pulse.PRESET_OVERRIDES). "fast": LM alone from the initial estimate,
 # fewer and looser iterations, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"optimizer": Optimizer.MDE, "model": Model.GENERALIZED, "generations": 80, "tol": 0.0, "atol": 0.0,
               "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
-              "signal_dependent_noise": False, "shape_tolerance": 0.0, "select_echoes": False,
+              "signal_dependent_noise": False, "select_echoes": False,
               "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0, "raw_polish": False},
     "fast": {"optimizer": Optimizer.LM, "lm_iterations": 20},
 }
