@@ -262,7 +262,7 @@ def response_of_waveforms(waveforms, spacing_ps: float, source: str) -> SystemRe
         return None
 
 
-def _pulses_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | None:
+def pulses_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | None:
     """The system response from pulses[rows] (response_of_waveforms)."""
     rows = rows[:RESPONSE_PULSES]
     return response_of_waveforms([pulses.pulse_samples(i) for i in rows],
@@ -273,8 +273,8 @@ def file_response(pulses) -> SystemResponse | None:
     """The response of a file's first pulses: on the system's single returns where the file has them,
     otherwise on its strongest isolated echoes; None where too few qualify."""
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
-    response = _pulses_response(pulses, single, "single returns") if single.size else None
-    return response or _pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")
+    response = pulses_response(pulses, single, "single returns") if single.size else None
+    return response or pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")
 
 
 def csv_response(samples, valid, spacing_ps: float, outgoing=None) -> SystemResponse | None:
