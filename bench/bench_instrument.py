@@ -213,8 +213,8 @@ def neon_rows() -> None:
             if optimizer in ("gold", "richardson-lucy") and model != "system":
                 continue
             base = DecompositionConfig(model=model, optimizer=optimizer)
-            pulse = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, base, PulseOverrides(response=response),
-                                     out)
+            given = PulseOverrides(response=response)
+            pulse = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, base, given, out)
             result, rate = timed(batch, base, pulse)
             held, fitted = held_out_error(waveforms, base, pulse)
             print(f"  {label:44} {optimizer:16} {rate:11.1f} {result.fit_error_raw.mean():8.1f} {held:8.2f} "

@@ -6,8 +6,8 @@
 any lengths, under the method's settings (`config`) and their file's system
 pulse (fwcore.instrument.pulse.SystemPulse), in chunks on a pool of threads (the
 kernels release the GIL), each waveform with its own random stream, so a
-waveform's result does not depend on its batch or the thread count. `decompose_waveform` is the same for one waveform. Each step is a
-kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
+waveform's result does not depend on its batch or the thread count.
+`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
 .selection, .filter); this module only wires them.
 """
 
@@ -301,7 +301,8 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
         group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
                        smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
-                       pulse_sigma_samples(pulse, batch.sample_spacing_ps), batch.seeds, params, shape, OPTIMIZERS[config.optimizer].local, out, echoes)
+                       pulse_sigma_samples(pulse, batch.sample_spacing_ps), batch.seeds, params,
+                       shape, OPTIMIZERS[config.optimizer].local, out, echoes)
         _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]
     echo_offsets = np.zeros(n + 1, dtype=np.int64)

@@ -450,7 +450,8 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
     one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
     above the background (the smoothed minimum), each peeled off in `shape`'s form
-    (fwcore.instrument.shape.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig checks them."""
+    (fwcore.instrument.shape.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig
+    checks them."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)

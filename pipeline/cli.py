@@ -302,7 +302,7 @@ def _info(args: argparse.Namespace) -> int:
 
     from fwcore.io import describe_file
     from fwcore.io.info import format_info
-    from fwcore.instrument.response import measure_input_response
+    from fwcore.instrument.measure import measure_input_response
 
     described, failed = [], 0
     for path in args.files:
@@ -383,6 +383,7 @@ def _view(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from fwcore.io.neon import NEON_SAMPLE_SPACING_PS
     from pipeline.options import FwlOptions
 
     parser = argparse.ArgumentParser(prog="fwl", description="Full-waveform LiDAR decomposition")
@@ -392,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="CSV with columns waveform_id, n_samples, s0, s1, ...")
     p.add_argument("--output", required=True, help="echo table (.parquet); waveforms go beside it")
     p.add_argument("--outgoing", help="CSV of outgoing pulses (same layout): measures the system pulse FWHM")
-    p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
+    p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=NEON_SAMPLE_SPACING_PS)
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the output files even if not written by an earlier fwl decompose-csv "

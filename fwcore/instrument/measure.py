@@ -19,9 +19,10 @@ import numpy as np
 from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_batch
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
-from fwcore.instrument.response import HEAD_PULSES, csv_response, file_response
+from fwcore.instrument.response import SystemResponse, csv_response, file_response
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm, recorded_pulse_fwhm_ps
-from fwcore.io import PointRange, read_pulses
+from fwcore.io import PointRange, input_summary, read_pulses
+from fwcore.io.formats import NEON_CSV, format_of
 from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, CsvWaveforms, read_neon_csv
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import pulse_waveforms
@@ -30,6 +31,7 @@ from fwcore.rng import pulse_seed
 
 LOG = logging.getLogger("fwl")
 
+HEAD_PULSES = 5000  # the head of a file that measures its pulse: fixed by the file, not the range size
 RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range offset
 # waveforms that choose the echo model under --model auto: on the shared Leica, RIEGL and NEON files the two
 # models' held-out errors differ by 20-70%, far beyond what 200 waveforms leave uncertain
@@ -120,6 +122,16 @@ def measure_range_offset(batch: WaveformBatch, config: DecompositionConfig, puls
 
 
 # ---------------------------------------------------------------- a LAS/LAZ or PulseWaves file
+
+def measure_input_response(path: str | Path) -> SystemResponse | None:
+    """The response `fwl run --model system` measures on an input (LAS/LAZ, PulseWaves: its first records'
+    single returns, else isolated echoes) or on a NEON-layout CSV's isolated echoes; None where too few qualify."""
+    if format_of(path) is NEON_CSV:
+        waveforms = read_neon_csv(path)
+        return csv_response(waveforms.samples, waveforms.valid, NEON_SAMPLE_SPACING_PS)
+    count = input_summary(path).records
+    return file_response(read_pulses(PointRange(str(path), 0, min(count, HEAD_PULSES)))) if count else None
+
 
 def _head_records(pulses: PulseBatch, records: int, seed: int) -> WaveformBatch:
     """The waveforms of the pulses among a file's first `records` records, from its head already read (LAS:

@@ -27,9 +27,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from fwcore.instrument.peak import half_height_width, isolated_lobe, local_maxima, parabola_height, parabola_vertex
-from fwcore.io import PointRange, input_summary, read_pulses
-from fwcore.io.formats import NEON_CSV, format_of
-from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, read_neon_csv
 from fwcore.model import SQRT_2LN2
 from fwcore.preprocess import noise_and_background
 
@@ -39,7 +36,7 @@ MIN_SNR = 30.0  # a return this far above the noise shows the response's tail an
 OUTSIDE_FRACTION = 0.15  # of the peak: a sample outside the return's lobe above this is another return
 MIN_PULSES = 20  # fewer strong single returns than this measure nothing
 RESPONSE_PULSES = 3000  # candidates for the response: a few hundred strong single returns among them
-HEAD_PULSES = 5000  # the head of a file that measures its pulse: fixed by the file, not the range size
+CSV_SPACING_PS = 1000.0  # a response CSV's samples: 1 ns apart, as in NEON's system_impulse.csv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,7 +139,7 @@ def response_from_samples(samples, spacing_ps: float, source: str, n_pulses: int
     return SystemResponse(tuple(t), tuple(v / height), source, n_pulses)
 
 
-def load_response(path: str | Path, spacing_ps: float = NEON_SAMPLE_SPACING_PS) -> SystemResponse:
+def load_response(path: str | Path, spacing_ps: float = CSV_SPACING_PS) -> SystemResponse:
     """A response from a file: our JSON (`SystemResponse.save`, `fwl info --json`), or a CSV whose first
     column holds the response's samples at `spacing_ps` (NEON's `system_impulse.csv`; zero padding dropped)."""
     path = Path(path)
@@ -287,13 +284,3 @@ def csv_response(samples, valid, spacing_ps: float, outgoing=None) -> SystemResp
     if response is None:
         response = response_of_waveforms([y[v] for y, v in zip(samples, valid)], spacing_ps, "isolated echoes")
     return response
-
-
-def measure_input_response(path: str | Path) -> SystemResponse | None:
-    """The response `fwl run --model system` measures on an input (LAS/LAZ, PulseWaves: its first records'
-    single returns, else isolated echoes) or on a NEON-layout CSV's isolated echoes; None where too few qualify."""
-    if format_of(path) is NEON_CSV:
-        waveforms = read_neon_csv(path)
-        return csv_response(waveforms.samples, waveforms.valid, NEON_SAMPLE_SPACING_PS)
-    count = input_summary(path).records
-    return file_response(read_pulses(PointRange(str(path), 0, min(count, HEAD_PULSES)))) if count else None

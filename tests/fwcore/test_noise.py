@@ -83,7 +83,8 @@ def test_pulse_width_needs_isolated_echoes():
 
 
 def _every(n: int, k: int) -> np.ndarray:
-    """A validity mask with every k-th sample held out (from sample 1), as fwcore.instrument.measure.held_out_errors makes."""
+    """A validity mask with every k-th sample held out (from sample 1), as
+    fwcore.instrument.measure.held_out_errors makes."""
     valid = np.ones(n, bool)
     valid[1::k] = False
     return valid

@@ -51,7 +51,8 @@ def test_the_same_pulses_under_two_seeds_keep_the_same_echoes():
         pos = np.sort(rng.uniform(20, 180, n))
         waves.append(waveform_model(t, 15.0, rng.uniform(20, 150, n), pos, rng.uniform(2.5, 4, n),
                                     rng.uniform(1.3, 1.8, n)) + rng.normal(0, 1.0, t.size))
-    runs = [decompose_batch(WaveformBatch.from_waveforms(waves, 1000.0, rng.integers(0, 2**63, len(waves))), CONFIG, PULSE)
+    runs = [decompose_batch(WaveformBatch.from_waveforms(waves, 1000.0, rng.integers(0, 2**63, len(waves))), CONFIG,
+                            PULSE)
             for _ in range(2)]
     same = total = 0
     for i in range(len(waves)):
@@ -69,7 +70,8 @@ def _add_step(truth, start, floor_ratio, seed=3):
     raw = model_of_individual(truth, times) + np.random.default_rng(seed).normal(0, 1.0, times.size)
     lower = np.array([15, 0, 20, 1, SQ2], float)
     upper = np.array([25, 1000, 140, 9, SQ2], float)
-    p = CONFIG.replace(model="gaussian", min_amplitude_ratio=floor_ratio, min_snr=0.0).kernel_params(Model.GAUSSIAN, 0.0)
+    p = CONFIG.replace(model="gaussian", min_amplitude_ratio=floor_ratio,
+                       min_snr=0.0).kernel_params(Model.GAUSSIAN, 0.0)
     weights = np.ones(times.size)
     return add_missing_echoes(p, analytic_shape(), start.copy(), lower, upper, 1, raw, np.ones(times.size, bool),
                               times, raw, raw, weights, 0, 159, PULSE_SIGMA, 1.0)
