@@ -30,6 +30,8 @@ from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary
 
 _PART_START = re.compile(r"-(\d+)$")  # pulses/<stem>-<first point of the range>.parquet
+# what run.json's config held of the file's pulse before the pulse left it: read from the row and inputs[] instead
+_FORMER_PULSE_SETTINGS = ("system_pulse_fwhm_ps", "default_pulse_fwhm_ps", "system_response", "shape_tolerance")
 _read_lock = threading.Lock()
 
 
@@ -83,7 +85,8 @@ def load_pulse(run: Path, source_file: str,
     if source_file not in inputs:
         raise FileNotFoundError(f"{source_file}: the run's input is no longer where run.json says")
     summary = run_summary(run)
-    config = DecompositionConfig.from_dict(summary["config"])
+    config = DecompositionConfig.from_dict({k: v for k, v in summary["config"].items()
+                                            if k not in _FORMER_PULSE_SETTINGS})
     if row.get("model"):  # the echo model the run fitted (under --model auto, the one chosen for the file)
         config = config.replace(model=Model(row["model"]))
     pulse = run_pulse(summary, source_file, row)
