@@ -10,7 +10,7 @@ Per preset (the default, `fast`, `paper`), one thread, after compilation, the fa
   1 cm under another seed);
 - NEON sample: waveforms/s, raw error, and the held-out test (every 3rd valid
   sample held out, decomposed, the model evaluated there against the fitted
-  samples: fwcore.survey.held_out_errors) with the outgoing pulses' width and with the width estimated from
+  samples: fwcore.instrument.measure.held_out_errors) with the outgoing pulses' width and with the width estimated from
   the returns alone;
 - a simulated flight (`fwl simulate --pulses 10000 --seed 7`, `fwl run`,
   `fwl evaluate`): recall, precision, range RMSE / CRLB;
@@ -50,14 +50,14 @@ from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.geolocate import geolocate  # noqa: E402
 from fwcore.io.writer import write_waveform_las  # noqa: E402
 from fwcore.io.neon import read_neon_csv  # noqa: E402
-from fwcore.pulses import csv_pulse_fwhm_ps  # noqa: E402
-from fwcore.preprocess import estimate_pulse_fwhm  # noqa: E402
+from fwcore.instrument.pulse import PRESET_OVERRIDES, PulseOverrides, SystemPulse, nominal_pulse  # noqa: E402
+from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
 from fwcore.records import WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
 from fwcore.simulate import simulate_flight  # noqa: E402
 from fwcore.studies.evaluate import match_echoes  # noqa: E402
-from fwcore.survey import file_system_pulse, held_out_errors  # noqa: E402
+from fwcore.instrument.measure import file_system_pulse, held_out_errors  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
 LEICA = DATA / "leica_als" / "leica_a.las"
@@ -67,6 +67,11 @@ ONE_CM_NS = 2 * 0.01 / 0.299792458  # the two-way time of 1 cm of range
 
 def preset(name: str) -> DecompositionConfig:
     return DecompositionConfig(**PRESETS.get(name, {}))
+
+
+def preset_pulse(name: str) -> PulseOverrides:
+    """What a preset says of the pulse (the paper's: its model exact), as fwl run --preset has it."""
+    return PRESET_OVERRIDES.get(name, PulseOverrides())
 
 
 REPEATS = 3  # timed runs per figure; the fastest counts (as timeit's), so other tenants' load moves ratios less
@@ -82,12 +87,12 @@ def fastest(run):
     return result, best
 
 
-def timed(batch: WaveformBatch, config: DecompositionConfig):
+def timed(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse):
     """(result, waveforms/s) on one thread, compiled outside the timed calls, the fastest of REPEATS."""
     first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
                           batch.sample_spacing_ps[:1], batch.seeds[:1])
-    decompose_batch(first, config, threads=1)
-    result, seconds = fastest(lambda: decompose_batch(batch, config, threads=1))
+    decompose_batch(first, config, pulse, threads=1)
+    result, seconds = fastest(lambda: decompose_batch(batch, config, pulse, threads=1))
     return result, len(batch) / seconds
 
 
@@ -116,19 +121,18 @@ def leica_rows() -> None:
           f"{pulses.omitted_returns().sum()} returns the file omits)")
     print(f"{'preset':28} {'pulses/s':>9} {'returns':>8} {'extra':>7} {'beyond dz':>9} {'median d':>8} "
           f"{'spur/pulse':>10} {'raw err':>8} {'seed-stable':>11} {'MDE ran':>7}")
-    variants = [(name, preset(name)) for name in PRESET_NAMES]
-    variants.append(("default, shape tolerance 0", preset("default").replace(shape_tolerance=0.0)))
-    variants.append(("default with mde-lm", preset("default").replace(optimizer="mde-lm")))
-    variants.append(("default, SNR floor 6", preset("default").replace(min_snr=6.0)))
-    variants.append(("default, first echo 0.35", preset("default").replace(first_echo_ratio=0.35)))
-    variants.append(("default, no raw polish", preset("default").replace(raw_polish=False)))
-    for label, base in variants:
-        system = file_system_pulse(LEICA, n_returns, base)  # the preset's model (paper: the generalized Gaussian)
-        config = system.configure(base)
-        if base.shape_tolerance is not None:  # a variant's own
-            config = config.replace(shape_tolerance=base.shape_tolerance)
-        result, rate = timed(pulse_waveforms(pulses, 0), config)
-        other = decompose_batch(pulse_waveforms(pulses, 1), config, threads=1)
+    default, given = preset("default"), PulseOverrides()
+    variants = [(name, preset(name), preset_pulse(name)) for name in PRESET_NAMES]
+    variants.append(("default, shape tolerance 0", default, PulseOverrides(shape_tolerance=0.0)))
+    variants.append(("default with mde-lm", default.replace(optimizer="mde-lm"), given))
+    variants.append(("default, SNR floor 6", default.replace(min_snr=6.0), given))
+    variants.append(("default, first echo 0.35", default.replace(first_echo_ratio=0.35), given))
+    variants.append(("default, no raw polish", default.replace(raw_polish=False), given))
+    for label, config, overrides in variants:
+        # the preset's model (paper: the generalized Gaussian) and pulse, as fwl run measures it
+        system = file_system_pulse(LEICA, n_returns, config, overrides)
+        result, rate = timed(pulse_waveforms(pulses, 0), config, system)
+        other = decompose_batch(pulse_waveforms(pulses, 1), config, system, threads=1)
         kept = result.reject == 0
         xyz = echo_positions(pulses, result, system.range_offset_ps)[kept]
         times = echo_times_ps(pulses, result, system.range_offset_ps)[kept]
@@ -182,8 +186,7 @@ def extras_on_truth(n_pulses: int = 4000, seed: int = 7) -> str:
         path = write_waveform_las(Path(work) / "flight.las", flight.pulses, "las13-wdp", bits=flight.bits)
         pulses = read_pulses(path)
         system = file_system_pulse(path, pulses.return_xyz.shape[0], DecompositionConfig())  # as fwl run measures it
-    config = system.configure(preset("default"))
-    result = decompose_batch(pulse_waveforms(pulses, 0), config, threads=1)
+    result = decompose_batch(pulse_waveforms(pulses, 0), preset("default"), system, threads=1)
     e = extras_among_returns(pulses, result, system.range_offset_ps)
     kept = result.reject == 0
     owner = result.echo_waveform[kept]
@@ -204,10 +207,10 @@ def mde_share(config: DecompositionConfig, result) -> float:
     return float(np.mean(result.nit[result.status == 0] > 0))
 
 
-def held_out(samples, valid, config, seeds):
-    """(mean |model - raw| at held-out samples, same at fitted samples): fwcore.survey.held_out_errors,
+def held_out(samples, valid, config, pulse, seeds):
+    """(mean |model - raw| at held-out samples, same at fitted samples): fwcore.instrument.measure.held_out_errors,
     every 3rd valid sample held out."""
-    return held_out_errors(WaveformBatch.from_waveforms(samples, 1000.0, seeds, valid), config, every=3)
+    return held_out_errors(WaveformBatch.from_waveforms(samples, 1000.0, seeds, valid), config, pulse, every=3)
 
 
 def neon_rows() -> None:
@@ -220,16 +223,19 @@ def neon_rows() -> None:
           f"{estimated / 1000:.2f} ns estimated from the returns alone)")
     print(f"{'preset':10} {'width from':10} {'wf/s':>7} {'raw err':>8} {'held-out':>9} {'fitted':>7} {'ratio':>6} "
           f"{'echoes':>6} {'kept':>5} {'MDE ran':>7}")
-    variants = [(name, source, preset(name).replace(system_pulse_fwhm_ps=fwhm))
+    def pulse_of(name: str, fwhm: float) -> SystemPulse:  # the width given, the preset's word on the shape
+        return nominal_pulse(fwhm, preset_pulse(name).shape_tolerance or 0.0)
+
+    variants = [(name, source, preset(name), pulse_of(name, fwhm))
                 for name in PRESET_NAMES for source, fwhm in (("outgoing", outgoing), ("returns", estimated))]
-    default = preset("default").replace(system_pulse_fwhm_ps=outgoing)
-    variants += [("fit raw", "outgoing", default.replace(fit_target="raw")),
-                 ("no polish", "outgoing", default.replace(raw_polish=False)),
-                 ("mde-lm", "outgoing", default.replace(optimizer="mde-lm"))]
-    for name, source, config in variants:
-        result, rate = timed(batch, config)
+    default, pulse = preset("default"), pulse_of("default", outgoing)
+    variants += [("fit raw", "outgoing", default.replace(fit_target="raw"), pulse),
+                 ("no polish", "outgoing", default.replace(raw_polish=False), pulse),
+                 ("mde-lm", "outgoing", default.replace(optimizer="mde-lm"), pulse)]
+    for name, source, config, pulse in variants:
+        result, rate = timed(batch, config, pulse)
         ok = result.status == 0
-        out, fitted = held_out(returns.samples, returns.valid, config, seeds)
+        out, fitted = held_out(returns.samples, returns.valid, config, pulse, seeds)
         n = len(batch)
         print(f"{name:10} {source:10} {rate:7.1f} {result.fit_error_raw[ok].mean():8.1f} {out:9.2f} "
               f"{fitted:7.2f} {out / fitted:6.3f} {result.reject.size / n:6.2f} "

@@ -36,7 +36,9 @@ from pathlib import Path  # noqa: E402
 
 
 from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
-from fwcore.instrument import load_response, named_response  # noqa: E402
+from fwcore.instrument.measure import csv_system_pulse, file_system_pulse, held_out_errors  # noqa: E402
+from fwcore.instrument.pulse import PulseOverrides, SystemPulse  # noqa: E402
+from fwcore.instrument.response import load_response, named_response  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.neon import read_neon_csv  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
@@ -45,7 +47,6 @@ from fwcore.rng import pulse_seed  # noqa: E402
 from fwcore.simulate import SceneConfig, SensorConfig  # noqa: E402
 from fwcore.studies.methods import compare_to_system  # noqa: E402
 from fwcore.studies.truth import write_flight  # noqa: E402
-from fwcore.survey import csv_system_pulse, file_system_pulse, held_out_errors  # noqa: E402
 from bench_engine import fastest, timed  # noqa: E402  (result, waveforms/s) on one thread, the fastest of 3
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -125,7 +126,7 @@ def riegl_like_rows(folder: Path) -> None:
     print(f"  {'preset':8} {'pulses/s':>9} {'x Sylva':>8} {'init':>5} {'fitted':>6} {'dropped':>7} {'kept':>5} "
           f"{'evals':>5}  (targets: default >= 1x Sylva, fast >= 1.5x)")
     for preset in ("default", "fast"):
-        result, rate = timed(pulse_waveforms(pulses, 0), system.configure(config_of(preset, "auto")))
+        result, rate = timed(pulse_waveforms(pulses, 0), config_of(preset, "auto"), system)
         ratio = f"{rate / sylva[0]:8.3f}" if sylva else f"{'-':>8}"
         print(f"  {preset:8} {rate:9.0f} {ratio} {engine_work(result)}", flush=True)
 
@@ -146,7 +147,7 @@ def riegl_rows() -> None:
             print(f"  response: {system.response_source}; FWHM {system.fwhm_ps / 1000:.2f} ns, afterpulse "
                   f"{t / 1000:.1f} ns behind the peak at {100 * height:.1f}%")
         for preset in ("default", "fast"):
-            result, rate = timed(pulse_waveforms(pulses, 0), system.configure(config_of(preset, model)))
+            result, rate = timed(pulse_waveforms(pulses, 0), config_of(preset, model), system)
             ratio = f"{rate / sylva[0]:8.3f}" if sylva else f"{'-':>8}"
             print(f"  {model:12} {preset:8} {rate:9.0f} {ratio} {100 * ghost_share(result, 1.0):6.1f}% "
                   f"{(result.reject == 0).sum() / len(result):12.2f}  work: {engine_work(result)}", flush=True)
@@ -167,7 +168,7 @@ def leica_rows() -> None:
     for model in MODELS:
         system = file_system_pulse(LEICA, n_system, config_of("default", model))
         for preset in ("default", "fast"):
-            result, rate = timed(pulse_waveforms(pulses, 0), system.configure(config_of(preset, model)))
+            result, rate = timed(pulse_waveforms(pulses, 0), config_of(preset, model), system)
             kept = result.reject == 0
             xyz = echo_positions(pulses, result, system.range_offset_ps)[kept]
             times = echo_times_ps(pulses, result, system.range_offset_ps)[kept]
@@ -179,13 +180,13 @@ def leica_rows() -> None:
                   f"{result.fit_error_raw.mean():8.1f} {points.median_distance:8.3f}", flush=True)
 
 
-def held_out_error(waveforms, config: DecompositionConfig) -> tuple[float, float]:
-    """(mean |model - sample| at held-out samples, the same at fitted ones): fwcore.survey.held_out_errors
+def held_out_error(waveforms, config: DecompositionConfig, pulse: SystemPulse) -> tuple[float, float]:
+    """(mean |model - sample| at held-out samples, the same at fitted ones): fwcore.instrument.measure.held_out_errors
     with every 3rd valid sample held out, the engine's documented NEON test (--model auto holds out every 5th)."""
     batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
                                          [pulse_seed(config.seed, int(i)) for i in waveforms.waveform_id],
                                          waveforms.valid)
-    return held_out_errors(batch, config, every=3)
+    return held_out_errors(batch, config, pulse, every=3)
 
 
 def neon_rows() -> None:
@@ -200,7 +201,8 @@ def neon_rows() -> None:
     auto = DecompositionConfig(model="auto")
     for label, response, out in (("the returns alone", None, None), ("--outgoing", None, outgoing),
                                  ("--system-response system_impulse.csv", impulse, None)):
-        choice = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto, response, out).model_choice
+        given = PulseOverrides(response=response)
+        choice = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto, given, out).model_choice
         print(f"  --model auto (the default), {label}: {choice}")
     cases = [("generalized, outgoing pulses' width", "generalized", None, outgoing),
              ("system, system_impulse.csv", "system", impulse, None),
@@ -211,9 +213,10 @@ def neon_rows() -> None:
             if optimizer in ("gold", "richardson-lucy") and model != "system":
                 continue
             base = DecompositionConfig(model=model, optimizer=optimizer)
-            config = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, base, response, out).configure(base)
-            result, rate = timed(batch, config)
-            held, fitted = held_out_error(waveforms, config)
+            given = PulseOverrides(response=response)
+            pulse = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, base, given, out)
+            result, rate = timed(batch, base, pulse)
+            held, fitted = held_out_error(waveforms, base, pulse)
             print(f"  {label:44} {optimizer:16} {rate:11.1f} {result.fit_error_raw.mean():8.1f} {held:8.2f} "
                   f"{held / fitted:6.3f}", flush=True)
 

@@ -27,7 +27,7 @@ from fwcore.engine import decompose_batch
 from fwcore.io import PulseBatch, input_summary, read_pulses
 from fwcore.io.writer import write_waveform_las
 from fwcore.pulses import pulse_waveforms
-from fwcore.survey import file_system_pulse
+from fwcore.instrument.measure import file_system_pulse
 
 SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 
@@ -128,15 +128,16 @@ def main() -> None:
     else:
         base, method = DecompositionConfig(generations=args.generations), f"MDE NP 60, G {args.generations}"
     system = file_system_pulse(path, input_summary(path).records, base)  # what fwl run measures on the file
-    config = system.configure(base)
+    config = base
     print(f"{len(big)} pulses in {path} ({path.stat().st_size / 1e6:.0f} MB + "
-          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}, model {config.model.value}")
+          f"{path.with_suffix('.wdp').stat().st_size / 1e6:.0f} MB packets); {method}, "
+          f"model {system.echo_model(config.model).value}")
 
     pulses = read_pulses(path)
-    decompose_batch(pulse_waveforms(pulses, 0), config.replace(generations=1), threads=2)  # compile
+    decompose_batch(pulse_waveforms(pulses, 0), config.replace(generations=1), system, threads=2)  # compile
     with PeakMemory() as engine_memory:
         start = time.perf_counter()
-        decompose_batch(pulse_waveforms(pulses, 0), config, threads=2)
+        decompose_batch(pulse_waveforms(pulses, 0), config, system, threads=2)
         engine = len(pulses) / (time.perf_counter() - start)
     del pulses
 

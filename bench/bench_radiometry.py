@@ -143,18 +143,18 @@ def stage_share(las: Path, flags: list[str], ranges: int = 6) -> dict:
     n = 0
     for task in tasks[:ranges]:
         s = task.source
-        config = s.system.configure(DecompositionConfig())
+        config = DecompositionConfig()
         t0 = time.perf_counter()
         pulses = read_pulses(task.point_range)
         t1 = time.perf_counter()
-        result = decompose_batch(pulse_waveforms(pulses, config.seed), config, threads=1)
+        result = decompose_batch(pulse_waveforms(pulses, config.seed), config, s.system, threads=1)
         t2 = time.perf_counter()
         file = file_radiometry(s.path, s.adjusted_standard_gps_time, radiometry)
         xyz = echo_positions(pulses, result, s.system.range_offset_ps)
         t3 = time.perf_counter()
         columns = range_radiometry(pulses, result, xyz, s.system.range_offset_ps, file, radiometry)
         t4 = time.perf_counter()
-        pulse_tables(s.name, pulses, result, config, xyz, result.status == 0, columns)
+        pulse_tables(s.name, pulses, result, config, s.system, xyz, result.status == 0, columns)
         decomposed_echoes(pulses, result, xyz)
         t5 = time.perf_counter()
         clock["read"] += t1 - t0

@@ -20,9 +20,11 @@ from fwcore.engine import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, read_neon_csv  # noqa: E402
 from fwcore.model import generalized_gaussian  # noqa: E402
-from fwcore.pulses import csv_pulse_fwhm_ps, pulse_waveforms  # noqa: E402
+from fwcore.instrument.pulse import nominal_pulse  # noqa: E402
+from fwcore.instrument.width import csv_pulse_fwhm_ps  # noqa: E402
+from fwcore.pulses import pulse_waveforms  # noqa: E402
 from fwcore.records import WaveformBatch  # noqa: E402
-from fwcore.survey import file_system_pulse  # noqa: E402
+from fwcore.instrument.measure import file_system_pulse  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "examples" / "data"
@@ -55,15 +57,15 @@ def main() -> None:
     path = DATA / "leica_als" / "leica_a.las"
     pulses = read_pulses(path)
     system = file_system_pulse(path, 1125, config)
-    leica = config.replace(system_pulse_fwhm_ps=system.fwhm_ps, shape_tolerance=system.shape_tolerance)
-    result = decompose_batch(pulse_waveforms(pulses, leica.seed), leica, threads=1)
+    leica = nominal_pulse(system.fwhm_ps, system.shape_tolerance)  # the generalized Gaussian on Leica's pulse
+    result = decompose_batch(pulse_waveforms(pulses, config.seed), config, leica, threads=1)
     echoes = np.diff(result.echo_offsets)
     pick = int(np.flatnonzero(echoes == echoes.max())[0])  # the pulse with the most echoes
     neon = read_neon_csv(DATA / "neon_harvard" / "return_waveforms.csv")
     width = csv_pulse_fwhm_ps(read_neon_csv(DATA / "neon_harvard" / "outgoing_pulses.csv"))
     batch = WaveformBatch.from_waveforms(neon.samples, NEON_SAMPLE_SPACING_PS, np.arange(len(neon.samples)),
                                          neon.valid)
-    neon_result = decompose_batch(batch, config.replace(system_pulse_fwhm_ps=width), threads=1)
+    neon_result = decompose_batch(batch, config, nominal_pulse(width), threads=1)
     n_echoes = np.diff(neon_result.echo_offsets)
     neon_pick = int(np.flatnonzero(n_echoes == np.sort(n_echoes)[-5])[0])
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))

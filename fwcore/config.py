@@ -18,8 +18,6 @@ import tomllib
 from pathlib import Path
 from typing import Any, Callable, NamedTuple, get_type_hints
 
-from fwcore.instrument import SystemResponse, gaussian_response
-
 
 class Optimizer(str, enum.Enum):
     """The optimizers of the catalogue; OPTIMIZERS says what each one does."""
@@ -98,7 +96,7 @@ class Model(str, enum.Enum):
     GENERALIZED = "generalized"  # the method's generalized Gaussian
     GAUSSIAN = "gaussian"
     # per file, the one of system and generalized whose echoes predict its held-out samples better
-    # (fwcore.survey.choose_system_pulse); waveforms with no file around them get the generalized Gaussian
+    # (fwcore.instrument.measure.choose_system_pulse); waveforms with no file around them get the generalized Gaussian
     AUTO = "auto"
 
 
@@ -185,13 +183,6 @@ class DecompositionConfig:
     # Half size of the box around the initial estimate that seeds the population,
     # as a fraction of each parameter's bound range.
     init_spread: float = setting(0.25, kernel=True, within="[0, 1]")
-    # System: the emitted pulse's FWHM in ps; None lets the caller derive it
-    # (from outgoing pulses) or falls back to `default_pulse_fwhm_ps`.
-    system_pulse_fwhm_ps: float | None = None
-    default_pulse_fwhm_ps: float = 4000.0
-    # The instrument's response (fwcore.instrument), for the system model: measured per file by the
-    # caller (fwcore.survey); None: the Gaussian of the system pulse FWHM, said so in the result.
-    system_response: SystemResponse | None = None
     # Denoising: Gaussian filter sigma = smoothing_factor * system pulse sigma,
     # unless smoothing_sigma_ps is given (0 turns smoothing off).
     smoothing_factor: float = setting(0.25)
@@ -214,13 +205,11 @@ class DecompositionConfig:
     min_noise_sigma: float = setting(1.0 / math.sqrt(12.0), kernel=True, within="[0, inf)")
     # The noise model of a sample with signal s above background (digitizer units):
     # variance = sigma_noise**2 + g s + (shape_tolerance s)**2. g (Poisson-like shot noise) is
-    # fitted per waveform to the residual of the optimizer's fit; shape_tolerance is how far the
-    # system's pulse may depart from a generalized Gaussian without being another echo. None: the
-    # caller measures it on the system's single returns (fwcore.survey; Leica 0.05), 0 where there
-    # are none (the model taken as exact). 0 and signal_dependent_noise=False give the method's
-    # constant noise.
+    # fitted per waveform to the residual of the optimizer's fit; shape_tolerance, how far the
+    # system's pulse may depart from a generalized Gaussian without being another echo, is the file's
+    # (fwcore.instrument.pulse.SystemPulse). A shape tolerance of 0 and signal_dependent_noise=False give
+    # the method's constant noise.
     signal_dependent_noise: bool = setting(True, kernel=True)
-    shape_tolerance: float | None = None
     max_echoes: int = setting(12, option=True, kernel=True, within="[1, inf)")
     alpha_min: float = setting(1.0, kernel=True)
     alpha_max: float = setting(2.6, kernel=True)
@@ -308,13 +297,8 @@ class DecompositionConfig:
                     "the scale factor range [scale_min, scale_max] must satisfy 0 <= a < b")
         self._check(0.5 <= self.alpha_min <= math.sqrt(2) <= self.alpha_max <= 4.0,
                     "need 0.5 <= alpha_min <= sqrt(2) <= alpha_max <= 4")
-        self._check(self.default_pulse_fwhm_ps > 0, "default_pulse_fwhm_ps must be positive (ps)")
-        self._check(self.system_pulse_fwhm_ps is None or self.system_pulse_fwhm_ps > 0,
-                    f"system pulse FWHM must be positive (ps), not {self.system_pulse_fwhm_ps}; "
-                    "leave system_pulse_fwhm_ps unset to measure it from the data")
         self._check(self.smoothing_factor >= 0 and (self.smoothing_sigma_ps or 0) >= 0,
                     "smoothing must be >= 0")
-        self._check(self.shape_tolerance is None or self.shape_tolerance >= 0, "shape_tolerance must be >= 0")
         self._check(0 <= self.min_width_factor < self.max_width_factor and self.max_width_factor > 1,
                     "need 0 <= min_width_factor < max_width_factor and max_width_factor > 1 (x the pulse FWHM)")
 
@@ -328,14 +312,11 @@ class DecompositionConfig:
         """k x t: candidate mutants tried per MDE mutation."""
         return self.chaos_seeds * self.chaos_iterations
 
-    def pulse_fwhm_ps(self) -> float:
-        return self.system_pulse_fwhm_ps if self.system_pulse_fwhm_ps is not None else self.default_pulse_fwhm_ps
-
-    def kernel_params(self, **from_file: Any) -> "KernelParams":
-        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples). `from_file`: what
-        the file's pulse says, given by the caller: its measurements (MEASURED_KERNEL_VALUES) and the settings it
-        decides (the model, where the config's is auto), in place of the config's."""
-        from_file = {"shape_tolerance": self.shape_tolerance or 0.0, **from_file}  # the config's, unless given
+    def kernel_params(self, model: Model, shape_tolerance: float) -> "KernelParams":
+        """The settings the numba kernels read, as one typed tuple (numba takes NamedTuples), with what the file's
+        pulse says (fwcore.instrument.pulse.SystemPulse): the echo model it decides where the config's is auto, and
+        its measurements (MEASURED_KERNEL_VALUES)."""
+        from_file = {"model": model, "shape_tolerance": shape_tolerance}
         values = {}
         for field in dataclasses.fields(self):
             kernel = field.metadata.get("kernel")
@@ -344,9 +325,6 @@ class DecompositionConfig:
                 values[field.name] = value
             elif kernel:
                 values.update(kernel(value))
-        unknown = sorted(set(from_file) - set(MEASURED_KERNEL_VALUES))
-        if unknown:
-            raise TypeError(f"kernel_params: {unknown} are neither kernel settings nor a file's measurements")
         return KernelParams.typed(**values, **from_file)
 
     def replace(self, **changes: Any) -> "DecompositionConfig":
@@ -358,12 +336,8 @@ class DecompositionConfig:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if getattr(self, f.name) != getattr(default, f.name)}
 
-    def response(self) -> SystemResponse:
-        """The echoes' response under the system model: the configured one, or the Gaussian of the pulse FWHM."""
-        return self.system_response or gaussian_response(self.pulse_fwhm_ps())
-
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: (v.value if isinstance(v, enum.Enum) else v.to_dict() if isinstance(v, SystemResponse) else v)
+        return {f.name: (v.value if isinstance(v, enum.Enum) else v)
                 for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
 
     @classmethod
@@ -372,8 +346,6 @@ class DecompositionConfig:
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown decomposition settings {unknown}; known: {sorted(known)}")
-        if isinstance(values.get("system_response"), dict):
-            values = {**values, "system_response": SystemResponse.from_dict(values["system_response"])}
         return cls(**values)
 
     @classmethod
@@ -423,12 +395,13 @@ class KernelParams(NamedTuple("_KernelFields", _kernel_fields())):
 # Named configurations (README, "Presets"): the defaults are the best we know.
 # "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant
 # noise, its filter (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
-# polish (neither LM's nor the raw one), no selection. "fast": LM alone from the initial estimate,
+# polish (neither LM's nor the raw one), no selection; its model taken as exact (a shape tolerance of 0:
+# fwcore.instrument.pulse.PRESET_OVERRIDES). "fast": LM alone from the initial estimate,
 # fewer and looser iterations, with the default's selection.
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"optimizer": Optimizer.MDE, "model": Model.GENERALIZED, "generations": 80, "tol": 0.0, "atol": 0.0,
               "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
-              "signal_dependent_noise": False, "shape_tolerance": 0.0, "select_echoes": False,
+              "signal_dependent_noise": False, "select_echoes": False,
               "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0, "raw_polish": False},
     "fast": {"optimizer": Optimizer.LM, "lm_iterations": 20},
 }

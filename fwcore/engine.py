@@ -2,11 +2,12 @@
 
     initial estimate -> bounds -> optimizer -> model-order selection -> raw polish -> filter -> metrics
 
-`decompose_batch` is the entry point: many waveforms of any lengths, in
-chunks on a pool of threads (the kernels release the GIL), each waveform with
-its own random stream, so a waveform's result does not depend on its batch or
-the thread count. `decompose_waveform` is the same for one waveform. Each step is a
-kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
+`decompose_batch(batch, config, pulse)` is the entry point: many waveforms of
+any lengths, under the method's settings (`config`) and their file's system
+pulse (fwcore.instrument.pulse.SystemPulse), in chunks on a pool of threads (the
+kernels release the GIL), each waveform with its own random stream, so a
+waveform's result does not depend on its batch or the thread count.
+`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
 .selection, .filter); this module only wires them.
 """
 
@@ -23,7 +24,8 @@ from fwcore._jit import JIT
 from fwcore.bounds import parameter_bounds
 from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.filter import mark_spurious
-from fwcore.instrument import EchoShape, analytic_shape, echo_shape
+from fwcore.instrument.pulse import SystemPulse
+from fwcore.instrument.shape import EchoShape, analytic_shape, echo_shape
 from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_areas
 from fwcore.optimizers import find_own_echoes, run_optimizer
 from fwcore.optimizers.local import levenberg_marquardt, squared_error
@@ -113,15 +115,44 @@ def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echo
 
 
 @njit(**JIT)
-def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape, local, out, echoes):
-    """One waveform end to end into its result record `out` and echo records `echoes`."""
-    n = samples.size
+def _valid_span(valid):
+    """The first and last valid sample."""
     first = 0
     while not valid[first]:
         first += 1
-    last = n - 1
+    last = valid.size - 1
     while not valid[last]:
         last -= 1
+    return first, last
+
+
+@njit(**JIT)
+def _parameter_scale(smoothed, valid, background):
+    """The scale below which a parameter's change is nothing: 1e-6 of the highest |denoised - background|."""
+    peak = 0.0
+    for i in range(smoothed.size):
+        if valid[i]:
+            peak = max(peak, abs(smoothed[i] - background))
+    return max(1e-6 * peak, 1e-12)
+
+
+@njit(**JIT)
+def _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, p):
+    """The smoothing bends steep rises (NEON): where the fit to the denoised target fails the noise model on the
+    raw samples, LM refits it to them from where it is, with the same echoes; returns the evaluations used."""
+    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+    if not chi2 / max(times.size - best.size, 1) > p.raw_polish_gate:  # NaN too: no polish, as before
+        return 0
+    _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, raw, weights, lower, local_upper,
+                                     p.lm_iterations, p.lm_tolerance)
+    return used
+
+
+@njit(**JIT)
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape, local, out, echoes):
+    """One waveform end to end into its result record `out` and echo records `echoes`."""
+    n = samples.size
+    first, last = _valid_span(valid)
     pulse_fwhm = pulse_sigma * _FWHM_PER_SIGMA
 
     smoothed = np.empty(n)
@@ -139,11 +170,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     for j in range(times.size):
         signal[j] = max(smoothed[int(times[j])] - background, 0.0)
 
-    peak = 0.0
-    for i in range(n):
-        if valid[i]:
-            peak = max(peak, abs(smoothed[i] - background))
-    scale = max(1e-6 * peak, 1e-12)
+    scale = _parameter_scale(smoothed, valid, background)
     d = 1 + PARAMS_PER_ECHO * n_echoes
     x0 = np.empty(d)
     lower = np.empty(d)
@@ -181,15 +208,8 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
             pulse_sigma, noise)
         nfev += used
 
-    if (p.raw_polish and p.fit_denoised and n_echoes > 0 and p.method != OPT_NONE
-            and not p.own_echoes):
-        # the smoothing bends steep rises (NEON): where the fit to the denoised target fails the noise
-        # model on the raw samples, LM refits it to them from where it is, with the same echoes
-        chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
-        if chi2 / max(times.size - best.size, 1) > p.raw_polish_gate:
-            _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, raw, weights, lower, local_upper,
-                                             p.lm_iterations, p.lm_tolerance)
-            nfev += used
+    if p.raw_polish and p.fit_denoised and n_echoes > 0 and p.method != OPT_NONE and not p.own_echoes:
+        nfev += _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, p)
     out.background = best[0]
     out.noise_sigma = noise
     out.nfev = nfev
@@ -217,17 +237,18 @@ def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sig
 
 # ---------------------------------------------------------------- Python API
 
-def pulse_sigma_samples(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> np.ndarray:
+def pulse_sigma_samples(pulse: SystemPulse, sample_spacing_ps: np.ndarray) -> np.ndarray:
     """The system pulse's Gaussian sigma in samples of each waveform."""
-    return config.pulse_fwhm_ps() / _FWHM_PER_SIGMA / np.asarray(sample_spacing_ps, dtype=float)
+    return pulse.fwhm_ps / _FWHM_PER_SIGMA / np.asarray(sample_spacing_ps, dtype=float)
 
 
-def smoothing_sigma_samples(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> np.ndarray:
+def smoothing_sigma_samples(config: DecompositionConfig, pulse: SystemPulse,
+                            sample_spacing_ps: np.ndarray) -> np.ndarray:
     """The denoising filter's sigma in samples: explicit, or tied to the system pulse."""
     spacing = np.asarray(sample_spacing_ps, dtype=float)
     if config.smoothing_sigma_ps is not None:
         return np.full(spacing.shape, config.smoothing_sigma_ps) / spacing
-    return config.smoothing_factor * pulse_sigma_samples(config, spacing)
+    return config.smoothing_factor * pulse_sigma_samples(pulse, spacing)
 
 
 def waveform_status(batch: WaveformBatch) -> np.ndarray:
@@ -257,13 +278,14 @@ def _in_threads(kernel_args: tuple, n: int, threads: int) -> None:
                       range(0, n, chunk)))
 
 
-def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = DecompositionConfig(),
+def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse,
                     threads: int | None = None) -> BatchDecomposition:
-    """Decompose every waveform of the batch, on `threads` threads (default: numba's thread count, all cores).
+    """Decompose every waveform of the batch with the method's settings `config` and the system pulse of the
+    waveforms' file `pulse`, on `threads` threads (default: numba's thread count, all cores).
 
     A waveform with non-finite valid samples, or with no valid sample, is not
     decomposed: its status says why and it has no echoes. Under the system model the echoes have the
-    shape of config.response() at each waveform's sample spacing (one table per spacing).
+    shape of pulse.echo_response() at each waveform's sample spacing (one table per spacing).
     """
     n = len(batch)
     status = waveform_status(batch)
@@ -272,13 +294,14 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     echoes = np.zeros((n, config.max_echoes), dtype=ECHO_RESULT)
     samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
     samples[~np.isfinite(samples)] = 0.0
-    shapes = echo_shapes(config, batch.sample_spacing_ps)
+    shapes = echo_shapes(config, pulse, batch.sample_spacing_ps)
+    params = config.kernel_params(pulse.echo_model(config.model), pulse.shape_tolerance)
     for spacing, shape in shapes.items():
         # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
         group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
-                       smoothing_sigma_samples(config, batch.sample_spacing_ps),
-                       pulse_sigma_samples(config, batch.sample_spacing_ps), batch.seeds, config.kernel_params(),
+                       smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
+                       pulse_sigma_samples(pulse, batch.sample_spacing_ps), batch.seeds, params,
                        shape, OPTIMIZERS[config.optimizer].local, out, echoes)
         _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]
@@ -286,7 +309,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     np.cumsum(counts, out=echo_offsets[1:])
     flat = echoes[np.arange(config.max_echoes)[None, :] < counts[:, None]]
     sigma, alpha = flat["sigma"], flat["alpha"]
-    if uses_response(config):
+    if uses_response(config, pulse):
         width = sigma * _FWHM_PER_SIGMA  # a tabulated echo's sigma is that of the Gaussian of equal FWHM
         echo_spacing = batch.sample_spacing_ps[np.repeat(np.arange(n), counts)]
         energy = np.empty(sigma.size)
@@ -299,28 +322,30 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig = Decompos
     return BatchDecomposition(
         out, echo_offsets=echo_offsets, amplitude=flat["amplitude"], position=flat["position"], sigma=sigma,
         alpha=alpha, fwhm=width, energy=energy, reject=flat["reason"],
-        shapes=shapes if uses_response(config) else None, sample_spacing_ps=batch.sample_spacing_ps)
+        shapes=shapes if uses_response(config, pulse) else None, sample_spacing_ps=batch.sample_spacing_ps)
 
 
-def uses_response(config: DecompositionConfig) -> bool:
-    """Whether echoes take the system response's shape: the system model, except in the patent's GA,
-    whose method is defined on Gaussians."""
-    return config.model is Model.SYSTEM and config.optimizer is not Optimizer.GA_ITERATIVE
+def uses_response(config: DecompositionConfig, pulse: SystemPulse) -> bool:
+    """Whether echoes take the system response's shape: the system model (the file's, under auto), except in
+    the patent's GA, whose method is defined on Gaussians."""
+    return pulse.echo_model(config.model) is Model.SYSTEM and config.optimizer is not Optimizer.GA_ITERATIVE
 
 
-def echo_shapes(config: DecompositionConfig, sample_spacing_ps: np.ndarray) -> dict[float, EchoShape]:
+def echo_shapes(config: DecompositionConfig, pulse: SystemPulse,
+                sample_spacing_ps: np.ndarray) -> dict[float, EchoShape]:
     """The kernels' echo shape for each distinct sample spacing of a batch."""
     spacings = [float(s) for s in np.unique(sample_spacing_ps)] or [1000.0]
-    if not uses_response(config):
+    if not uses_response(config, pulse):
         return {s: analytic_shape() for s in spacings}
-    response = config.response()
+    response = pulse.echo_response()
     # rows one FWHM wider than the filter's limit, so that a too-wide echo can show as one
     return {s: echo_shape(response, s, config.max_width_factor + 1.0) for s in spacings}
 
 
 def decompose_waveform(samples, sample_spacing_ps: float = 1000.0, seed: int = 0,
-                       config: DecompositionConfig = DecompositionConfig(), valid=None) -> Decomposition:
+                       config: DecompositionConfig = DecompositionConfig(), valid=None, *,
+                       pulse: SystemPulse) -> Decomposition:
     """Decompose one waveform (the batch engine with a batch of one: identical results)."""
     batch = WaveformBatch.from_waveforms([np.asarray(samples, dtype=float)], sample_spacing_ps, [seed],
                                          None if valid is None else [valid])
-    return decompose_batch(batch, config).waveform(0)
+    return decompose_batch(batch, config, pulse).waveform(0)

@@ -75,5 +75,5 @@ def filter_echoes(amplitude, position, width, first: float, last: float, pulse_f
                                    min_separation_factor=min_separation_factor, min_width_factor=min_width_factor,
                                    max_width_factor=max_width_factor, first_echo_ratio=first_echo_ratio)
     mark_spurious(amplitude, position, np.ascontiguousarray(width, dtype=np.float64), float(first), float(last),
-                  float(pulse_fwhm), float(noise_sigma), settings.kernel_params(), reason)
+                  float(pulse_fwhm), float(noise_sigma), settings.kernel_params(settings.model, 0.0), reason)
     return reason

@@ -16,6 +16,7 @@ import numpy as np
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import SystemPulse
 from fwcore.io import PointRange, crs_wkt, read_pulses
 from fwcore.io.formats import PULSEWAVES, format_of
 from fwcore.io.records import PulseBatch
@@ -171,12 +172,12 @@ def single_returns(result: BatchDecomposition) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class PatchFile:
-    """One input as the calibration reads it: its planned ranges and its configuration."""
+    """One input as the calibration reads it: its planned ranges, the run's method and the file's pulse."""
 
     path: str
     ranges: tuple[PointRange, ...]
-    config: DecompositionConfig  # with the file's pulse width and shape tolerance
-    range_offset_ps: float
+    config: DecompositionConfig
+    pulse: SystemPulse  # with the range offset that places its echoes
     adjusted_standard_gps_time: bool
 
 
@@ -204,9 +205,9 @@ def calibrate_on_reference(files: list[PatchFile], config: RadiometryConfig) -> 
         file = file_radiometry(f.path, f.adjusted_standard_gps_time, relative)
         if file.beam_divergence_mrad is None or not file.range_source:  # it cannot tell C_cal (run.check_radiometry)
             continue
-        result = decompose_batch(pulse_waveforms(pulses, f.config.seed), f.config, threads=1)
-        xyz = echo_positions(pulses, result, f.range_offset_ps)
-        columns = range_radiometry(pulses, result, xyz, f.range_offset_ps, file, relative)
+        result = decompose_batch(pulse_waveforms(pulses, f.config.seed), f.config, f.pulse, threads=1)
+        xyz = echo_positions(pulses, result, f.pulse.range_offset_ps)
+        columns = range_radiometry(pulses, result, xyz, f.pulse.range_offset_ps, file, relative)
         samples.append(calibration_samples(columns, xyz, single_returns(result), reference, file.beam_divergence_mrad))
     values = np.concatenate(samples)
     if not np.isfinite(values).any():

@@ -69,7 +69,7 @@ def bilinear(table, w, a, j, b):
 
 @njit(**JIT_INLINE)
 def table_value(shape, amplitude, position, s, t):
-    """One echo of the system response's shape (fwcore.instrument.EchoShape) at time t: A row(s)(t - u)."""
+    """One echo of the system response's shape (fwcore.instrument.shape.EchoShape) at time t: A row(s)(t - u)."""
     w, a = table_row(shape, s)
     j, b = grid_column(t - position, shape.step, shape.origin, shape.rows.shape[1])
     if j < 0:
@@ -192,7 +192,7 @@ def tabulated_row(shape, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def tabulated_model(t, background, amplitude, position, s, shape) -> np.ndarray:
-    """The NumPy twin of individual_model for echoes of a tabulated response (fwcore.instrument.EchoShape):
+    """The NumPy twin of individual_model for echoes of a tabulated response (fwcore.instrument.shape.EchoShape):
     background plus A row(s)(t - u), interpolated between rows and grid points."""
     t = np.asarray(t, dtype=float)
     y = np.full(t.shape, float(background))

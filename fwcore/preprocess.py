@@ -14,8 +14,9 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE
-from fwcore.config import DecompositionConfig
-from fwcore.instrument import analytic_shape, half_height_crossings, main_lobe, parabola_height, parabola_vertex
+from fwcore.config import DecompositionConfig, Model
+from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
+from fwcore.instrument.shape import analytic_shape
 from fwcore.model import add_table_echo, table_peak_offset
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -449,22 +450,23 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
     one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
     above the background (the smoothed minimum), each peeled off in `shape`'s form
-    (fwcore.instrument.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig checks them."""
+    (fwcore.instrument.shape.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig
+    checks them."""
     samples, valid = _as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)
     position = np.zeros(max_echoes)
     sigma = np.zeros(max_echoes)
     settings = DecompositionConfig(noise_threshold=noise_threshold, max_echoes=max_echoes,
-                                   noise_estimator="robust" if robust else "residual", min_noise_sigma=min_noise_sigma,
-                                   shape_tolerance=shape_tolerance)
+                                   noise_estimator="robust" if robust else "residual", min_noise_sigma=min_noise_sigma)
     noise, background, n = initial_estimate(
-        samples, valid, float(smoothing_sigma), float(fallback_sigma), settings.kernel_params(),
+        samples, valid, float(smoothing_sigma), float(fallback_sigma),
+        settings.kernel_params(Model.GENERALIZED, shape_tolerance),
         analytic_shape() if shape is None else shape, smoothed, amplitude, position, sigma)
     return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
 
 
-def _smoothed_noise_baseline(samples: np.ndarray, valid: np.ndarray, smoothing_sigma: float):
+def smoothed_noise_baseline(samples: np.ndarray, valid: np.ndarray, smoothing_sigma: float):
     """(smoothed waveform, robust white-noise sigma floored at the quantisation's, robust baseline)."""
     smoothed = np.empty_like(samples)
     _smooth(samples, valid, float(smoothing_sigma), smoothed)
@@ -476,89 +478,5 @@ def _smoothed_noise_baseline(samples: np.ndarray, valid: np.ndarray, smoothing_s
 
 def noise_and_background(samples, valid=None, smoothing_sigma: float = 1.0) -> tuple[float, float]:
     """A waveform's robust white-noise sigma (floored at the quantisation's) and its robust baseline."""
-    _, noise, background = _smoothed_noise_baseline(*_as_waveform(samples, valid), smoothing_sigma)
+    _, noise, background = smoothed_noise_baseline(*_as_waveform(samples, valid), smoothing_sigma)
     return noise, background
-
-
-def half_height_width(samples) -> float:
-    """Width (samples) of the highest peak at half its height above the minimum, crossings interpolated."""
-    y = np.asarray(samples, dtype=float)
-    base = y.min()
-    half = base + 0.5 * (y.max() - base)
-    peak = int(np.argmax(y))
-    left = peak
-    while left > 0 and y[left - 1] >= half:
-        left -= 1
-    right = peak
-    while right < y.size - 1 and y[right + 1] >= half:
-        right += 1
-    lx = left - (y[left] - half) / (y[left] - y[left - 1]) if left > 0 else float(left)
-    rx = right + (y[right] - half) / (y[right] - y[right + 1]) if right < y.size - 1 else float(right)
-    return float(rx - lx)
-
-
-def median_pulse_fwhm(waveforms, min_samples: int = 5) -> float:
-    """The median half-height width (samples) over waveforms of single pulses: outgoing pulses, or
-    returns that the system itself saw as single. Raises when no waveform is usable."""
-    widths = [half_height_width(w) for w in waveforms if len(w) >= min_samples and np.ptp(w) > 0]
-    if not widths:
-        raise ValueError("no usable waveform to measure the system pulse width")
-    return float(np.median(widths))
-
-
-@dataclasses.dataclass(frozen=True)
-class PulseWidthEstimate:
-    """The system pulse FWHM measured on the waveforms themselves, and on how many."""
-
-    fwhm_samples: float
-    n_waveforms: int  # isolated single echoes measured
-    n_candidates: int  # waveforms looked at
-
-
-_SINGLE_ECHO_SNR = 20.0  # a peak this far above the noise has a well-defined half height
-_SINGLE_ECHO_FLOOR = 0.1  # of the peak: where an echo's support begins
-_MEASURE_SMOOTHING = 1.0  # samples; removed again from the width in quadrature
-_SINGLE_ECHO_QUANTILE = 20.0
-
-
-def _single_echo_fwhm(samples: np.ndarray, valid: np.ndarray) -> float | None:
-    """The FWHM (samples) of a waveform's echo if it holds one strong, isolated echo, else None."""
-    smoothed, noise, level = _smoothed_noise_baseline(samples, valid, _MEASURE_SMOOTHING)
-    signal = np.where(valid, smoothed - level, 0.0)
-    peak = int(np.argmax(signal))
-    height = signal[peak]
-    if height < _SINGLE_ECHO_SNR * noise:
-        return None
-    lo, hi = main_lobe(signal, peak, _SINGLE_ECHO_FLOOR)
-    above = signal > _SINGLE_ECHO_FLOOR * height
-    if lo == 0 or hi == samples.size - 1 or above[:lo].any() or above[hi + 1:].any():
-        return None  # cut by the record's edge, or another echo elsewhere
-    inner = signal[lo:hi + 1]
-    maxima = np.flatnonzero((inner[1:-1] > inner[:-2]) & (inner[1:-1] >= inner[2:]))
-    if maxima.size != 1:
-        return None  # a shoulder or a second peak: not a single echo
-    width = half_height_width(signal[lo - 1:hi + 2])
-    corrected = width * width - (2.0 * _SQRT_2LN2 * _MEASURE_SMOOTHING) ** 2
-    return math.sqrt(corrected) if corrected > 0 else None
-
-
-def estimate_pulse_fwhm(waveforms, valid=None, min_waveforms: int = 5) -> PulseWidthEstimate:
-    """The system pulse FWHM (samples) from the waveforms alone, where no outgoing pulse or system
-    return says it: the median half-height width of the strong echoes that stand alone in their
-    waveform (one local maximum, SNR >= 20, the record's edges clear), at their 20th percentile:
-    targets (slopes, canopy) only ever widen an echo, so the narrow ones are nearest the system's
-    own response (NEON: 18.7 ns against 15.2 ns outgoing and 15.9 ns impulse response; Leica:
-    10.3 ns against 11.0 ns from its single returns). Raises when fewer than min_waveforms qualify."""
-    widths = []
-    for i, y in enumerate(waveforms):
-        y = np.ascontiguousarray(y, dtype=np.float64)
-        v = np.ones(y.size, bool) if valid is None else np.ascontiguousarray(valid[i], dtype=bool)
-        if y.size < 8 or not np.isfinite(y[v]).all() or v.sum() < 8:
-            continue
-        width = _single_echo_fwhm(y, v)
-        if width is not None:
-            widths.append(width)
-    if len(widths) < min_waveforms:
-        raise ValueError(f"only {len(widths)} of {len(waveforms)} waveforms hold an isolated strong echo "
-                         f"(need {min_waveforms}) to measure the system pulse width")
-    return PulseWidthEstimate(float(np.percentile(widths, _SINGLE_ECHO_QUANTILE)), len(widths), len(waveforms))

@@ -10,7 +10,6 @@ import numpy as np
 from fwcore.records import BatchDecomposition, WaveformBatch
 from fwcore.io.geolocate import geolocate
 from fwcore.io.records import PulseBatch
-from fwcore.preprocess import median_pulse_fwhm
 from fwcore.rng import pulse_seeds
 
 # LAS class 1, "unclassified", for every echo whatever the sensor: echoes are points the decomposition made and
@@ -28,36 +27,9 @@ def pulse_waveforms(pulses: PulseBatch, seed: int) -> WaveformBatch:
         seeds=pulse_seeds(seed, pulses.pulse_id, pulses.segments() + 256 * pulses.channels()))
 
 
-def system_pulse_fwhm_ps(pulses: PulseBatch) -> float:
-    """The system pulse FWHM (ps) of a file: the median width of the recorded outgoing waveforms where the
-    file has them (PulseWaves), otherwise measured on pulses the system saw as single returns (LAS does
-    not record it; the filter and smoothing need it)."""
-    if pulses.outgoing is not None and pulses.outgoing.size:
-        rows = [i for i in range(len(pulses)) if pulses.outgoing_offsets[i + 1] - pulses.outgoing_offsets[i] > 4]
-        if rows:
-            width = median_pulse_fwhm([pulses.outgoing_samples(i) for i in rows])
-            spacing = float(np.median(pulses.outgoing_spacing_ps[rows]))
-            if np.isfinite(width) and width > 0:
-                return width * spacing
-    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
-    if single.size == 0:
-        raise ValueError(f"{pulses.source_file}: no outgoing waveform and no single-return pulse "
-                         "to measure the system pulse width")
-    width = median_pulse_fwhm([pulses.pulse_samples(i) for i in single])
-    return width * float(np.median(pulses.sample_spacing_ps[single]))
-
-
-def csv_pulse_fwhm_ps(outgoing, spacing_ps: float | None = None) -> float:
-    """The system pulse FWHM (ps) of a NEON-layout CSV's outgoing pulses (fwcore.io.neon.CsvWaveforms): the
-    median half-height width of the valid samples."""
-    from fwcore.io.neon import NEON_SAMPLE_SPACING_PS
-    spacing = NEON_SAMPLE_SPACING_PS if spacing_ps is None else spacing_ps
-    return median_pulse_fwhm([y[v] for y, v in zip(outgoing.samples, outgoing.valid)]) * spacing
-
-
 def echo_times_ps(pulses: PulseBatch, result: BatchDecomposition, range_offset_ps: float = 0.0) -> np.ndarray:
     """Every echo's time within its packet (ps), in the result's echo order, on the system's range
-    reference: its centre's time plus the file's range offset (fwcore.survey.SystemPulse: where the
+    reference: its centre's time plus the file's range offset (fwcore.instrument.pulse.SystemPulse: where the
     system places a return against the fitted echo's centre)."""
     return result.position * pulses.sample_spacing_ps[result.echo_waveform] + range_offset_ps
 

@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from fwcore.filter import REJECT_REASONS
-from fwcore.instrument import EchoShape
+from fwcore.instrument.shape import EchoShape
 from fwcore.model import generalized_gaussian, tabulated_model, waveform_model
 
 STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
@@ -160,3 +160,12 @@ class BatchDecomposition:
         if self.shapes is None:
             return None
         return self.shapes[float(self.sample_spacing_ps[i])]
+
+
+def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:
+    """Each decomposed pulse's fitted model at its sample times, flat like the samples (0 where not decomposed)."""
+    model = np.zeros(int(sample_offsets[-1]), dtype=np.float32)
+    for i in np.flatnonzero(result.status == 0):
+        lo, hi = sample_offsets[i], sample_offsets[i + 1]
+        model[lo:hi] = result.waveform(int(i)).model(np.arange(hi - lo))
+    return model

@@ -34,7 +34,8 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.io.records import PulseBatch
 from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
-from fwcore.instrument import SystemResponse, echo_shape
+from fwcore.instrument.response import SystemResponse
+from fwcore.instrument.shape import echo_shape
 from fwcore.model import LN2, SQRT_2LN2, tabulated_areas, tabulated_model
 
 LIGHT_M_PER_PS = 299792458.0e-12

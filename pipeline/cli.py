@@ -14,20 +14,29 @@ import numpy as np
 import fwcore
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from pipeline.progress import quiet_imports
+from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
+                              record_command_folder)
 
-quiet_imports()  # before Beam is imported: its import-time warnings are not the user's business
 
-from pipeline.options import (FwlOptions, add_method_arguments, decomposition_config, radiometry_config,  # noqa: E402
-                              unknown_option_error)
-from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is,  # noqa: E402
-                              parquet_is_ours, record_command_folder)
+# pipeline.options imports Beam: it is imported where used, after main's quiet_imports
 
 
 def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
+    from pipeline.options import decomposition_config
+
     return decomposition_config(args)
 
 
+def _pulse_from_args(args: argparse.Namespace):
+    """What the flags give of every file's pulse (pipeline.options.pulse_overrides)."""
+    from pipeline.options import pulse_overrides
+
+    return pulse_overrides(args)
+
+
 def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
+    from pipeline.options import add_method_arguments
+
     add_method_arguments(parser, compare)
 
 
@@ -35,47 +44,41 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     import pyarrow.parquet as pq
 
     from fwcore.engine import decompose_batch
-    from fwcore.records import WaveformBatch
-    from fwcore.io.neon import read_neon_csv
-    from fwcore.survey import csv_system_pulse
-    from fwcore.rng import pulse_seed
+    from fwcore.instrument.measure import read_csv_input
     from pipeline.tables import echo_table, waveform_table
 
     config = _config_from_args(args)
-    waveforms = read_neon_csv(args.input)  # a file of another kind is named as such first
+    # a file of another kind is named as such first
+    csv = read_csv_input(args.input, config, _pulse_from_args(args), args.outgoing, args.sample_spacing_ps)
     output = check_suffix("fwl decompose-csv", args.output, (".parquet",), "a Parquet echo table")
     waveform_path = output.with_name(output.stem + ".waveforms.parquet")
     claim_files("fwl decompose-csv", [output, waveform_path], parquet_is_ours, args.overwrite)
-    system = csv_system_pulse(waveforms.samples, waveforms.valid, args.sample_spacing_ps, config,
-                              outgoing=read_neon_csv(args.outgoing) if args.outgoing else None)
-    config = system.configure(config)
-    width_source = system.fwhm_source
+    pulse, model = csv.pulse, csv.pulse.echo_model(config.model)
+    width_source = pulse.fwhm_source
     if width_source.startswith("estimated"):  # nothing says it: measured on the returns, and said so
-        print(f"{args.input}: no --outgoing: system pulse FWHM {config.pulse_fwhm_ps():.0f} ps {width_source}")
-    if system.model_choice:
-        print(f"{args.input}: model {system.model_choice}")
-    if config.model is Model.SYSTEM:
-        print(f"{args.input}: system response {system.response_source}"
-              if system.response else f"{args.input}: no system response measured: echoes are Gaussians")
-    ids = waveforms.waveform_id
-    batch = WaveformBatch.from_waveforms(waveforms.samples, args.sample_spacing_ps,
-                                         [pulse_seed(config.seed, i) for i in ids], waveforms.valid)
+        print(f"{args.input}: no --outgoing: system pulse FWHM {pulse.fwhm_ps:.0f} ps {width_source}")
+    if pulse.model_choice:
+        print(f"{args.input}: model {pulse.model_choice}")
+    if model is Model.SYSTEM:
+        print(f"{args.input}: system response {pulse.response_source}"
+              if pulse.response else f"{args.input}: no system response measured: echoes are Gaussians")
+    ids = csv.waveform_id
     start = time.perf_counter()
-    result = decompose_batch(batch, config, threads=args.threads)
+    result = decompose_batch(csv.batch, config, pulse, threads=args.threads)
     seconds = time.perf_counter() - start
     output.parent.mkdir(parents=True, exist_ok=True)
     def with_width_source(table):
         return table.replace_schema_metadata({**table.schema.metadata, b"fwlidar.system_pulse_fwhm_source":
                                               width_source.encode()})
 
-    pq.write_table(with_width_source(echo_table(ids, result, config)), output)
-    n_samples = np.array([v.sum() for v in waveforms.valid])
-    pq.write_table(with_width_source(waveform_table(ids, result, config, n_samples)), waveform_path)
+    pq.write_table(with_width_source(echo_table(ids, result, config, pulse)), output)
+    n_samples = np.array([v.sum() for v in csv.waveforms.valid])
+    pq.write_table(with_width_source(waveform_table(ids, result, config, pulse, n_samples)), waveform_path)
     ok = result.status == 0
     print(f"{args.input}: {len(result)} waveforms ({(~ok).sum()} not decomposed), "
           f"{result.amplitude.size} echoes ({(result.reject == 0).sum()} kept); "
-          f"optimizer {config.optimizer.value}, model {config.model.value}, "
-          f"system pulse FWHM {config.pulse_fwhm_ps():.0f} ps ({width_source})")
+          f"optimizer {config.optimizer.value}, model {model.value}, "
+          f"system pulse FWHM {pulse.fwhm_ps:.0f} ps ({width_source})")
     print(f"mean fit error (Eq. 9, denoised) {result.fit_error[ok].mean():.1f}, "
           f"vs raw samples {result.fit_error_raw[ok].mean():.1f}, RMSE {result.rmse[ok].mean():.2f}, "
           f"R2 {result.r2[ok].mean():.4f}")
@@ -85,13 +88,15 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
+    from pipeline.options import radiometry_config
     from pipeline.run import EXIT_INTERRUPTED, run
 
     config = _config_from_args(args)
     radiometry = radiometry_config(args)
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
-                      beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs)
+                      beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
+                      pulse=_pulse_from_args(args))
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
               f"rerun the same command with --resume to complete it", file=sys.stderr)
@@ -130,7 +135,7 @@ def _say_what_was_not_done(summary: dict, output: str) -> None:
 
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
-    from pipeline.options import check_beam_args
+    from pipeline.options import check_beam_args, radiometry_config
     from pipeline.run import EXIT_INTERRUPTED, check_run_arguments, run, run_settings
     from pipeline.watch import watch
 
@@ -143,14 +148,16 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     if not args.poll > 0:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
-    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs)
+    pulse = _pulse_from_args(args)
+    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs, pulse)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
         running[:] = [paths]  # until it ends: an interruption meanwhile names it
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
-                          beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs)
+                          beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
+                          pulse=pulse)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
@@ -193,7 +200,7 @@ def _compare(args: argparse.Namespace) -> int:
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")
     summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
-                             args.distance, args.budget, args.threads, args.outgoing)
+                             args.distance, args.budget, args.threads, args.outgoing, _pulse_from_args(args))
     for row in summary["rows"]:
         print(f"  {row['optimizer']:13} {row['model']:11} fit error {row['fit_error']:8.1f}  R2 {row['r2']:.4f}  "
               f"{row['waveforms_per_second']:9.1f} waveforms/s")
@@ -207,7 +214,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from fwcore.instrument import SHIPPED_SPACING_PS, named_response
+    from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response
     from fwcore.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import calibration_path, trajectory_path, truth_path, write_flight
 
@@ -295,7 +302,7 @@ def _info(args: argparse.Namespace) -> int:
 
     from fwcore.io import describe_file
     from fwcore.io.info import format_info
-    from fwcore.survey import measure_input_response
+    from fwcore.instrument.measure import measure_input_response
 
     described, failed = [], 0
     for path in args.files:
@@ -320,7 +327,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _response_line(response: dict | None) -> str:
-    from fwcore.instrument import SystemResponse
+    from fwcore.instrument.response import SystemResponse
 
     if response is None:
         return "  system response: too few strong single returns to measure it"
@@ -394,11 +401,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_decompose_csv(sub) -> None:
+    from fwcore.io.neon import NEON_SAMPLE_SPACING_PS
+
     p = sub.add_parser("decompose-csv", help="decompose waveforms of a NEON-layout CSV into a Parquet echo table")
     p.add_argument("input", help="CSV with columns waveform_id, n_samples, s0, s1, ...")
     p.add_argument("--output", required=True, help="echo table (.parquet); waveforms go beside it")
     p.add_argument("--outgoing", help="CSV of outgoing pulses (same layout): measures the system pulse FWHM")
-    p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=1000.0)
+    p.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float, default=NEON_SAMPLE_SPACING_PS)
     p.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the output files even if not written by an earlier fwl decompose-csv "
@@ -421,6 +430,8 @@ def _add_run(sub) -> None:
     r.add_argument("--resume", action="store_true",
                    help="go on with the interrupted run in --output (same inputs and options): keep every range it "
                         "finished, run the rest; a changed input or option is refused")
+    from pipeline.options import FwlOptions
+
     FwlOptions._add_argparse_args(r)
     r.set_defaults(handler=_run)
 
@@ -435,6 +446,8 @@ def _add_watch(sub) -> None:
     w.add_argument("--poll", type=float, default=5.0, help="seconds between looks at the folder (default 5)")
     w.add_argument("--once", action="store_true",
                    help="look twice, process what is complete, and exit (for cron and scripts)")
+    from pipeline.options import FwlOptions
+
     FwlOptions._add_argparse_args(w)
     w.set_defaults(handler=_watch)
 
@@ -572,6 +585,9 @@ def _parser_flags(parser: argparse.ArgumentParser, command: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    quiet_imports()  # before Beam is imported: its import-time warnings are not the user's business
+    from pipeline.options import unknown_option_error
+
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     try:

@@ -19,7 +19,8 @@ from typing import Any, Iterable, get_type_hints
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 from fwcore.config import OPTIMIZERS, PRESETS, DecompositionConfig
-from fwcore.instrument import named_response
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides
+from fwcore.instrument.response import named_response
 
 FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
 DEFAULT_FORMATS = ("parquet", "las", "mcap")
@@ -83,6 +84,7 @@ def add_method_arguments(parser, compare: bool = False) -> None:
         if field.metadata.get("option") and not (compare and field.name in COMPARED):
             g.add_argument("--" + field.name.replace("_", "-"), dest=field.name, help=_option_help(field),
                            **_option_kind(kinds[field.name]))
+    # the file's pulse, given instead of measured (pulse_overrides): not settings of the method
     g.add_argument("--system-pulse-fwhm-ps", dest="system_pulse_fwhm_ps", type=float,
                    help="the emitted pulse's FWHM (default: measured on each file's single-return pulses)")
     g.add_argument("--system-response", dest="system_response",
@@ -116,10 +118,21 @@ def decomposition_config(args: Any) -> DecompositionConfig:
         config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
                  if getattr(args, f.name, None) is not None}
-    if isinstance(overrides.get("system_response"), str):  # a name or a file, read once here
-        fwhm = overrides.get("system_pulse_fwhm_ps") or config.pulse_fwhm_ps()
-        overrides["system_response"] = named_response(overrides["system_response"], fwhm)
     return config.replace(**overrides)
+
+
+def pulse_overrides(args: Any) -> PulseOverrides:
+    """What the flags say of every file's pulse instead of measuring it: the preset's, then the explicit flags
+    (--system-response: a name or a file, read once here)."""
+    given = PRESET_OVERRIDES.get(getattr(args, "preset", None) or "", PulseOverrides())
+    fwhm = getattr(args, "system_pulse_fwhm_ps", None)
+    if fwhm is not None:
+        given = given.replace(fwhm_ps=fwhm)
+    if getattr(args, "shape_tolerance", None) is not None:
+        given = given.replace(shape_tolerance=args.shape_tolerance)
+    if getattr(args, "system_response", None):
+        given = given.replace(response=named_response(args.system_response, fwhm or DEFAULT_PULSE_FWHM_PS))
+    return given
 
 
 class FwlOptions(PipelineOptions):

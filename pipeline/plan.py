@@ -19,10 +19,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 from fwcore.config import DecompositionConfig
+from fwcore.instrument.measure import file_system_pulse
+from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import input_summary, open_input, plan_point_ranges
 from fwcore.io.crs import input_crs
 from fwcore.io.records import PointRange
-from fwcore.survey import file_system_pulse
 from pipeline.layout import plan_path
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
@@ -34,6 +35,7 @@ class InputToPlan(NamedTuple):
     name: str
     stem: str
     crs: str | None = None  # --crs as WKT (fwcore.io.crs.parse_crs), or None: the file's own
+    pulse: PulseOverrides = PulseOverrides()  # what the user gave of the pulse instead of measuring it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,12 +65,13 @@ class FilePlan:
 
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
-              limit: int | None, crs: str | None = None) -> list[ReadTask]:
+              limit: int | None, crs: str | None = None,
+              overrides: PulseOverrides = PulseOverrides()) -> list[ReadTask]:
     opened = open_input(path)  # the header, read once for the ranges and the summary
     ranges = plan_point_ranges(path, points_per_range, opened)
     summary = input_summary(path, opened)  # LAS or PulseWaves
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
-    pulse = file_system_pulse(path, count, config)  # the file does not record it: measured on its waveforms
+    pulse = file_system_pulse(path, count, config, overrides)  # the file does not record it: measured on it
     found = input_crs(path, crs)
     source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named)
     tasks, remaining = [], limit
@@ -86,15 +89,16 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
                limit: int | None = None) -> FilePlan:
     """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception."""
     try:
-        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs)
+        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.pulse)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
         reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
         return FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open", reason))
     return FilePlan(tasks[0].source if tasks else None, tuple(t.point_range for t in tasks))
 
 
-def inputs_to_plan(paths: list[str], names: InputNames, crs: str | None = None) -> list[InputToPlan]:
-    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs) for p in paths]
+def inputs_to_plan(paths: list[str], names: InputNames, crs: str | None = None,
+                   pulse: PulseOverrides = PulseOverrides()) -> list[InputToPlan]:
+    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs, pulse) for p in paths]
 
 
 def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,

@@ -14,8 +14,8 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
+from fwcore.instrument.pulse import SystemPulse
 from fwcore.records import BatchDecomposition
-from fwcore.survey import SystemPulse
 from fwcore.io import PulseBatch
 from fwcore.io.records import PointRange
 
@@ -28,7 +28,7 @@ class InputFile:
     path: str
     name: str  # the input's file name, as the tables' source_file
     stem: str  # unique among the run's inputs: names its part files and per-file outputs
-    system: SystemPulse  # what the plan measured of the file's system pulse (fwcore.survey)
+    system: SystemPulse  # what the plan measured of the file's system pulse (fwcore.instrument.measure)
     adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
     crs_wkt: str | None = None  # the CRS every output writes (fwcore.io.crs.input_crs: --crs, else the file's)
     crs_source: str = ""  # where it came from
@@ -79,7 +79,7 @@ class DecomposedRange:
 
     task: ReadTask
     pulses: PulseBatch
-    config: DecompositionConfig  # with the file's pulse width
+    config: DecompositionConfig  # the run's method (the file's pulse: task.source.system)
     result: BatchDecomposition
 
 

@@ -27,6 +27,7 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 
 import fwcore
 from fwcore.config import DecompositionConfig, Model
+from fwcore.instrument.pulse import PulseOverrides
 from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
@@ -273,12 +274,13 @@ def _run_job(options, build) -> object:
 
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
-                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
+                 laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
+                 pulse: PulseOverrides = PulseOverrides()) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
-    return {**given, "config": config.to_dict(), "formats": sorted(formats), "limit": limit,
+    return {**given, "config": config.to_dict(), "pulse": pulse.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
 
@@ -312,8 +314,7 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
     the radiometry the ranges then use, and the calibration for run.json."""
     if radiometry.calibration_reference is None:
         return radiometry, None
-    files = [PatchFile(s.path, plan.ranges, s.system.configure(config), s.system.range_offset_ps,
-                       s.adjusted_standard_gps_time)
+    files = [PatchFile(s.path, plan.ranges, config, s.system, s.adjusted_standard_gps_time)
              for plan in plans.values() if (s := plan.source) is not None]
     found = calibrate_on_reference(files, radiometry)
     say.write(f"fwl run: calibration constant {found.constant:.6g} from {found.n} single returns of the reference "
@@ -354,7 +355,7 @@ def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
 
 
 def _planned(plan: FilePlan) -> dict:
-    """What a file's plan measured of what the file does not record (fwcore.survey), for run.json."""
+    """What a file's plan measured of what the file does not record (fwcore.instrument.measure), for run.json."""
     s = plan.source
     if s is None:
         return {}
@@ -384,7 +385,8 @@ def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, a
 def run(inputs: list[str], output: str | Path, config: DecompositionConfig, formats=("parquet", "las", "mcap"),
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
-        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None) -> dict:
+        add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
+        pulse: PulseOverrides = PulseOverrides()) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -393,14 +395,15 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     the folder's interrupted run of the same inputs and settings, keeping every range it finished; `add`
     (fwl watch) adds the inputs to those the folder holds. With `watch`, a start line and a progress bar go
     to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
-    code, WKT or PROJJSON) replaces the CRS the inputs say in every output.
+    code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `pulse` (--system-pulse-fwhm-ps,
+    --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, pulse)
     check_radiometry(paths, radiometry)
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -411,10 +414,10 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={}, pulses_processed=0)
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []))
+                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), pulse)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, matched.not_taken, crs)
+                     taken, radiometry, matched.not_taken, crs, pulse)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -432,14 +435,15 @@ class JobsDone:
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
-             small_in_process: bool = False) -> JobsDone:
+             small_in_process: bool = False, pulse: PulseOverrides = PulseOverrides()) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
     result, jobs, calibration = None, Jobs(options, small_in_process), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
-            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt), config, points_per_range, limit, jobs)
+            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range, limit,
+                               jobs)
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
@@ -547,7 +551,7 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
               radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
-              crs: str | None = None) -> dict:
+              crs: str | None = None, pulse: PulseOverrides = PulseOverrides()) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -580,6 +584,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
+        "pulse": pulse.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
         "radiometry": {**radiometry.to_dict(), "calibration": calibration,
                        "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},
         "beam_options": options.get_all_options(drop_default=True),

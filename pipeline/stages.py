@@ -20,12 +20,12 @@ import numpy as np
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
 from fwcore.flight_radiometry import file_radiometry, range_radiometry
+from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
 from fwcore.io.writer import write_point_cloud
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry import RadiometryConfig
-from fwcore.records import STATUS_REASONS, WaveformBatch
-from fwcore.survey import model_samples
+from fwcore.records import STATUS_REASONS, WaveformBatch, model_samples
 from pipeline.copc import has_point_cloud_parts
 from pipeline.geoparquet import write_echo_part
 from pipeline.layout import ECHOES, LAS, MCAP, PULSES, part_paths
@@ -80,20 +80,19 @@ def read_range(task: ReadTask) -> tuple[PulseRange | None, list[Rejection]]:
     return (PulseRange(task, pulses) if len(pulses) else None), rejected
 
 
-def warm_up(config: DecompositionConfig) -> None:
+def warm_up(config: DecompositionConfig, pulse: SystemPulse = nominal_pulse()) -> None:
     """Compile the engine's kernels once per worker (from numba's cache when warm)."""
     warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
-    decompose_batch(warm, config.replace(generations=1), threads=1)
+    decompose_batch(warm, config.replace(generations=1), pulse, threads=1)
 
 
 def decompose_range(item: PulseRange, config: DecompositionConfig) -> tuple[DecomposedRange, list[Rejection]]:
     """The batched engine, one call a range, with the file's system pulse; a pulse the engine cannot decompose
     (no valid sample, non-finite samples) is a Rejection."""
     source = item.task.source
-    config = source.system.configure(config)
     began = time.perf_counter()
     # one thread per worker: the workers are the parallelism; results do not depend on it
-    result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, threads=1)
+    result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, source.system, threads=1)
     ok = result.status == 0
     rejected = [Rejection(source.name, source.stem, item.task.start, int(item.pulses.pulse_id[i]), "decompose",
                           STATUS_REASONS[result.status[i]]) for i in np.flatnonzero(~ok)]
@@ -120,8 +119,8 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
-    echoes, table = pulse_tables(source.name, pulses, result, item.config, xyz, result.status == 0, columns,
-                                 source.crs_wkt)
+    echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
+                                 columns, source.crs_wkt)
     cloud = decomposed_echoes(pulses, result, xyz)
     kept = result.reject == 0
     cloud.update({name: values[kept] for name, values in columns.items()})

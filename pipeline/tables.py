@@ -14,11 +14,13 @@ import numpy as np
 import pyarrow as pa
 
 from fwcore.config import DecompositionConfig
+from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.crs import crs_projjson
 from fwcore.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
 from fwcore.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
+PULSE_METADATA_KEY = b"fwlidar.pulse"  # the file's system pulse the rows were decomposed with
 GEO_METADATA_KEY = b"geo"  # GeoParquet 1.1: https://geoparquet.org/releases/v1.1.0/
 GEOMETRY_COLUMN = "geometry"
 BBOX_COLUMN = "bbox"  # GeoParquet 1.1's bbox covering of the geometry: its row group statistics prune box queries
@@ -27,8 +29,12 @@ BBOX_TYPE = pa.struct([(f, pa.float64()) for f in BBOX_FIELDS])
 _WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
 
 
-def _with_config(table: pa.Table, config: DecompositionConfig, extra: dict[bytes, bytes] | None = None) -> pa.Table:
-    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(config.to_dict()).encode(), **(extra or {})})
+def _with_config(table: pa.Table, config: DecompositionConfig, pulse: SystemPulse,
+                 extra: dict[bytes, bytes] | None = None) -> pa.Table:
+    """The table with the method it was decomposed with (its model the file's) and the file's pulse."""
+    method = config.replace(model=pulse.echo_model(config.model))
+    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(method.to_dict()).encode(),
+                                          PULSE_METADATA_KEY: json.dumps(pulse.to_dict()).encode(), **(extra or {})})
 
 
 @functools.lru_cache(maxsize=64)
@@ -212,25 +218,26 @@ def _table(table: str, values: dict) -> pa.Table:
                      for f, v in ((f, values[f.name]) for f in schema)], schema=schema)
 
 
-def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig) -> pa.Table:
+def echo_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig,
+               pulse: SystemPulse) -> pa.Table:
     """One row per echo, spurious ones included; times and widths in samples, amplitudes in digitizer units."""
     owner = result.echo_waveform
     table = _table("csv echoes", {
         "waveform_id": waveform_id[owner], "echo_index": np.arange(owner.size) - result.echo_offsets[owner],
         "echo_count": np.diff(result.echo_offsets)[owner], "amplitude": result.amplitude, "time": result.position,
         "sigma": result.sigma, "alpha": _null_where_nan(result.alpha), "fwhm": result.fwhm, "energy": result.energy,
-        **_record_columns("csv echoes", result, owner), **_kept(result), **_method(config, owner.size)})
-    return _with_config(table, config)
+        **_record_columns("csv echoes", result, owner), **_kept(result), **_method(config, pulse, owner.size)})
+    return _with_config(table, config, pulse)
 
 
 def waveform_table(waveform_id: np.ndarray, result: BatchDecomposition, config: DecompositionConfig,
-                   n_samples: np.ndarray) -> pa.Table:
+                   pulse: SystemPulse, n_samples: np.ndarray) -> pa.Table:
     """One row per waveform, whether or not it was decomposed: none is dropped."""
     every = np.arange(len(result))
     table = _table("csv waveforms", {
         "waveform_id": waveform_id, "n_samples": n_samples, **_record_columns("csv waveforms", result, every),
-        **_echo_counts(result, every), **_method(config, len(result))})
-    return _with_config(table, config)
+        **_echo_counts(result, every), **_method(config, pulse, len(result))})
+    return _with_config(table, config, pulse)
 
 
 def _record_columns(table: str, result: BatchDecomposition, rows: np.ndarray) -> dict:
@@ -255,8 +262,9 @@ def _kept(result: BatchDecomposition) -> dict:
             "reject_reason": np.array(REJECT_REASONS, dtype=object)[result.reject].tolist()}
 
 
-def _method(config: DecompositionConfig, n: int) -> dict:
-    return {"optimizer": _strings(config.optimizer.value, n), "model": _strings(config.model.value, n)}
+def _method(config: DecompositionConfig, pulse: SystemPulse, n: int) -> dict:
+    return {"optimizer": _strings(config.optimizer.value, n),
+            "model": _strings(pulse.echo_model(config.model).value, n)}
 
 
 def _null_where_nan(values: np.ndarray) -> pa.Array:
@@ -284,7 +292,7 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
-                 xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
+                 pulse: SystemPulse, xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
                  crs_wkt: str | None = None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
     `ok`; the geometry's CRS is `crs_wkt` (the run's, fwcore.io.crs.input_crs), else the input file's."""
@@ -304,7 +312,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
-        **_kept(result), **_method(config, owner.size)})
+        **_kept(result), **_method(config, pulse, owner.size)})
     sel = np.flatnonzero(ok)
     table = _table("pulses", {
         "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],
@@ -315,12 +323,12 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "background_volts": pulses.digitizer_offset[sel] + pulses.digitizer_gain[sel] * result.background[sel],
         **_record_columns("pulses", result, sel), **_echo_counts(result, sel),
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
-        "system_pulse_fwhm_ps": np.full(sel.size, config.pulse_fwhm_ps()),
-        "shape_tolerance": np.full(sel.size, config.shape_tolerance or 0.0), **_method(config, sel.size)})
+        "system_pulse_fwhm_ps": np.full(sel.size, pulse.fwhm_ps),
+        "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
     anchors = geo_metadata(*pulses.anchor[sel].T, projjson, covering=False)
-    return _with_config(echoes, config, geo), _with_config(table, config, anchors)
+    return _with_config(echoes, config, pulse, geo), _with_config(table, config, pulse, anchors)
 
 
 REJECTED_SCHEMA = table_schema("rejected")

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.instrument import analytic_shape
+from fwcore.instrument.shape import analytic_shape
 from fwcore.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
 
 _LN2 = math.log(2.0)
@@ -38,7 +38,7 @@ _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplit
 def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
     windows[k] = [lo, hi): the samples where echo k's columns may be non-zero. A tabulated shape
-    (fwcore.instrument.EchoShape) differentiates its table: d/du = -A slope, d/ds across its rows."""
+    (fwcore.instrument.shape.EchoShape) differentiates its table: d/du = -A slope, d/ds across its rows."""
     m = times.size
     for i in range(m):
         model[i] = x[0]
@@ -449,7 +449,7 @@ def lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, max_iteratio
 def fit_levenberg_marquardt(x0, n_echoes: int, times, target, lower, upper, max_iterations: int = 50,
                             tolerance: float = 1e-8, shape=None) -> tuple[np.ndarray, float, int]:
     """LM from x0 inside the bounds: (best individual, sum of squares, Jacobians evaluated); echoes of
-    `shape` (fwcore.instrument.EchoShape; None: the generalized Gaussian)."""
+    `shape` (fwcore.instrument.shape.EchoShape; None: the generalized Gaussian)."""
     x = np.array(x0, dtype=np.float64)
     lower = np.ascontiguousarray(lower, dtype=np.float64)
     upper = np.ascontiguousarray(upper, dtype=np.float64)

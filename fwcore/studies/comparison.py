@@ -21,47 +21,37 @@ import numpy as np
 from fwcore.studies.methods import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
                             compare_to_system)
 from fwcore.config import DecompositionConfig, Model, Optimizer
-from fwcore.records import WaveformBatch
+from fwcore.instrument.measure import file_system_pulse, read_csv_input
+from fwcore.instrument.pulse import PulseOverrides, SystemPulse
 from fwcore.io import read_pulses
+from fwcore.io.formats import NEON_CSV, format_of
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
-from fwcore.io.neon import read_neon_csv
-from fwcore.rng import pulse_seed
-from fwcore.instrument import SystemResponse
-from fwcore.survey import csv_system_pulse, file_system_pulse
+from fwcore.records import WaveformBatch
 
 
 @dataclasses.dataclass(frozen=True)
 class ComparisonInput:
-    """The waveforms to compare on, their ids, and (LAS input) the pulses for the point comparison."""
+    """The waveforms to compare on, their ids, their system pulse, and (LAS input) the pulses for the point
+    comparison."""
 
     batch: WaveformBatch
     pulse_id: np.ndarray
-    config: DecompositionConfig
+    pulse: SystemPulse
     pulses: object | None = None  # fwcore.io.records.PulseBatch for LAS input
-    range_offset_ps: float = 0.0  # where the system places returns against an echo's centre (LAS input)
 
 
 def load_input(path: str | Path, config: DecompositionConfig, limit: int | None = None,
-               outgoing: str | Path | None = None, response: SystemResponse | None = None) -> ComparisonInput:
+               outgoing: str | Path | None = None, overrides: PulseOverrides = PulseOverrides()) -> ComparisonInput:
     """A LAS/LAZ file (system pulse measured on its single-return pulses, as `fwl run`) or a NEON CSV
-    (the response given, else from --outgoing, else from the returns: fwcore.survey.csv_system_pulse)."""
-    path = Path(path)
-    if path.suffix.lower() == ".csv":
-        waveforms = read_neon_csv(path)
-        n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
-        config = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, config, response,
-                                  read_neon_csv(outgoing) if outgoing else None).configure(config)
-        ids = waveforms.waveform_id[:n]
-        batch = WaveformBatch.from_waveforms(waveforms.samples[:n], 1000.0,
-                                             [pulse_seed(config.seed, int(i)) for i in ids], waveforms.valid[:n])
-        return ComparisonInput(batch, ids, config)
+    (as `fwl decompose-csv`: fwcore.instrument.measure.read_csv_input)."""
+    if format_of(path) is NEON_CSV:
+        csv = read_csv_input(path, config, overrides, outgoing, limit=limit)
+        return ComparisonInput(csv.batch, csv.waveform_id, csv.pulse)
     pulses = read_pulses(path)
     if limit is not None and limit < len(pulses):
         pulses = _first_pulses(pulses, limit)
-    pulse = file_system_pulse(path, len(pulses.return_xyz), config)  # as fwl run measures it
-    config = pulse.configure(config)
-    return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, config, pulses,
-                           pulse.range_offset_ps)
+    pulse = file_system_pulse(path, len(pulses.return_xyz), config, overrides)  # as fwl run measures it
+    return ComparisonInput(pulse_waveforms(pulses, config.seed), pulses.pulse_id, pulse, pulses)
 
 
 def _first_pulses(pulses, n: int):
@@ -195,48 +185,23 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
                    optimizers: Sequence[Optimizer], models: Sequence[Model], limit: int | None = None,
                    pulses: Sequence[int] | None = None, distance: float = 0.5, budget: bool = False,
                    threads: int = 1, outgoing: str | Path | None = None,
-                   response: SystemResponse | None = None) -> dict:
+                   overrides: PulseOverrides = PulseOverrides()) -> dict:
     """The whole `fwl compare`; returns what it wrote and the rows."""
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     # the system model's rows need the file's response: measured as fwl run --model system measures it
     measured = base.replace(model=Model.SYSTEM if Model.SYSTEM in models else Model.GENERALIZED)
-    data = load_input(input_path, measured, limit, outgoing, response)
-    data = dataclasses.replace(data, config=data.config.replace(model=base.model))
-    runs = compare_methods(data.batch, data.config, optimizers, models, threads)
+    data = load_input(input_path, measured, limit, outgoing, overrides)
+    runs = compare_methods(data.batch, base, data.pulse, optimizers, models, threads)
     rows = [run.row() for run in runs]
     write_csv(output / "compare.csv", rows)
     header = (f"# Method comparison on {Path(input_path).name}\n\n{len(data.batch)} waveforms, "
-              f"{threads} thread(s), system pulse FWHM {data.config.pulse_fwhm_ps():.0f} ps. GA, PSO and DE at "
+              f"{threads} thread(s), system pulse FWHM {data.pulse.fwhm_ps:.0f} ps. GA, PSO and DE at "
               f"NP 100 x G 100, MDE at 60 x 80; LM and L-BFGS are our numba implementations (bounded).\n\n")
     (output / "compare.md").write_text(header + markdown_table(rows, TABLE_COLUMNS))
     written = ["compare.csv", "compare.md"]
-    point_rows = []
-    if data.pulses is not None:
-        for run in runs:
-            kept = run.result.reject == 0
-            xyz = echo_positions(data.pulses, run.result, data.range_offset_ps)[kept]
-            times = echo_times_ps(data.pulses, run.result, data.range_offset_ps)[kept]
-            point_rows.append({"optimizer": run.label, "model": run.config.model.value,
-                               **compare_to_system(data.pulses, xyz, times, run.result.echo_waveform[kept],
-                                                   distance).row()})
-        write_csv(output / "points.csv", point_rows)
-        point_columns = [("optimizer", "optimizer", "{}"), ("model", "model", "{}"),
-                         ("system_points", "system points", "{}"), ("decomposed_points", "decomposed", "{}"),
-                         ("matched_system", "matched", "{}"), ("missed_system", "missed", "{}"),
-                         ("new_points", "new", "{}"), ("new_at_omitted_returns", "at omitted returns", "{}"),
-                         ("new_in_dead_zone", "new in dead zone", "{}"),
-                         ("mean_distance", "mean d (m)", "{:.3f}"),
-                         ("median_distance", "median d (m)", "{:.3f}"), ("p95_distance", "p95 d (m)", "{:.3f}")]
-        with open(output / "compare.md", "a") as f:
-            f.write(f"\n## Points against the system's returns (matched within {distance} m)\n\n"
-                    f"{int(data.pulses.omitted_returns().sum())} returns the system reported are not in the "
-                    "file (its pulses number more returns than it holds: it was clipped); new points at "
-                    "omitted returns lie where one of them must, between their pulse's held returns. "
-                    f"Of the other new points, those in the dead zone lie within {point_rows[0]['dead_zone']:.2f} m "
-                    "of a return of their own pulse, the smallest separation at which the system ever reports "
-                    "two returns: it could not have reported them.\n\n")
-            f.write(markdown_table(point_rows, point_columns))
+    point_rows = _write_points(output, data, runs, distance) if data.pulses is not None else []
+    if point_rows:
         written.append("points.csv")
     if pulses:
         index_of = {int(p): i for i, p in enumerate(data.pulse_id)}
@@ -255,20 +220,55 @@ def run_comparison(input_path: str | Path, output: str | Path, base: Decompositi
     written.append("methods.png")
     summary = {"rows": rows, "points": point_rows, "written": written}
     if budget:
-        budget_rows = budget_study(data.batch, data.config, budget_settings(), threads)
-        paper = next(r["fit_error"] for r in budget_rows if (r["family"], r["setting"]) == PAPER_MDE)
-        fast = choose_fast_preset(budget_rows, paper)
-        write_csv(output / "budget.csv", budget_rows)
-        budget_columns = [("family", "method", "{}"), ("setting", "setting", "{}"),
-                          ("evaluations", "evaluations", "{:.0f}"), ("seconds", "seconds", "{:.2f}"),
-                          ("waveforms_per_second", "waveforms/s", "{:.1f}"), ("fit_error", "fit error", "{:.1f}"),
-                          ("fit_error_raw", "vs raw", "{:.1f}")]
-        (output / "budget.md").write_text(
-            f"# Evaluation budget on {Path(input_path).name}\n\n{len(data.batch)} waveforms, {threads} thread(s). "
-            f"MDE at the paper's settings: fit error {paper:.1f}. Fastest within 5%: {fast['family']} "
-            f"{fast['setting']} ({fast['fit_error']:.1f}, {fast['waveforms_per_second']:.1f} waveforms/s).\n\n"
-            + markdown_table(budget_rows, budget_columns))
-        plot_budget(output / "budget.png", budget_rows)
+        summary.update(_write_budget(output, Path(input_path).name, data, base, threads))
         written += ["budget.csv", "budget.md", "budget.png"]
-        summary.update(budget=budget_rows, fast=fast, paper_fit_error=paper)
     return summary
+
+
+def _write_points(output: Path, data: ComparisonInput, runs: Sequence[MethodRun], distance: float) -> list[dict]:
+    """points.csv and compare.md's section: each run's kept echoes against the system's returns."""
+    point_rows = []
+    for run in runs:
+        kept = run.result.reject == 0
+        xyz = echo_positions(data.pulses, run.result, data.pulse.range_offset_ps)[kept]
+        times = echo_times_ps(data.pulses, run.result, data.pulse.range_offset_ps)[kept]
+        point_rows.append({"optimizer": run.label, "model": run.config.model.value,
+                           **compare_to_system(data.pulses, xyz, times, run.result.echo_waveform[kept],
+                                               distance).row()})
+    write_csv(output / "points.csv", point_rows)
+    point_columns = [("optimizer", "optimizer", "{}"), ("model", "model", "{}"),
+                     ("system_points", "system points", "{}"), ("decomposed_points", "decomposed", "{}"),
+                     ("matched_system", "matched", "{}"), ("missed_system", "missed", "{}"),
+                     ("new_points", "new", "{}"), ("new_at_omitted_returns", "at omitted returns", "{}"),
+                     ("new_in_dead_zone", "new in dead zone", "{}"),
+                     ("mean_distance", "mean d (m)", "{:.3f}"),
+                     ("median_distance", "median d (m)", "{:.3f}"), ("p95_distance", "p95 d (m)", "{:.3f}")]
+    with open(output / "compare.md", "a") as f:
+        f.write(f"\n## Points against the system's returns (matched within {distance} m)\n\n"
+                f"{int(data.pulses.omitted_returns().sum())} returns the system reported are not in the "
+                "file (its pulses number more returns than it holds: it was clipped); new points at "
+                "omitted returns lie where one of them must, between their pulse's held returns. "
+                f"Of the other new points, those in the dead zone lie within {point_rows[0]['dead_zone']:.2f} m "
+                "of a return of their own pulse, the smallest separation at which the system ever reports "
+                "two returns: it could not have reported them.\n\n")
+        f.write(markdown_table(point_rows, point_columns))
+    return point_rows
+
+
+def _write_budget(output: Path, name: str, data: ComparisonInput, base: DecompositionConfig, threads: int) -> dict:
+    """budget.csv, budget.md and budget.png: the evaluation budget study; its rows and the fast choice."""
+    budget_rows = budget_study(data.batch, base, data.pulse, budget_settings(), threads)
+    paper = next(r["fit_error"] for r in budget_rows if (r["family"], r["setting"]) == PAPER_MDE)
+    fast = choose_fast_preset(budget_rows, paper)
+    write_csv(output / "budget.csv", budget_rows)
+    budget_columns = [("family", "method", "{}"), ("setting", "setting", "{}"),
+                      ("evaluations", "evaluations", "{:.0f}"), ("seconds", "seconds", "{:.2f}"),
+                      ("waveforms_per_second", "waveforms/s", "{:.1f}"), ("fit_error", "fit error", "{:.1f}"),
+                      ("fit_error_raw", "vs raw", "{:.1f}")]
+    (output / "budget.md").write_text(
+        f"# Evaluation budget on {name}\n\n{len(data.batch)} waveforms, {threads} thread(s). "
+        f"MDE at the paper's settings: fit error {paper:.1f}. Fastest within 5%: {fast['family']} "
+        f"{fast['setting']} ({fast['fit_error']:.1f}, {fast['waveforms_per_second']:.1f} waveforms/s).\n\n"
+        + markdown_table(budget_rows, budget_columns))
+    plot_budget(output / "budget.png", budget_rows)
+    return {"budget": budget_rows, "fast": fast, "paper_fit_error": paper}

@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from fwcore.instrument import echo_shape
+from fwcore.instrument.shape import echo_shape
 from fwcore.model import tabulated_row
 from fwcore.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
 from fwcore.studies.truth import TRUTH_METADATA_KEY

@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from fwcore.config import DecompositionConfig, Model, Optimizer
 from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.records import PulseBatch
 from fwcore.records import BatchDecomposition, WaveformBatch
 
@@ -61,30 +62,30 @@ class MethodRun:
         }
 
 
-def _warm_up(batch: WaveformBatch, config: DecompositionConfig) -> None:
+def _warm_up(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse) -> None:
     """Compile outside the timed call (numba compiles on first use and caches)."""
     first = WaveformBatch(batch.samples[:batch.offsets[1]], batch.valid[:batch.offsets[1]], batch.offsets[:2],
                           batch.sample_spacing_ps[:1], batch.seeds[:1])
-    decompose_batch(first, config, threads=1)
+    decompose_batch(first, config, pulse, threads=1)
 
 
-def run_method(batch: WaveformBatch, config: DecompositionConfig, label: str | None = None,
+def run_method(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse, label: str | None = None,
                threads: int = 1) -> MethodRun:
-    """Decompose the batch with one configuration, timed after compilation."""
-    _warm_up(batch, config)
+    """Decompose the batch with one configuration and the waveforms' system pulse, timed after compilation."""
+    _warm_up(batch, config, pulse)
     start = time.perf_counter()
-    result = decompose_batch(batch, config, threads=threads)
+    result = decompose_batch(batch, config, pulse, threads=threads)
     return MethodRun(label or config.optimizer.value, config, result, time.perf_counter() - start, threads)
 
 
-def compare_methods(batch: WaveformBatch, base: DecompositionConfig, optimizers: Sequence[Optimizer],
-                    models: Sequence[Model], threads: int = 1) -> list[MethodRun]:
+def compare_methods(batch: WaveformBatch, base: DecompositionConfig, pulse: SystemPulse,
+                    optimizers: Sequence[Optimizer], models: Sequence[Model], threads: int = 1) -> list[MethodRun]:
     """Every optimizer x model on the batch, each at the comparison's settings."""
     runs = []
     for model in models:
         for optimizer in optimizers:
             config = base.replace(optimizer=optimizer, model=model, **COMPARISON_SETTINGS.get(optimizer, {}))
-            runs.append(run_method(batch, config, threads=threads))
+            runs.append(run_method(batch, config, pulse, threads=threads))
     return runs
 
 
@@ -292,12 +293,12 @@ def budget_settings(generations: Iterable[int] = (10, 20, 40, 80),
     return out
 
 
-def budget_study(batch: WaveformBatch, base: DecompositionConfig, settings: Sequence[BudgetSetting],
-                 threads: int = 1) -> list[dict]:
+def budget_study(batch: WaveformBatch, base: DecompositionConfig, pulse: SystemPulse,
+                 settings: Sequence[BudgetSetting], threads: int = 1) -> list[dict]:
     """Mean fit error against model evaluations and seconds for each setting."""
     rows = []
     for s in settings:
-        run = run_method(batch, base.replace(**s.changes), label=s.family, threads=threads)
+        run = run_method(batch, base.replace(**s.changes), pulse, label=s.family, threads=threads)
         row = run.row()
         rows.append({"family": s.family, "setting": s.label, **{k: row[k] for k in (
             "evaluations", "seconds", "waveforms_per_second", "fit_error", "fit_error_raw", "rmse", "r2")},

@@ -1,9 +1,9 @@
 """One pulse of a run, again: its samples re-read from the input, decomposed by the engine as the run did.
 
-The run's configuration (run.json, with the pulse width the run measured for
-its file) and the pulse's own seed make the engine reproduce the run's echoes
-exactly; the same function refits the pulse with any other configuration for
-the page's "Try".
+The run's configuration (run.json), the system pulse it measured for the file
+(run.json's inputs[], and the pulse's row) and the pulse's own seed make the
+engine reproduce the run's echoes exactly; the same function refits the pulse
+with any other configuration for the page's "Try".
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ from fwcore.config import PRESETS, DecompositionConfig, Model
 from fwcore.engine import decompose_batch, smoothing_sigma_samples
 from fwcore.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
-from fwcore.instrument import SystemResponse, lobe_centroid_ps
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse
+from fwcore.instrument.response import SystemResponse
+from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.model import sigma_to_time_unit
 from fwcore.preprocess import gaussian_smooth
 from fwcore.pulses import pulse_waveforms
@@ -28,6 +30,8 @@ from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary
 
 _PART_START = re.compile(r"-(\d+)$")  # pulses/<stem>-<first point of the range>.parquet
+# what run.json's config held of the file's pulse before the pulse left it: read from the row and inputs[] instead
+_FORMER_PULSE_SETTINGS = ("system_pulse_fwhm_ps", "default_pulse_fwhm_ps", "system_response", "shape_tolerance")
 _read_lock = threading.Lock()
 
 
@@ -69,9 +73,10 @@ def _find_in_ranges(path: Path, points_per_range: int, part_name: str, pulse_id:
     raise LookupError(f"pulse {pulse_id} is not in {path.name}")
 
 
-def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, DecompositionConfig, dict]:
+def load_pulse(run: Path, source_file: str,
+               pulse_id: int) -> tuple[RawPulse, DecompositionConfig, SystemPulse, dict]:
     """One pulse of a run: its samples re-read from the input with the seed the run gave it, the
-    configuration the run decomposed it with (run.json's, and the pulse width the run used), its pulse row."""
+    configuration the run decomposed it with (run.json's), its file's system pulse (run_pulse), its pulse row."""
     found = queries.pulse_row(run, source_file, pulse_id)
     if found is None:
         raise LookupError(f"pulse {pulse_id} of {source_file} is not in this run's pulse table")
@@ -80,59 +85,63 @@ def load_pulse(run: Path, source_file: str, pulse_id: int) -> tuple[RawPulse, De
     if source_file not in inputs:
         raise FileNotFoundError(f"{source_file}: the run's input is no longer where run.json says")
     summary = run_summary(run)
-    config = DecompositionConfig.from_dict(summary["config"])
+    config = DecompositionConfig.from_dict({k: v for k, v in summary["config"].items()
+                                            if k not in _FORMER_PULSE_SETTINGS})
     if row.get("model"):  # the echo model the run fitted (under --model auto, the one chosen for the file)
         config = config.replace(model=Model(row["model"]))
-    if row.get("system_pulse_fwhm_ps") is not None:
-        config = config.replace(system_pulse_fwhm_ps=float(row["system_pulse_fwhm_ps"]))
-    if row.get("shape_tolerance") is not None:  # measured per file, like the pulse width
-        config = config.replace(shape_tolerance=float(row["shape_tolerance"]))
-    response = input_response(summary, source_file)
-    if response is not None:
-        config = config.replace(system_response=response)
+    pulse = run_pulse(summary, source_file, row)
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
     seed = int(pulse_waveforms(pulses, config.seed).seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
     raw = RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
                    pulses.return_intensity[lo:hi].astype(int))
-    return raw, config, row
+    return raw, config, pulse, row
 
 
-def input_response(summary: dict, source_file: str) -> SystemResponse | None:
-    """The system response the run measured on an input (run.json's inputs[].system_response), if any."""
-    for entry in summary.get("inputs", []):
-        if isinstance(entry, dict) and entry.get("name") == source_file and entry.get("system_response"):
-            return SystemResponse.from_dict(entry["system_response"])
-    return None
+def run_pulse(summary: dict, source_file: str, row: dict) -> SystemPulse:
+    """The system pulse a run decomposed a file's pulses with: the width and shape tolerance of the pulse's row,
+    the rest as run.json's inputs[] says (the response it measured, where its values came from)."""
+    entry = next((e for e in summary.get("inputs", []) if isinstance(e, dict) and e.get("name") == source_file), {})
+    response = entry.get("system_response")
+    fwhm = row.get("system_pulse_fwhm_ps")
+    tolerance = row.get("shape_tolerance")
+    return SystemPulse(float(fwhm) if fwhm is not None else DEFAULT_PULSE_FWHM_PS,
+                       entry.get("system_pulse_fwhm_source") or "the run's", float(tolerance or 0.0),
+                       entry.get("shape_tolerance_source") or "the run's",
+                       float(entry.get("range_offset_ps") or 0.0), entry.get("range_offset_source") or "none measured",
+                       SystemResponse.from_dict(response) if response else None, entry.get("model") or "",
+                       entry.get("model_choice") or "")
+
+
+def try_pulse(pulse: SystemPulse, preset: str | None) -> SystemPulse:
+    """The file's pulse under another preset: what the preset says of it (the paper's: its model exact)."""
+    return PRESET_OVERRIDES.get(preset or "", PulseOverrides()).applied(pulse)
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
     """Another method for a pulse: a preset's method (as `fwl run --preset` has it) or the run's own, then the
-    changed settings; the run's model, pulse width, response and seed stay unless a change names them, so
-    only the method differs."""
+    changed settings; the run's model and seed stay unless a change names them, so only the method differs
+    (the file's pulse: try_pulse)."""
     config = base
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = DecompositionConfig(**PRESETS[preset]).replace(
-            model=base.model, system_pulse_fwhm_ps=base.system_pulse_fwhm_ps, seed=base.seed,
-            system_response=base.system_response,
-            shape_tolerance=PRESETS[preset].get("shape_tolerance", base.shape_tolerance))
+        config = DecompositionConfig(**PRESETS[preset]).replace(model=base.model, seed=base.seed)
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")
     return DecompositionConfig.from_dict({**config.to_dict(), **changes})
 
 
-def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
+def decompose_pulse(raw: RawPulse, config: DecompositionConfig, pulse: SystemPulse) -> dict:
     """The engine on one pulse, and everything the pulse view draws: times in ps, amplitudes in counts."""
     batch = WaveformBatch.from_waveforms([raw.samples], raw.sample_spacing_ps, [raw.seed])
-    result = decompose_batch(batch, config, threads=1).waveform(0)
+    result = decompose_batch(batch, config, pulse, threads=1).waveform(0)
     spacing = raw.sample_spacing_ps
     t = np.arange(raw.samples.size, dtype=float)
     fine = np.linspace(0.0, raw.samples.size - 1.0, 4 * raw.samples.size - 3)  # smooth curves between samples
-    smoothing = float(smoothing_sigma_samples(config, np.array([spacing]))[0])
+    smoothing = float(smoothing_sigma_samples(config, pulse, np.array([spacing]))[0])
     echoes = []
     for k in range(result.amplitude.size):
         a, u, s, al = (float(v[k]) for v in (result.amplitude, result.position, result.sigma, result.alpha))
@@ -145,6 +154,7 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
         })
     return {
         "config": config.to_dict(),
+        "pulse": pulse.to_dict(),
         "status": result.status,
         "time_ps": t * spacing,
         "raw": raw.samples,
@@ -155,16 +165,16 @@ def decompose_pulse(raw: RawPulse, config: DecompositionConfig) -> dict:
         "fit_error": result.fit_error, "fit_error_raw": result.fit_error_raw, "rmse": result.rmse, "r2": result.r2,
         "model_evaluations": result.nfev, "n_echoes_initial": result.n_echoes_initial,
         "echoes": echoes,
-        "response": _response_curve(config, result, spacing),
+        "response": _response_curve(pulse.echo_model(config.model), pulse, result, spacing),
     }
 
 
-def _response_curve(config: DecompositionConfig, result, spacing: float) -> dict | None:
+def _response_curve(model: Model, pulse: SystemPulse, result, spacing: float) -> dict | None:
     """Under the system model, the instrument's response (unbroadened) at the strongest echo, on the background:
     what every echo's shape is made of."""
-    if config.model is not Model.SYSTEM or result.status or result.amplitude.size == 0:
+    if model is not Model.SYSTEM or result.status or result.amplitude.size == 0:
         return None
-    response = config.response()
+    response = pulse.echo_response()
     k = int(np.argmax(result.amplitude))
     # an echo's position is its response lobe's centroid, which lies that far after the response's peak
     return {"time_ps": (result.position[k] * spacing - lobe_centroid_ps(response) + response.times).tolist(),

@@ -46,7 +46,7 @@ from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from pipeline.view.params import BadRequest
 from pipeline.view.pulse import (decompose_pulse, load_pulse, reproduces, system_return_points, system_returns,
-                                 try_config)
+                                 try_config, try_pulse)
 
 STATIC = Path(__file__).resolve().parent / "static"
 MAX_BODY = 64 * 1024
@@ -235,9 +235,9 @@ class Viewer:
         source_file = params.name(params.query_value(query, "file"), "file")
         pulse_id = params.pulse_id(params.query_value(query, "pulse"))
         page = params.page(params.query_value(query, "page", ""))
-        raw, config, row = load_pulse(run, source_file, pulse_id)
+        raw, config, pulse, row = load_pulse(run, source_file, pulse_id)
         rows = queries.pulse_echoes(run, source_file, pulse_id)
-        fit = self.refits.run(page, "pulse", lambda: decompose_pulse(raw, config))
+        fit = self.refits.run(page, "pulse", lambda: decompose_pulse(raw, config, pulse))
         mx, my, mz = queries.frame(run).apply([r["x"] for r in rows], [r["y"] for r in rows],
                                               [r["z"] for r in rows])
         return {"run": ident, "file": source_file, "pulse_id": pulse_id, "pulse": row, "echo_rows": rows,
@@ -262,11 +262,15 @@ class Viewer:
         source_file, pulse_id = params.name(body.get("file"), "file"), params.pulse_id(body.get("pulse"))
         changes, preset = params.try_changes(body.get("changes")), params.preset(body.get("preset"))
         page = params.page(body.get("page"))
-        raw, base, _ = load_pulse(run, source_file, pulse_id)
-        other = try_config(base, preset, changes)
-        a, b = self.refits.run(page, "refit", lambda: (decompose_pulse(raw, base), decompose_pulse(raw, other)))
+        raw, base, pulse, _ = load_pulse(run, source_file, pulse_id)
+        other, other_pulse = try_config(base, preset, changes), try_pulse(pulse, preset)
+        a, b = self.refits.run(page, "refit", lambda: (decompose_pulse(raw, base, pulse),
+                                                       decompose_pulse(raw, other, other_pulse)))
+        changed = {k: v for k, v in other.to_dict().items() if base.to_dict()[k] != v}
+        if other_pulse.shape_tolerance != pulse.shape_tolerance:  # a preset's word on the pulse (the paper's)
+            changed["shape_tolerance"] = other_pulse.shape_tolerance
         return {"run": ident, "file": source_file, "pulse_id": pulse_id, "system_returns": system_returns(raw),
-                "a": a, "b": b, "changed": {k: v for k, v in other.to_dict().items() if base.to_dict()[k] != v}}
+                "a": a, "b": b, "changed": changed}
 
     def decompose(self, body) -> dict:
         ident = params.name(body.get("input"), "input")

@@ -16,6 +16,11 @@ DEFAULT = DecompositionConfig()
 FIELDS = dataclasses.fields(DecompositionConfig)
 
 
+def kernel_params(config: DecompositionConfig) -> KernelParams:
+    """The kernels' settings with the config's own model and a file's pulse of no shape tolerance."""
+    return config.kernel_params(config.model, 0.0)
+
+
 def other_value(name: str):
     """A valid value of the setting other than its default (the first candidate the config accepts)."""
     default = getattr(DEFAULT, name)
@@ -41,12 +46,12 @@ def other_value(name: str):
 @pytest.mark.parametrize("field", [f for f in FIELDS if f.metadata.get("kernel") is True], ids=lambda f: f.name)
 def test_every_kernel_setting_reaches_kernel_params(field):
     value = other_value(field.name)
-    assert getattr(DEFAULT.replace(**{field.name: value}).kernel_params(), field.name) == value
+    assert getattr(kernel_params(DEFAULT.replace(**{field.name: value})), field.name) == value
 
 
 @pytest.mark.parametrize("field", [f for f in FIELDS if callable(f.metadata.get("kernel"))], ids=lambda f: f.name)
 def test_every_enum_setting_the_kernels_read_changes_kernel_params(field):
-    seen = {DEFAULT.replace(**{field.name: member}).kernel_params() for member in type(getattr(DEFAULT, field.name))}
+    seen = {kernel_params(DEFAULT.replace(**{field.name: member})) for member in type(getattr(DEFAULT, field.name))}
     assert len(seen) > 1
 
 
@@ -69,22 +74,22 @@ def test_every_kernel_param_is_read_by_a_kernel():
 
 
 def test_the_files_measurements_are_given_by_the_caller():
-    assert DEFAULT.kernel_params(shape_tolerance=0.05).shape_tolerance == 0.05
-    assert DEFAULT.replace(shape_tolerance=0.02).kernel_params().shape_tolerance == 0.02
+    assert DEFAULT.kernel_params(DEFAULT.model, shape_tolerance=0.05).shape_tolerance == 0.05
+    assert "shape_tolerance" not in {f.name for f in FIELDS}  # a measurement of the file, not a setting
 
 
 def test_kernel_params_have_one_type_per_field_whatever_the_input():
     # an integral float setting from JSON or TOML (min_snr = 8) must not be a new numba signature:
     # that is a fresh compile of the whole engine (about 50 s) in the viewer's try endpoint
-    given = DecompositionConfig(min_snr=8, tol=0, generations=30).kernel_params()
-    assert [type(v) for v in given] == [type(v) for v in DEFAULT.kernel_params()]
+    given = kernel_params(DecompositionConfig(min_snr=8, tol=0, generations=30))
+    assert [type(v) for v in given] == [type(v) for v in kernel_params(DEFAULT)]
     assert given.min_snr == 8.0 and type(given.min_snr) is float and type(given.generations) is int
     with pytest.raises(TypeError):
-        DecompositionConfig(population=60.5).kernel_params()
+        kernel_params(DecompositionConfig(population=60.5))
 
 
 def test_alpha_is_fixed_under_the_system_and_gaussian_models():
-    fixed = {m for m in Model if DEFAULT.replace(model=m).kernel_params().alpha_fixed}
+    fixed = {m for m in Model if kernel_params(DEFAULT.replace(model=m)).alpha_fixed}
     assert fixed == {Model.SYSTEM, Model.GAUSSIAN}
 
 
@@ -109,7 +114,7 @@ def test_the_catalogue_says_what_the_kernels_do_for_every_optimizer():
         assert spec.description
         assert not spec.search_where_local_fails or (spec.search and spec.local != LOCAL_NONE), optimizer
         assert not spec.deconvolution or spec.own_echoes, optimizer
-        params = DEFAULT.replace(optimizer=optimizer).kernel_params()
+        params = kernel_params(DEFAULT.replace(optimizer=optimizer))
         assert params.method == spec.code and params.noise_weighted == spec.noise_weighted
     # L-BFGS fits the plain sum of squares, LM the noise-weighted one (docs/method.md)
     assert not OPTIMIZERS[Optimizer.LBFGS].noise_weighted and OPTIMIZERS[Optimizer.LM].noise_weighted
@@ -117,6 +122,6 @@ def test_the_catalogue_says_what_the_kernels_do_for_every_optimizer():
 
 def test_the_file_decides_the_model_under_auto():
     auto = DecompositionConfig(model="auto")
-    assert auto.kernel_params(model=Model.SYSTEM).alpha_fixed and not auto.kernel_params().alpha_fixed
-    with pytest.raises(TypeError, match="neither kernel settings"):
-        auto.kernel_params(shape_tolerence=0.1)
+    assert auto.kernel_params(Model.SYSTEM, 0.0).alpha_fixed and not auto.kernel_params(Model.AUTO, 0.0).alpha_fixed
+    with pytest.raises(TypeError):
+        auto.kernel_params(Model.AUTO, shape_tolerence=0.1)

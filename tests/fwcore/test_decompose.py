@@ -5,14 +5,16 @@ import pickle
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_batch, decompose_waveform
+from fwcore.instrument.pulse import nominal_pulse
 from fwcore.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
 from fwcore.model import fwhm, waveform_model
 
 SPACING = 1000.0
 PULSE_SIGMA = 3.0  # samples
-CONFIG = DecompositionConfig(system_pulse_fwhm_ps=PULSE_SIGMA * 2 * math.sqrt(2 * math.log(2)) * SPACING)
+CONFIG = DecompositionConfig()
+PULSE = nominal_pulse(PULSE_SIGMA * 2 * math.sqrt(2 * math.log(2)) * SPACING)
 SQ2 = math.sqrt(2)
 
 
@@ -33,7 +35,7 @@ def test_separated_echoes_are_recovered(n_echoes):
     position = 15.0 + 22.0 * np.arange(n_echoes) + rng.uniform(-2, 2, n_echoes)
     amplitude = rng.uniform(60, 200, n_echoes)
     y = synthetic(amplitude, position, [PULSE_SIGMA] * n_echoes, [SQ2] * n_echoes, noise=1.5, seed=n_echoes)
-    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG)
+    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG, pulse=PULSE)
     idx = matched(r, position)
     np.testing.assert_allclose(r.position[idx], position, atol=0.35)
     # spurious flank echoes of the progressive estimate take a share of the signal: 12%
@@ -49,7 +51,7 @@ def test_two_echoes_one_and_a_half_sigma_apart_are_both_fitted():
     # (no shape tolerance: these echoes are the model exactly)
     position = [60.0, 60.0 + 1.5 * PULSE_SIGMA]
     y = synthetic([150.0, 100.0], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=1.0, seed=3)
-    r = decompose_waveform(y, SPACING, seed=2, config=CONFIG.replace(model="gaussian", shape_tolerance=0.0))
+    r = decompose_waveform(y, SPACING, seed=2, config=CONFIG.replace(model="gaussian"), pulse=PULSE)
     strong = r.amplitude > 30
     assert strong.sum() == 2
     np.testing.assert_allclose(np.sort(r.position[strong]), position, atol=0.6)
@@ -62,7 +64,7 @@ def test_weak_echo_at_four_noise_sigma_is_found():
     noise = 2.0
     position = [40.0, 110.0]
     y = synthetic([150.0, 4 * noise], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=noise, seed=4)
-    r = decompose_waveform(y, SPACING, seed=3, config=CONFIG.replace(min_amplitude_ratio=0.0, min_snr=3.0))
+    r = decompose_waveform(y, SPACING, seed=3, config=CONFIG.replace(min_amplitude_ratio=0.0, min_snr=3.0), pulse=PULSE)
     weak = matched(r, [110.0])[0]
     assert abs(r.position[weak] - 110.0) < 1.0
     assert r.amplitude[weak] == pytest.approx(8.0, rel=0.35)
@@ -77,7 +79,7 @@ def test_shape_factor_alpha_is_recovered(alpha):
     # alpha = 1.2 tails leave residuals the progressive estimate takes for extra echoes, which then
     # share the signal and bend the shape: the selection drops the echoes the data does not need.
     # The shape is fitted to the raw samples: the denoising filter rounds flat tops (2.2 looks like 1.94).
-    r = decompose_waveform(y, SPACING, seed=4, config=CONFIG.replace(fit_target="raw"))
+    r = decompose_waveform(y, SPACING, seed=4, config=CONFIG.replace(fit_target="raw"), pulse=PULSE)
     assert r.kept.sum() == 1
     k = matched(r, [70.0])[0]
     assert r.alpha[k] == pytest.approx(alpha, abs=0.25)
@@ -87,7 +89,7 @@ def test_shape_factor_alpha_is_recovered(alpha):
 
 def test_reported_metrics_are_those_of_the_reported_echoes():
     y = synthetic([120.0, 80.0], [50.0, 90.0], [3.0, 4.0], [1.6, 1.3], noise=2.0, seed=5)
-    r = decompose_waveform(y, SPACING, seed=5, config=CONFIG)
+    r = decompose_waveform(y, SPACING, seed=5, config=CONFIG, pulse=PULSE)
     model = r.model(np.arange(y.size))
     assert r.fit_error_raw == pytest.approx(np.abs(model - y).sum(), rel=1e-9)
     assert r.rmse == pytest.approx(np.sqrt(np.mean((model - y) ** 2)), rel=1e-9)
@@ -102,15 +104,15 @@ def test_results_do_not_depend_on_batch_composition_or_threads():
     waves = [synthetic([100.0, 70.0], [40.0 + 5 * i, 90.0], [3.0, 3.5], [1.5, 1.3], 1.5, seed=i) for i in range(4)]
     seeds = [11, 12, 13, 14]
     config = CONFIG.replace(generations=20)
-    full = decompose_batch(_batch(waves, seeds), config, threads=2)
-    alone = decompose_batch(_batch([waves[2]], [seeds[2]]), config, threads=1)
-    shuffled = decompose_batch(_batch([waves[3], waves[2], waves[0]], [14, 13, 11]), config, threads=1)
+    full = decompose_batch(_batch(waves, seeds), config, PULSE, threads=2)
+    alone = decompose_batch(_batch([waves[2]], [seeds[2]]), config, PULSE, threads=1)
+    shuffled = decompose_batch(_batch([waves[3], waves[2], waves[0]], [14, 13, 11]), config, PULSE, threads=1)
     for other, i in ((alone, 0), (shuffled, 1)):
         a, b = full.waveform(2), other.waveform(i)
         np.testing.assert_array_equal(a.amplitude, b.amplitude)
         np.testing.assert_array_equal(a.position, b.position)
         assert a.fit_error == b.fit_error
-    again = decompose_batch(_batch(waves, seeds), config, threads=1)
+    again = decompose_batch(_batch(waves, seeds), config, PULSE, threads=1)
     np.testing.assert_array_equal(full.amplitude, again.amplitude)
 
 
@@ -120,7 +122,7 @@ def test_bad_waveforms_get_a_status_and_the_rest_are_decomposed():
     nan[10] = np.nan
     batch = WaveformBatch.from_waveforms([good, nan, np.zeros(5)], SPACING, [1, 2, 3],
                                          valid=[np.ones(160, bool), np.ones(160, bool), np.zeros(5, bool)])
-    r = decompose_batch(batch, CONFIG.replace(generations=5))
+    r = decompose_batch(batch, CONFIG.replace(generations=5), PULSE)
     assert [r.waveform(i).status for i in range(3)] == ["", "non_finite_samples", "no_valid_samples"]
     assert r.waveform(0).amplitude.size >= 1
     assert r.waveform(1).amplitude.size == 0 and r.waveform(2).amplitude.size == 0
@@ -130,7 +132,7 @@ def test_both_result_classes_have_every_field_of_the_result_record():
     # the record's dtype is the one list of per-waveform fields: the batch's attributes and a waveform's follow it
     batch = WaveformBatch.from_waveforms([synthetic([100.0], [50.0], [3.0], [SQ2], 1.0), np.zeros(5)], SPACING, [1, 2],
                                          valid=[np.ones(160, bool), np.zeros(5, bool)])
-    r = decompose_batch(batch, CONFIG.replace(generations=5))
+    r = decompose_batch(batch, CONFIG.replace(generations=5), PULSE)
     assert [f.name for f in dataclasses.fields(Decomposition)][:len(WAVEFORM_FIELDS)] == list(WAVEFORM_FIELDS)
     assert all(getattr(r, name).shape == (2,) for name in WAVEFORM_FIELDS)
     assert r.status.dtype == r.message.dtype == np.int8 and not hasattr(r, "n_echoes")  # n_echoes: echo_offsets
@@ -142,7 +144,7 @@ def test_both_result_classes_have_every_field_of_the_result_record():
 
 def test_flat_waveform_has_no_echo_and_a_background():
     y = np.random.default_rng(9).normal(50.0, 1.0, 100)
-    r = decompose_waveform(y, SPACING, config=CONFIG.replace(noise_threshold=6.0))
+    r = decompose_waveform(y, SPACING, config=CONFIG.replace(noise_threshold=6.0), pulse=PULSE)
     assert r.amplitude.size == 0
     assert r.background == pytest.approx(50.0, abs=2.0)
 
@@ -152,7 +154,7 @@ def test_gaps_keep_every_valid_sample_at_its_time():
     valid = np.ones(y.size, bool)
     valid[20:40] = False
     y[20:40] = 0.0  # NEON-style zero gap
-    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG, valid=valid)
+    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG, valid=valid, pulse=PULSE)
     k = matched(r, [70.0])[0]
     assert r.position[k] == pytest.approx(70.0, abs=0.25)
     assert r.background == pytest.approx(30.0, abs=2.0)
@@ -160,5 +162,5 @@ def test_gaps_keep_every_valid_sample_at_its_time():
 
 def test_gaussian_model_fixes_alpha():
     y = synthetic([100.0], [70.0], [3.0], [1.8], 1.0)
-    r = decompose_waveform(y, SPACING, config=CONFIG.replace(model="gaussian"))
+    r = decompose_waveform(y, SPACING, config=CONFIG.replace(model="gaussian"), pulse=PULSE)
     np.testing.assert_array_equal(r.alpha, SQ2)

@@ -12,14 +12,17 @@ import pytest
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch, decompose_waveform
-from fwcore.instrument import (SystemResponse, echo_shape, gaussian_response, load_response, main_lobe, named_response,
-                               response_from_samples)
+from fwcore.instrument.measure import file_system_pulse
+from fwcore.instrument.peak import main_lobe
+from fwcore.instrument.pulse import SystemPulse, nominal_pulse
+from fwcore.instrument.response import (SystemResponse, gaussian_response, load_response, named_response,
+                                        pulses_response, response_from_samples)
+from fwcore.instrument.shape import echo_shape
 from fwcore.io import PointRange, read_pulses
 from fwcore.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
 from fwcore.optimizers.local import model_and_jacobian
 from fwcore.preprocess import initial_echoes
 from fwcore.pulses import pulse_waveforms
-from fwcore.survey import file_system_pulse, measure_file_response
 from tests.fwcore import naive
 
 DATA = Path(__file__).resolve().parents[2] / "examples" / "data"
@@ -31,13 +34,13 @@ NEON_IMPULSE = DATA / "neon_harvard" / "system_impulse.csv"
 @pytest.fixture(scope="module")
 def leica_response() -> SystemResponse:
     pulses = read_pulses(LEICA)
-    return measure_file_response(pulses, np.flatnonzero(np.diff(pulses.return_offsets) == 1), "single returns")
+    return pulses_response(pulses, np.flatnonzero(np.diff(pulses.return_offsets) == 1), "single returns")
 
 
 @pytest.fixture(scope="module")
 def riegl_response() -> SystemResponse:
     pulses = read_pulses(PointRange(str(RIEGL), 0, 5000))
-    return measure_file_response(pulses, np.arange(len(pulses)), "isolated echoes")
+    return pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")
 
 
 def test_leica_response_rises_slowly_falls_fast_with_a_tail_and_an_undershoot(leica_response):
@@ -69,13 +72,13 @@ def test_neon_impulse_response_from_its_csv():
     assert r.at(-8000) < r.at(8000)  # it rises faster than it falls: asymmetric
 
 
-def test_response_round_trips_and_rides_in_the_config(tmp_path, riegl_response):
+def test_response_round_trips_and_rides_in_the_pulse(tmp_path, riegl_response):
     path = tmp_path / "riegl.json"
     riegl_response.save(path)
     again = load_response(path)
     np.testing.assert_allclose(again.response, riegl_response.response, atol=1e-6)
-    config = DecompositionConfig(model="system", system_response=again)
-    assert DecompositionConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    pulse = nominal_pulse(again.fwhm_ps, response=again)
+    assert SystemPulse.from_dict(json.loads(json.dumps(pulse.to_dict()))) == pulse
 
 
 def test_bad_response_files_are_named(tmp_path):
@@ -126,13 +129,12 @@ def test_an_afterpulse_is_not_an_echo_under_the_system_model():
     t = np.arange(80.0)
     rng = np.random.default_rng(3)
     y = tabulated_model(t, 3.0, 180.0, 25.4, shape.s_min, shape) + rng.normal(0, 0.6, t.size)
-    system = DecompositionConfig(model="system", system_response=riegl, system_pulse_fwhm_ps=riegl.fwhm_ps)
-    d = decompose_waveform(np.round(y), 1000.0, 0, system)
+    system = DecompositionConfig(model="system")
+    d = decompose_waveform(np.round(y), 1000.0, 0, system, pulse=nominal_pulse(riegl.fwhm_ps, response=riegl))
     assert d.amplitude.size == 1
     assert d.position[0] == pytest.approx(25.4, abs=0.05)
     # the generalized Gaussian cannot take the afterpulse: it needs a second echo behind the first
-    generalized = DecompositionConfig(system_pulse_fwhm_ps=riegl.fwhm_ps)
-    g = decompose_waveform(np.round(y), 1000.0, 0, generalized)
+    g = decompose_waveform(np.round(y), 1000.0, 0, DecompositionConfig(), pulse=nominal_pulse(riegl.fwhm_ps))
     assert g.amplitude.size >= 2 and g.position.max() > 27.0
 
 
@@ -169,9 +171,8 @@ def test_deconvolution_finds_two_overlapping_echoes(method):
     t = np.arange(120.0)
     y = tabulated_model(t, 12.0, [150.0, 90.0], [40.0, 46.5], [shape.s_min, shape.s_min], shape)
     y = np.round(y + np.random.default_rng(1).normal(0, 0.5, t.size))
-    config = DecompositionConfig(model="system", optimizer=method, system_response=leica,
-                                 system_pulse_fwhm_ps=leica.fwhm_ps, deconvolution_iterations=500)
-    d = decompose_waveform(y, 2000.0, 0, config)
+    config = DecompositionConfig(model="system", optimizer=method, deconvolution_iterations=500)
+    d = decompose_waveform(y, 2000.0, 0, config, pulse=nominal_pulse(leica.fwhm_ps, response=leica))
     strong = np.sort(d.position[np.argsort(d.amplitude)[-2:]])
     np.testing.assert_allclose(strong, [40.0, 46.5], atol=0.6)
 
@@ -181,8 +182,8 @@ def test_a_gaussian_response_gives_the_gaussian_model():
     assert response.fwhm_ps == pytest.approx(4000.0, rel=1e-3)
     t = np.arange(60.0)
     y = 10 + 100 * np.exp(-0.5 * ((t - 30.2) / (4.0 / 2.3548)) ** 2)
-    config = DecompositionConfig(model="system", system_pulse_fwhm_ps=4000.0, fit_target="raw")
-    d = decompose_waveform(y, 1000.0, 0, config)
+    config = DecompositionConfig(model="system", fit_target="raw")
+    d = decompose_waveform(y, 1000.0, 0, config, pulse=nominal_pulse(4000.0))
     assert d.amplitude.size == 1
     assert d.position[0] == pytest.approx(30.2, abs=0.01) and d.amplitude[0] == pytest.approx(100.0, rel=1e-3)
     assert d.fwhm[0] == pytest.approx(4.0, rel=5e-3) and np.isnan(d.alpha[0])
@@ -224,7 +225,7 @@ def test_fwl_info_json_of_one_file_in_a_list_is_a_response_file(tmp_path, riegl_
 @pytest.mark.parametrize("method", ["gold", "richardson-lucy"])
 def test_deconvolution_of_noise_alone_finds_no_echo(method):
     y = 12.0 + np.random.default_rng(5).normal(0.0, 0.5, 100).round()
-    d = decompose_waveform(y, 1000.0, 0, DecompositionConfig(optimizer=method, system_pulse_fwhm_ps=4000.0))
+    d = decompose_waveform(y, 1000.0, 0, DecompositionConfig(optimizer=method), pulse=nominal_pulse(4000.0))
     assert d.amplitude.size == 0 and d.message == "no_echoes"
 
 
@@ -233,9 +234,9 @@ def test_a_too_wide_echo_is_flagged_under_the_system_model():
     shape = echo_shape(riegl, 1000.0, 4.0)
     t = np.arange(120.0)
     y = tabulated_model(t, 3.0, 80.0, 50.0, 3.6 * shape.s_min, shape)  # 3.6 x the response's FWHM
-    config = DecompositionConfig(model="system", system_response=riegl, system_pulse_fwhm_ps=riegl.fwhm_ps,
-                                 fit_target="raw")
-    d = decompose_waveform(np.round(y + np.random.default_rng(2).normal(0, 0.3, t.size)), 1000.0, 0, config)
+    config = DecompositionConfig(model="system", fit_target="raw")
+    d = decompose_waveform(np.round(y + np.random.default_rng(2).normal(0, 0.3, t.size)), 1000.0, 0, config,
+                           pulse=nominal_pulse(riegl.fwhm_ps, response=riegl))
     widest = int(np.argmax(d.fwhm))
     assert d.fwhm[widest] * 1000.0 > 3.0 * riegl.fwhm_ps and d.reject_reason[widest] == "too_wide"
 
@@ -269,8 +270,8 @@ def test_mde_stops_on_a_riegl_baseline_no_echo_explains(riegl_response, stall_ge
     # fails the noise model, so lm-mde searches, but no echo explains a baseline: MDE's best moves by less than
     # the noise's share of the fitness, and the stall rule ends the search after one period with LM's fit
     pulses = read_pulses(PointRange(str(RIEGL), 875, 876))
-    config = DecompositionConfig(model="system", system_response=riegl_response,
-                                 system_pulse_fwhm_ps=riegl_response.fwhm_ps, stall_generations=stall_generations)
-    result = decompose_batch(pulse_waveforms(pulses, 0), config, threads=1)
+    config = DecompositionConfig(model="system", stall_generations=stall_generations)
+    pulse = nominal_pulse(riegl_response.fwhm_ps, response=riegl_response)
+    result = decompose_batch(pulse_waveforms(pulses, 0), config, pulse, threads=1)
     assert result.nit[0] == generations
     assert result.fit_error_raw[0] == pytest.approx(57.31, abs=0.01)

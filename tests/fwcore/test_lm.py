@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fwcore.instrument import analytic_shape
+from fwcore.instrument.shape import analytic_shape
 from fwcore.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
 from tests.fwcore.naive import model_of_individual
 

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.instrument import analytic_shape
+from fwcore.instrument.shape import analytic_shape
 from fwcore.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
                           sigma_from_equivalent, sigma_to_time_unit, waveform_model)
 from fwcore.optimizers.objective import fill_model, padded_length

@@ -7,8 +7,8 @@ import pytest
 
 from fwcore.model import waveform_model
 from fwcore.io.neon import read_neon_csv
-from fwcore.pulses import csv_pulse_fwhm_ps
-from fwcore.preprocess import estimate_noise, estimate_pulse_fwhm, initial_echoes
+from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm
+from fwcore.preprocess import estimate_noise, initial_echoes
 
 DATA = "examples/data/"
 
@@ -83,7 +83,8 @@ def test_pulse_width_needs_isolated_echoes():
 
 
 def _every(n: int, k: int) -> np.ndarray:
-    """A validity mask with every k-th sample held out (from sample 1), as fwcore.survey.held_out_errors makes."""
+    """A validity mask with every k-th sample held out (from sample 1), as
+    fwcore.instrument.measure.held_out_errors makes."""
     valid = np.ones(n, bool)
     valid[1::k] = False
     return valid

@@ -3,8 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
-from fwcore.instrument import analytic_shape
+from fwcore.config import DecompositionConfig, Model
+from fwcore.instrument.shape import analytic_shape
 from fwcore.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
                                         mutate_de, mutate_mde)
 from fwcore.optimizers.objective import fit_error, padded_length
@@ -108,7 +108,7 @@ def test_one_mde_generation_matches_the_numpy_reference():
                                                       SplitMix64(2024), objective)
     state = np.array([2024], dtype=np.uint64)
     p = DecompositionConfig(generations=1, crossover_rate=0.9, chaos_seeds=2, chaos_iterations=3, scale_min=0.2,
-                            scale_max=1.0, tol=0.0, model="generalized").kernel_params()
+                            scale_max=1.0, tol=0.0, model="generalized").kernel_params(Model.GENERALIZED, 0.0)
     nfev, nit, _ = evolve(pop, fitness, lower, upper, p, True, 0.0, state, 3, tpos, target, weight, analytic_shape(),
                           1e-3)
     assert (nfev, nit) == (8 * (2 * 3 + 1), 1)  # k x t candidates plus the trial, per individual
@@ -122,7 +122,7 @@ def test_evolution_never_worsens_the_best_and_stays_in_bounds():
     start = fitness.min()
     state = np.array([5], dtype=np.uint64)
     p = DecompositionConfig(generations=30, crossover_rate=0.9, chaos_seeds=1, chaos_iterations=5, scale_min=0.2,
-                            scale_max=1.0, tol=0.0, model="generalized").kernel_params()
+                            scale_max=1.0, tol=0.0, model="generalized").kernel_params(Model.GENERALIZED, 0.0)
     evolve(pop, fitness, lower, upper, p, True, 0.0, state, 3, tpos, target, weight, analytic_shape(), 1e-3)
     assert fitness.min() < start
     assert (pop >= lower).all() and (pop <= upper).all()

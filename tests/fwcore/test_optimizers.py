@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig
+from fwcore.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig, Model
 from fwcore.engine import decompose_batch, decompose_waveform
 from fwcore.records import WaveformBatch
-from tests.fwcore.test_decompose import CONFIG, PULSE_SIGMA, SPACING, SQ2, synthetic
+from tests.fwcore.test_decompose import CONFIG, PULSE, PULSE_SIGMA, SPACING, SQ2, synthetic
 
 # the comparison's population and generations for the population methods
 PAPER = dict(population=100, generations=100)
@@ -26,7 +26,7 @@ def _two_echoes(seed):
                                                   ("de", 0.03), ("mde", 0.03), ("mde-lm", 0.03)])
 def test_separated_echoes_are_recovered_by_every_optimizer(optimizer, tolerance):
     y, position, amplitude = _two_echoes(7)
-    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer=optimizer, **PAPER))
+    r = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer=optimizer, **PAPER), pulse=PULSE)
     # flank echoes of the progressive estimate may take a share of an echo: the fitted model's
     # peaks and heights at the true echoes are what must be right
     for p, a in zip(position, amplitude):
@@ -41,8 +41,8 @@ def test_separated_echoes_are_recovered_by_every_optimizer(optimizer, tolerance)
 def test_population_methods_improve_on_the_initial_estimate_on_average(optimizer):
     waves = [_two_echoes(seed)[0] for seed in range(8)]
     batch = WaveformBatch.from_waveforms(waves, SPACING, np.arange(8))
-    before = decompose_batch(batch, CONFIG.replace(optimizer="none"))
-    after = decompose_batch(batch, CONFIG.replace(optimizer=optimizer, **PAPER))
+    before = decompose_batch(batch, CONFIG.replace(optimizer="none"), PULSE)
+    after = decompose_batch(batch, CONFIG.replace(optimizer=optimizer, **PAPER), PULSE)
     assert after.fit_error.mean() < 0.8 * before.fit_error.mean()
 
 
@@ -53,8 +53,8 @@ def test_the_patent_method_adds_the_echo_its_peak_search_missed():
     y = synthetic([150.0, 90.0], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=1.0, seed=11)
     config = CONFIG.replace(optimizer="ga-iterative", ga_iterative_r2=0.999, noise_threshold=6.0,
                             noise_estimator="residual", min_noise_sigma=1.0)  # the patent's own estimate
-    single = decompose_waveform(y, SPACING, seed=3, config=config.replace(ga_iterative_r2=0.5))
-    r = decompose_waveform(y, SPACING, seed=3, config=config)
+    single = decompose_waveform(y, SPACING, seed=3, config=config.replace(ga_iterative_r2=0.5), pulse=PULSE)
+    r = decompose_waveform(y, SPACING, seed=3, config=config, pulse=PULSE)
     assert single.n_echoes_initial == r.n_echoes_initial == 1
     assert single.amplitude.size == 1 and r.amplitude.size > 1
     assert np.abs(r.position - position[1]).min() < 1.0
@@ -64,14 +64,14 @@ def test_the_patent_method_adds_the_echo_its_peak_search_missed():
 
 def test_the_patent_method_stops_at_its_r2_threshold():
     y = synthetic([150.0], [60.0], [PULSE_SIGMA], [SQ2], noise=1.0, seed=12)
-    r = decompose_waveform(y, SPACING, seed=3, config=CONFIG.replace(optimizer="ga-iterative"))
+    r = decompose_waveform(y, SPACING, seed=3, config=CONFIG.replace(optimizer="ga-iterative"), pulse=PULSE)
     assert r.amplitude.size == 1 and r.r2 >= CONFIG.ga_iterative_r2
 
 
 def test_mde_lm_polish_lowers_the_fit_error_of_mde():
     y, _, _ = _two_echoes(3)
-    mde = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde"))
-    polished = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde-lm"))
+    mde = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde"), pulse=PULSE)
+    polished = decompose_waveform(y, SPACING, seed=1, config=CONFIG.replace(optimizer="mde-lm"), pulse=PULSE)
     assert polished.rmse <= mde.rmse
 
 
@@ -84,8 +84,8 @@ def test_every_optimizer_is_deterministic():
     y, _, _ = _two_echoes(5)
     for optimizer in ("ga", "pso", "ga-iterative", "lm"):
         config = CONFIG.replace(optimizer=optimizer, generations=20, ga_iterative_generations=50)
-        a = decompose_waveform(y, SPACING, seed=9, config=config)
-        b = decompose_waveform(y, SPACING, seed=9, config=config)
+        a = decompose_waveform(y, SPACING, seed=9, config=config, pulse=PULSE)
+        b = decompose_waveform(y, SPACING, seed=9, config=config, pulse=PULSE)
         np.testing.assert_array_equal(a.amplitude, b.amplitude)
         assert math.isfinite(a.fit_error)
 
@@ -97,8 +97,8 @@ def _batch(n=8):
 def test_lm_mde_is_lm_where_the_lm_fit_passes_the_noise_model():
     # white noise of the model's own kind: every LM fit is as good as the noise allows
     batch = _batch()
-    lm = decompose_batch(batch, CONFIG.replace(optimizer="lm"))
-    gated = decompose_batch(batch, CONFIG.replace(optimizer="lm-mde"))
+    lm = decompose_batch(batch, CONFIG.replace(optimizer="lm"), PULSE)
+    gated = decompose_batch(batch, CONFIG.replace(optimizer="lm-mde"), PULSE)
     assert (gated.nit == 0).all()  # no MDE generation ran
     np.testing.assert_array_equal(gated.position, lm.position)
     np.testing.assert_array_equal(gated.amplitude, lm.amplitude)
@@ -108,9 +108,9 @@ def test_lm_mde_searches_where_lm_does_not_settle_and_never_keeps_a_worse_fit():
     batch = _batch()
     # one LM step settles none of these fits; constant noise on the raw samples: chi^2 is m rmse^2 / sigma^2
     config = CONFIG.replace(select_echoes=False, lm_iterations=1, fit_target="raw", raw_polish=False,
-                            signal_dependent_noise=False, shape_tolerance=0.0)
-    lm = decompose_batch(batch, config.replace(optimizer="lm"))
-    searched = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0))
+                            signal_dependent_noise=False)
+    lm = decompose_batch(batch, config.replace(optimizer="lm"), PULSE)
+    searched = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0), PULSE)
     assert (lm.message == MSG_MAX_ITERATIONS).all()
     assert (searched.nit > 0).all()
     # MDE's polished fit replaces LM's only when chi^2 falls by more than ln m
@@ -121,8 +121,8 @@ def test_lm_mde_leaves_a_fit_lm_settled_to_lm_even_at_gate_zero():
     # a converged LM fit that fails the noise model is the model's misfit, which MDE would end in too
     batch = _batch()
     config = CONFIG.replace(select_echoes=False)
-    lm = decompose_batch(batch, config.replace(optimizer="lm"))
-    gated = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0))
+    lm = decompose_batch(batch, config.replace(optimizer="lm"), PULSE)
+    gated = decompose_batch(batch, config.replace(optimizer="lm-mde", mde_gate=0.0), PULSE)
     assert (lm.message == MSG_CONVERGED).all()
     assert (gated.nit == 0).all()
     np.testing.assert_array_equal(gated.position, lm.position)
@@ -135,7 +135,7 @@ def test_mde_gate_must_not_be_negative():
 
 @pytest.mark.parametrize("optimizer, weighted", [("lm", True), ("lbfgs", False)])
 def test_the_local_fit_weighs_the_samples_by_the_noise_where_the_catalogue_says(optimizer, weighted):
-    from fwcore.instrument import analytic_shape
+    from fwcore.instrument.shape import analytic_shape
     from fwcore.optimizers import run_optimizer
     from tests.fwcore.naive import model_of_individual
 
@@ -145,7 +145,7 @@ def test_the_local_fit_weighs_the_samples_by_the_noise_where_the_catalogue_says(
     start = truth + np.array([1.0, -20.0, 1.0, 0.5, 0.0, 10.0, -1.0, -0.5, 0.0])
     lower = truth - np.array([50.0, 100.0, 5.0, 2.0, 0.0, 100.0, 5.0, 2.0, 0.0])
     upper = truth + np.array([50.0, 100.0, 5.0, 2.0, 0.0, 100.0, 5.0, 2.0, 0.0])
-    p = CONFIG.replace(optimizer=optimizer, model="gaussian").kernel_params()
+    p = CONFIG.replace(optimizer=optimizer, model="gaussian").kernel_params(Model.GAUSSIAN, 0.0)
     assert p.noise_weighted == weighted
 
     def fit(variance):

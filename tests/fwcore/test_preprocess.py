@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.instrument import analytic_shape
+from fwcore.instrument.shape import analytic_shape
 from fwcore.model import waveform_model
 from fwcore.optimizers.ga_iterative import patent_peak_ranges
 from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes

@@ -5,9 +5,10 @@ import pytest
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import nominal_pulse
+from fwcore.instrument.width import csv_pulse_fwhm_ps
 from fwcore.records import WaveformBatch
 from fwcore.io.neon import read_neon_csv
-from fwcore.pulses import csv_pulse_fwhm_ps
 from fwcore.rng import pulse_seed
 
 # DE at the MDE paper's comparison settings
@@ -17,24 +18,25 @@ PAPER_DE = dict(optimizer="de", population=100, generations=100)
 @pytest.fixture(scope="module")
 def neon(neon_dir):
     waveforms = read_neon_csv(neon_dir / "return_waveforms.csv")
-    config = DecompositionConfig(system_pulse_fwhm_ps=csv_pulse_fwhm_ps(read_neon_csv(neon_dir / "outgoing_pulses.csv")))
+    config = DecompositionConfig()
+    pulse = nominal_pulse(csv_pulse_fwhm_ps(read_neon_csv(neon_dir / "outgoing_pulses.csv")))
     batch = WaveformBatch.from_waveforms(waveforms.samples, 1000.0,
                                          [pulse_seed(0, i) for i in waveforms.waveform_id], waveforms.valid)
-    return batch, config
+    return batch, config, pulse
 
 
 @pytest.fixture(scope="module")
 def neon_results(neon):
-    batch, config = neon
-    return {name: decompose_batch(batch, config.replace(**kw))
+    batch, config, pulse = neon
+    return {name: decompose_batch(batch, config.replace(**kw), pulse)
             for name, kw in (("none", dict(optimizer="none")), ("mde", {}), ("de", PAPER_DE))}
 
 
 def test_neon_sample_facts(neon_dir, neon):
-    batch, config = neon
+    batch, config, pulse = neon
     assert len(batch) == 250
     # the outgoing pulses are about 15 ns wide (FWHM)
-    assert 12_000 < config.system_pulse_fwhm_ps < 18_000
+    assert 12_000 < pulse.fwhm_ps < 18_000
 
 
 def test_neon_every_waveform_gets_a_result(neon_results):
@@ -56,8 +58,8 @@ def test_neon_beats_the_published_decompositions(neon_results):
 
 
 def test_neon_raw_polish_lowers_the_raw_error_where_the_denoised_fit_fails(neon, neon_results):
-    batch, config = neon
-    unpolished = decompose_batch(batch, config.replace(raw_polish=False))
+    batch, config, pulse = neon
+    unpolished = decompose_batch(batch, config.replace(raw_polish=False), pulse)
     polished = neon_results["mde"]  # the default: the raw polish on
     changed = polished.fit_error_raw != unpolished.fit_error_raw
     # the gate sends only part of the waveforms to the polish, and it never raises a waveform's raw error
@@ -71,10 +73,10 @@ def test_neon_raw_polish_lowers_the_raw_error_where_the_denoised_fit_fails(neon,
 def test_leica_mde_and_de_lower_the_initial_fit_error(leica_waveforms):
     waves = leica_waveforms[:200]
     batch = WaveformBatch.from_waveforms(list(waves), 2000.0, [pulse_seed(0, i) for i in range(len(waves))])
-    config = DecompositionConfig()
-    initial = decompose_batch(batch, config.replace(optimizer="none"))
-    mde = decompose_batch(batch, config)
-    de = decompose_batch(batch, config.replace(**PAPER_DE))
+    config, pulse = DecompositionConfig(), nominal_pulse()  # the default 4 ns pulse
+    initial = decompose_batch(batch, config.replace(optimizer="none"), pulse)
+    mde = decompose_batch(batch, config, pulse)
+    de = decompose_batch(batch, config.replace(**PAPER_DE), pulse)
     assert (mde.status == 0).all()
     assert mde.fit_error.mean() < initial.fit_error.mean()
     assert de.fit_error.mean() < initial.fit_error.mean()

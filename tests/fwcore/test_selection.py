@@ -5,9 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.instrument import analytic_shape
-from fwcore.config import DecompositionConfig
+from fwcore.instrument.shape import analytic_shape
+from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import nominal_pulse
 from fwcore.model import model_of_individual, waveform_model
 from fwcore.records import WaveformBatch
 from fwcore.selection import add_missing_echoes, drop_unneeded_echoes
@@ -15,7 +16,8 @@ from tests.fwcore import naive
 
 PULSE_SIGMA = 3.0
 FWHM_PS = PULSE_SIGMA * 2 * math.sqrt(2 * math.log(2)) * 1000.0
-CONFIG = DecompositionConfig(system_pulse_fwhm_ps=FWHM_PS)
+CONFIG = DecompositionConfig()
+PULSE = nominal_pulse(FWHM_PS)
 SQ2 = math.sqrt(2)
 
 
@@ -30,7 +32,7 @@ def test_drop_decision_matches_a_scipy_refit(flank_amplitude, needed):
     start[5] = max(flank_amplitude, 8.0)  # an optimizer's guess of the flank
     lower = np.array([15, 0, 45, 1, SQ2, 0, 50, 1, SQ2], float)
     upper = np.array([25, 400, 55, 9, SQ2, 100, 60, 9, SQ2], float)
-    p = CONFIG.replace(model="gaussian").kernel_params()
+    p = CONFIG.replace(model="gaussian").kernel_params(Model.GAUSSIAN, 0.0)
     weights = np.full(times.size, 1 / sigma)
     best, _, _, n, dropped, _ = drop_unneeded_echoes(p, analytic_shape(), start.copy(), lower, upper, 2, times, raw,
                                                      raw, weights, 0.0, 119.0, PULSE_SIGMA * 2.3548, sigma)
@@ -49,7 +51,8 @@ def test_the_same_pulses_under_two_seeds_keep_the_same_echoes():
         pos = np.sort(rng.uniform(20, 180, n))
         waves.append(waveform_model(t, 15.0, rng.uniform(20, 150, n), pos, rng.uniform(2.5, 4, n),
                                     rng.uniform(1.3, 1.8, n)) + rng.normal(0, 1.0, t.size))
-    runs = [decompose_batch(WaveformBatch.from_waveforms(waves, 1000.0, rng.integers(0, 2**63, len(waves))), CONFIG)
+    runs = [decompose_batch(WaveformBatch.from_waveforms(waves, 1000.0, rng.integers(0, 2**63, len(waves))), CONFIG,
+                            PULSE)
             for _ in range(2)]
     same = total = 0
     for i in range(len(waves)):
@@ -67,7 +70,8 @@ def _add_step(truth, start, floor_ratio, seed=3):
     raw = model_of_individual(truth, times) + np.random.default_rng(seed).normal(0, 1.0, times.size)
     lower = np.array([15, 0, 20, 1, SQ2], float)
     upper = np.array([25, 1000, 140, 9, SQ2], float)
-    p = CONFIG.replace(model="gaussian", min_amplitude_ratio=floor_ratio, min_snr=0.0).kernel_params()
+    p = CONFIG.replace(model="gaussian", min_amplitude_ratio=floor_ratio,
+                       min_snr=0.0).kernel_params(Model.GAUSSIAN, 0.0)
     weights = np.ones(times.size)
     return add_missing_echoes(p, analytic_shape(), start.copy(), lower, upper, 1, raw, np.ones(times.size, bool),
                               times, raw, raw, weights, 0, 159, PULSE_SIGMA, 1.0)

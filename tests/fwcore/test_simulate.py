@@ -131,8 +131,7 @@ def test_a_flight_that_fails_after_chunks_were_written_leaves_no_partial_files(t
 
 @pytest.mark.parametrize("name", ["riegl", "leica"])
 def test_a_flight_of_a_measured_response_renders_its_echoes_in_that_shape(name):
-    from fwcore.instrument import SHIPPED_SPACING_PS, named_response
-    from fwcore.survey import measure_file_response
+    from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response, pulses_response
 
     response = named_response(name)
     sensor = SensorConfig(pulse_fwhm_ps=response.fwhm_ps, sample_spacing_ps=SHIPPED_SPACING_PS[name],
@@ -147,7 +146,7 @@ def test_a_flight_of_a_measured_response_renders_its_echoes_in_that_shape(name):
     # the simulated returns, measured as a run measures a file, give back the response, widened a little by
     # the targets (the narrowest returns of the scene are up to 15% wider than the response)
     noisy = simulate_flight(2000, dataclasses.replace(sensor, noise_sigma=0.6, shot_noise=0.02), seed=4)
-    measured = measure_file_response(noisy.pulses, np.arange(2000), "simulated")
+    measured = pulses_response(noisy.pulses, np.arange(2000), "simulated")
     assert 0.98 * response.fwhm_ps <= measured.fwhm_ps <= 1.15 * response.fwhm_ps
     if name == "riegl":
         assert measured.afterpulse()[0] == pytest.approx(response.afterpulse()[0], abs=1000)

@@ -5,11 +5,12 @@ import pytest
 
 from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import decompose_waveform
-from fwcore.instrument import load_response
+from fwcore.instrument.measure import csv_system_pulse, file_system_pulse, measure_range_offset
+from fwcore.instrument.pulse import PulseOverrides, nominal_pulse
+from fwcore.instrument.response import load_response
 from fwcore.io import input_summary
 from fwcore.io.neon import read_neon_csv
 from fwcore.records import WaveformBatch
-from fwcore.survey import csv_system_pulse, file_system_pulse, measure_range_offset
 
 SPACING_PS = 1000.0
 
@@ -26,11 +27,11 @@ def single_echo_batch(n: int, seed: int) -> tuple[WaveformBatch, np.ndarray]:
 
 def test_range_offset_is_where_the_system_puts_returns_against_the_echo_centre():
     batch, centre_ps = single_echo_batch(40, seed=3)
-    config = DecompositionConfig(system_pulse_fwhm_ps=2.3548 * 3.0 * SPACING_PS)
-    offset, n = measure_range_offset(batch, config, centre_ps - 1250.0)  # a system reporting 1.25 ns early
+    config, pulse = DecompositionConfig(), nominal_pulse(2.3548 * 3.0 * SPACING_PS)
+    offset, n = measure_range_offset(batch, config, pulse, centre_ps - 1250.0)  # a system reporting 1.25 ns early
     assert n == 40
     assert offset == pytest.approx(-1250.0, abs=10.0)  # the centre of a 100-sigma echo is known to ~5 ps
-    offset, _ = measure_range_offset(batch, config, centre_ps)
+    offset, _ = measure_range_offset(batch, config, pulse, centre_ps)
     assert abs(offset) < 10.0
 
 
@@ -50,7 +51,7 @@ def test_auto_gives_leica_and_riegl_their_response_and_neon_the_generalized_gaus
     # Leica's tail and RIEGL's afterpulse: their measured responses predict held-out samples better
     for path in (leica_dir / "leica_a.las", pulsewaves_dir / "riegl_example3.pls"):
         pulse = file_system_pulse(path, input_summary(path).records, auto)
-        assert pulse.model == "system" and pulse.configure(auto).model is Model.SYSTEM
+        assert pulse.model == "system" and pulse.echo_model(auto.model) is Model.SYSTEM
         shaped, generalized = map(float, re.findall(r"miss by ([\d.]+), generalized Gaussians by ([\d.]+)",
                                                     pulse.model_choice)[0])
         assert shaped < 0.9 * generalized  # Leica 0.601 against 0.733, RIEGL 0.654 against 0.789
@@ -58,13 +59,14 @@ def test_auto_gives_leica_and_riegl_their_response_and_neon_the_generalized_gaus
     # NEON's forest returns are not their measured response broadened: the generalized Gaussian wins
     waveforms = read_neon_csv(neon_dir / "return_waveforms.csv")
     pulse = csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto)
-    assert pulse.model == "generalized" and pulse.configure(auto).model is Model.GENERALIZED
+    assert pulse.model == "generalized" and pulse.echo_model(auto.model) is Model.GENERALIZED
     shaped, generalized = map(float, re.findall(r"miss by ([\d.]+), generalized Gaussians by ([\d.]+)",
                                                 pulse.model_choice)[0])
     assert generalized < 0.7 * shaped
     # ... and with the impulse response NEON ships, the response beats the width estimated from the returns
     impulse = load_response(neon_dir / "system_impulse.csv")
-    assert csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto, impulse).model == "system"
+    given = PulseOverrides(response=impulse)
+    assert csv_system_pulse(waveforms.samples, waveforms.valid, 1000.0, auto, given).model == "system"
 
 
 def test_auto_keeps_the_generalized_gaussian_where_no_response_is_measured():
@@ -74,5 +76,5 @@ def test_auto_keeps_the_generalized_gaussian_where_no_response_is_measured():
     assert pulse.response is None and pulse.model == "generalized"
     assert pulse.model_choice == "generalized: no system response measured"
     # the engine's API on bare waveforms, with no file to ask, fits the generalized Gaussian
-    d = decompose_waveform(waveforms[0], SPACING_PS, 0, DecompositionConfig())
+    d = decompose_waveform(waveforms[0], SPACING_PS, 0, DecompositionConfig(), pulse=nominal_pulse())
     assert d.amplitude.size == 1 and np.isfinite(d.alpha).all()

@@ -163,6 +163,7 @@ def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(lei
 def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_path, small_csv, neon_dir, capsys):
     from fwcore.config import DecompositionConfig
     from fwcore.engine import echo_shapes
+    from fwcore.instrument.pulse import SystemPulse
     from fwcore.model import tabulated_model
 
     out = tmp_path / "echoes.parquet"
@@ -171,9 +172,10 @@ def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_pa
     assert "system response system_impulse.csv" in capsys.readouterr().out
     table = pq.read_table(out)
     config = json.loads(table.schema.metadata[b"fwlidar.config"])
-    assert config["model"] == "system" and config["system_response"]["source"] == "system_impulse.csv"
-    # the table the engine used, rebuilt from the settings in the table's metadata
-    shape = echo_shapes(DecompositionConfig.from_dict(config), np.array([1000.0]))[1000.0]
+    pulse = json.loads(table.schema.metadata[b"fwlidar.pulse"])
+    assert config["model"] == "system" and pulse["response"]["source"] == "system_impulse.csv"
+    # the table the engine used, rebuilt from the settings and the pulse in the table's metadata
+    shape = echo_shapes(DecompositionConfig.from_dict(config), SystemPulse.from_dict(pulse), np.array([1000.0]))[1000.0]
     echoes = table.to_pandas()
     assert table.column("alpha").null_count == table.num_rows  # the generalized Gaussian's shape: none here
     csv = read_neon_csv(small_csv)
@@ -198,7 +200,7 @@ def test_compare_lists_the_deconvolution_methods_beside_the_optimizers(tmp_path,
 
 
 def test_info_measures_the_system_response_and_its_json_is_a_response_file(tmp_path, pulsewaves_dir, capsys):
-    from fwcore.instrument import load_response
+    from fwcore.instrument.response import load_response
 
     assert main(["info", str(pulsewaves_dir / "riegl_example3.pls"), "--system-response"]) == 0
     assert "system response: FWHM 4.06 ns, afterpulse 10.4 ns behind the peak at 3.4%" in capsys.readouterr().out
@@ -210,7 +212,7 @@ def test_info_measures_the_system_response_and_its_json_is_a_response_file(tmp_p
 
 
 def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewaves_dir):
-    from fwcore.instrument import named_response
+    from fwcore.instrument.response import named_response
 
     out = tmp_path / "run"
     assert main(["run", str(pulsewaves_dir / "riegl_example3.pls"), "--output", str(out), "--limit", "40",
@@ -219,7 +221,7 @@ def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewave
     summary = json.loads((out / "run.json").read_text())
     (entry,) = summary["inputs"]
     shipped = named_response("riegl")
-    assert entry["system_response"]["source"] == shipped.source == summary["config"]["system_response"]["source"]
+    assert entry["system_response"]["source"] == shipped.source == summary["pulse"]["system_response"]["source"]
     assert entry["system_pulse_fwhm_ps"] == pytest.approx(shipped.fwhm_ps)
     echoes = ds.dataset(str(out / "echoes"), format="parquet").to_table()
     # a tabulated echo has no generalized Gaussian's shape: null, and no NaN in any column

@@ -65,12 +65,12 @@ def test_duckdb_reads_the_dataset(leica_run):
 
 
 def test_echo_rows_match_the_in_memory_engine(leica_run, leica_dir):
-    from fwcore.survey import file_system_pulse
+    from fwcore.instrument.measure import file_system_pulse
     pulses = read_pulses(leica_dir / "leica_a.las")
-    system = file_system_pulse(leica_dir / "leica_a.las", 1125, DecompositionConfig())  # as the run measures it
-    config = system.configure(DecompositionConfig())
-    assert config.model is Model.SYSTEM  # --model auto gives Leica its own pulse
-    result = decompose_batch(pulse_waveforms(pulses, config.seed), config)
+    config = DecompositionConfig()
+    system = file_system_pulse(leica_dir / "leica_a.las", 1125, config)  # as the run measures it
+    assert system.echo_model(config.model) is Model.SYSTEM  # --model auto gives Leica its own pulse
+    result = decompose_batch(pulse_waveforms(pulses, config.seed), config, system)
     echoes = table(leica_run, "echoes").sort_values(["pulse_id", "echo_index"])
     order = np.argsort(pulses.pulse_id, kind="stable")
     expected_amplitude = np.concatenate([result.waveform(i).amplitude for i in order])

@@ -1,4 +1,5 @@
-"""The method's command-line options, generated from DecompositionConfig's fields: each reaches the config."""
+"""The method's command-line options, generated from DecompositionConfig's fields, each reaching the config; and the
+pulse's flags, what is given of every file's pulse instead of a setting of the method."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ import enum
 import pytest
 
 from fwcore.config import DecompositionConfig
+from fwcore.instrument.pulse import PulseOverrides
+from fwcore.instrument.response import named_response
 from pipeline.cli import build_parser
-from pipeline.options import COMPARED, decomposition_config
+from pipeline.options import COMPARED, add_method_arguments, decomposition_config, pulse_overrides
 from tests.fwcore.test_config import other_value
 
 OPTIONS = [f for f in dataclasses.fields(DecompositionConfig) if f.metadata.get("option")]
@@ -48,3 +51,30 @@ def test_a_flag_not_given_leaves_the_preset_and_toml_values(tmp_path):
     path.write_text("[decomposition]\nraw_polish = false\nmin_snr = 4\n")
     config = decomposition_config(build_parser().parse_args(["run", "--preset", "paper", "--config", str(path)]))
     assert config.raw_polish is False and config.min_snr == 4 and config.generations == 80
+
+
+def parse(*flags: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_method_arguments(parser)
+    return parser.parse_args(list(flags))
+
+
+def test_the_pulse_flags_are_not_settings_of_the_method():
+    args = parse("--system-pulse-fwhm-ps", "9000", "--shape-tolerance", "0.03", "--min-snr", "4")
+    assert decomposition_config(args) == DecompositionConfig(min_snr=4.0)
+    assert pulse_overrides(args) == PulseOverrides(fwhm_ps=9000.0, shape_tolerance=0.03)
+    assert pulse_overrides(parse()) == PulseOverrides()  # nothing given: every file's pulse measured
+
+
+def test_the_paper_preset_takes_its_model_exact_unless_a_flag_says_otherwise():
+    assert pulse_overrides(parse("--preset", "paper")) == PulseOverrides(shape_tolerance=0.0)
+    assert pulse_overrides(parse("--preset", "paper", "--shape-tolerance", "0.05")).shape_tolerance == 0.05
+    assert pulse_overrides(parse("--preset", "fast")) == PulseOverrides()
+
+
+def test_a_named_response_is_read_once_with_the_given_width():
+    given = pulse_overrides(parse("--system-response", "riegl"))
+    assert given.response == named_response("riegl") and given.fwhm_ps is None
+    gaussian = pulse_overrides(parse("--system-response", "gaussian", "--system-pulse-fwhm-ps", "6000"))
+    assert gaussian.response.fwhm_ps == pytest.approx(6000.0, rel=1e-3)
+    assert pulse_overrides(parse("--system-response", "gaussian")).response.fwhm_ps == pytest.approx(4000.0, rel=1e-3)

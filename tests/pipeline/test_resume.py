@@ -82,6 +82,10 @@ def test_resume_refuses_other_settings_or_changed_inputs_and_touches_nothing(tmp
     assert "cannot resume: the settings differ" in err and "config.optimizer: 'lm' -> 'none'" in err
     assert main(["run", str(leica_copy), "--output", str(out), "--resume", *quick, "--limit", "41"]) == EXIT_USAGE
     assert "limit: 40 -> 41" in capsys.readouterr().err
+    # what is given of the file's pulse instead of measuring it is a setting too
+    assert main(["run", str(leica_copy), "--output", str(out), "--resume", "--shape-tolerance", "0.02",
+                 *quick]) == EXIT_USAGE
+    assert "pulse.shape_tolerance: None -> 0.02" in capsys.readouterr().err
 
     packets = leica_copy.with_suffix(".wdp")
     data = bytearray(packets.read_bytes())

@@ -4,6 +4,7 @@ import pytest
 
 from fwcore.config import DecompositionConfig, Model
 from fwcore.engine import smoothing_sigma_samples
+from fwcore.instrument.pulse import nominal_pulse
 from fwcore.records import WAVEFORM_CODES, WAVEFORM_RESULT
 from pipeline.tables import COLUMNS, RECORD_COLUMNS, pulse_tables, table_schema
 from tests.fwcore.naive import gaussian_smooth
@@ -29,17 +30,18 @@ def leica_tables(leica_dir):
     from fwcore.pulses import pulse_waveforms
 
     pulses = read_pulses(PointRange(str(leica_dir / "leica_a.las"), 0, 20, max_pulses=20))
-    config = DecompositionConfig(model=Model.GENERALIZED, generations=10, system_pulse_fwhm_ps=5000.0)
+    config = DecompositionConfig(model=Model.GENERALIZED, generations=10)
+    pulse = nominal_pulse(5000.0)
     batch = pulse_waveforms(pulses, config.seed)
-    result = decompose_batch(batch, config)
+    result = decompose_batch(batch, config, pulse)
     xyz = np.zeros((result.amplitude.size, 3))
-    echoes, table = pulse_tables("leica_a.las", pulses, result, config, xyz, result.status == 0)
+    echoes, table = pulse_tables("leica_a.las", pulses, result, config, pulse, xyz, result.status == 0)
     return pulses, batch, result, config, echoes.to_pandas(), table.to_pandas()
 
 
 def test_fit_error_is_the_sum_of_absolute_residuals_as_documented(leica_tables):
     pulses, batch, result, config, _, table = leica_tables
-    sigma = smoothing_sigma_samples(config, batch.sample_spacing_ps)
+    sigma = smoothing_sigma_samples(config, nominal_pulse(5000.0), batch.sample_spacing_ps)
     assert len(table) == len(pulses) and COLUMNS["fit_error"].unit == COLUMNS["fit_error_raw"].unit == "DN"
     assert "absolute residuals" in COLUMNS["fit_error"].meaning
     for i, row in table.iterrows():

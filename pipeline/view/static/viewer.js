@@ -457,7 +457,7 @@ function signalRange(fit, returns) {
   const times = fit.echoes.filter((e) => e.kept).map((e) => e.time_ps).concat(returns.map((r) => r.time_ps));
   if (!times.length || !fit.time_ps.length) return undefined;
   const end = fit.time_ps[fit.time_ps.length - 1];
-  const pad = Math.max(3 * (fit.config.system_pulse_fwhm_ps || 4000), 0.05 * end);
+  const pad = Math.max(3 * (fit.pulse.fwhm_ps || 4000), 0.05 * end);
   return [Math.max(0, Math.min(...times) - pad) / NS, Math.min(end, Math.max(...times) + pad) / NS];
 }
 
@@ -521,7 +521,7 @@ async function showPulse(file, pulse) {
   plot.dataset.file = data.file;
   plot.dataset.components = fit.echoes.length;
   const metrics = $("pulse-metrics");
-  metrics.replaceChildren(metricsTable(el("table"), fit, [["system pulse FWHM", fmt(fit.config.system_pulse_fwhm_ps / NS, 2, "ns")]]));
+  metrics.replaceChildren(metricsTable(el("table"), fit, [["system pulse FWHM", fmt(fit.pulse.fwhm_ps / NS, 2, "ns")]]));
   metrics.appendChild(data.reproduced ? el("div", "the refit reproduces the run's echoes", { class: "ok" })
     : el("div", `today's engine gives ${fit.echoes.length} echoes here; the run's table (below) holds ${data.echo_rows.length}`, { class: "bad" }));
   echoTable($("pulse-echoes"), data.echo_rows);

@@ -7,6 +7,7 @@ import pytest
 
 from fwcore.config import DecompositionConfig
 from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import nominal_pulse
 from fwcore.io import pulse_identity, read_pulses
 from fwcore.io.writer import write_waveform_las
 from fwcore.pulses import echo_positions, pulse_waveforms
@@ -30,12 +31,12 @@ def test_same_pulse_ids_whatever_the_encoding(encodings):
 
 
 def test_identical_echoes_whatever_the_encoding(encodings):
-    config = DecompositionConfig(generations=20, system_pulse_fwhm_ps=4000.0)
+    config, pulse = DecompositionConfig(generations=20), nominal_pulse(4000.0)
     tables = {}
     for name, pulses in encodings.items():
         n = 120
         sub = _head(pulses, n)
-        result = decompose_batch(pulse_waveforms(sub, config.seed), config)
+        result = decompose_batch(pulse_waveforms(sub, config.seed), config, pulse)
         tables[name] = np.column_stack([np.repeat(sub.pulse_id, np.diff(result.echo_offsets)), result.position,
                                         result.amplitude, result.alpha, result.reject,
                                         echo_positions(sub, result)])

@@ -8,7 +8,7 @@ import pytest
 from fwcore.io import describe_file, plan_point_ranges, read_pulses
 from fwcore.io.geolocate import geolocate
 from fwcore.io.pulsewaves import WAVES_HEADER_BYTES, _layout, _walk_waves, open_pulsewaves
-from fwcore.pulses import system_pulse_fwhm_ps
+from fwcore.instrument.width import recorded_pulse_fwhm_ps
 
 SAMPLES = {  # name: pulses, waveforms (one a pulse read), heights of the returning samples (README)
     "las13fwf_example1": (1000, 1000, (231.6, 277.0)),
@@ -125,7 +125,8 @@ def test_riegl_pulse_with_two_channels_is_one_waveform_of_the_unsaturated_channe
 def test_outgoing_waveform_gives_the_system_pulse_width(pulsewaves_dir, name, scanner_ns):
     batch = read_pulses(pulsewaves_dir / f"{name}.pls")
     assert batch.outgoing is not None and np.diff(batch.outgoing_offsets).min() > 0
-    fwhm = system_pulse_fwhm_ps(batch)
+    fwhm, source = recorded_pulse_fwhm_ps(batch)
+    assert source == "outgoing waveforms"
     # measured on the recorded outgoing pulses; the scanner record's nominal width bounds it loosely
     assert 0.3 * scanner_ns * 1000 < fwhm < 3 * scanner_ns * 1000
 

@@ -22,7 +22,9 @@ from fwcore.io import describe_file, plan_point_ranges, read_pulses
 from fwcore.io.geolocate import geolocate
 from fwcore.io.info import format_info
 from fwcore.io.pulsewaves import open_pulsewaves
-from fwcore.pulses import pulse_waveforms, system_pulse_fwhm_ps
+from fwcore.instrument.pulse import nominal_pulse
+from fwcore.instrument.width import recorded_pulse_fwhm_ps
+from fwcore.pulses import pulse_waveforms
 
 SENTINEL = -2e37
 LOW_DB = np.r_[[SENTINEL] * 4, np.linspace(-5.44, 19.73, 252)].astype(np.float32)
@@ -224,8 +226,9 @@ def test_segments_of_one_channel_join_into_one_waveform_at_their_times(riegl_lik
 
 def test_the_engine_finds_every_echo_at_its_time(riegl_like):
     batch = read_pulses(riegl_like)
-    config = DecompositionConfig(model=Model.GAUSSIAN, system_pulse_fwhm_ps=system_pulse_fwhm_ps(batch))
-    result = decompose_batch(pulse_waveforms(batch, seed=38), config, threads=1)
+    config = DecompositionConfig(model=Model.GAUSSIAN)
+    pulse = nominal_pulse(recorded_pulse_fwhm_ps(batch)[0])
+    result = decompose_batch(pulse_waveforms(batch, seed=38), config, pulse, threads=1)
     kept = result.reject == 0
     for row, echoes in enumerate(FLIGHT):
         mine = kept & (result.echo_waveform == row)

@@ -9,7 +9,8 @@ from fwcore.io import read_pulses
 from fwcore.io.las import plan_las_ranges
 from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
-from fwcore.survey import file_system_pulse
+from fwcore.instrument.measure import file_system_pulse
+from fwcore.instrument.pulse import nominal_pulse
 
 
 @pytest.fixture(scope="module")
@@ -22,9 +23,8 @@ def leica_result(leica, leica_dir):
     """The sample decomposed once for the point-cloud tests, on its system pulse measured as `fwl run` measures
     it (the default 4 ns pulse, a third of Leica's, makes every waveform a slow many-echo fit: 18 s, not 1)."""
     pulse = file_system_pulse(leica_dir / "leica_a.las", len(leica.return_number), DecompositionConfig())
-    config = DecompositionConfig(generations=10, system_pulse_fwhm_ps=pulse.fwhm_ps,
-                                 shape_tolerance=pulse.shape_tolerance)
-    return decompose_batch(pulse_waveforms(leica, 0), config)
+    config = DecompositionConfig(generations=10)
+    return decompose_batch(pulse_waveforms(leica, 0), config, nominal_pulse(pulse.fwhm_ps, pulse.shape_tolerance))
 
 
 def test_las13_wdp_round_trip(tmp_path, leica):

@@ -117,7 +117,7 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     echoes = viewed.echoes()
     assert len(t["a"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
     # the run's pulse width stays: only what was asked changes
-    assert t["b"]["config"]["system_pulse_fwhm_ps"] == t["a"]["config"]["system_pulse_fwhm_ps"] is not None
+    assert t["b"]["pulse"]["fwhm_ps"] == t["a"]["pulse"]["fwhm_ps"] is not None
     weak = [e for e in t["b"]["echoes"] if e["amplitude"] < 8 * t["b"]["noise_sigma"]]
     assert all(not e["kept"] for e in weak)
     # a preset is the preset's method (as fwl run --preset has it), on the run's pulse width and seed
@@ -283,7 +283,7 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path, st
             p = v.get(f"/api/pulse?run={listed['run']}&file={stem}.pls&pulse={int(pulse_id)}")
             assert p["reproduced"] and len(p["fit"]["echoes"]) == int((echoes.pulse_id == pulse_id).sum())
             assert p["fit"]["config"]["model"] == model
-            assert (p["fit"]["config"]["system_response"] is not None) == (model == "system")
+            assert (p["fit"]["pulse"]["response"] is not None) == (model == "system")
             # the page can draw the response the echoes are made of, at the strongest echo
             assert (p["fit"]["response"] is not None) == (model == "system")
         if stem == "riegl_example3":  # EPSG:4978: the map is east, north, up about the run's centre, as PROJ has it

@@ -1,7 +1,7 @@
-"""The instrument's own pulse: its system response, measured once per source, and the echo shape built from it.
+"""The instrument's response: what one return from a point target looks like in its digitizer, measured once per
+source.
 
-A `SystemResponse` is what one return from a point target looks like in the
-instrument's digitizer: the emitted pulse through the receiver, with whatever
+A `SystemResponse` is the emitted pulse through the receiver, with whatever
 the receiver adds (Leica's slow rise, tail and undershoot; RIEGL's afterpulse
 10 ns behind the peak). It is measured from
 
@@ -13,43 +13,30 @@ the receiver adds (Leica's slow rise, tail and undershoot; RIEGL's afterpulse
 - a recorded impulse response or outgoing pulse (NEON's `system_impulse.csv`);
 - nothing: the Gaussian of a given FWHM, said so.
 
-Its time 0 is its peak. `echo_shape` turns it into the kernels' table: the
-response broadened by Gaussians (a target's depth spreads its return), one row
-per echo width, each row's peak 1, so an echo is A * row(s)(t - u) with A its
-peak amplitude, u the time of the centroid of the response's main lobe (above 5%
-of its peak: where a target's broadening leaves it, unlike the peak of a skewed
-response) and s the sigma of the Gaussian of equal FWHM: the engine's width
-parameter means the same in every model.
+Its time 0 is its peak. fwcore.instrument.shape turns it into the kernels' echo table.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import json
-import math
 from pathlib import Path
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Sequence
 
 import numpy as np
-from numba import njit
 
-from fwcore._jit import JIT
+from fwcore.instrument.peak import half_height_width, isolated_lobe, local_maxima, parabola_height, parabola_vertex
 from fwcore.model import SQRT_2LN2
+from fwcore.preprocess import noise_and_background
 
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
 BINS_PER_SAMPLE = 4  # the measured response's resolution: a quarter of the digitizer's sample
-TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation then errs < 1e-4 of the peak
-# The echo table's rows step by this share of the response's own equal-FWHM sigma, from it to the widest echo
-# allowed: the same rows whatever the widest, so a table rebuilt from a run's settings gives its echoes again.
-ROW_STEP = 2.0 / 47.0
-# A row's support ends where it stays below this share of its peak: a quarter of an 8-bit digitizer's
-# step at full scale, so the kernels need not visit the samples a narrow echo cannot reach.
-SUPPORT_LEVEL = 1e-3
 MIN_SNR = 30.0  # a return this far above the noise shows the response's tail and afterpulse
+OUTSIDE_FRACTION = 0.15  # of the peak: a sample outside the return's lobe above this is another return
 MIN_PULSES = 20  # fewer strong single returns than this measure nothing
-CENTROID_FRACTION = 0.05  # an echo's position: the centroid of its response's lobe above this share of the peak
+RESPONSE_PULSES = 3000  # candidates for the response: a few hundred strong single returns among them
+CSV_SPACING_PS = 1000.0  # a response CSV's samples: 1 ns apart, as in NEON's system_impulse.csv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +66,7 @@ class SystemResponse:
 
     @property
     def fwhm_ps(self) -> float:
-        return _half_height_width(self.times, self.response)
+        return half_height_width(self.times, self.response)
 
     def at(self, t_ps) -> np.ndarray:
         """The response at times t (ps), 0 outside its grid."""
@@ -120,7 +107,7 @@ def gaussian_response(fwhm_ps: float) -> SystemResponse:
     return SystemResponse(tuple(t), tuple(np.exp(-0.5 * (t / sigma) ** 2)), f"Gaussian, FWHM {fwhm_ps:.0f} ps")
 
 
-# Responses shipped with the package, measured by fwcore.survey on the shared samples: the Leica sample's
+# Responses shipped with the package, measured by fwcore.instrument.measure on the shared samples: the Leica sample's
 # single returns (2 ns digitizer) and the RIEGL Q680 file's isolated echoes (1 ns).
 SHIPPED = {"leica": "leica.json", "riegl": "riegl.json"}
 SHIPPED_SPACING_PS = {"leica": 2000.0, "riegl": 1000.0}
@@ -131,7 +118,7 @@ def named_response(name: str, pulse_fwhm_ps: float = 4000.0) -> SystemResponse:
     if name == "gaussian":
         return gaussian_response(pulse_fwhm_ps)
     if name in SHIPPED:
-        text = (Path(__file__).parent / "responses" / SHIPPED[name]).read_text()
+        text = (Path(__file__).parents[1] / "responses" / SHIPPED[name]).read_text()
         return SystemResponse.from_dict(json.loads(text))
     return load_response(name)
 
@@ -152,7 +139,7 @@ def response_from_samples(samples, spacing_ps: float, source: str, n_pulses: int
     return SystemResponse(tuple(t), tuple(v / height), source, n_pulses)
 
 
-def load_response(path: str | Path, spacing_ps: float = 1000.0) -> SystemResponse:
+def load_response(path: str | Path, spacing_ps: float = CSV_SPACING_PS) -> SystemResponse:
     """A response from a file: our JSON (`SystemResponse.save`, `fwl info --json`), or a CSV whose first
     column holds the response's samples at `spacing_ps` (NEON's `system_impulse.csv`; zero padding dropped)."""
     path = Path(path)
@@ -183,60 +170,6 @@ def load_response(path: str | Path, spacing_ps: float = 1000.0) -> SystemRespons
         raise ValueError(f"{path}: {err}") from None
 
 
-@njit(**JIT)
-def parabola_vertex(v, i):
-    """Where the parabola through v[i - 1], v[i], v[i + 1] peaks, in samples from i (within half a sample;
-    0 at an edge or where v does not bend down there)."""
-    if i <= 0 or i >= v.size - 1:
-        return 0.0
-    den = v[i - 1] - 2.0 * v[i] + v[i + 1]
-    return min(max(0.5 * (v[i - 1] - v[i + 1]) / den, -0.5), 0.5) if den < 0 else 0.0
-
-
-@njit(**JIT)
-def parabola_height(v, i, shift):
-    """That parabola's height `shift` samples from i."""
-    if i <= 0 or i >= v.size - 1:
-        return float(v[i])
-    return v[i] - 0.25 * (v[i - 1] - v[i + 1]) * shift
-
-
-@njit(**JIT)
-def half_height_crossings(values, valid, peak, height):
-    """(left, right): where the values first fall to half of `height` walking out from index `peak` over valid
-    samples, interpolated; -1.0 for a side that does not fall that far."""
-    half = 0.5 * height
-    left = -1.0
-    i = peak
-    while i > 0 and valid[i - 1]:
-        if values[i - 1] <= half:
-            left = (i - 1) + (half - values[i - 1]) / (values[i] - values[i - 1])
-            break
-        i -= 1
-    right = -1.0
-    i = peak
-    while i < values.size - 1 and valid[i + 1]:
-        if values[i + 1] <= half:
-            right = i + (values[i] - half) / (values[i] - values[i + 1])
-            break
-        i += 1
-    return left, right
-
-
-def _half_height_width(t: np.ndarray, v: np.ndarray) -> float:
-    peak = int(np.argmax(v))
-    half = 0.5 * v[peak]
-    left = peak
-    while left > 0 and v[left - 1] > half:
-        left -= 1
-    right = peak
-    while right < v.size - 1 and v[right + 1] > half:
-        right += 1
-    lx = np.interp(half, [v[left - 1], v[left]], [t[left - 1], t[left]]) if left > 0 else t[0]
-    rx = np.interp(half, [v[right + 1], v[right]], [t[right + 1], t[right]]) if right < v.size - 1 else t[-1]
-    return float(rx - lx)
-
-
 # ---------------------------------------------------------------- measured on returns
 
 @dataclasses.dataclass(frozen=True)
@@ -247,41 +180,25 @@ class _Return:
     fwhm: float  # samples
 
 
-def main_lobe(signal: np.ndarray, peak: int, fraction: float) -> tuple[int, int]:
-    """The first and last sample of the run around `peak` where signal stays above fraction x its height."""
-    above = signal > fraction * signal[peak]
-    lo = peak
-    while lo > 0 and above[lo - 1]:
-        lo -= 1
-    hi = peak
-    while hi < signal.size - 1 and above[hi + 1]:
-        hi += 1
-    return lo, hi
-
-
 def _strong_single_return(samples: np.ndarray, noise: float, background: float) -> _Return | None:
-    """The waveform as one strong return, or None: SNR >= MIN_SNR, not clipped, one local maximum above 10%
-    of the peak in its main lobe, nothing above 15% of the peak outside it, and its lobe clear of the edges."""
+    """The waveform as one strong return, or None: SNR >= MIN_SNR, not clipped, one local maximum in its main
+    lobe (lightly smoothed), nothing above OUTSIDE_FRACTION of the peak outside it, and its lobe clear of the
+    edges (fwcore.instrument.peak.isolated_lobe)."""
     v = samples - background
     peak = int(np.argmax(v))
-    height = v[peak]
-    if height < MIN_SNR * noise or peak < 2 or peak > v.size - 3:
+    if peak < 2 or peak > v.size - 3:
         return None
-    if v[peak - 1] == height or v[peak + 1] == height:
+    if v[peak - 1] == v[peak] or v[peak + 1] == v[peak]:
         return None  # a flat top: the digitizer clipped it
-    lo, hi = main_lobe(v, peak, 0.1)
-    if lo == 0 or hi == v.size - 1:
+    lobe = isolated_lobe(v, peak, MIN_SNR * noise, OUTSIDE_FRACTION)
+    if lobe is None:
         return None
-    outside = np.concatenate([v[:lo], v[hi + 1:]])
-    if outside.size and outside.max() > 0.15 * height:
-        return None  # another return in the record
-    lobe = np.convolve(v[lo:hi + 1], [0.25, 0.5, 0.25], mode="same")
-    maxima = np.flatnonzero((lobe[1:-1] > lobe[:-2]) & (lobe[1:-1] >= lobe[2:]))
-    if maxima.size > 1:
+    lo, hi = lobe
+    if local_maxima(np.convolve(v[lo:hi + 1], [0.25, 0.5, 0.25], mode="same")) > 1:
         return None  # a shoulder: two returns in one lobe
     shift = parabola_vertex(v, peak)
     h = parabola_height(v, peak, shift)
-    return _Return(v, peak + shift, h, _half_height_width(np.arange(v.size, dtype=float), v))
+    return _Return(v, peak + shift, h, half_height_width(np.arange(v.size, dtype=float), v))
 
 
 def measure_response(waveforms: Sequence[np.ndarray], spacing_ps: float, source: str,
@@ -330,90 +247,40 @@ def measure_response(waveforms: Sequence[np.ndarray], spacing_ps: float, source:
                           len(narrow))
 
 
-# ---------------------------------------------------------------- the kernels' echo shape
-
-class EchoShape(NamedTuple):
-    """An echo model as the kernels see it. tabulated False: the generalized Gaussian (its parameters
-    alone define it; the arrays are empty). True: rows[w] is the response broadened to the w-th width,
-    peak 1, at times (j - origin) * step samples; slopes its time derivative per sample."""
-
-    tabulated: bool
-    rows: np.ndarray  # (widths, grid) float64
-    slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
-    areas: np.ndarray  # (widths,) integral of each row, samples
-    support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
-    peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
-    half_widths: np.ndarray  # (2,) row 0 from its peak to half height before and after it, samples
-    step: float  # samples per grid point
-    origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
-    s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
-    s_step: float  # between rows
+def response_of_waveforms(waveforms, spacing_ps: float, source: str) -> SystemResponse | None:
+    """The system response from waveforms (float arrays of valid samples): their strong single returns
+    aligned and averaged (measure_response), or None where too few are strong and single."""
+    waveforms = [w for w in (np.asarray(w, dtype=float) for w in waveforms[:RESPONSE_PULSES]) if np.isfinite(w).all()]
+    noise_background = [noise_and_background(w) if w.size >= 12 else (np.inf, 0.0) for w in waveforms]
+    try:
+        return measure_response(waveforms, spacing_ps, source, [n for n, _ in noise_background],
+                                [b for _, b in noise_background])
+    except ValueError:
+        return None
 
 
-def analytic_shape() -> EchoShape:
-    """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
-    empty = np.zeros((1, 2))
-    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
-                     0.0, 0.0, 1.0)
+def pulses_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | None:
+    """The system response from pulses[rows] (response_of_waveforms)."""
+    rows = rows[:RESPONSE_PULSES]
+    return response_of_waveforms([pulses.pulse_samples(i) for i in rows],
+                                 float(np.median(pulses.sample_spacing_ps[rows])), source)
 
 
-def lobe_centroid_ps(response: SystemResponse) -> float:
-    """The centroid of the response's main lobe (above CENTROID_FRACTION of its peak), ps after its peak:
-    where an echo of it is placed."""
-    first, last = main_lobe(response.response, int(np.argmax(response.response)), CENTROID_FRACTION)
-    lobe = response.response[first:last + 1]
-    return float(np.sum(response.times[first:last + 1] * lobe) / np.sum(lobe))
+def file_response(pulses) -> SystemResponse | None:
+    """The response of a file's first pulses: on the system's single returns where the file has them,
+    otherwise on its strongest isolated echoes; None where too few qualify."""
+    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
+    response = pulses_response(pulses, single, "single returns") if single.size else None
+    return response or pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")
 
 
-@functools.lru_cache(maxsize=64)
-def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
-    """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
-    to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by
-    central differences."""
-    step = 1.0 / TABLE_STEPS_PER_SAMPLE
-    # the echo's position is the centroid of the response's main lobe, not its peak: a target's broadening
-    # moves the peak of a skewed response (Leica's) but hardly the lobe's first moment, so a response measured
-    # on returns their targets widened and the instrument's own place an echo at the same time
-    t_resp = (response.times - lobe_centroid_ps(response)) / spacing_ps
-    f0 = response.fwhm_ps / spacing_ps
-    s_min = f0 / _FWHM_PER_SIGMA
-    n_rows = int(math.ceil((max_width_factor - 1.0) / ROW_STEP - 1e-9)) + 1
-    s_max = s_min * (1.0 + ROW_STEP * (n_rows - 1))
-    widest = math.sqrt(max(s_max ** 2 - s_min ** 2, 0.0))  # the broadening of the widest row, roughly
-    lo = math.floor((t_resp[0] - 4.0 * widest) / step)
-    hi = math.ceil((t_resp[-1] + 4.0 * widest) / step)
-    t = np.arange(lo, hi + 1) * step
-    base = np.interp(t, t_resp, response.response, left=0.0, right=0.0)
-    # FWHM as a function of the broadening sigma b, on a fine b grid, inverted for each row's width
-    b_grid = np.arange(0.0, 1.5 * max(widest, step) + s_min / 32.0, s_min / 64.0)  # fixed steps, like the rows
-    broadened = [_broaden(base, b / step) for b in b_grid]
-    fwhms = np.array([_half_height_width(t, r) for r in broadened])
-    targets = np.linspace(s_min, s_max, n_rows) * _FWHM_PER_SIGMA
-    rows = np.empty((n_rows, t.size))
-    for w, f in enumerate(targets):
-        b = float(np.interp(f, fwhms, b_grid))
-        r = _broaden(base, b / step)
-        rows[w] = r / r.max()
-    support = np.empty((n_rows, 2), dtype=np.int64)
-    for w in range(n_rows):
-        above = np.flatnonzero(np.abs(rows[w]) > SUPPORT_LEVEL)
-        support[w] = above[0], above[-1]
-        rows[w, :above[0]] = 0.0  # so that every evaluation, windowed or not, gives the same echo
-        rows[w, above[-1] + 1:] = 0.0
-    slopes = np.gradient(rows, step, axis=1)
-    areas = rows.sum(axis=1) * step
-    peak_offsets = (np.argmax(rows, axis=1) + lo) * step
-    crest = int(np.argmax(rows[0]))
-    left, right = half_height_crossings(rows[0], np.ones(t.size, dtype=np.bool_), crest, rows[0, crest])
-    half_widths = np.array([(crest - left) * step, (right - crest) * step])
-    return EchoShape(True, rows, slopes, areas, support, peak_offsets, half_widths, step, float(-lo), s_min,
-                     s_min * ROW_STEP)
-
-
-def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:
-    """values convolved with a unit-area Gaussian of sigma_steps grid steps (the same grid, zero beyond)."""
-    if sigma_steps < 1e-3:
-        return values.copy()
-    half = int(math.ceil(5.0 * sigma_steps))
-    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma_steps) ** 2)
-    return np.convolve(values, k / k.sum(), mode="same") if half < values.size else values.copy()
+def csv_response(samples, valid, spacing_ps: float, outgoing=None) -> SystemResponse | None:
+    """A NEON-layout CSV's response: on its outgoing pulses (fwcore.io.neon.CsvWaveforms) where given and
+    enough qualify, else on the returns' strong single echoes; None where too few qualify."""
+    response = None
+    if outgoing is not None:
+        response = response_of_waveforms([y[v] for y, v in zip(outgoing.samples, outgoing.valid)], spacing_ps,
+                                         "outgoing pulses")
+    if response is None:
+        response = response_of_waveforms([y[v] for y, v in zip(samples, valid)], spacing_ps, "isolated echoes")
+    return response

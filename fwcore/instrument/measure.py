@@ -1,0 +1,291 @@
+"""A file's SystemPulse, measured on its own waveforms: its width, response, shape tolerance and range offset, and
+under `--model auto` the echo model that predicts its samples better.
+
+    file_system_pulse(path, count, config, overrides)     LAS/LAZ, PulseWaves: the first records of the file
+    csv_system_pulse(samples, valid, spacing, config, ...) a NEON-layout CSV's waveforms (and outgoing pulses)
+    read_csv_input(path, config, overrides, ...)           a NEON-layout CSV read and its pulse measured
+
+What the user gives (PulseOverrides) is taken instead of being measured.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.config import DecompositionConfig, Model
+from fwcore.engine import decompose_batch
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
+from fwcore.instrument.response import SystemResponse, csv_response, file_response
+from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm, recorded_pulse_fwhm_ps
+from fwcore.io import PointRange, input_summary, read_pulses
+from fwcore.io.formats import NEON_CSV, format_of
+from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, CsvWaveforms, read_neon_csv
+from fwcore.io.records import PulseBatch
+from fwcore.pulses import pulse_waveforms
+from fwcore.records import WaveformBatch
+from fwcore.rng import pulse_seed
+
+LOG = logging.getLogger("fwl")
+
+HEAD_PULSES = 5000  # the head of a file that measures its pulse: fixed by the file, not the range size
+RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range offset
+# waveforms that choose the echo model under --model auto: on the shared Leica, RIEGL and NEON files the two
+# models' held-out errors differ by 20-70%, far beyond what 200 waveforms leave uncertain
+MODEL_PULSES = 200
+# every fifth valid sample is held out of the fits that judge the models: half the others keep both
+# neighbours, where the engine measures a quantised digitizer's noise (every third leaves it none)
+HELD_OUT_EVERY = 5
+AUTO_MODELS = (Model.SYSTEM, Model.GENERALIZED)  # what `auto` chooses between
+
+
+# ---------------------------------------------------------------- the `auto` choice
+
+def held_out_errors(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse,
+                    every: int = HELD_OUT_EVERY) -> tuple[float, float]:
+    """How well a decomposition predicts samples it did not see: every `every`-th valid sample of each
+    waveform held out, the rest decomposed under `config` with `pulse`; (mean |model - sample| at the held-out
+    samples, the same at the fitted ones), digitizer units, averaged over the decomposed waveforms."""
+    held = np.zeros(batch.valid.size, dtype=bool)
+    for lo, hi in zip(batch.offsets[:-1], batch.offsets[1:]):
+        held[lo + np.flatnonzero(batch.valid[lo:hi])[1::every]] = True
+    fitted = batch.valid & ~held
+    result = decompose_batch(dataclasses.replace(batch, valid=fitted), config, pulse, threads=1)
+    errors = []
+    for i in np.flatnonzero(result.status == 0):
+        lo, hi = batch.offsets[i], batch.offsets[i + 1]
+        miss = np.abs(result.waveform(int(i)).model(np.arange(hi - lo)) - batch.samples[lo:hi])
+        errors.append((miss[held[lo:hi]].mean(), miss[fitted[lo:hi]].mean()))
+    return tuple(np.mean(errors, axis=0)) if errors else (np.inf, np.inf)
+
+
+def choose_system_pulse(candidates: dict[Model, SystemPulse], batch: WaveformBatch,
+                        config: DecompositionConfig) -> SystemPulse:
+    """`--model auto`: of a file's system pulses measured for the system response and for the generalized
+    Gaussian, the one whose echoes predict held-out samples of its first waveforms (`batch`) more closely
+    (held_out_errors under the run's settings); a tie, or no response measured, keeps the generalized
+    Gaussian, the method's model. The chosen pulse says which and why."""
+    shaped, generalized = candidates[Model.SYSTEM], candidates[Model.GENERALIZED]
+    if shaped.response is None:
+        return dataclasses.replace(generalized, model=Model.GENERALIZED.value,
+                                   model_choice="generalized: no system response measured")
+    errors = {model: held_out_errors(batch, config.replace(model=model), pulse)[0]
+              for model, pulse in candidates.items()}
+    model = Model.SYSTEM if errors[Model.SYSTEM] < errors[Model.GENERALIZED] else Model.GENERALIZED
+    why = (f"{model.value}: at held-out samples of {len(batch)} waveforms, echoes of the system response "
+           f"({shaped.response_source}) miss by {errors[Model.SYSTEM]:.3f}, generalized Gaussians by "
+           f"{errors[Model.GENERALIZED]:.3f}")
+    LOG.info("--model auto: %s", why)
+    return dataclasses.replace(candidates[model], model=model.value, model_choice=why)
+
+
+# ---------------------------------------------------------------- shape tolerance and range offset
+
+def measure_shape_tolerance(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse) -> float:
+    """How far the system's pulse departs from a generalized Gaussian, relative to its height: one echo
+    fitted by LM to each waveform of `batch` (single returns), then eps of variance sigma^2 + (eps s)^2
+    fitted by least squares to the squared residuals, s the echo's height at each sample.
+    0 for an exact model; Leica's skewed, ringing pulse gives 0.05."""
+    single = config.replace(optimizer="lm", select_echoes=False, max_echoes=1, fit_target="raw")
+    result = decompose_batch(batch, single, dataclasses.replace(pulse, shape_tolerance=0.0), threads=1)
+    num = den = 0.0
+    for i in np.flatnonzero((result.status == 0) & (np.diff(result.echo_offsets) == 1)):
+        d = result.waveform(int(i))
+        lo, hi = batch.offsets[i], batch.offsets[i + 1]
+        y, valid = batch.samples[lo:hi], batch.valid[lo:hi]
+        model = d.model(np.arange(hi - lo))
+        signal = np.maximum(model - d.background, 0.0)[valid]
+        residual = (y - model)[valid]
+        num += float(np.sum(signal ** 2 * (residual ** 2 - d.noise_sigma ** 2)))
+        den += float(np.sum(signal ** 4))
+    return float(np.sqrt(max(num / den, 0.0))) if den > 0 else 0.0
+
+
+def measure_range_offset(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse,
+                         return_time_ps: np.ndarray) -> tuple[float, int]:
+    """Where the system places a return against the centre of the echo the run finds there: the median of
+    (return time - echo time) over the waveforms of `batch` (single returns, `return_time_ps` within
+    each packet) where the run's decomposition keeps exactly one echo; and how many those are.
+    The system's range reference is a point of its pulse that a fitted centre need not be (Leica:
+    1.19 ns before it, 0.18 m of range)."""
+    result = decompose_batch(batch, config, pulse, threads=1)
+    kept = np.flatnonzero(result.reject == 0)
+    owner = result.echo_waveform[kept]  # sorted: echoes are grouped by waveform
+    one = np.flatnonzero((result.status == 0) & (np.bincount(owner, minlength=len(result)) == 1))
+    if one.size == 0:
+        return 0.0, 0
+    echo_time_ps = result.position[kept[np.searchsorted(owner, one)]] * batch.sample_spacing_ps[one]
+    return float(np.median(np.asarray(return_time_ps, dtype=float)[one] - echo_time_ps)), int(one.size)
+
+
+# ---------------------------------------------------------------- a LAS/LAZ or PulseWaves file
+
+def measure_input_response(path: str | Path) -> SystemResponse | None:
+    """The response `fwl run --model system` measures on an input (LAS/LAZ, PulseWaves: its first records'
+    single returns, else isolated echoes) or on a NEON-layout CSV's isolated echoes; None where too few qualify."""
+    if format_of(path) is NEON_CSV:
+        waveforms = read_neon_csv(path)
+        return csv_response(waveforms.samples, waveforms.valid, NEON_SAMPLE_SPACING_PS)
+    count = input_summary(path).records
+    return file_response(read_pulses(PointRange(str(path), 0, min(count, HEAD_PULSES)))) if count else None
+
+
+def _head_records(pulses: PulseBatch, records: int, seed: int) -> WaveformBatch:
+    """The waveforms of the pulses among a file's first `records` records, from its head already read (LAS:
+    the pulses whose first point is among them; PulseWaves, whose records are pulses: the first ones)."""
+    has_points = pulses.return_offsets[-1] > 0
+    n = int(np.searchsorted(pulses.return_offsets[:-1], records)) if has_points else min(records, len(pulses))
+    every = pulse_waveforms(pulses, seed)
+    end = every.offsets[n]
+    return WaveformBatch(every.samples[:end], every.valid[:end], every.offsets[:n + 1], every.sample_spacing_ps[:n],
+                         every.seeds[:n])
+
+
+def _file_width(pulses: PulseBatch | None, name: str) -> tuple[float, str]:
+    """A file's pulse FWHM (ps) where nothing gave it: recorded (outgoing waveforms, single returns), else
+    estimated from its isolated echoes, else the default, with a warning."""
+    if pulses is not None:
+        try:  # ValueError: its recorded pulses measure nothing (all flat): its echoes are tried
+            measured = recorded_pulse_fwhm_ps(pulses)
+        except ValueError:
+            measured = None
+        if measured is not None:
+            return measured
+        try:  # ValueError: too few isolated echoes
+            estimate = estimate_pulse_fwhm([pulses.pulse_samples(i) for i in range(len(pulses))])
+        except ValueError:
+            estimate = None
+        if estimate is not None:
+            fwhm = estimate.fwhm_samples * float(np.median(pulses.sample_spacing_ps))
+            source = f"estimated from {estimate.n_waveforms} isolated echoes"
+            LOG.warning("%s: no single-return pulse; system pulse FWHM %.0f ps %s", name, fwhm, source)
+            return fwhm, source
+    LOG.warning("%s: no single return and no isolated echo to measure the system pulse width; "
+                "using %.0f ps (set --system-pulse-fwhm-ps)", name, DEFAULT_PULSE_FWHM_PS)
+    return DEFAULT_PULSE_FWHM_PS, "default (unmeasurable)"
+
+
+def _pulses_system_pulse(pulses: PulseBatch | None, name: str, config: DecompositionConfig,
+                         overrides: PulseOverrides) -> SystemPulse:
+    """The system pulse of a file's head (`pulses`, None for a file without records) for one echo model."""
+    response = overrides.response
+    if response is None and pulses is not None and config.model is Model.SYSTEM:
+        response = file_response(pulses)
+        if response is None:
+            LOG.warning("%s: too few strong single returns to measure the system response; echoes are "
+                        "Gaussians of the pulse width", name)
+    fwhm, fwhm_source = overrides.fwhm_ps, "configured"
+    if fwhm is None and response is not None and config.model is Model.SYSTEM:
+        fwhm, fwhm_source = response.fwhm_ps, f"system response: {response.source}"
+    if fwhm is None:
+        fwhm, fwhm_source = _file_width(pulses, name)
+    pulse = SystemPulse(float(fwhm), fwhm_source, 0.0, "none measured", response=response)
+    if overrides.shape_tolerance is not None:
+        pulse = dataclasses.replace(pulse, shape_tolerance=float(overrides.shape_tolerance), shape_source="configured")
+    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
+    return _single_returns_measures(pulses, single, config, pulse, overrides) if single.size else pulse
+
+
+def _single_returns_measures(pulses: PulseBatch, single: np.ndarray, config: DecompositionConfig,
+                             pulse: SystemPulse, overrides: PulseOverrides) -> SystemPulse:
+    """The pulse with its shape tolerance (unless given) and range offset measured on the file's single returns."""
+    seeds = pulse_waveforms(pulses, config.seed).seeds
+
+    def waveforms(rows: np.ndarray) -> WaveformBatch:
+        return WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in rows],
+                                            pulses.sample_spacing_ps[rows], seeds[rows])
+
+    if overrides.shape_tolerance is None:
+        tolerance = measure_shape_tolerance(waveforms(single), config, pulse)
+        pulse = dataclasses.replace(pulse, shape_tolerance=float(tolerance), shape_source="single returns")
+    head = single[:RANGE_OFFSET_PULSES]  # enough for a median within millimetres, cheap for any preset
+    offset, n = measure_range_offset(waveforms(head), config, pulse,
+                                     pulses.return_location_ps[pulses.return_offsets[head]])
+    return dataclasses.replace(pulse, range_offset_ps=offset,
+                               range_offset_source=f"single returns ({n})" if n else "none measured")
+
+
+def file_system_pulse(path: str | Path, point_count: int, config: DecompositionConfig,
+                      overrides: PulseOverrides = PulseOverrides(), head_points: int = HEAD_PULSES) -> SystemPulse:
+    """The file's system pulse from its first `head_points` records (read once): its FWHM from the recorded
+    outgoing waveforms (PulseWaves) or the pulses the system saw as single returns (LAS), else estimated from
+    the waveforms' isolated echoes, else the default, with a warning; under the system model its response;
+    the model's shape tolerance fitted on the single returns (0 where there are none); and the range offset
+    that places an echo where the system places its returns (0 where there are no single returns). What
+    `overrides` gives is taken instead. Under --model auto, the pulse of the model chosen for the file."""
+    pulses = read_pulses(PointRange(str(path), 0, min(point_count, head_points))) if point_count > 0 else None
+    name = Path(path).name
+    if config.model is not Model.AUTO or pulses is None:
+        return _pulses_system_pulse(pulses, name, config, overrides)
+    candidates = {model: _pulses_system_pulse(pulses, name, config.replace(model=model), overrides)
+                  for model in AUTO_MODELS}
+    return choose_system_pulse(candidates, _head_records(pulses, MODEL_PULSES, config.seed), config)
+
+
+# ---------------------------------------------------------------- a NEON-layout CSV
+
+def csv_system_pulse(samples, valid, spacing_ps: float, config: DecompositionConfig,
+                     overrides: PulseOverrides = PulseOverrides(), outgoing: CsvWaveforms | None = None) -> SystemPulse:
+    """A NEON-layout CSV's system pulse: the response given, else (system model) measured on the outgoing
+    pulses (`--outgoing`), else on the returns' strong single echoes; its FWHM given, else the response's
+    (system model) or the outgoing pulses' median, else estimated from the returns' isolated echoes. Under
+    --model auto, the pulse of the model chosen on its first waveforms."""
+    if config.model is not Model.AUTO:
+        return _csv_model_pulse(samples, valid, spacing_ps, config, overrides, outgoing)
+    n = min(len(samples), MODEL_PULSES)
+    head = WaveformBatch.from_waveforms(samples[:n], spacing_ps, [pulse_seed(config.seed, i) for i in range(n)],
+                                        valid[:n])
+    candidates = {model: _csv_model_pulse(samples, valid, spacing_ps, config.replace(model=model), overrides, outgoing)
+                  for model in AUTO_MODELS}
+    return choose_system_pulse(candidates, head, config)
+
+
+def _csv_model_pulse(samples, valid, spacing_ps: float, config: DecompositionConfig, overrides: PulseOverrides,
+                     outgoing: CsvWaveforms | None) -> SystemPulse:
+    """csv_system_pulse for one echo model."""
+    response = overrides.response
+    if response is None and config.model is Model.SYSTEM:
+        response = csv_response(samples, valid, spacing_ps, outgoing)
+    fwhm, source = overrides.fwhm_ps, "configured"
+    if fwhm is None and response is not None and config.model is Model.SYSTEM:
+        fwhm, source = response.fwhm_ps, f"system response: {response.source}"
+    elif fwhm is None and outgoing is not None:
+        fwhm, source = csv_pulse_fwhm_ps(outgoing, spacing_ps), "median of the outgoing pulses"
+    elif fwhm is None:
+        estimate = estimate_pulse_fwhm(samples, valid)
+        fwhm = estimate.fwhm_samples * spacing_ps
+        source = f"estimated from {estimate.n_waveforms} isolated echoes of {estimate.n_candidates} waveforms"
+    tolerance = overrides.shape_tolerance
+    return SystemPulse(float(fwhm), source, float(tolerance or 0.0),
+                       "configured" if tolerance is not None else "none measured", response=response)
+
+
+@dataclasses.dataclass(frozen=True)
+class CsvInput:
+    """A NEON-layout CSV read: its waveforms, the engine's batch of the first `limit` of them, and their pulse."""
+
+    waveforms: CsvWaveforms
+    batch: WaveformBatch
+    pulse: SystemPulse
+
+    @property
+    def waveform_id(self) -> np.ndarray:
+        return self.waveforms.waveform_id[:len(self.batch)]
+
+
+def read_csv_input(path: str | Path, config: DecompositionConfig, overrides: PulseOverrides = PulseOverrides(),
+                   outgoing: str | Path | None = None, spacing_ps: float = NEON_SAMPLE_SPACING_PS,
+                   limit: int | None = None) -> CsvInput:
+    """The one NEON CSV path of `fwl decompose-csv` and `fwl compare`: the waveforms read, their pulse measured on
+    all of them (csv_system_pulse, with `outgoing`'s pulses), the first `limit` seeded by their ids."""
+    waveforms = read_neon_csv(path)  # a file of another kind is named as such first
+    pulse = csv_system_pulse(waveforms.samples, waveforms.valid, spacing_ps, config, overrides,
+                             read_neon_csv(outgoing) if outgoing else None)
+    n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
+    batch = WaveformBatch.from_waveforms(waveforms.samples[:n], spacing_ps,
+                                         [pulse_seed(config.seed, int(i)) for i in waveforms.waveform_id[:n]],
+                                         waveforms.valid[:n])
+    return CsvInput(waveforms, batch, pulse)

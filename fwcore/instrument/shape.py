@@ -1,0 +1,121 @@
+"""The system response as the kernels see it: a table of echoes, the response broadened by Gaussians.
+
+`echo_shape` turns a SystemResponse into the kernels' table: the response
+broadened by Gaussians (a target's depth spreads its return), one row per echo
+width, each row's peak 1, so an echo is A * row(s)(t - u) with A its peak
+amplitude, u the time of the centroid of the response's main lobe (above 5% of
+its peak: where a target's broadening leaves it, unlike the peak of a skewed
+response) and s the sigma of the Gaussian of equal FWHM: the engine's width
+parameter means the same in every model.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from fwcore.instrument.peak import half_height_crossings, half_height_width, main_lobe
+from fwcore.model import SQRT_2LN2
+
+if TYPE_CHECKING:  # the response's module measures with the engine's preprocessing, which needs this one
+    from fwcore.instrument.response import SystemResponse
+
+_FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
+TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation then errs < 1e-4 of the peak
+# The echo table's rows step by this share of the response's own equal-FWHM sigma, from it to the widest echo
+# allowed: the same rows whatever the widest, so a table rebuilt from a run's settings gives its echoes again.
+ROW_STEP = 2.0 / 47.0
+# A row's support ends where it stays below this share of its peak: a quarter of an 8-bit digitizer's
+# step at full scale, so the kernels need not visit the samples a narrow echo cannot reach.
+SUPPORT_LEVEL = 1e-3
+CENTROID_FRACTION = 0.05  # an echo's position: the centroid of its response's lobe above this share of the peak
+
+
+class EchoShape(NamedTuple):
+    """An echo model as the kernels see it. tabulated False: the generalized Gaussian (its parameters
+    alone define it; the arrays are empty). True: rows[w] is the response broadened to the w-th width,
+    peak 1, at times (j - origin) * step samples; slopes its time derivative per sample."""
+
+    tabulated: bool
+    rows: np.ndarray  # (widths, grid) float64
+    slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
+    areas: np.ndarray  # (widths,) integral of each row, samples
+    support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
+    peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
+    half_widths: np.ndarray  # (2,) row 0 from its peak to half height before and after it, samples
+    step: float  # samples per grid point
+    origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
+    s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
+    s_step: float  # between rows
+
+
+def analytic_shape() -> EchoShape:
+    """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
+    empty = np.zeros((1, 2))
+    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
+                     0.0, 0.0, 1.0)
+
+
+def lobe_centroid_ps(response: SystemResponse) -> float:
+    """The centroid of the response's main lobe (above CENTROID_FRACTION of its peak), ps after its peak:
+    where an echo of it is placed."""
+    first, last = main_lobe(response.response, int(np.argmax(response.response)), CENTROID_FRACTION)
+    lobe = response.response[first:last + 1]
+    return float(np.sum(response.times[first:last + 1] * lobe) / np.sum(lobe))
+
+
+@functools.lru_cache(maxsize=64)
+def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
+    """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
+    to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by
+    central differences."""
+    step = 1.0 / TABLE_STEPS_PER_SAMPLE
+    # the echo's position is the centroid of the response's main lobe, not its peak: a target's broadening
+    # moves the peak of a skewed response (Leica's) but hardly the lobe's first moment, so a response measured
+    # on returns their targets widened and the instrument's own place an echo at the same time
+    t_resp = (response.times - lobe_centroid_ps(response)) / spacing_ps
+    f0 = response.fwhm_ps / spacing_ps
+    s_min = f0 / _FWHM_PER_SIGMA
+    n_rows = int(math.ceil((max_width_factor - 1.0) / ROW_STEP - 1e-9)) + 1
+    s_max = s_min * (1.0 + ROW_STEP * (n_rows - 1))
+    widest = math.sqrt(max(s_max ** 2 - s_min ** 2, 0.0))  # the broadening of the widest row, roughly
+    lo = math.floor((t_resp[0] - 4.0 * widest) / step)
+    hi = math.ceil((t_resp[-1] + 4.0 * widest) / step)
+    t = np.arange(lo, hi + 1) * step
+    base = np.interp(t, t_resp, response.response, left=0.0, right=0.0)
+    # FWHM as a function of the broadening sigma b, on a fine b grid, inverted for each row's width
+    b_grid = np.arange(0.0, 1.5 * max(widest, step) + s_min / 32.0, s_min / 64.0)  # fixed steps, like the rows
+    broadened = [_broaden(base, b / step) for b in b_grid]
+    fwhms = np.array([half_height_width(t, r) for r in broadened])
+    targets = np.linspace(s_min, s_max, n_rows) * _FWHM_PER_SIGMA
+    rows = np.empty((n_rows, t.size))
+    for w, f in enumerate(targets):
+        b = float(np.interp(f, fwhms, b_grid))
+        r = _broaden(base, b / step)
+        rows[w] = r / r.max()
+    support = np.empty((n_rows, 2), dtype=np.int64)
+    for w in range(n_rows):
+        above = np.flatnonzero(np.abs(rows[w]) > SUPPORT_LEVEL)
+        support[w] = above[0], above[-1]
+        rows[w, :above[0]] = 0.0  # so that every evaluation, windowed or not, gives the same echo
+        rows[w, above[-1] + 1:] = 0.0
+    slopes = np.gradient(rows, step, axis=1)
+    areas = rows.sum(axis=1) * step
+    peak_offsets = (np.argmax(rows, axis=1) + lo) * step
+    crest = int(np.argmax(rows[0]))
+    left, right = half_height_crossings(rows[0], np.ones(t.size, dtype=np.bool_), crest, rows[0, crest])
+    half_widths = np.array([(crest - left) * step, (right - crest) * step])
+    return EchoShape(True, rows, slopes, areas, support, peak_offsets, half_widths, step, float(-lo), s_min,
+                     s_min * ROW_STEP)
+
+
+def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:
+    """values convolved with a unit-area Gaussian of sigma_steps grid steps (the same grid, zero beyond)."""
+    if sigma_steps < 1e-3:
+        return values.copy()
+    half = int(math.ceil(5.0 * sigma_steps))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma_steps) ** 2)
+    return np.convolve(values, k / k.sum(), mode="same") if half < values.size else values.copy()
