@@ -44,8 +44,8 @@ import numpy as np  # noqa: E402
 
 from fwcore.studies.methods import (ABOVE, BELOW, BETWEEN, compare_to_system, extra_points,  # noqa: E402
                             height_among_returns, system_dead_zone)
-from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
-from fwcore.engine import decompose_batch  # noqa: E402
+from fwcore.engine.config import PRESETS, DecompositionConfig  # noqa: E402
+from fwcore.engine.decompose import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.geolocate import geolocate  # noqa: E402
 from fwcore.io.writer import write_waveform_las  # noqa: E402
@@ -53,9 +53,9 @@ from fwcore.io.neon import read_neon_csv  # noqa: E402
 from fwcore.instrument.pulse import PRESET_OVERRIDES, PulseOverrides, SystemPulse, nominal_pulse  # noqa: E402
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
-from fwcore.records import WaveformBatch  # noqa: E402
+from fwcore.engine.records import WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
-from fwcore.simulate import simulate_flight  # noqa: E402
+from fwcore.studies.simulate import simulate_flight  # noqa: E402
 from fwcore.studies.evaluate import match_echoes  # noqa: E402
 from fwcore.instrument.measure import file_system_pulse, held_out_errors  # noqa: E402
 

@@ -35,16 +35,16 @@ import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 
-from fwcore.config import PRESETS, DecompositionConfig  # noqa: E402
+from fwcore.engine.config import PRESETS, DecompositionConfig  # noqa: E402
 from fwcore.instrument.measure import csv_system_pulse, file_system_pulse, held_out_errors  # noqa: E402
 from fwcore.instrument.pulse import PulseOverrides, SystemPulse  # noqa: E402
 from fwcore.instrument.response import load_response, named_response  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.neon import read_neon_csv  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
-from fwcore.records import BatchDecomposition, WaveformBatch  # noqa: E402
+from fwcore.engine.records import BatchDecomposition, WaveformBatch  # noqa: E402
 from fwcore.rng import pulse_seed  # noqa: E402
-from fwcore.simulate import SceneConfig, SensorConfig  # noqa: E402
+from fwcore.studies.simulate import SceneConfig, SensorConfig  # noqa: E402
 from fwcore.studies.methods import compare_to_system  # noqa: E402
 from fwcore.studies.truth import write_flight  # noqa: E402
 from bench_engine import fastest, timed  # noqa: E402  (result, waveforms/s) on one thread, the fastest of 3

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from fwcore.config import PRESETS, DecompositionConfig
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import PRESETS, DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
 from fwcore.io import PulseBatch, input_summary, read_pulses
 from fwcore.io.writer import write_waveform_las
 from fwcore.pulses import pulse_waveforms

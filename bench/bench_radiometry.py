@@ -126,12 +126,12 @@ def cost(workdir: Path, pulses: int) -> None:
 def stage_share(las: Path, flags: list[str], ranges: int = 6) -> dict:
     """The time of a range's stages in this process, the radiometry's apart (the same functions as the
     pipeline's stages call), over the first `ranges` ranges of the file."""
-    from fwcore.config import DecompositionConfig
-    from fwcore.engine import decompose_batch
-    from fwcore.flight_radiometry import file_radiometry, range_radiometry
+    from fwcore.engine.config import DecompositionConfig
+    from fwcore.engine.decompose import decompose_batch
+    from fwcore.radiometry.flight import file_radiometry, range_radiometry
     from fwcore.io import read_pulses
     from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
-    from fwcore.radiometry import RadiometryConfig
+    from fwcore.radiometry.equations import RadiometryConfig
     from pipeline.outputs import InputNames
     from pipeline.plan import plan_inputs
     from pipeline.tables import pulse_tables

@@ -50,7 +50,7 @@ def fwl(*args: str) -> None:
 
 
 def simulate(path: Path, pulses: int, seed: int) -> Path:
-    from fwcore.simulate import SceneConfig, SensorConfig
+    from fwcore.studies.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import truth_path, write_flight
     path.parent.mkdir(parents=True, exist_ok=True)
     write_flight(path, pulses, SensorConfig(), SceneConfig(), seed)
@@ -161,7 +161,7 @@ def bench_plan(work: Path, files: int, pulses: int) -> None:
     import dask
     from distributed import Client, LocalCluster
 
-    from fwcore.config import DecompositionConfig
+    from fwcore.engine.config import DecompositionConfig
     from pipeline.options import check_beam_args
     from pipeline.outputs import InputNames, expand_inputs
     from pipeline.plan import inputs_to_plan, plan_input, read_plans

@@ -15,15 +15,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from fwcore.config import DecompositionConfig  # noqa: E402
-from fwcore.engine import decompose_batch  # noqa: E402
+from fwcore.engine.config import DecompositionConfig  # noqa: E402
+from fwcore.engine.decompose import decompose_batch  # noqa: E402
 from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, read_neon_csv  # noqa: E402
-from fwcore.model import generalized_gaussian  # noqa: E402
+from fwcore.engine.model import generalized_gaussian  # noqa: E402
 from fwcore.instrument.pulse import nominal_pulse  # noqa: E402
 from fwcore.instrument.width import csv_pulse_fwhm_ps  # noqa: E402
 from fwcore.pulses import pulse_waveforms  # noqa: E402
-from fwcore.records import WaveformBatch  # noqa: E402
+from fwcore.engine.records import WaveformBatch  # noqa: E402
 from fwcore.instrument.measure import file_system_pulse  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

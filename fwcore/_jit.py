@@ -14,7 +14,7 @@ from numba.extending import intrinsic
 # Kernels are strict IEEE by default: fast-math results depend on what LLVM inlined and fused,
 # so a kernel compiled fresh and one loaded from numba's cache by a worker differed in the last
 # bits, and a file run alone then gave other rows than in a folder. Only the population
-# methods' float32 objective (fwcore.optimizers.objective, never a reported number) takes
+# methods' float32 objective (fwcore.engine.optimizers.objective, never a reported number) takes
 # SIMD_JIT: fastmath to reassociate and vectorize, but without nnan/ninf (stumpy's set): with
 # them LLVM may assume no inf or NaN exists, and np.isfinite(np.inf) is True inside a kernel.
 # error_model="numpy": no zero-division checks, whose exception branch blocks SIMD.

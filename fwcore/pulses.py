@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fwcore.records import BatchDecomposition, WaveformBatch
+from fwcore.engine.records import BatchDecomposition, WaveformBatch
 from fwcore.io.geolocate import geolocate
 from fwcore.io.records import PulseBatch
 from fwcore.rng import pulse_seeds

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 import fwcore
-from fwcore.config import DecompositionConfig, Model, Optimizer
+from fwcore.engine.config import DecompositionConfig, Model, Optimizer
 from pipeline.progress import quiet_imports
 from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
                               record_command_folder)
@@ -43,7 +43,7 @@ def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) 
 def _decompose_csv(args: argparse.Namespace) -> int:
     import pyarrow.parquet as pq
 
-    from fwcore.engine import decompose_batch
+    from fwcore.engine.decompose import decompose_batch
     from fwcore.instrument.measure import read_csv_input
     from pipeline.tables import echo_table, waveform_table
 
@@ -215,7 +215,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response
-    from fwcore.simulate import SceneConfig, SensorConfig
+    from fwcore.studies.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import calibration_path, trajectory_path, truth_path, write_flight
 
     output = check_suffix("fwl simulate", args.output, (".las", ".laz"), "a LAS file (its truth beside it)")

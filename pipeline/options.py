@@ -18,7 +18,7 @@ from typing import Any, Iterable, get_type_hints
 
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
-from fwcore.config import OPTIMIZERS, PRESETS, DecompositionConfig
+from fwcore.engine.config import OPTIMIZERS, PRESETS, DecompositionConfig
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides
 from fwcore.instrument.response import named_response
 
@@ -160,7 +160,7 @@ class FwlOptions(PipelineOptions):
 
 
 def add_radiometry_arguments(parser) -> None:
-    """Range, backscatter and reflectance (fwcore.radiometry); every value is relative unless calibrated."""
+    """Range, backscatter and reflectance (fwcore.radiometry.equations); every value is relative unless calibrated."""
     g = parser.add_argument_group("radiometry (range, backscatter cross-section and coefficient, reflectance)")
     g.add_argument("--trajectory", help="the platform's trajectory for LAS inputs: an SBET (17 doubles a record, "
                                         "WGS 84, radians) or a CSV gps_time,x,y,z in the inputs' CRS")
@@ -175,7 +175,7 @@ def add_radiometry_arguments(parser) -> None:
 
 def radiometry_config(args: Any):
     """The radiometry flags as one RadiometryConfig, checked (RadiometryError, a ValueError, names the problem)."""
-    from fwcore.radiometry import RadiometryConfig, RadiometryError, parse_calibration_reference
+    from fwcore.radiometry.equations import RadiometryConfig, RadiometryError, parse_calibration_reference
 
     reference = getattr(args, "calibration_reference", None)
     constant = getattr(args, "calibration_constant", None)

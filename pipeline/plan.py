@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.measure import file_system_pulse
 from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import input_summary, open_input, plan_point_ranges

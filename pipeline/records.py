@@ -13,9 +13,9 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.pulse import SystemPulse
-from fwcore.records import BatchDecomposition
+from fwcore.engine.records import BatchDecomposition
 from fwcore.io import PulseBatch
 from fwcore.io.records import PointRange
 

@@ -26,10 +26,10 @@ import pyarrow.parquet as pq
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 import fwcore
-from fwcore.config import DecompositionConfig, Model
+from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.pulse import PulseOverrides
-from fwcore.flight_radiometry import PatchFile, calibrate_on_reference, check_flight, file_radiometry
-from fwcore.radiometry import RadiometryConfig, RadiometryError
+from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
+from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
@@ -287,7 +287,7 @@ def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: in
 
 def check_radiometry(paths: list[str], radiometry: RadiometryConfig) -> None:
     """Before the folder is touched: the trajectory against each input it serves, and a reference patch's needs
-    (an input with ranges and a beam divergence) (fwcore.flight_radiometry). An input that cannot be read is left
+    (an input with ranges and a beam divergence) (fwcore.radiometry.flight). An input that cannot be read is left
     to its plan, which rejects it with the reason."""
     if not (radiometry.trajectory or radiometry.calibration_reference):
         return

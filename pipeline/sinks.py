@@ -168,7 +168,7 @@ WAVEFORM_SCHEMA = {
 
 
 def _waveform_message(v: dict[str, np.ndarray], i: int) -> bytes:
-    from fwcore.filter import REJECT_REASONS
+    from fwcore.engine.filter import REJECT_REASONS
 
     lo, hi = v["sample_offsets"][i], v["sample_offsets"][i + 1]
     e_lo, e_hi = v["echo_offsets"][i], v["echo_offsets"][i + 1]

@@ -17,15 +17,15 @@ import time
 
 import numpy as np
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
-from fwcore.flight_radiometry import file_radiometry, range_radiometry
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
+from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
 from fwcore.io.writer import write_point_cloud
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
-from fwcore.radiometry import RadiometryConfig
-from fwcore.records import STATUS_REASONS, WaveformBatch, model_samples
+from fwcore.radiometry.equations import RadiometryConfig
+from fwcore.engine.records import STATUS_REASONS, WaveformBatch, model_samples
 from pipeline.copc import has_point_cloud_parts
 from pipeline.geoparquet import write_echo_part
 from pipeline.layout import ECHOES, LAS, MCAP, PULSES, part_paths

@@ -13,11 +13,11 @@ import json
 import numpy as np
 import pyarrow as pa
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.crs import crs_projjson
-from fwcore.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
-from fwcore.filter import REJECT_REASONS
+from fwcore.engine.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
+from fwcore.engine.filter import REJECT_REASONS
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
 PULSE_METADATA_KEY = b"fwlidar.pulse"  # the file's system pulse the rows were decomposed with
@@ -194,7 +194,7 @@ TABLES = {
     "csv waveforms": ("waveform_id", "status", "n_samples", "noise_sigma", "background", *_FIT, *_COUNTS, *_METHOD),
 }
 _RENAMED = {"nfev": "model_evaluations"}  # record fields whose column name says more
-# The columns that are fields of the engine's per-waveform record (fwcore.records.WAVEFORM_RESULT), by column name:
+# The columns that are fields of the engine's per-waveform record (fwcore.engine.records.WAVEFORM_RESULT), by column name:
 # the tables take their values from the record by this map, and a test checks that their columns cover it.
 RECORD_COLUMNS = {_RENAMED.get(f, f): f for f in WAVEFORM_FIELDS}
 
@@ -282,7 +282,7 @@ RADIOMETRY_COLUMNS = ("range_m", "incidence_deg", "backscatter_cross_section_m2"
 
 
 def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dict:
-    """fwcore.radiometry.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
+    """fwcore.radiometry.equations.echo_radiometry's columns, NaN as null; all null (and 'unavailable') without them."""
     if radiometry is None:
         radiometry = {**{c: np.full(n, np.nan) for c in RADIOMETRY_COLUMNS}, "radiometry": np.full(n, "unavailable"),
                       "reflectance_basis": np.full(n, "null: no range")}
@@ -296,7 +296,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
                  crs_wkt: str | None = None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
     `ok`; the geometry's CRS is `crs_wkt` (the run's, fwcore.io.crs.input_crs), else the input file's."""
-    from fwcore.model import sigma_to_time_unit
+    from fwcore.engine.model import sigma_to_time_unit
 
     owner = result.echo_waveform
     spacing = pulses.sample_spacing_ps[owner]

@@ -32,8 +32,8 @@ import time
 import apache_beam as beam
 from apache_beam.metrics import Metrics
 
-from fwcore.config import DecompositionConfig
-from fwcore.radiometry import RadiometryConfig
+from fwcore.engine.config import DecompositionConfig
+from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.layout import (assemble_file, log_to_file, mark_range_done, plan_path, write_file_rejection,
                              write_rejections)
 from pipeline.plan import InputToPlan, plan_input, planned_pulses

@@ -27,7 +27,7 @@ import threading
 from pathlib import Path
 from typing import Callable
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.io import needs_packet_file, packet_file
 from pipeline.outputs import INPUT_SUFFIXES, OutputFolderError, check_settings, input_identity, read_manifest
 

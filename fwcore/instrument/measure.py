@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
 from fwcore.instrument.response import SystemResponse, csv_response, file_response
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm, recorded_pulse_fwhm_ps
@@ -26,7 +26,7 @@ from fwcore.io.formats import NEON_CSV, format_of
 from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, CsvWaveforms, read_neon_csv
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import pulse_waveforms
-from fwcore.records import WaveformBatch
+from fwcore.engine.records import WaveformBatch
 from fwcore.rng import pulse_seed
 
 LOG = logging.getLogger("fwl")

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from fwcore.config import Model
+from fwcore.engine.config import Model
 from fwcore.instrument.response import SystemResponse, gaussian_response
 
 DEFAULT_PULSE_FWHM_PS = 4000.0  # where nothing measures the pulse and no one gives it

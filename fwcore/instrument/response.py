@@ -27,8 +27,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from fwcore.instrument.peak import half_height_width, isolated_lobe, local_maxima, parabola_height, parabola_vertex
-from fwcore.model import SQRT_2LN2
-from fwcore.preprocess import noise_and_background
+from fwcore.engine.model import SQRT_2LN2
+from fwcore.engine.preprocess import noise_and_background
 
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
 BINS_PER_SAMPLE = 4  # the measured response's resolution: a quarter of the digitizer's sample

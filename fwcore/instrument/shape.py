@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from fwcore.instrument.peak import half_height_crossings, half_height_width, main_lobe
-from fwcore.model import SQRT_2LN2
+from fwcore.engine.model import SQRT_2LN2
 
 if TYPE_CHECKING:  # the response's module measures with the engine's preprocessing, which needs this one
     from fwcore.instrument.response import SystemResponse

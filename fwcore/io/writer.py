@@ -28,7 +28,7 @@ EXTRA_DIMENSIONS = (
     ("fit_error", "pulse sum |residual| (Eq.9) [DN]"),
     ("channel", "waveform channel (PulseWaves)"),
 )
-# Radiometry (fwcore.radiometry), NaN where unavailable: (name, description when calibrated, when relative).
+# Radiometry (fwcore.radiometry.equations), NaN where unavailable: (name, description when calibrated, when relative).
 RADIOMETRY_DIMENSIONS = (
     ("range_m", "range to the scanner [m]", "range to the scanner [m]"),
     ("incidence_deg", "incidence angle [deg]", "incidence angle [deg]"),
@@ -66,7 +66,7 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     input file); the CRS is written as OGC WKT with the global encoding's WKT bit, as formats 6-10 require
     (converted from GeoTIFF keys where the input has those), or `crs_wkt` where given (the run's CRS,
     fwcore.io.crs.input_crs). Columns: fwcore.pulses.decomposed_echoes, and the
-    radiometry's (fwcore.radiometry.echo_radiometry) as Extra Bytes, described as calibrated or relative.
+    radiometry's (fwcore.radiometry.equations.echo_radiometry) as Extra Bytes, described as calibrated or relative.
     """
     path = Path(path)
     source = point_cloud_template(template)

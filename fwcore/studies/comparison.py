@@ -20,13 +20,13 @@ import numpy as np
 
 from fwcore.studies.methods import (MethodRun, budget_settings, budget_study, choose_fast_preset, compare_methods,
                             compare_to_system)
-from fwcore.config import DecompositionConfig, Model, Optimizer
+from fwcore.engine.config import DecompositionConfig, Model, Optimizer
 from fwcore.instrument.measure import file_system_pulse, read_csv_input
 from fwcore.instrument.pulse import PulseOverrides, SystemPulse
 from fwcore.io import read_pulses
 from fwcore.io.formats import NEON_CSV, format_of
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
-from fwcore.records import WaveformBatch
+from fwcore.engine.records import WaveformBatch
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,8 +29,8 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from fwcore.instrument.shape import echo_shape
-from fwcore.model import tabulated_row
-from fwcore.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
+from fwcore.engine.model import tabulated_row
+from fwcore.studies.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
 from fwcore.studies.truth import TRUTH_METADATA_KEY
 
 SNR_BANDS = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 50.0), (50.0, np.inf))

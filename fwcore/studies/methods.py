@@ -16,11 +16,11 @@ from typing import Iterable, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fwcore.config import DecompositionConfig, Model, Optimizer
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig, Model, Optimizer
+from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.records import PulseBatch
-from fwcore.records import BatchDecomposition, WaveformBatch
+from fwcore.engine.records import BatchDecomposition, WaveformBatch
 
 # The comparison's settings per optimizer (on top of the caller's configuration): the method's fixed
 # budgets, every generation run (tol 0), as its Table 1 was measured.

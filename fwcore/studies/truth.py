@@ -11,7 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.io.writer import WaveformLasWriter
-from fwcore.simulate import SceneConfig, SensorConfig, sensor_position, simulate_chunks
+from fwcore.studies.simulate import SceneConfig, SensorConfig, sensor_position, simulate_chunks
 
 TRUTH_METADATA_KEY = b"fwlidar.simulation"
 
@@ -75,7 +75,7 @@ def write_calibration_reference(path: str | Path, n_pulses: int, scene: SceneCon
 def write_flight(output: str | Path, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, seed: int,
                  layout: str = "las13-wdp") -> WrittenFlight:
     """Simulate a flight into `output` (and its packets) and its truth beside it, one chunk of pulses in
-    memory at a time (fwcore.simulate.CHUNK_PULSES), whatever n_pulses."""
+    memory at a time (fwcore.studies.simulate.CHUNK_PULSES), whatever n_pulses."""
     output = Path(output)
     n_returns = n_echoes = 0
     with WaveformLasWriter(output, layout) as las, TruthWriter(truth_path(output), sensor, scene, seed) as truth:

@@ -12,7 +12,7 @@ import math
 import re
 from typing import Any
 
-from fwcore.config import PRESETS, Model, Optimizer
+from fwcore.engine.config import PRESETS, Model, Optimizer
 
 MAX_ECHOES = 200_000  # the most echoes one request returns, whatever the page asks
 MAX_PULSE_LIST = 1000

@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import PRESETS, DecompositionConfig, Model
-from fwcore.engine import decompose_batch, smoothing_sigma_samples
-from fwcore.records import WaveformBatch
+from fwcore.engine.config import PRESETS, DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch, smoothing_sigma_samples
+from fwcore.engine.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse
 from fwcore.instrument.response import SystemResponse
 from fwcore.instrument.shape import lobe_centroid_ps
-from fwcore.model import sigma_to_time_unit
-from fwcore.preprocess import gaussian_smooth
+from fwcore.engine.model import sigma_to_time_unit
+from fwcore.engine.preprocess import gaussian_smooth
 from fwcore.pulses import pulse_waveforms
 from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary

@@ -38,7 +38,7 @@ from urllib.parse import parse_qs, unquote, urlsplit
 
 import numpy as np
 
-from fwcore.config import PRESETS, Model, Optimizer
+from fwcore.engine.config import PRESETS, Model, Optimizer
 from pipeline.layout import RUN_JSON
 from pipeline.view import grids as layers
 from pipeline.view import params, queries

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fwcore.model import SQRT_2LN2, sigma_from_equivalent, waveform_model
+from fwcore.engine.model import SQRT_2LN2, sigma_from_equivalent, waveform_model
 from fwcore.rng import SplitMix64
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from fwcore.config import (LOCAL_NONE, MEASURED_KERNEL_VALUES, OPTIMIZERS, DecompositionConfig, KernelParams, Model,
+from fwcore.engine.config import (LOCAL_NONE, MEASURED_KERNEL_VALUES, OPTIMIZERS, DecompositionConfig, KernelParams, Model,
                            Optimizer)
 
 DEFAULT = DecompositionConfig()

@@ -5,11 +5,11 @@ import pickle
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import decompose_batch, decompose_waveform
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch, decompose_waveform
 from fwcore.instrument.pulse import nominal_pulse
-from fwcore.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
-from fwcore.model import fwhm, waveform_model
+from fwcore.engine.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
+from fwcore.engine.model import fwhm, waveform_model
 
 SPACING = 1000.0
 PULSE_SIGMA = 3.0  # samples
@@ -72,7 +72,7 @@ def test_weak_echo_at_four_noise_sigma_is_found():
 
 @pytest.mark.parametrize("alpha", [1.2, 1.5, 1.8, 2.2])
 def test_shape_factor_alpha_is_recovered(alpha):
-    from fwcore.model import sigma_from_half_width
+    from fwcore.engine.model import sigma_from_half_width
     h = 4.0  # half width at half maximum, samples
     sigma = float(sigma_from_half_width(h, alpha))
     y = synthetic([200.0], [70.0], [sigma], [alpha], noise=1.0, seed=int(alpha * 10))

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch, decompose_waveform
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch, decompose_waveform
 from fwcore.instrument.measure import file_system_pulse
 from fwcore.instrument.peak import main_lobe
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
@@ -19,9 +19,9 @@ from fwcore.instrument.response import (SystemResponse, gaussian_response, load_
                                         pulses_response, response_from_samples)
 from fwcore.instrument.shape import echo_shape
 from fwcore.io import PointRange, read_pulses
-from fwcore.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
-from fwcore.optimizers.local import model_and_jacobian
-from fwcore.preprocess import initial_echoes
+from fwcore.engine.model import table_peak_offset, table_reach, table_value, tabulated_area, tabulated_model
+from fwcore.engine.optimizers.local import model_and_jacobian
+from fwcore.engine.preprocess import initial_echoes
 from fwcore.pulses import pulse_waveforms
 from tests.fwcore import naive
 

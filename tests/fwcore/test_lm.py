@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fwcore.instrument.shape import analytic_shape
-from fwcore.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
+from fwcore.engine.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
 from tests.fwcore.naive import model_of_individual
 
 T = np.arange(100.0)

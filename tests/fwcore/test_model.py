@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from fwcore.instrument.shape import analytic_shape
-from fwcore.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
+from fwcore.engine.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
                           sigma_from_equivalent, sigma_to_time_unit, waveform_model)
-from fwcore.optimizers.objective import fill_model, padded_length
+from fwcore.engine.optimizers.objective import fill_model, padded_length
 from tests.fwcore.naive import model_of_individual
 
 

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.model import waveform_model
+from fwcore.engine.model import waveform_model
 from fwcore.io.neon import read_neon_csv
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm
-from fwcore.preprocess import estimate_noise, initial_echoes
+from fwcore.engine.preprocess import estimate_noise, initial_echoes
 
 DATA = "examples/data/"
 

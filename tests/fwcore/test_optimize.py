@@ -3,11 +3,11 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig, Model
+from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.shape import analytic_shape
-from fwcore.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
+from fwcore.engine.optimizers.evolution import (binomial_crossover, chaotic_scale_factors, evolve, init_population,
                                         mutate_de, mutate_mde)
-from fwcore.optimizers.objective import fit_error, padded_length
+from fwcore.engine.optimizers.objective import fit_error, padded_length
 from fwcore.rng import SplitMix64, next_u64, pulse_seed
 from tests.fwcore import naive
 

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig, Model
-from fwcore.engine import decompose_batch, decompose_waveform
-from fwcore.records import WaveformBatch
+from fwcore.engine.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch, decompose_waveform
+from fwcore.engine.records import WaveformBatch
 from tests.fwcore.test_decompose import CONFIG, PULSE, PULSE_SIGMA, SPACING, SQ2, synthetic
 
 # the comparison's population and generations for the population methods
@@ -136,7 +136,7 @@ def test_mde_gate_must_not_be_negative():
 @pytest.mark.parametrize("optimizer, weighted", [("lm", True), ("lbfgs", False)])
 def test_the_local_fit_weighs_the_samples_by_the_noise_where_the_catalogue_says(optimizer, weighted):
     from fwcore.instrument.shape import analytic_shape
-    from fwcore.optimizers import run_optimizer
+    from fwcore.engine.optimizers import run_optimizer
     from tests.fwcore.naive import model_of_individual
 
     times = np.arange(60.0)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from fwcore.instrument.shape import analytic_shape
-from fwcore.model import waveform_model
-from fwcore.optimizers.ga_iterative import patent_peak_ranges
-from fwcore.preprocess import estimate_noise, gaussian_smooth, initial_echoes
+from fwcore.engine.model import waveform_model
+from fwcore.engine.optimizers.ga_iterative import patent_peak_ranges
+from fwcore.engine.preprocess import estimate_noise, gaussian_smooth, initial_echoes
 from tests.fwcore import naive
 
 
@@ -71,7 +71,7 @@ def test_patent_peaks_and_search_ranges():
 
 
 def test_progressive_estimate_matches_the_naive_reference():
-    from fwcore.preprocess import _progressive_echoes
+    from fwcore.engine.preprocess import _progressive_echoes
 
     t = np.arange(150.0)
     y = waveform_model(t, 12.0, [90.0, 40.0, 25.0], [30.0, 70.0, 110.0], [3.0, 4.0, 2.5], [math.sqrt(2)] * 3)
@@ -87,7 +87,7 @@ def test_progressive_estimate_matches_the_naive_reference():
 
 
 def test_filter_matches_the_naive_reference():
-    from fwcore.filter import REJECT_REASONS, filter_echoes
+    from fwcore.engine.filter import REJECT_REASONS, filter_echoes
 
     rng = np.random.default_rng(4)
     for _ in range(50):
@@ -102,7 +102,7 @@ def test_filter_matches_the_naive_reference():
 
 
 def test_of_a_close_pair_the_first_stays_when_it_is_strong_enough():
-    from fwcore.filter import REJECT_REASONS, filter_echoes
+    from fwcore.engine.filter import REJECT_REASONS, filter_echoes
 
     # a shoulder at 40% of the stronger echo 5 samples later (pulse FWHM 8): one unresolved return
     amplitude, position, width = np.array([40.0, 100.0]), np.array([50.0, 55.0]), np.array([8.0, 8.0])

@@ -11,7 +11,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from fwcore.radiometry import (
+from fwcore.radiometry.equations import (
     CALIBRATED,
     RELATIVE,
     SBET_RECORD,
@@ -192,7 +192,7 @@ def test_sbet_against_orthometric_heights_it_cannot_reach_is_refused(tmp_path):
     bare = tmp_path / "proj"
     bare.mkdir()
     shutil.copy(Path(pyproj.datadir.get_data_dir()) / "proj.db", bare / "proj.db")
-    code = ("import pyproj\nfrom fwcore.radiometry import RadiometryError, load_trajectory\n"
+    code = ("import pyproj\nfrom fwcore.radiometry.equations import RadiometryError, load_trajectory\n"
             f"wkt = pyproj.CRS.from_user_input('EPSG:32633+5773').to_wkt()\n"
             f"try:\n    load_trajectory({str(path)!r}, wkt, 'a.las')\nexcept RadiometryError as err:\n    print(err)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
@@ -539,7 +539,7 @@ def test_a_plane_along_the_beam_gives_no_incidence_and_the_apparent_reflectance(
 
 
 def test_incidence_is_trusted_up_to_80_degrees():
-    from fwcore.radiometry import trusted_incidence
+    from fwcore.radiometry.equations import trusted_incidence
 
     kept = trusted_incidence(np.radians([0.0, 45.0, 79.9, 80.1, 89.99, np.nan]))
     np.testing.assert_allclose(np.degrees(kept), [0.0, 45.0, 79.9, np.nan, np.nan, np.nan])
@@ -557,7 +557,7 @@ def test_an_echo_without_energy_has_null_radiometry_and_says_why():
 
 
 def test_a_plane_whose_tilt_is_uncertain_is_not_trusted_where_it_moves_cos_alpha_by_more_than_5_percent():
-    from fwcore.radiometry import trusted_incidence
+    from fwcore.radiometry.equations import trusted_incidence
 
     # tan(45 deg) x 0.04 = 4%: trusted; x 0.06 = 6%: not; at 10 deg tan = 0.176: 0.06 rad moves cos by 1%
     kept = trusted_incidence(np.radians([45.0, 45.0, 10.0]), np.array([0.04, 0.06, 0.06]))
@@ -565,7 +565,7 @@ def test_a_plane_whose_tilt_is_uncertain_is_not_trusted_where_it_moves_cos_alpha
 
 
 def test_the_tilt_uncertainty_of_a_fitted_plane():
-    from fwcore.radiometry import local_planes
+    from fwcore.radiometry.equations import local_planes
 
     # 9 points: a 3 x 3 grid 1 m apart, z = +-0.01 m in a checkerboard: misfit variance ~1e-4 about the plane,
     # variance 2/3 m^2 along either axis: tilt sqrt(1e-4 x 80/81 / (9 x 2/3)) ~ 0.004 rad

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.instrument.width import csv_pulse_fwhm_ps
-from fwcore.records import WaveformBatch
+from fwcore.engine.records import WaveformBatch
 from fwcore.io.neon import read_neon_csv
 from fwcore.rng import pulse_seed
 

@@ -8,11 +8,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from fwcore import simulate
+from fwcore.studies import simulate
 from fwcore.io import read_pulses
 from fwcore.io.geolocate import geolocate
 from fwcore.io.writer import write_waveform_las
-from fwcore.simulate import MAX_ECHOES, SceneConfig, SensorConfig, render_truth, simulate_flight
+from fwcore.studies.simulate import MAX_ECHOES, SceneConfig, SensorConfig, render_truth, simulate_flight
 from fwcore.studies.truth import TRUTH_METADATA_KEY, write_flight
 
 NOISELESS = SensorConfig(noise_sigma=0.0, shot_noise=0.0)

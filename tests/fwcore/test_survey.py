@@ -3,14 +3,14 @@ import re
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import decompose_waveform
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_waveform
 from fwcore.instrument.measure import csv_system_pulse, file_system_pulse, measure_range_offset
 from fwcore.instrument.pulse import PulseOverrides, nominal_pulse
 from fwcore.instrument.response import load_response
 from fwcore.io import input_summary
 from fwcore.io.neon import read_neon_csv
-from fwcore.records import WaveformBatch
+from fwcore.engine.records import WaveformBatch
 
 SPACING_PS = 1000.0
 

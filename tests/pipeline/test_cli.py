@@ -66,7 +66,7 @@ def test_decompose_csv_rejects_a_bad_option_value(tmp_path, small_csv, capsys):
 
 
 def test_config_loads_from_toml(tmp_path):
-    from fwcore.config import DecompositionConfig, Optimizer
+    from fwcore.engine.config import DecompositionConfig, Optimizer
     path = tmp_path / "c.toml"
     path.write_text('[decomposition]\noptimizer = "de"\npopulation = 100\n')
     config = DecompositionConfig.from_toml(path)
@@ -77,7 +77,7 @@ def test_config_loads_from_toml(tmp_path):
 
 
 def test_presets_then_toml_then_flags(tmp_path):
-    from fwcore.config import Optimizer
+    from fwcore.engine.config import Optimizer
     from pipeline.cli import _config_from_args, build_parser
     path = tmp_path / "c.toml"
     path.write_text('[decomposition]\nlm_iterations = 7\n')
@@ -92,7 +92,7 @@ def test_presets_then_toml_then_flags(tmp_path):
 def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_path, monkeypatch, capsys):
     import laspy
 
-    from fwcore import simulate
+    from fwcore.studies import simulate
 
     monkeypatch.setattr(simulate, "CHUNK_PULSES", 100)
     las = tmp_path / "sim.las"
@@ -161,10 +161,10 @@ def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(lei
 
 
 def test_decompose_csv_with_the_system_impulse_writes_echoes_of_its_shape(tmp_path, small_csv, neon_dir, capsys):
-    from fwcore.config import DecompositionConfig
-    from fwcore.engine import echo_shapes
+    from fwcore.engine.config import DecompositionConfig
+    from fwcore.engine.decompose import echo_shapes
     from fwcore.instrument.pulse import SystemPulse
-    from fwcore.model import tabulated_model
+    from fwcore.engine.model import tabulated_model
 
     out = tmp_path / "echoes.parquet"
     assert main(["decompose-csv", str(small_csv), "--output", str(out), "--model", "system",

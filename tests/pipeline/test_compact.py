@@ -180,7 +180,7 @@ def test_a_compact_killed_by_a_signal_and_rerun_gives_the_same_tiles(flight, tmp
 @pytest.fixture(scope="module")
 def square_flight(tmp_path_factory):
     """A flight over a square, small enough for a test: 100 scan lines of 40 pulses, 24 m by 24 m."""
-    from fwcore.simulate import SceneConfig, SensorConfig
+    from fwcore.studies.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import write_flight
 
     folder = tmp_path_factory.mktemp("square")

@@ -9,7 +9,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from pipeline.copc import Cube, assemble_copc, bucket_depth
 from pipeline.run import run
 

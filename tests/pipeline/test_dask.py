@@ -81,7 +81,7 @@ def test_planning_on_the_workers_gives_the_drivers_plans(tmp_path, leica_dir, cl
     """The plan job on the cluster and on the DirectRunner: the plans the driver makes by itself, file by file."""
     import apache_beam as beam
 
-    from fwcore.config import DecompositionConfig
+    from fwcore.engine.config import DecompositionConfig
     from pipeline.options import check_beam_args
     from pipeline.outputs import InputNames
     from pipeline.plan import inputs_to_plan, plan_input, read_plans

@@ -9,8 +9,8 @@ import pyarrow.dataset as ds
 import pytest
 from scipy.spatial import cKDTree
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch
 from fwcore.io import read_pulses
 from fwcore.pulses import pulse_waveforms
 from pipeline.cli import main

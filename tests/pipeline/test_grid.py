@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from rio_cogeo.cogeo import cog_validate
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from pipeline.cli import main
 from pipeline.run import run
 

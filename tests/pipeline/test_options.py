@@ -9,7 +9,7 @@ import enum
 
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.pulse import PulseOverrides
 from fwcore.instrument.response import named_response
 from pipeline.cli import build_parser

@@ -10,7 +10,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
-from fwcore.simulate import SceneConfig, SensorConfig
+from fwcore.studies.simulate import SceneConfig, SensorConfig
 from fwcore.studies.evaluate import evaluate_radiometry
 from fwcore.studies.truth import write_flight
 from pipeline.cli import main
@@ -60,7 +60,7 @@ def test_every_calibrated_reflectance_is_finite_and_bounded_and_says_what_it_is(
 def test_the_calibration_constant_is_the_simulated_radar_constant(calibrated, flight):
     """The simulator's echoes have energy K rho cos(a) / R^2 (DN x ps); the run's energies are in volts x ps
     (the digitizer gain 0.01 V/DN), so sigma = C R^4 E needs C = pi beta^2 / (K gain)."""
-    from fwcore.simulate import RADAR_REFERENCE_RANGE_M, echo_area
+    from fwcore.studies.simulate import RADAR_REFERENCE_RANGE_M, echo_area
 
     scene, sensor = SceneConfig(), SensorConfig()
     k = scene.radar_amplitude * echo_area(np.array([sensor.pulse_fwhm_ps]), np.array([math.sqrt(2.0)]))[0] \

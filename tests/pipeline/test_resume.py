@@ -138,7 +138,7 @@ def test_an_inputs_identity_is_its_bytes_not_its_times(leica_copy):
 
 
 def test_a_range_is_finished_only_with_its_mark_and_every_file_it_lists_at_its_size(tmp_path, leica_dir):
-    from fwcore.config import DecompositionConfig
+    from fwcore.engine.config import DecompositionConfig
     from pipeline.layout import mark_range_done, progress_mark, range_files, range_is_complete, remove_range_files
     from pipeline.plan import InputToPlan, plan_input, planned_pulses
 

@@ -9,7 +9,7 @@ import laspy
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from pipeline.cli import main
 from pipeline.run import run
 from pipeline.sinks import WAVEFORM_SCHEMA, stamp_ns

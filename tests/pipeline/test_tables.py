@@ -2,10 +2,10 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import smoothing_sigma_samples
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import smoothing_sigma_samples
 from fwcore.instrument.pulse import nominal_pulse
-from fwcore.records import WAVEFORM_CODES, WAVEFORM_RESULT
+from fwcore.engine.records import WAVEFORM_CODES, WAVEFORM_RESULT
 from pipeline.tables import COLUMNS, RECORD_COLUMNS, pulse_tables, table_schema
 from tests.fwcore.naive import gaussian_smooth
 
@@ -25,7 +25,7 @@ def test_the_waveform_tables_have_a_column_for_every_field_of_the_result_record(
 def leica_tables(leica_dir):
     """The Leica sample's first 20 pulses decomposed (generalized Gaussians), their tables as the run writes them,
     and what they were made from."""
-    from fwcore.engine import decompose_batch
+    from fwcore.engine.decompose import decompose_batch
     from fwcore.io import PointRange, read_pulses
     from fwcore.pulses import pulse_waveforms
 

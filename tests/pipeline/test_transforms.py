@@ -8,7 +8,7 @@ import pyarrow.parquet as pq
 from apache_beam.testing.test_pipeline import TestPipeline
 from apache_beam.testing.util import assert_that, equal_to
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from pipeline.layout import assemble_file, written_parts
 from pipeline.outputs import InputNames
 from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses

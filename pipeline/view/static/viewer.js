@@ -477,7 +477,7 @@ function metricsTable(table, fit, extra = []) {
     ["model evaluations", fmt(fit.model_evaluations)], ...extra]);
 }
 
-// the run's rows carry radiometry (fwcore.radiometry); a refit's echoes do not, and show "–"
+// the run's rows carry radiometry (fwcore.radiometry.equations); a refit's echoes do not, and show "–"
 function echoTable(table, rows) {
   const relative = rows.some((e) => e.radiometry === "relative") ? " (relative)" : "";
   const head = ["#", "kept / reason", "amplitude (DN)", "time (ns)",

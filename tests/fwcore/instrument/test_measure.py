@@ -2,7 +2,7 @@
 
 import pytest
 
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.measure import MODEL_PULSES, _head_records, read_csv_input
 from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import PointRange, read_pulses

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from fwcore.config import Model
+from fwcore.engine.config import Model
 from fwcore.instrument.pulse import (DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse,
                                      nominal_pulse)
 from fwcore.instrument.response import gaussian_response

@@ -5,8 +5,8 @@ import laspy
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.io import pulse_identity, read_pulses
 from fwcore.io.writer import write_waveform_las

@@ -202,7 +202,7 @@ def test_pulses_planned_are_the_pulses_read(pulsewaves_dir, name):
 def test_a_range_of_riegl_example3_decomposes_or_rejects_every_pulse_it_planned(pulsewaves_dir, tmp_path):
     """The range that holds the pulse of two channels, through the run's stages without Beam: planned = read =
     decomposed + rejected (it read 501 of 500 before)."""
-    from fwcore.config import DecompositionConfig, Model
+    from fwcore.engine.config import DecompositionConfig, Model
     from pipeline.plan import plan_file, planned_pulses
     from pipeline.stages import RangeSettings, run_range
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fwcore.config import DecompositionConfig, Model
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.decompose import decompose_batch
 from fwcore.io import describe_file, plan_point_ranges, read_pulses
 from fwcore.io.geolocate import geolocate
 from fwcore.io.info import format_info

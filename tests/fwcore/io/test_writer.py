@@ -3,8 +3,8 @@ import numpy as np
 import pyproj
 import pytest
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
 from fwcore.io import read_pulses
 from fwcore.io.las import plan_las_ranges
 from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las

@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.cli import main
 from fwcore.studies.evaluate import evaluate_run, match_echoes, range_crlb_cm
-from fwcore.simulate import SensorConfig
+from fwcore.studies.simulate import SensorConfig
 
 HIGH_SNR = ["--noise", "0.5", "--shot-noise", "0", "--weak-fraction", "0"]
 

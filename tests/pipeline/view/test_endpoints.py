@@ -124,7 +124,7 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     paper = viewed.post("/api/try", {**body, "changes": {}})
     # the run was `fast` (LM, 20 iterations): paper is MDE at G 80 with the method's noise, filter and no selection;
     # the model stays the run's (a preset changes the method only)
-    from fwcore.config import PRESETS, DecompositionConfig
+    from fwcore.engine.config import PRESETS, DecompositionConfig
     fast, published = DecompositionConfig(**PRESETS["fast"]).to_dict(), DecompositionConfig(**PRESETS["paper"]).to_dict()
     expected = {k: v for k, v in published.items() if fast[k] != v and k not in ("shape_tolerance", "model")}
     assert {k: v for k, v in paper["changed"].items() if k != "shape_tolerance"} == expected

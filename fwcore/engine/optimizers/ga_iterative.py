@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.preprocess import (MIN_SIGMA, _as_waveform, _half_height_sigma, _inflection, _noise_sigma, _valid_min,
+from fwcore.engine.preprocess import (MIN_SIGMA, _as_waveform, _half_height_sigma, _inflection, _noise_sigma, _valid_min,
                                gaussian_smooth)
 from fwcore.rng import randint, uniform
 

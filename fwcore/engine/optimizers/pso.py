@@ -6,7 +6,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.optimizers.objective import fit_error
+from fwcore.engine.optimizers.objective import fit_error
 from fwcore.rng import uniform
 
 # Clerc's constriction values for inertia and the cognitive and social terms; speed limit

@@ -1,9 +1,9 @@
 """The population methods' objective: the method's Eq. 9 fit error, in float32 SIMD.
 
 An individual is [b, (A, u, s, alpha) per echo], with s the equal-FWHM Gaussian
-sigma (see fwcore.model). Its fitness is sum_i |f(x_i) - y_i| over the valid
+sigma (see fwcore.engine.model). Its fitness is sum_i |f(x_i) - y_i| over the valid
 samples, each echo evaluated only over the aligned blocks where it exceeds eps
-(the exact float64 metrics are fwcore.model's).
+(the exact float64 metrics are fwcore.engine.model's).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT_INLINE, SIMD_JIT, _bits_of_f32, fast_exp2, fast_log2
-from fwcore.model import PARAMS_PER_ECHO, bilinear, grid_column, table_reach, table_row
+from fwcore.engine.model import PARAMS_PER_ECHO, bilinear, grid_column, table_reach, table_row
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 _F32 = np.float32

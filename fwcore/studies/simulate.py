@@ -10,7 +10,7 @@ saturation. An online detector (threshold crossings, as a scanner's) gives
 the system's own returns, written as the points that carry each packet.
 
 Times count from each packet's first sample, as the pipeline's do; sigma is
-Chauve's, with t in ps (fwcore.model); x, y, z follow the same geolocation as
+Chauve's, with t in ps (fwcore.engine.model); x, y, z follow the same geolocation as
 the reader's (X = X0 + (L0 - t) x_t).
 
 With `SceneConfig.radiometry`, every surface has a diffuse reflectance and every echo the energy of the radar
@@ -36,7 +36,7 @@ from fwcore.io.records import PulseBatch
 from fwcore.io.writer import packet_byte_offsets, pulse_ids_as_written
 from fwcore.instrument.response import SystemResponse
 from fwcore.instrument.shape import echo_shape
-from fwcore.model import LN2, SQRT_2LN2, tabulated_areas, tabulated_model
+from fwcore.engine.model import LN2, SQRT_2LN2, tabulated_areas, tabulated_model
 
 LIGHT_M_PER_PS = 299792458.0e-12
 RANGE_M_PER_PS = LIGHT_M_PER_PS / 2.0  # two-way travel: a ps of echo time is this much range

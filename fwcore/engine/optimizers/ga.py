@@ -1,7 +1,7 @@
 """A real-coded genetic algorithm, one of the methods MDE is compared with.
 
 Binary tournaments, BLX-0.5 blend crossover, Gaussian mutation, one elite; the
-fitness is the method's Eq. 9 (fwcore.optimizers.objective).
+fitness is the method's Eq. 9 (fwcore.engine.optimizers.objective).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.optimizers.objective import fit_error
+from fwcore.engine.optimizers.objective import fit_error
 from fwcore.rng import randint, uniform
 
 # blend (BLX-alpha) crossover, Gaussian mutation of this fraction of a parameter's range

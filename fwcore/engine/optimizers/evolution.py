@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE
-from fwcore.optimizers.objective import fit_error
+from fwcore.engine.optimizers.objective import fit_error
 from fwcore.rng import randint, uniform
 
 _LOGISTIC_MU = 4.0
@@ -118,7 +118,7 @@ def converged(fitness, tol, atol):
 
 @njit(**JIT)
 def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes, tpos, target, weight, shape, eps):
-    """Run MDE (chaotic=True) or DE with p's settings (fwcore.config.KernelParams) until converged
+    """Run MDE (chaotic=True) or DE with p's settings (fwcore.engine.config.KernelParams) until converged
     (p.tol, and fitness_atol in place of p.atol: the caller adds the noise's share), or stalled (with
     p.tol > 0, the best fitness fell by no more than fitness_atol in p.stall_generations generations),
     or for p.generations; pop and fitness are updated in place. Returns (model evaluations, generations

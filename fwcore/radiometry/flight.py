@@ -1,7 +1,7 @@
 """A flight line's radiometry: where its ranges come from, its beam divergence, the check of a trajectory
 against it, the calibration on a reference patch, and the radiometric columns of a range's echoes.
 
-    file -> file_radiometry (range source, beam divergence) -> range_radiometry per range (fwcore.radiometry)
+    file -> file_radiometry (range source, beam divergence) -> range_radiometry per range (fwcore.radiometry.equations)
     driver, before any decomposition: check_flight (trajectory) -> calibrate_on_reference (C_cal)
 """
 
@@ -14,18 +14,18 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.config import DecompositionConfig
-from fwcore.engine import decompose_batch
+from fwcore.engine.config import DecompositionConfig
+from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.io import PointRange, crs_wkt, read_pulses
 from fwcore.io.formats import PULSEWAVES, format_of
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
-from fwcore.radiometry import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
+from fwcore.radiometry.equations import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
                                cached_trajectory, calibration_from_samples, calibration_samples, check_trajectory,
                                echo_radiometry, echo_ranges, file_stamp, load_trajectory, metric_beam,
                                time_system_of)
-from fwcore.records import BatchDecomposition
+from fwcore.engine.records import BatchDecomposition
 
 LOG = logging.getLogger("fwl")
 CHECK_PULSES = 2000  # the pulses a trajectory is checked against (where they came from)
@@ -148,7 +148,7 @@ def check_flight(path: str, adjusted_standard_gps_time: bool, config: Radiometry
 
 def range_radiometry(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray, range_offset_ps: float,
                      file: FileRadiometry, config: RadiometryConfig) -> dict[str, np.ndarray]:
-    """The radiometric columns (fwcore.radiometry.echo_radiometry) of every echo of a range, in the engine's order;
+    """The radiometric columns (fwcore.radiometry.equations.echo_radiometry) of every echo of a range, in the engine's order;
     the echo's energy in the instrument's linear units (digitizer gain applied) x ps."""
     owner = result.echo_waveform
     direction = pulses.direction[owner]

@@ -7,7 +7,7 @@ any lengths, under the method's settings (`config`) and their file's system
 pulse (fwcore.instrument.pulse.SystemPulse), in chunks on a pool of threads (the
 kernels release the GIL), each waveform with its own random stream, so a
 waveform's result does not depend on its batch or the thread count.
-`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.preprocess, .bounds, .optimizers,
+`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.engine.preprocess, .bounds, .optimizers,
 .selection, .filter); this module only wires them.
 """
 
@@ -21,19 +21,19 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.bounds import parameter_bounds
-from fwcore.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
-from fwcore.filter import mark_spurious
+from fwcore.engine.bounds import parameter_bounds
+from fwcore.engine.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
+from fwcore.engine.filter import mark_spurious
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.instrument.shape import EchoShape, analytic_shape, echo_shape
-from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_areas
-from fwcore.optimizers import find_own_echoes, run_optimizer
-from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import initial_estimate
-from fwcore.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
+from fwcore.engine.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_areas
+from fwcore.engine.optimizers import find_own_echoes, run_optimizer
+from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
+from fwcore.engine.preprocess import initial_estimate
+from fwcore.engine.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
-from fwcore.noise_model import add_shot_noise, noise_variance
-from fwcore.selection import add_missing_echoes, drop_unneeded_echoes
+from fwcore.engine.noise_model import add_shot_noise, noise_variance
+from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes
 
 _LN2 = math.log(2.0)
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2

@@ -27,7 +27,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.instrument.shape import analytic_shape
-from fwcore.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
+from fwcore.engine.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)

@@ -1,4 +1,4 @@
-"""The optimizer kernels behind the catalogue (fwcore.config.OPTIMIZERS), like SciPy's strategy table.
+"""The optimizer kernels behind the catalogue (fwcore.engine.config.OPTIMIZERS), like SciPy's strategy table.
 
 Every method starts from the same initial estimate and bounds and hands back the
 same things: the best individual, model evaluations, iterations and a message.
@@ -16,16 +16,16 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.config import (LOCAL_LBFGS, LOCAL_NONE, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS,
+from fwcore.engine.config import (LOCAL_LBFGS, LOCAL_NONE, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS,
                            MSG_NO_ECHOES, MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_GOLD, OPT_MDE, OPT_PSO)
-from fwcore.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
-from fwcore.optimizers.evolution import evolve, init_population
-from fwcore.optimizers.ga import evolve_ga
-from fwcore.optimizers.ga_iterative import ga_iterative
-from fwcore.optimizers.local import lbfgs, levenberg_marquardt, squared_error
-from fwcore.optimizers.objective import LANES, fit_error
-from fwcore.optimizers.pso import swarm
-from fwcore.noise_model import add_shot_noise
+from fwcore.engine.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
+from fwcore.engine.optimizers.evolution import evolve, init_population
+from fwcore.engine.optimizers.ga import evolve_ga
+from fwcore.engine.optimizers.ga_iterative import ga_iterative
+from fwcore.engine.optimizers.local import lbfgs, levenberg_marquardt, squared_error
+from fwcore.engine.optimizers.objective import LANES, fit_error
+from fwcore.engine.optimizers.pso import swarm
+from fwcore.engine.noise_model import add_shot_noise
 
 @njit(**JIT)
 def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samples, valid, noise, eps, seed):

@@ -14,10 +14,10 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE
-from fwcore.config import DecompositionConfig, Model
+from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
 from fwcore.instrument.shape import analytic_shape
-from fwcore.model import add_table_echo, table_peak_offset
+from fwcore.engine.model import add_table_echo, table_peak_offset
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -371,7 +371,7 @@ def _smoothing_support(valid, sigma, out):
 @njit(**JIT)
 def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed, amplitude, position, sigma):
     """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
-    noise and background, then peel up to p.max_echoes echoes off (fwcore.config.KernelParams).
+    noise and background, then peel up to p.max_echoes echoes off (fwcore.engine.config.KernelParams).
     Returns (noise sigma, background, echo count).
 
     p.robust_noise: the noise is the robust white sigma, inflated for the correlation of neighbouring

@@ -19,11 +19,11 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.bounds import echo_bounds
-from fwcore.filter import KEPT, mark_spurious
-from fwcore.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
-from fwcore.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.preprocess import gaussian_weights, smoothed_sample
+from fwcore.engine.bounds import echo_bounds
+from fwcore.engine.filter import KEPT, mark_spurious
+from fwcore.engine.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
+from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
+from fwcore.engine.preprocess import gaussian_weights, smoothed_sample
 
 
 

@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.model import GAUSSIAN_ALPHA, PARAMS_PER_ECHO, table_reach, table_value, tabulated_area
-from fwcore.optimizers.local import levenberg_marquardt
+from fwcore.engine.model import GAUSSIAN_ALPHA, PARAMS_PER_ECHO, table_reach, table_value, tabulated_area
+from fwcore.engine.optimizers.local import levenberg_marquardt
 
 _FLOOR = 1e-12  # keeps the multiplicative updates off zero divisions
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.model import GAUSSIAN_ALPHA, PARAMS_PER_ECHO
+from fwcore.engine.model import GAUSSIAN_ALPHA, PARAMS_PER_ECHO
 
 
 @njit(**JIT)

@@ -36,7 +36,7 @@ class Optimizer(str, enum.Enum):
     RICHARDSON_LUCY = "richardson-lucy"
 
 
-# The catalogue: each optimizer's kernel code (the kernels: fwcore.optimizers).
+# The catalogue: each optimizer's kernel code (the kernels: fwcore.engine.optimizers).
 (OPT_NONE, OPT_DE, OPT_MDE, OPT_GA, OPT_PSO, OPT_LM, OPT_LBFGS, OPT_MDE_LM, OPT_GA_ITERATIVE, OPT_LM_MDE, OPT_GOLD,
  OPT_RICHARDSON_LUCY) = range(12)
 # The least-squares fits on the valid samples that end (or are) an optimizer.
@@ -47,7 +47,7 @@ MSG_NO_ECHOES, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS, MSG_NOT_O
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSpec:
-    """A catalogue entry: what the kernels do for this optimizer (fwcore.optimizers.run_optimizer and
+    """A catalogue entry: what the kernels do for this optimizer (fwcore.engine.optimizers.run_optimizer and
     find_own_echoes branch on these, never on lists of codes). All but the description reach KernelParams."""
 
     code: int

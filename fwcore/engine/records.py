@@ -10,13 +10,13 @@ from typing import Sequence
 
 import numpy as np
 
-from fwcore.filter import REJECT_REASONS
+from fwcore.engine.filter import REJECT_REASONS
 from fwcore.instrument.shape import EchoShape
-from fwcore.model import generalized_gaussian, tabulated_model, waveform_model
+from fwcore.engine.model import generalized_gaussian, tabulated_model, waveform_model
 
 STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
 STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")
-# How the optimizer ended, per waveform (codes of fwcore.config: MSG_*).
+# How the optimizer ended, per waveform (codes of fwcore.engine.config: MSG_*).
 MESSAGES = ("no_echoes", "converged", "max_generations", "max_iterations", "not_optimized")
 
 # The per-waveform result, one record per waveform: the one declaration of its fields, which the kernels write by
@@ -32,7 +32,7 @@ WAVEFORM_RESULT = np.dtype([
 WAVEFORM_FIELDS = tuple(name for name in WAVEFORM_RESULT.names if name != "n_echoes")  # the results' attributes
 # The fields whose int8 codes a Decomposition (and a table) spells out as strings.
 WAVEFORM_CODES = {"status": STATUS_REASONS, "message": MESSAGES}
-# One echo in Chauve's parameters (fwcore.model), sorted by position within its waveform.
+# One echo in Chauve's parameters (fwcore.engine.model), sorted by position within its waveform.
 ECHO_RESULT = np.dtype([("amplitude", np.float64), ("position", np.float64), ("sigma", np.float64),
                         ("alpha", np.float64), ("reason", np.int8)])
 
@@ -124,7 +124,7 @@ class BatchDecomposition:
     alpha: np.ndarray
     fwhm: np.ndarray
     energy: np.ndarray
-    reject: np.ndarray  # int8 codes into fwcore.filter.REJECT_REASONS
+    reject: np.ndarray  # int8 codes into fwcore.engine.filter.REJECT_REASONS
     shapes: dict[float, EchoShape] | None = None  # per sample spacing (ps), under the system model
     sample_spacing_ps: np.ndarray | None = None  # per waveform: which of `shapes` its echoes take
 

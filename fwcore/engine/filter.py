@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.config import DecompositionConfig
+from fwcore.engine.config import DecompositionConfig
 
 KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE = range(6)
 REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide")
@@ -19,7 +19,7 @@ REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wi
 @njit(**JIT)
 def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sigma, p, reason):
     """Set reason[k] for echoes sorted by position (width = FWHM, same time unit as positions), with the
-    filter's settings of p (fwcore.config.KernelParams).
+    filter's settings of p (fwcore.engine.config.KernelParams).
 
     (1) amplitude below p.min_amplitude_ratio x the largest, or below p.min_snr x
     sigma_noise (a bump of a few counts is not a return); (3) centre outside
