@@ -14,7 +14,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.instrument.response import named_response
 from pipeline.cli import build_parser
 from pipeline.options import COMPARED, add_method_arguments, decomposition_config, pulse_overrides
-from tests.fwcore.test_config import other_value
+from tests.fwcore.engine.test_config import other_value
 
 OPTIONS = [f for f in dataclasses.fields(DecompositionConfig) if f.metadata.get("option")]
 

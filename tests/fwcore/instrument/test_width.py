@@ -3,12 +3,13 @@
 import numpy as np
 import pytest
 
-from fwcore.instrument.width import (csv_pulse_fwhm_ps, estimate_pulse_fwhm, median_pulse_fwhm,
-                                     recorded_pulse_fwhm_ps, single_echo_fwhm)
+from fwcore.instrument.width import (csv_pulse_fwhm_ps, estimate_pulse_fwhm, median_pulse_fwhm, recorded_pulse_fwhm_ps,
+                                     single_echo_fwhm)
 from fwcore.io import PointRange, read_pulses
 from fwcore.io.neon import read_neon_csv
 
 T = np.arange(60.0)
+DATA = "examples/data/"
 
 
 def gaussian(sigma: float, centre: float = 30.3) -> np.ndarray:
@@ -36,3 +37,18 @@ def test_csv_and_file_widths(neon_dir, leica_dir):
     assert csv_pulse_fwhm_ps(read_neon_csv(neon_dir / "outgoing_pulses.csv")) == pytest.approx(15155.56, abs=0.01)
     head = read_pulses(PointRange(str(leica_dir / "leica_a.las"), 0, 1125))
     assert recorded_pulse_fwhm_ps(head) == (10980.0, "single returns")  # Leica records no outgoing pulse
+
+
+def test_pulse_width_of_neon_from_its_returns_alone_is_near_the_outgoing_pulses():
+    returns = read_neon_csv(DATA + "neon_harvard/return_waveforms.csv")
+    outgoing = csv_pulse_fwhm_ps(read_neon_csv(DATA + "neon_harvard/outgoing_pulses.csv")) / 1000.0
+    estimate = estimate_pulse_fwhm(returns.samples, returns.valid)
+    assert estimate.n_waveforms >= 50
+    # returns are the outgoing pulse through the receiver (impulse response 15.9 ns) and the target
+    assert outgoing <= estimate.fwhm_samples <= 1.3 * outgoing
+
+
+def test_pulse_width_needs_isolated_echoes():
+    flat = [np.random.default_rng(i).normal(100, 2, 120) for i in range(10)]
+    with pytest.raises(ValueError, match="isolated strong echo"):
+        estimate_pulse_fwhm(flat)

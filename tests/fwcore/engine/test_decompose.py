@@ -1,3 +1,5 @@
+from __future__ import annotations
+
 import dataclasses
 import math
 import pickle
@@ -5,11 +7,13 @@ import pickle
 import numpy as np
 import pytest
 
-from fwcore.engine.config import DecompositionConfig, Model
+from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch, decompose_waveform
-from fwcore.instrument.pulse import nominal_pulse
+from fwcore.engine.model import fwhm, tabulated_model, waveform_model
 from fwcore.engine.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
-from fwcore.engine.model import fwhm, waveform_model
+from fwcore.instrument.pulse import nominal_pulse
+from fwcore.instrument.response import named_response
+from fwcore.instrument.shape import echo_shape
 
 SPACING = 1000.0
 PULSE_SIGMA = 3.0  # samples
@@ -164,3 +168,18 @@ def test_gaussian_model_fixes_alpha():
     y = synthetic([100.0], [70.0], [3.0], [1.8], 1.0)
     r = decompose_waveform(y, SPACING, config=CONFIG.replace(model="gaussian"), pulse=PULSE)
     np.testing.assert_array_equal(r.alpha, SQ2)
+
+
+def test_an_afterpulse_is_not_an_echo_under_the_system_model():
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    rng = np.random.default_rng(3)
+    y = tabulated_model(t, 3.0, 180.0, 25.4, shape.s_min, shape) + rng.normal(0, 0.6, t.size)
+    system = DecompositionConfig(model="system")
+    d = decompose_waveform(np.round(y), 1000.0, 0, system, pulse=nominal_pulse(riegl.fwhm_ps, response=riegl))
+    assert d.amplitude.size == 1
+    assert d.position[0] == pytest.approx(25.4, abs=0.05)
+    # the generalized Gaussian cannot take the afterpulse: it needs a second echo behind the first
+    g = decompose_waveform(np.round(y), 1000.0, 0, DecompositionConfig(), pulse=nominal_pulse(riegl.fwhm_ps))
+    assert g.amplitude.size >= 2 and g.position.max() > 27.0

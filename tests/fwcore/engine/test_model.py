@@ -1,13 +1,16 @@
+from __future__ import annotations
+
 import math
 
 import numpy as np
 import pytest
 
-from fwcore.instrument.shape import analytic_shape
 from fwcore.engine.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
-                          sigma_from_equivalent, sigma_to_time_unit, waveform_model)
-from fwcore.engine.optimizers.objective import fill_model, padded_length
-from tests.fwcore.naive import model_of_individual
+                                 sigma_from_equivalent, sigma_to_time_unit, table_peak_offset, table_reach, table_value,
+                                 tabulated_area, tabulated_model, waveform_model)
+from fwcore.instrument.peak import main_lobe
+from fwcore.instrument.shape import echo_shape
+from tests.fwcore import naive
 
 
 def test_alpha_sqrt2_is_an_ordinary_gaussian():
@@ -49,27 +52,42 @@ def test_sigma_in_picoseconds_gives_the_same_echo():
                                generalized_gaussian(t_samples, 1.0, 0.0, sigma_samples, alpha), rtol=1e-12)
 
 
-@pytest.mark.parametrize("gaussian", [True, False])
-def test_fast_float32_model_matches_float64_reference(gaussian):
-    rng = np.random.default_rng(3)
-    n = 150
-    n_pad = padded_length(n)
-    x = [210.0]
-    for _ in range(5):
-        x += [rng.uniform(5, 400), rng.uniform(5, 145), rng.uniform(1.0, 8.0),
-              math.sqrt(2) if gaussian else rng.uniform(1.1, 2.4)]
-    x = np.array(x)
-    model = np.empty(n_pad, np.float32)
-    eps = 1e-4
-    fill_model(x, 5, np.arange(n_pad, dtype=np.float32), gaussian, analytic_shape(), eps, model)
-    reference = model_of_individual(x, np.arange(n))
-    # float32 with approximate exp2/log2 (1e-4 each): within 2e-4 of the echoes' height plus the
-    # truncation eps per echo
-    np.testing.assert_allclose(model[:n], reference, atol=2e-4 * (reference - x[0]).max() + 5 * eps)
-
-
 def test_waveform_model_sums_echoes():
     t = np.arange(50.0)
     y = waveform_model(t, 10.0, [1.0, 2.0], [10.0, 30.0], [2.0, 3.0], [1.4, 1.6])
     expected = 10.0 + generalized_gaussian(t, 1.0, 10.0, 2.0, 1.4) + generalized_gaussian(t, 2.0, 30.0, 3.0, 1.6)
     np.testing.assert_allclose(y, expected)
+
+
+@pytest.mark.parametrize("s", [1.75, 2.4, 3.9])
+def test_tabulated_echo_matches_the_naive_reference(riegl_response, s):
+    shape = echo_shape(riegl_response, 1000.0)
+    t = np.linspace(10.0, 50.0, 401)
+    expected = naive.response_echo(riegl_response.times, riegl_response.response, 1000.0, 80.0, 21.3, s, t)
+    got = tabulated_model(t, 0.0, 80.0, 21.3, s, shape)
+    np.testing.assert_allclose(got, expected, atol=80.0 * 1e-2)  # rows interpolated in width: within 1% of the peak
+    # the area is the echo's integral
+    assert tabulated_area(shape, s) == pytest.approx(np.trapezoid(got / 80.0, t), rel=2e-3)
+
+
+@pytest.mark.parametrize("factor", [1.01, 1.37, 2.2, 3.9])  # between rows: both rows weigh
+def test_a_tabulated_echo_is_zero_outside_its_reach_and_not_just_inside(leica_response, factor):
+    shape = echo_shape(leica_response, 2000.0, 4.0)
+    s = shape.s_min * factor
+    before, after = table_reach(shape, s)
+    t = np.arange(-before - 3.0, after + 3.0, 1.0 / 128.0)
+    values = np.array([table_value(shape, 1.0, 0.0, s, x) for x in t])
+    assert not values[(t < -before) | (t > after)].any()
+    inside = (t > -before + 2 * shape.step) & (t < after - 2 * shape.step)
+    assert values[inside][:8].any() and values[inside][-8:].any()
+
+
+def test_an_echo_sits_at_its_response_lobes_centroid(leica_response):
+    shape = echo_shape(leica_response, 2000.0)
+    t = np.arange(-20.0, 30.0, 1.0 / 64.0)
+    echo = tabulated_model(t, 0.0, 1.0, 0.0, shape.s_min, shape)
+    lobe = main_lobe(echo, int(np.argmax(echo)), 0.05)
+    inside = slice(lobe[0], lobe[1] + 1)
+    assert np.sum(t[inside] * echo[inside]) / np.sum(echo[inside]) == pytest.approx(0.0, abs=0.02)
+    # and the shape says where the echo peaks
+    assert t[np.argmax(echo)] == pytest.approx(table_peak_offset(shape, shape.s_min), abs=2 * shape.step)

@@ -8,7 +8,7 @@ import pytest
 from fwcore.engine.config import MSG_CONVERGED, MSG_MAX_ITERATIONS, DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch, decompose_waveform
 from fwcore.engine.records import WaveformBatch
-from tests.fwcore.test_decompose import CONFIG, PULSE, PULSE_SIGMA, SPACING, SQ2, synthetic
+from tests.fwcore.engine.test_decompose import CONFIG, PULSE, PULSE_SIGMA, SPACING, SQ2, synthetic
 
 # the comparison's population and generations for the population methods
 PAPER = dict(population=100, generations=100)
@@ -44,28 +44,6 @@ def test_population_methods_improve_on_the_initial_estimate_on_average(optimizer
     before = decompose_batch(batch, CONFIG.replace(optimizer="none"), PULSE)
     after = decompose_batch(batch, CONFIG.replace(optimizer=optimizer, **PAPER), PULSE)
     assert after.fit_error.mean() < 0.8 * before.fit_error.mean()
-
-
-def test_the_patent_method_adds_the_echo_its_peak_search_missed():
-    # a shoulder 2.2 sigma after a strong echo is no local maximum within +-5 bins: the peak
-    # search finds one echo, R^2 stays below the threshold, and added echoes take the shoulder
-    position = [60.0, 60.0 + 2.2 * PULSE_SIGMA]
-    y = synthetic([150.0, 90.0], position, [PULSE_SIGMA] * 2, [SQ2] * 2, noise=1.0, seed=11)
-    config = CONFIG.replace(optimizer="ga-iterative", ga_iterative_r2=0.999, noise_threshold=6.0,
-                            noise_estimator="residual", min_noise_sigma=1.0)  # the patent's own estimate
-    single = decompose_waveform(y, SPACING, seed=3, config=config.replace(ga_iterative_r2=0.5), pulse=PULSE)
-    r = decompose_waveform(y, SPACING, seed=3, config=config, pulse=PULSE)
-    assert single.n_echoes_initial == r.n_echoes_initial == 1
-    assert single.amplitude.size == 1 and r.amplitude.size > 1
-    assert np.abs(r.position - position[1]).min() < 1.0
-    assert r.r2 > single.r2
-    np.testing.assert_array_equal(r.alpha, SQ2)
-
-
-def test_the_patent_method_stops_at_its_r2_threshold():
-    y = synthetic([150.0], [60.0], [PULSE_SIGMA], [SQ2], noise=1.0, seed=12)
-    r = decompose_waveform(y, SPACING, seed=3, config=CONFIG.replace(optimizer="ga-iterative"), pulse=PULSE)
-    assert r.amplitude.size == 1 and r.r2 >= CONFIG.ga_iterative_r2
 
 
 def test_mde_lm_polish_lowers_the_fit_error_of_mde():

@@ -1,10 +1,15 @@
 """The local optimizers: the analytic Jacobian, LM and L-BFGS on known echoes."""
 
+from __future__ import annotations
+
+import math
+
 import numpy as np
 import pytest
 
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import tabulated_model
 from fwcore.engine.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
+from fwcore.instrument.shape import analytic_shape, echo_shape
 from tests.fwcore.naive import model_of_individual
 
 T = np.arange(100.0)
@@ -78,3 +83,21 @@ def test_a_width_held_at_its_bound_fits_as_if_it_were_fixed():
     assert held[3] == 3.5
     np.testing.assert_allclose(held, fixed, rtol=1e-4)
     assert used < 50  # converged, not stopped by the iteration limit
+
+
+def test_tabulated_jacobian_matches_central_differences(leica_response):
+    shape = echo_shape(leica_response, 2000.0)
+    x = np.array([13.0, 120.0, 40.3, 2.9, math.sqrt(2), 45.0, 47.6, 3.6, math.sqrt(2)])
+    t = np.arange(0.0, 90.0)
+    model, jac = np.empty(t.size), np.empty((t.size, x.size))
+    model_and_jacobian(x, 2, t, shape, model, jac, np.empty((2, 2), dtype=np.int64))
+    np.testing.assert_allclose(model, tabulated_model(t, 13.0, [120.0, 45.0], [40.3, 47.6], [2.9, 3.6], shape),
+                               atol=1e-9)
+    for j in (0, 1, 2, 3, 5, 6, 7):
+        h = 1e-4 if j in (2, 6) else 1e-3
+        up, down = x.copy(), x.copy()
+        up[j] += h
+        down[j] -= h
+        numeric = (tabulated_model(t, up[0], up[[1, 5]], up[[2, 6]], up[[3, 7]], shape)
+                   - tabulated_model(t, down[0], down[[1, 5]], down[[2, 6]], down[[3, 7]], shape)) / (2 * h)
+        np.testing.assert_allclose(jac[:, j], numeric, atol=2e-2 * max(1.0, np.abs(numeric).max()))

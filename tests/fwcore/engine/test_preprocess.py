@@ -1,0 +1,192 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fwcore.engine.model import tabulated_model, waveform_model
+from fwcore.engine.preprocess import estimate_noise, gaussian_smooth, initial_echoes
+from fwcore.instrument.response import named_response
+from fwcore.instrument.shape import analytic_shape, echo_shape
+from tests.fwcore import naive
+
+
+def test_smoothing_matches_the_numpy_reference():
+    y = np.random.default_rng(0).normal(100, 5, 200)
+    np.testing.assert_allclose(gaussian_smooth(y, 2.5), naive.gaussian_smooth(y, 2.5), rtol=1e-12)
+
+
+def test_smoothing_ignores_invalid_samples_in_a_gap():
+    y = np.full(40, 50.0)
+    valid = np.ones(40, bool)
+    y[15:20], valid[15:20] = 0.0, False  # a zero gap must not pull neighbours down
+    np.testing.assert_allclose(gaussian_smooth(y, 2.0, valid)[valid], 50.0)
+
+
+def test_the_methods_noise_is_the_rms_of_raw_minus_smoothed():
+    raw = np.array([1.0, 2.0, 4.0, 3.0, 2.0, 2.5])
+    smoothed = gaussian_smooth(raw, 1.0)
+    expected = math.sqrt(np.mean((raw - smoothed) ** 2))
+    assert estimate_noise(raw, 1.0, robust=False) == pytest.approx(expected)
+
+
+def test_inflection_points_give_sigma_of_a_clean_gaussian():
+    t = np.arange(100.0)
+    y = waveform_model(t, 10.0, [200.0], [47.3], [4.0], [math.sqrt(2)])
+    est = initial_echoes(y, 0.0, fallback_sigma=2.0, robust=False, min_noise_sigma=0.0)
+    # noise-free: the threshold is 0, so ripples of the residual follow the first (largest) echo
+    assert est.position[0] == 47
+    assert est.amplitude[0] == pytest.approx(200.0 * math.exp(-0.3**2 / 32), rel=1e-9)
+    assert est.sigma[0] == pytest.approx(4.0, abs=0.15)
+    assert est.background == pytest.approx(10.0)
+
+
+def test_progressive_extraction_finds_a_shoulder_without_its_own_maximum():
+    t = np.arange(120.0)
+    # the second echo is a shoulder: the sum has a single local maximum
+    y = waveform_model(t, 20.0, [300.0, 120.0], [40.0, 50.0], [4.0, 4.0], [math.sqrt(2)] * 2)
+    y = y + np.random.default_rng(2).normal(0, 1.0, t.size)
+    local_maxima = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] > y[2:]) & (y[1:-1] > 100)) + 1
+    assert local_maxima.size == 1
+    est = initial_echoes(y, 1.0, fallback_sigma=4.0)
+    assert est.n_echoes >= 2
+    assert np.any(np.abs(est.position - 50) <= 3)
+
+
+def test_missing_inflection_point_at_the_edge_uses_the_other_side():
+    t = np.arange(40.0)
+    y = waveform_model(t, 5.0, [100.0], [1.0], [3.0], [math.sqrt(2)])  # left side cut off by the record start
+    est = initial_echoes(y, 0.0, fallback_sigma=9.0)
+    assert est.sigma[0] == pytest.approx(3.0, abs=0.3)
+
+
+def test_progressive_estimate_matches_the_naive_reference():
+    from fwcore.engine.preprocess import _progressive_echoes
+
+    t = np.arange(150.0)
+    y = waveform_model(t, 12.0, [90.0, 40.0, 25.0], [30.0, 70.0, 110.0], [3.0, 4.0, 2.5], [math.sqrt(2)] * 3)
+    y = y + np.random.default_rng(3).normal(0, 0.8, t.size)
+    smoothed = gaussian_smooth(y, 0.8)
+    threshold = np.full(t.size, 3.0)
+    amplitude, position, sigma = np.zeros(12), np.zeros(12), np.zeros(12)
+    n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(), amplitude,
+                            position, sigma)
+    expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0)
+    assert n == len(expected) >= 3
+    np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)
+
+
+def test_a_return_a_target_widened_starts_as_wide_as_it_is():
+    # a target widens both sides: the start takes the whole half-height width, so the rising edge is not
+    # left over as an echo of its own
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    y = tabulated_model(t, 3.0, 150.0, 30.3, 1.5 * shape.s_min, shape)
+    y = np.round(y + np.random.default_rng(4).normal(0, 0.5, t.size))
+    est = initial_echoes(y, 0.4, shape.s_min, shape=shape)
+    assert est.n_echoes == 1
+    assert est.sigma[0] == pytest.approx(1.5 * shape.s_min, rel=0.1)
+
+
+def test_a_neighbour_widens_one_side_and_the_start_takes_the_other():
+    riegl = named_response("riegl")
+    shape = echo_shape(riegl, 1000.0)
+    t = np.arange(80.0)
+    y = tabulated_model(t, 3.0, [150.0, 90.0], [30.3, 35.8], [shape.s_min, shape.s_min], shape)
+    y = np.round(y + np.random.default_rng(5).normal(0, 0.5, t.size))
+    est = initial_echoes(y, 0.4, shape.s_min, shape=shape)
+    assert est.n_echoes >= 2
+    first = int(np.argmax(est.amplitude))
+    assert est.sigma[first] < 1.2 * shape.s_min  # its whole half-height width would take in the neighbour
+    assert np.sort(est.position[np.argsort(est.amplitude)[-2:]]) == pytest.approx([30.3, 35.8], abs=0.5)
+
+
+def _waveform(sigma, bits, with_signal, seed, n=400):
+    t = np.arange(n, dtype=float)
+    clean = np.full(n, 40.0)
+    if with_signal:
+        clean = waveform_model(t, 40.0, [180.0, 90.0, 60.0], [80.0, 150.0, 300.0], [3.0, 4.0, 3.0], [math.sqrt(2)] * 3)
+    y = clean + np.random.default_rng(seed).normal(0.0, sigma, n)
+    if bits:
+        y = np.clip(np.round(y), 0, 2 ** bits - 1)
+    return y
+
+
+@pytest.mark.parametrize("bits", [8, 16, None])
+@pytest.mark.parametrize("with_signal", [False, True])
+def test_robust_noise_recovers_white_noise_sigma(bits, with_signal):
+    # quantisation adds uniform noise of 1/sqrt(12) DN: the estimate measures what the samples hold
+    sigma = 2.0
+    expected = math.sqrt(sigma ** 2 + (1 / 12 if bits else 0.0))
+    estimates = [estimate_noise(_waveform(sigma, bits, with_signal, seed), smoothing_sigma=0.75)
+                 for seed in range(20)]
+    assert np.mean(estimates) == pytest.approx(expected, rel=0.05)
+
+
+def test_the_methods_formula_keeps_only_part_of_white_noise():
+    # sqrt(mean((raw - smoothed)^2)) at light smoothing: about sqrt(1 - 2 w0 + sum w^2) of sigma
+    sigma, s = 2.0, 0.75
+    half = int(math.ceil(4 * s))
+    w = np.exp(-0.5 * (np.arange(-half, half + 1) / s) ** 2)
+    w /= w.sum()
+    attenuation = math.sqrt(1 - 2 * w[half] + np.sum(w ** 2))
+    formula = np.mean([estimate_noise(_waveform(sigma, None, False, seed), 0.75, robust=False) for seed in range(20)])
+    assert formula == pytest.approx(sigma * attenuation, rel=0.05)
+    assert formula < 0.7 * sigma
+
+
+def test_quantised_flat_waveform_has_the_quantisation_floor():
+    y = np.full(200, 13.0)  # an 8-bit digitizer whose analogue noise is below one count
+    est = initial_echoes(y, 0.6, 2.0)
+    assert est.noise_sigma == pytest.approx(1 / math.sqrt(12))
+    assert est.n_echoes == 0
+
+
+def test_baseline_is_the_background_not_the_undershoot_after_a_return():
+    # a Leica-like return: strong echo, then an undershoot of 3 DN below a baseline of 13
+    t = np.arange(256, dtype=float)
+    y = waveform_model(t, 13.0, [90.0], [12.0], [2.3], [math.sqrt(2)])
+    y[20:30] -= 3.0
+    y = np.round(y + np.random.default_rng(1).normal(0, 0.5, 256))
+    est = initial_echoes(y, 0.6, 2.3)
+    assert est.background == pytest.approx(13.0, abs=0.3)
+    assert est.n_echoes == 1  # the method's minimum (10) would turn the whole baseline into echoes
+    method = initial_echoes(y, 0.6, 2.3, robust=False, min_noise_sigma=0.0)
+    assert method.background < 11.0
+
+
+def _every(n: int, k: int) -> np.ndarray:
+    """A validity mask with every k-th sample held out (from sample 1), as
+    fwcore.instrument.measure.held_out_errors makes."""
+    valid = np.ones(n, bool)
+    valid[1::k] = False
+    return valid
+
+
+def test_noise_of_a_quantised_waveform_survives_held_out_samples(leica_waveforms):
+    # Leica's 8-bit baseline: next to a held-out sample the filter leans on one neighbour and leaves residuals
+    # of a fraction of a count; read only where both neighbours are valid, the noise is the full waveform's
+    ratios = []
+    for y in leica_waveforms[:60]:
+        y = np.asarray(y, dtype=float)
+        plain = estimate_noise(y, 0.58)
+        ratios.append(estimate_noise(y, 0.58, valid=_every(y.size, 5)) / plain)
+    assert 0.9 < np.median(ratios) < 1.1
+    assert min(ratios) > 0.5  # reading every sample, as before, fails both
+
+
+def test_an_echo_is_measured_across_held_out_samples():
+    # one Gaussian echo, sigma 3 samples, every 3rd sample held out, at six sub-sample phases: its width comes
+    # from the denoised signal across the gaps, not from the fallback width (1 sample, as before)
+    t = np.arange(120.0)
+    widths, single = [], 0
+    for centre in (60.0, 60.25, 60.5, 60.75, 61.0, 61.5):
+        y = 10.0 + 100.0 * np.exp(-0.5 * ((t - centre) / 3.0) ** 2)
+        est = initial_echoes(y, 0.6, fallback_sigma=1.0, valid=_every(y.size, 3), min_noise_sigma=2.0)
+        widths.append(est.sigma[np.argmax(est.amplitude)])
+        single += est.n_echoes == 1
+    # a peak on a valid sample just before a held-out one (centre 60.0) leans the filter and reads 2 samples
+    assert np.mean(widths) == pytest.approx(3.0, rel=0.1) and min(widths) > 1.9
+    assert single >= 5
