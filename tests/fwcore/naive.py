@@ -69,8 +69,137 @@ def mde_generation(pop, fitness, lower, upper, cr, t, k, a, b, rng: SplitMix64, 
     return new_pop, new_fit
 
 
-__all__ = ["SQRT_2LN2", "model_of_individual", "gaussian_smooth", "mde_generation", "mark_spurious",
-           "progressive_echoes", "chi2_without_echo"]
+def pso_swarm(pop, fitness, lower, upper, generations, rng: SplitMix64, objective):
+    """Global-best PSO with Clerc's constriction (w 0.7298, c1 = c2 = 1.49618), speed within 0.2 of each
+    range, positions clipped to the box; pop and fitness become the personal bests, drawing from the same
+    random stream as the kernel. Returns the evaluations."""
+    pop, fitness = pop.copy(), fitness.copy()
+    np_, d = pop.shape
+    span = upper - lower
+    velocity = np.array([[(2.0 * rng.uniform() - 1.0) * 0.1 * span[j] for j in range(d)] for _ in range(np_)])
+    x = pop.copy()
+    best = int(np.argmin(fitness))
+    for _ in range(generations):
+        for i in range(np_):
+            for j in range(d):
+                r1 = rng.uniform()
+                r2 = rng.uniform()
+                v = (0.7298 * velocity[i, j] + 1.49618 * r1 * (pop[i, j] - x[i, j])
+                     + 1.49618 * r2 * (pop[best, j] - x[i, j]))
+                velocity[i, j] = np.clip(v, -0.2 * span[j], 0.2 * span[j])
+                x[i, j] = np.clip(x[i, j] + velocity[i, j], lower[j], upper[j])
+            err = objective(x[i])
+            if err <= fitness[i]:
+                pop[i], fitness[i] = x[i], err
+                best = i if err < fitness[best] else best
+    return pop, fitness, generations * np_
+
+
+def ga_generation(pop, fitness, lower, upper, crossover_rate, mutation_rate, rng: SplitMix64, objective):
+    """One generation of the real-coded GA: the elite kept first, then children of two binary tournaments,
+    BLX-0.5 blended with probability crossover_rate, each parameter mutated with probability mutation_rate by
+    0.1 of its range times a Box-Muller normal, clipped to the box; the kernel's random stream."""
+    def tournament():
+        a, b = rng.randint(fitness.size), rng.randint(fitness.size)
+        return a if fitness[a] <= fitness[b] else b
+
+    def normal():
+        u1 = max(rng.uniform(), 1e-300)
+        return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * rng.uniform())
+
+    elite = int(np.argmin(fitness))
+    new_pop, new_fit = [pop[elite].copy()], [fitness[elite]]
+    for _ in range(1, pop.shape[0]):
+        p1, p2 = pop[tournament()], pop[tournament()]
+        blend = rng.uniform() < crossover_rate
+        child = np.empty(pop.shape[1])
+        for j in range(child.size):
+            v = p1[j] + (rng.uniform() * 2.0 - 0.5) * (p2[j] - p1[j]) if blend else p1[j]
+            if rng.uniform() < mutation_rate:
+                v += 0.1 * (upper[j] - lower[j]) * normal()
+            child[j] = min(max(v, lower[j]), upper[j])
+        new_pop.append(child)
+        new_fit.append(objective(child))
+    return np.array(new_pop), np.array(new_fit)
+
+
+def _convolve_same(x, kernel, centre):
+    """sum_j kernel[j] x[i - (j - centre)]: the response placed at every sample, zero outside."""
+    return np.convolve(x, kernel)[centre:centre + x.size]
+
+
+def _correlate_same(x, kernel, centre):
+    """The convolution's adjoint: sum_j kernel[j] x[i + (j - centre)]."""
+    start = kernel.size - 1 - centre
+    return np.convolve(x, kernel[::-1])[start:start + x.size]
+
+
+def richardson_lucy(signal, kernel, centre, iterations, floor=1e-12):
+    """x <- x * (h~ * (y / (h * x))) from a flat start at the signal's mean."""
+    x = np.full(signal.size, max(signal.mean(), floor))
+    for _ in range(iterations):
+        x = x * _correlate_same(signal / np.maximum(_convolve_same(x, kernel, centre), floor), kernel, centre)
+    return x
+
+
+def gold(signal, kernel, centre, iterations, floor=1e-12):
+    """x <- x * (h~ * y) / (h~ * h * x) from a flat start at the signal's mean."""
+    x = np.full(signal.size, max(signal.mean(), floor))
+    numerator = _correlate_same(signal, kernel, centre)
+    for _ in range(iterations):
+        x = x * numerator / np.maximum(_correlate_same(_convolve_same(x, kernel, centre), kernel, centre), floor)
+    return x
+
+
+def gaussian_response_kernel(pulse_sigma):
+    """A Gaussian of pulse_sigma samples over +-4 sigma, unit area, and the index of its time 0."""
+    half = int(np.ceil(4.0 * pulse_sigma))
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / pulse_sigma) ** 2)
+    return kernel / kernel.sum(), half
+
+
+def noise_variance(smoothed, valid, background, noise, shape_tolerance):
+    """sigma^2 + (shape_tolerance x signal)^2 per valid sample, signal the smoothed height above background."""
+    signal = np.maximum(np.asarray(smoothed)[valid] - background, 0.0)
+    return noise ** 2 + (shape_tolerance * signal) ** 2
+
+
+def shot_noise(model, raw, signal, variance):
+    """The Poisson-like g >= 0 whose g x signal explains, by least squares over samples with signal, the
+    squared residuals the variance leaves; returns g and the variance with g x max(signal, 0) added."""
+    has = signal > 0
+    den = np.sum(signal[has] ** 2)
+    g = max(np.sum(signal[has] * ((model - raw)[has] ** 2 - variance[has])) / den, 0.0) if den > 0 else 0.0
+    return g, variance + g * np.maximum(signal, 0.0)
+
+
+def parameter_bounds(background, noise, amplitude, position, sigma, signal, first, last, gaussian, alpha_min,
+                     alpha_max, scale, table_widths=None):
+    """The start x0 and the boxes (lower, upper, the local methods' upper) of [b, (A, u, s, alpha)...]:
+    b within max(3 noise, scale); A in [0, 1.5 A + 3 noise] (local: 1.5 max(A, height at u) + 3 noise);
+    u within max(1.5 s, 2) inside [first, last]; s in [max(s / 4, 0.3), 3 s], or a table's rows
+    (table_widths = (narrowest, widest)) with the start clipped into them; alpha sqrt(2), fixed if gaussian."""
+    x0, lower, upper, local = [background], [background - max(3 * noise, scale)], [], []
+    upper.append(background + max(3 * noise, scale))
+    local.append(upper[0])
+    for a, u, s in zip(amplitude, position, sigma):
+        height = signal[min(max(int(round(u)), 0), len(signal) - 1)] - background
+        shift = max(1.5 * s, 2.0)
+        s_lo, s_hi, s0 = max(0.25 * s, 0.3), 3.0 * s, s
+        if table_widths is not None:
+            s_lo, s_hi = table_widths
+            s0 = min(max(s, s_lo), s_hi)
+        a_lo, a_hi = (np.sqrt(2), np.sqrt(2)) if gaussian else (alpha_min, alpha_max)
+        x0 += [a, u, s0, np.sqrt(2)]
+        lower += [0.0, max(first, u - shift), s_lo, a_lo]
+        upper += [1.5 * a + 3 * noise, min(last, u + shift), s_hi, a_hi]
+        local += [1.5 * max(a, height) + 3 * noise, upper[-3], s_hi, a_hi]
+    return np.array(x0), np.array(lower), np.array(upper), np.array(local)
+
+
+__all__ = ["SQRT_2LN2", "model_of_individual", "gaussian_smooth", "mde_generation", "pso_swarm", "ga_generation",
+           "richardson_lucy", "gold", "gaussian_response_kernel", "noise_variance", "shot_noise", "parameter_bounds",
+           "mark_spurious", "progressive_echoes", "chi2_without_echo"]
 
 
 def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise, min_snr, min_ratio,

@@ -12,6 +12,11 @@ from fwcore.io import read_pulses
 from pipeline.cli import main
 
 FAST = "none,lm,lbfgs,ga,pso,de,mde,mde-lm,ga-iterative"
+MEANS = {"none": (182.721466, 1.71594281, 0.971433701), "lm": (161.076782, 1.26369913, 0.984998444),
+         "lbfgs": (152.527213, 1.11701378, 0.987901845), "ga": (156.538515, 1.20587734, 0.986134192),
+         "pso": (156.846801, 1.21399715, 0.986027197), "de": (156.993593, 1.21092353, 0.986055248),
+         "mde": (156.468985, 1.20691532, 0.986121551), "mde-lm": (156.468985, 1.20691532, 0.986121551),
+         "ga-iterative": (164.401854, 1.29373740, 0.984342539)}
 
 
 def read_csv(path):
@@ -34,7 +39,10 @@ def test_every_optimizer_has_a_row_with_physical_numbers(leica_compare):
     by = {r["optimizer"]: r for r in rows}
     for r in rows:
         assert int(r["waveforms"]) == 40
-        assert float(r["fit_error"]) >= 0 and float(r["rmse"]) >= 0 and float(r["r2"]) <= 1
+        # the 40 pulses' mean fit error, RMSE and R^2 of each method, as this code computes them (seeded
+        # per pulse: any change to a kernel, the estimate or the metrics moves them)
+        expected = MEANS[r["optimizer"]]
+        assert (float(r["fit_error"]), float(r["rmse"]), float(r["r2"])) == pytest.approx(expected, rel=1e-6)
         assert float(r["echoes_kept"]) <= float(r["echoes"])
         assert float(r["seconds"]) > 0
     # the method's fixed budgets, every generation run: MDE 60 + 80 x 60 x (5 candidates + 1 trial), DE 100 x 101
