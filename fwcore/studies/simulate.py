@@ -150,9 +150,9 @@ def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 120.0 + 6.0 * np.sin(x / 90.0) + 4.0 * np.cos(y / 70.0) + 1.5 * np.sin((x + y) / 23.0)
 
 
-def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, rng: np.random.Generator):
-    """Per pulse first..first+n-1: geometry, and up to MAX_ECHOES surfaces (range, amplitude, FWHM factor,
-    alpha, kind)."""
+def _pulse_geometry(first: int, n: int, scene: SceneConfig):
+    """Per pulse first..first+n-1: GPS time, scan angle, sensor position, beam, the range to the ground and
+    where the beam meets it (no random draw)."""
     i = first + np.arange(n)
     gps = scene.start_gps_time + i / scene.pulse_rate_hz
     line, step = np.divmod(i, scene.pulses_per_line)
@@ -167,7 +167,46 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
         hit = sensor_xyz + beam * ground_range[:, None]
         ground_range = (sensor_xyz[:, 2] - _terrain(hit[:, 0], hit[:, 1])) / np.cos(angle)
     hit = sensor_xyz + beam * ground_range[:, None]
+    return gps, angle, sensor_xyz, beam, ground_range, hit
 
+
+def _tree_echoes(rng: np.random.Generator, scene: SceneConfig, sensor: SensorConfig, tree: np.ndarray,
+                 ground_range: np.ndarray, ground_amplitude: np.ndarray, angle: np.ndarray, echoes) -> np.ndarray:
+    """Trees: 1 to 5 layers between 1 m above ground and the crown top, then the ground, written into
+    echoes = (range, amplitude, width, alpha, kind, count) in place; returns the layers drawn per pulse."""
+    rng_range, amplitude, width, alpha, kind, count = echoes
+    n = tree.size
+    layers = rng.integers(1, 6, n)
+    height = rng.uniform(*scene.canopy_height_m, n)
+    transmitted = np.ones(n)
+    for k in range(MAX_ECHOES - 1):
+        on = tree & (layers > k)
+        depth = height * (1.0 - (k + rng.uniform(0.1, 0.9, n)) / (MAX_ECHOES - 1))  # metres above ground, top first
+        depth = np.maximum(depth, 1.0)
+        layer_amplitude = rng.uniform(15, 110, n) * transmitted
+        weak = rng.random(n) < scene.weak_echo_fraction
+        layer_amplitude = np.where(weak, rng.uniform(3.0, 6.0, n) * sensor.noise_sigma, layer_amplitude)
+        rng_range[on, k] = ground_range[on] - depth[on] / np.cos(angle[on])
+        amplitude[on, k] = layer_amplitude[on]
+        width[on, k] = rng.uniform(1.0, 1.8, on.sum())
+        alpha[on, k] = rng.uniform(1.2, 2.2, on.sum())
+        kind[on, k] = 1
+        transmitted = np.where(on, transmitted * rng.uniform(0.5, 0.85, n), transmitted)
+    rows = np.flatnonzero(tree)
+    last = layers[tree]
+    rng_range[rows, last] = ground_range[tree]
+    amplitude[rows, last] = ground_amplitude[tree] * transmitted[tree]
+    width[rows, last] = 1.0 + 0.8 * np.sin(angle[tree]) ** 2
+    alpha[rows, last] = rng.uniform(1.3, 2.0, tree.sum())
+    kind[rows, last] = 0
+    count[tree] = layers[tree] + 1
+    return layers
+
+
+def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, rng: np.random.Generator):
+    """Per pulse first..first+n-1: geometry, and up to MAX_ECHOES surfaces (range, amplitude, FWHM factor,
+    alpha, kind)."""
+    gps, angle, sensor_xyz, beam, ground_range, hit = _pulse_geometry(first, n, scene)
     rng_range = np.zeros((n, MAX_ECHOES))
     amplitude = np.zeros((n, MAX_ECHOES))
     width = np.ones((n, MAX_ECHOES))
@@ -199,31 +238,8 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     alpha[edge, 1] = rng.uniform(1.3, 2.0, edge.sum())
     kind[edge, 1] = 0
     count[edge] = 2
-    # trees: 1 to 5 layers between 1 m above ground and the crown top, then the ground
-    layers = rng.integers(1, 6, n)
-    height = rng.uniform(*scene.canopy_height_m, n)
-    transmitted = np.ones(n)
-    for k in range(MAX_ECHOES - 1):
-        on = tree & (layers > k)
-        depth = height * (1.0 - (k + rng.uniform(0.1, 0.9, n)) / (MAX_ECHOES - 1))  # metres above ground, top first
-        depth = np.maximum(depth, 1.0)
-        layer_amplitude = rng.uniform(15, 110, n) * transmitted
-        weak = rng.random(n) < scene.weak_echo_fraction
-        layer_amplitude = np.where(weak, rng.uniform(3.0, 6.0, n) * sensor.noise_sigma, layer_amplitude)
-        rng_range[on, k] = ground_range[on] - depth[on] / np.cos(angle[on])
-        amplitude[on, k] = layer_amplitude[on]
-        width[on, k] = rng.uniform(1.0, 1.8, on.sum())
-        alpha[on, k] = rng.uniform(1.2, 2.2, on.sum())
-        kind[on, k] = 1
-        transmitted = np.where(on, transmitted * rng.uniform(0.5, 0.85, n), transmitted)
-    rows = np.flatnonzero(tree)
-    last = layers[tree]
-    rng_range[rows, last] = ground_range[tree]
-    amplitude[rows, last] = ground_amplitude[tree] * transmitted[tree]
-    width[rows, last] = 1.0 + 0.8 * np.sin(angle[tree]) ** 2
-    alpha[rows, last] = rng.uniform(1.3, 2.0, tree.sum())
-    kind[rows, last] = 0
-    count[tree] = layers[tree] + 1
+    layers = _tree_echoes(rng, scene, sensor, tree, ground_range, ground_amplitude, angle,
+                          (rng_range, amplitude, width, alpha, kind, count))
     amplitude[~tree & ~edge, 0] = ground_amplitude[~tree & ~edge]
     amplitude[edge, 0] = rng.uniform(40, 200, edge.sum())
     reflectance = np.full((n, MAX_ECHOES), np.nan)
@@ -375,14 +391,7 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
     energy = amplitude * echo_area(fwhm_ps, np.where(has, alpha, np.sqrt(2.0)))
     if sensor.response is not None:
         # echoes of the response: rendered here, the analytic ones given no amplitude
-        shape = echo_shape(sensor.response, sensor.sample_spacing_ps, RESPONSE_WIDEST)
-        s = fwhm_ps / _FWHM_PER_SIGMA / sensor.sample_spacing_ps  # each echo's equal-FWHM sigma, samples
-        t = np.arange(n_samples, dtype=float)
-        for p_, k in zip(*np.nonzero(has)):
-            shaped[p_ * n_samples:(p_ + 1) * n_samples] += tabulated_model(
-                t, 0.0, amplitude[p_, k], time_ps[p_, k] / sensor.sample_spacing_ps, s[p_, k], shape)
-        area = tabulated_areas(shape, s) * sensor.sample_spacing_ps
-        energy = np.where(has, amplitude * area, 0.0)
+        energy = _response_echoes(sensor, has, amplitude, time_ps, fwhm_ps, shaped)
         alpha = np.full(alpha.shape, np.nan)
         sigma_ps = fwhm_ps / _FWHM_PER_SIGMA
     _render(time_ps, np.where(has & (sensor.response is None), amplitude, 0.0), sigma_ps,
@@ -401,35 +410,9 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
     def position(owner, t_ps):
         return first_surface[owner] + beam[owner] * ((t_ps - pre_trigger[owner]) * RANGE_M_PER_PS)[:, None]
 
-    r_has = np.arange(MAX_RETURNS)[None, :] < return_count[:, None]
-    r_owner = np.repeat(np.arange(n_pulses), return_count)
-    r_time = (return_index[r_has] * sensor.sample_spacing_ps).astype(np.float64)
-    r_xyz = position(r_owner, r_time)
-    r_intensity = samples[r_owner * n_samples + return_index[r_has]].astype(np.uint16)
-    return_offsets = np.zeros(n_pulses + 1, dtype=np.int64)
-    np.cumsum(return_count, out=return_offsets[1:])
-    return_number = (np.arange(r_owner.size) - return_offsets[r_owner] + 1).astype(np.uint8)
-    first_return = return_offsets[:-1]
-
-    lengths = np.full(n_pulses, n_samples)
-    first_packet_byte = first * n_samples * (sensor.bits // 8)  # the packets of the chunks before this one
-    pulse_id = pulse_ids_as_written(gps, r_xyz[first_return])  # what the reader will say of the written file
-    pulses = PulseBatch(
-        source_file=source_file, pulse_id=pulse_id,
-        packet_offset=packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits)) + first_packet_byte,
-        descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
-        anchor=r_xyz[first_return], anchor_location_ps=r_time[first_return], direction=direction,
-        scan_angle=np.degrees(angle), point_source_id=np.ones(n_pulses, np.uint16),
-        scan_direction_flag=(((first + np.arange(n_pulses)) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
-        edge_of_flight_line=np.isin((first + np.arange(n_pulses)) % scene.pulses_per_line,
-                                    (0, scene.pulses_per_line - 1)).astype(np.uint8),
-        user_data=np.zeros(n_pulses, np.uint8), sample_spacing_ps=np.full(n_pulses, sensor.sample_spacing_ps),
-        digitizer_gain=np.full(n_pulses, sensor.digitizer_gain),
-        digitizer_offset=np.full(n_pulses, sensor.digitizer_offset),
-        bits_per_sample=np.full(n_pulses, sensor.bits, np.int16), samples=samples,
-        sample_offsets=np.arange(n_pulses + 1, dtype=np.int64) * n_samples, return_xyz=r_xyz,
-        return_number=return_number, return_intensity=r_intensity, return_location_ps=r_time,
-        return_offsets=return_offsets)
+    pulses = _flight_pulses(first, sensor, scene, source_file, gps, angle, direction, samples, return_index,
+                            return_count, position)
+    pulse_id = pulses.pulse_id
 
     e_owner = np.repeat(np.arange(n_pulses), count)
     e_time = time_ps[has]
@@ -445,6 +428,58 @@ def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
         "energy": energy[has],
     }
     return SimulatedFlight(pulses, truth, sensor.bits)
+
+
+def _response_echoes(sensor: SensorConfig, has: np.ndarray, amplitude: np.ndarray, time_ps: np.ndarray,
+                     fwhm_ps: np.ndarray, shaped: np.ndarray) -> np.ndarray:
+    """The echoes of the sensor's response added to `shaped` (pulse after pulse, samples_per_packet each);
+    returns their energies (0 where a pulse has no such echo)."""
+    n_samples = sensor.samples_per_packet
+    shape = echo_shape(sensor.response, sensor.sample_spacing_ps, RESPONSE_WIDEST)
+    s = fwhm_ps / _FWHM_PER_SIGMA / sensor.sample_spacing_ps  # each echo's equal-FWHM sigma, samples
+    t = np.arange(n_samples, dtype=float)
+    for p_, k in zip(*np.nonzero(has)):
+        shaped[p_ * n_samples:(p_ + 1) * n_samples] += tabulated_model(
+            t, 0.0, amplitude[p_, k], time_ps[p_, k] / sensor.sample_spacing_ps, s[p_, k], shape)
+    area = tabulated_areas(shape, s) * sensor.sample_spacing_ps
+    return np.where(has, amplitude * area, 0.0)
+
+
+def _flight_pulses(first: int, sensor: SensorConfig, scene: SceneConfig, source_file: str, gps: np.ndarray,
+                   angle: np.ndarray, direction: np.ndarray, samples: np.ndarray, return_index: np.ndarray,
+                   return_count: np.ndarray, position) -> PulseBatch:
+    """The chunk's pulses as the reader will give them: the detected returns as points (position(owner, t)
+    places them), each pulse anchored at its first return, packets at their offsets in the whole file."""
+    n_pulses, n_samples = gps.size, sensor.samples_per_packet
+    r_has = np.arange(MAX_RETURNS)[None, :] < return_count[:, None]
+    r_owner = np.repeat(np.arange(n_pulses), return_count)
+    r_time = (return_index[r_has] * sensor.sample_spacing_ps).astype(np.float64)
+    r_xyz = position(r_owner, r_time)
+    r_intensity = samples[r_owner * n_samples + return_index[r_has]].astype(np.uint16)
+    return_offsets = np.zeros(n_pulses + 1, dtype=np.int64)
+    np.cumsum(return_count, out=return_offsets[1:])
+    return_number = (np.arange(r_owner.size) - return_offsets[r_owner] + 1).astype(np.uint8)
+    first_return = return_offsets[:-1]
+
+    lengths = np.full(n_pulses, n_samples)
+    first_packet_byte = first * n_samples * (sensor.bits // 8)  # the packets of the chunks before this one
+    pulse_id = pulse_ids_as_written(gps, r_xyz[first_return])  # what the reader will say of the written file
+    return PulseBatch(
+        source_file=source_file, pulse_id=pulse_id,
+        packet_offset=packet_byte_offsets(lengths, np.full(n_pulses, sensor.bits)) + first_packet_byte,
+        descriptor_index=np.ones(n_pulses, np.int16), gps_time=gps,
+        anchor=r_xyz[first_return], anchor_location_ps=r_time[first_return], direction=direction,
+        scan_angle=np.degrees(angle), point_source_id=np.ones(n_pulses, np.uint16),
+        scan_direction_flag=(((first + np.arange(n_pulses)) // scene.pulses_per_line) % 2 == 0).astype(np.uint8),
+        edge_of_flight_line=np.isin((first + np.arange(n_pulses)) % scene.pulses_per_line,
+                                    (0, scene.pulses_per_line - 1)).astype(np.uint8),
+        user_data=np.zeros(n_pulses, np.uint8), sample_spacing_ps=np.full(n_pulses, sensor.sample_spacing_ps),
+        digitizer_gain=np.full(n_pulses, sensor.digitizer_gain),
+        digitizer_offset=np.full(n_pulses, sensor.digitizer_offset),
+        bits_per_sample=np.full(n_pulses, sensor.bits, np.int16), samples=samples,
+        sample_offsets=np.arange(n_pulses + 1, dtype=np.int64) * n_samples, return_xyz=r_xyz,
+        return_number=return_number, return_intensity=r_intensity, return_location_ps=r_time,
+        return_offsets=return_offsets)
 
 
 def _concatenate(chunks: list[SimulatedFlight]) -> SimulatedFlight:
