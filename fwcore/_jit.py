@@ -27,7 +27,7 @@ _F32 = np.float32
 
 
 @intrinsic
-def _bits_of_f32(typingctx, x):
+def bits_of_f32(typingctx, x):
     sig = types.int32(types.float32)
 
     def codegen(context, builder, signature, args):
@@ -78,7 +78,7 @@ def fast_exp2(x):
 @njit(**JIT_INLINE)
 def fast_log2(x):
     """log2(x) for float32 x > 0 (x == 0 gives about -127)."""
-    bits = _bits_of_f32(x)
+    bits = bits_of_f32(x)
     e = _F32((bits >> np.int32(23)) - np.int32(127))
     f = _f32_of_bits((bits & _MANTISSA) | _ONE_BITS) - _ONE
     return e + (_L0 + f * (_L1 + f * (_L2 + f * (_L3 + f * _L4))))

@@ -288,9 +288,11 @@ def _check_shares_pulses(results: list[str], truth: str) -> None:
     import pyarrow.dataset as ds
     import pyarrow.parquet as pq
 
+    from pipeline.layout import PULSES
+
     true_pulses = pq.read_table(truth, columns=["pulse_id"]).column("pulse_id").combine_chunks().unique()
     for folder in results:
-        pulses = ds.dataset(str(Path(folder) / "pulses"), format="parquet").to_table(columns=["pulse_id"])
+        pulses = ds.dataset(str(Path(folder) / PULSES), format="parquet").to_table(columns=["pulse_id"])
         if not pc.any(pc.is_in(pulses.column("pulse_id"), value_set=true_pulses)).as_py():
             raise ValueError(f"fwl evaluate: {folder} shares no pulse with {truth} ({pulses.num_rows} pulses "
                              f"decomposed, {len(true_pulses)} in the truth): the truth of another flight?")

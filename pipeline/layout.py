@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import socket
 from pathlib import Path
 
@@ -54,6 +55,12 @@ RANGE_SUFFIX, TILE_SUFFIX, BUCKET_SUFFIX = rf"-\d{{{RANGE_DIGITS}}}", r"-tile-\d
 def part_name(stem: str, range_start: int) -> str:
     """A range's files' name: its input's stem and its first point."""
     return f"{stem}-{range_start:0{RANGE_DIGITS}d}"
+
+
+def range_start(part: str | Path) -> int | None:
+    """The first point of the range a part's name says (<stem>-<range>.*), None for another name (a tile's)."""
+    m = re.search(rf"-(\d{{{RANGE_DIGITS}}})$", Path(part).stem)
+    return int(m.group(1)) if m else None
 
 
 def tile_name(stem: str, index: int) -> str:

@@ -71,7 +71,7 @@ def _smooth(samples, valid, sigma, out):
 
 
 @njit(**JIT)
-def _noise_sigma(samples, smoothed, valid):
+def residual_noise_sigma(samples, smoothed, valid):
     """The method's sigma_noise = sqrt(mean((raw - smoothed)**2)) over the valid samples."""
     acc = 0.0
     m = 0
@@ -214,7 +214,7 @@ def _noise_threshold(smoothed, valid, background, noise, shape_tolerance, k, out
 
 
 @njit(**JIT)
-def _valid_min(values, valid):
+def valid_min(values, valid):
     best = np.inf
     for i in range(values.size):
         if valid[i] and values[i] < best:
@@ -223,7 +223,7 @@ def _valid_min(values, valid):
 
 
 @njit(**JIT)
-def _inflection(residual, valid, peak, step):
+def inflection_distance(residual, valid, peak, step):
     """Distance from the peak to the first inflection point walking by `step` (+1 or -1).
 
     The second difference is negative at a peak; the inflection point is where it
@@ -246,7 +246,7 @@ def _inflection(residual, valid, peak, step):
 
 
 @njit(**JIT)
-def _half_height_sigma(residual, valid, peak):
+def half_height_sigma(residual, valid, peak):
     """sigma from the half-height width (a Gaussian's FWHM = 2.3548 sigma); -1.0 if not bracketed."""
     left, right = half_height_crossings(residual, valid, peak, residual[peak])
     if left >= 0.0 and right >= 0.0:
@@ -261,8 +261,8 @@ def _half_height_sigma(residual, valid, peak):
 @njit(**JIT)
 def _echo_sigma(residual, valid, peak, fallback):
     """sigma = |p1 - p2| / 2 from the inflection points; one side doubles the other; none: half height."""
-    left = _inflection(residual, valid, peak, -1)
-    right = _inflection(residual, valid, peak, 1)
+    left = inflection_distance(residual, valid, peak, -1)
+    right = inflection_distance(residual, valid, peak, 1)
     if left > 0.0 and right > 0.0:
         sigma = 0.5 * (left + right)
     elif left > 0.0:
@@ -270,7 +270,7 @@ def _echo_sigma(residual, valid, peak, fallback):
     elif right > 0.0:
         sigma = right
     else:
-        sigma = _half_height_sigma(residual, valid, peak)
+        sigma = half_height_sigma(residual, valid, peak)
         if sigma <= 0.0:
             sigma = fallback
     return max(sigma, MIN_SIGMA)
@@ -385,8 +385,8 @@ def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smo
         background = _baseline(samples, valid, noise)
         noise *= math.sqrt(_correlation_inflation(samples, smoothed, valid, background, noise))
     else:
-        noise = max(_noise_sigma(samples, smoothed, valid), p.min_noise_sigma)
-        background = _valid_min(smoothed, valid)
+        noise = max(residual_noise_sigma(samples, smoothed, valid), p.min_noise_sigma)
+        background = valid_min(smoothed, valid)
     threshold = np.empty(samples.size)
     support = np.empty(samples.size, dtype=np.bool_)
     _smoothing_support(valid, smoothing_sigma, support)
@@ -412,7 +412,7 @@ class InitialEstimate:
         return int(self.amplitude.size)
 
 
-def _as_waveform(samples, valid) -> tuple[np.ndarray, np.ndarray]:
+def as_waveform(samples, valid) -> tuple[np.ndarray, np.ndarray]:
     samples = np.ascontiguousarray(samples, dtype=np.float64)
     valid = np.ones(samples.size, bool) if valid is None else np.ascontiguousarray(valid, dtype=bool)
     if valid.shape != samples.shape:
@@ -424,7 +424,7 @@ def _as_waveform(samples, valid) -> tuple[np.ndarray, np.ndarray]:
 
 def gaussian_smooth(samples, sigma: float, valid=None) -> np.ndarray:
     """Denoise with a Gaussian filter of `sigma` samples (0: no smoothing), ignoring invalid samples."""
-    samples, valid = _as_waveform(samples, valid)
+    samples, valid = as_waveform(samples, valid)
     out = np.empty_like(samples)
     _smooth(samples, valid, float(sigma), out)
     return out
@@ -433,11 +433,11 @@ def gaussian_smooth(samples, sigma: float, valid=None) -> np.ndarray:
 def estimate_noise(samples, smoothing_sigma: float, valid=None, robust: bool = True) -> float:
     """sigma_noise of a waveform smoothed with `smoothing_sigma` samples: robust (median absolute
     residual over its white-noise attenuation) or the method's sqrt(mean((raw - smoothed)**2))."""
-    samples, valid = _as_waveform(samples, valid)
+    samples, valid = as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     _smooth(samples, valid, float(smoothing_sigma), smoothed)
     if not robust:
-        return float(_noise_sigma(samples, smoothed, valid))
+        return float(residual_noise_sigma(samples, smoothed, valid))
     attenuation = np.empty_like(samples)
     _residual_attenuation(valid, float(smoothing_sigma), attenuation)
     return float(_robust_noise_sigma(samples, smoothed, valid, attenuation))
@@ -452,7 +452,7 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     above the background (the smoothed minimum), each peeled off in `shape`'s form
     (fwcore.instrument.shape.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig
     checks them."""
-    samples, valid = _as_waveform(samples, valid)
+    samples, valid = as_waveform(samples, valid)
     smoothed = np.empty_like(samples)
     amplitude = np.zeros(max_echoes)
     position = np.zeros(max_echoes)
@@ -478,5 +478,5 @@ def smoothed_noise_baseline(samples: np.ndarray, valid: np.ndarray, smoothing_si
 
 def noise_and_background(samples, valid=None, smoothing_sigma: float = 1.0) -> tuple[float, float]:
     """A waveform's robust white-noise sigma (floored at the quantisation's) and its robust baseline."""
-    _, noise, background = smoothed_noise_baseline(*_as_waveform(samples, valid), smoothing_sigma)
+    _, noise, background = smoothed_noise_baseline(*as_waveform(samples, valid), smoothing_sigma)
     return noise, background

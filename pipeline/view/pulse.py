@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import re
 import threading
 from pathlib import Path
 
@@ -26,10 +25,10 @@ from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.engine.model import sigma_to_time_unit
 from fwcore.engine.preprocess import gaussian_smooth
 from fwcore.pulses import pulse_waveforms
+from pipeline.layout import range_start
 from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary
 
-_PART_START = re.compile(r"-(\d+)$")  # pulses/<stem>-<first point of the range>.parquet
 # what run.json's config held of the file's pulse before the pulse left it: read from the row and inputs[] instead
 _FORMER_PULSE_SETTINGS = ("system_pulse_fwhm_ps", "default_pulse_fwhm_ps", "system_response", "shape_tolerance")
 _read_lock = threading.Lock()
@@ -61,8 +60,7 @@ def _find_in_ranges(path: Path, points_per_range: int, part_name: str, pulse_id:
     """The pulse's batch and index, reading the range the run wrote it from (its part file's name)
     first, then the others."""
     ranges = _ranges(str(path), points_per_range)
-    m = _PART_START.search(Path(part_name).stem)
-    start = int(m.group(1)) if m else -1
+    start = range_start(part_name)
     ordered = sorted(ranges, key=lambda r: r.start != start)
     for r in ordered:
         with _read_lock:

@@ -47,3 +47,9 @@ def test_the_folders_a_run_owns():
     assert layout.OUTPUT_DIRS == ("echoes", "pulses", "rejected", "las", "mcap", "copc", "logs", "parts")
     assert (layout.MANIFEST, layout.RUN_JSON) == ("fwl-output.json", "run.json")
     assert layout.STAGED.as_posix() == "parts/compact/echoes" and layout.FINISHED.as_posix() == "parts/compact-finished"
+
+
+def test_a_part_s_name_gives_back_its_range_s_first_point():
+    assert layout.range_start(layout.part_name("flight-7", 1125) + ".parquet") == 1125
+    assert layout.range_start(f"echoes/{layout.part_name('a-000000000001', 0)}.parquet") == 0
+    assert layout.range_start(layout.tile_name("flight-7", 3) + ".parquet") is None

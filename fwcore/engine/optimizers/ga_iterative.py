@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.engine.preprocess import (MIN_SIGMA, _as_waveform, _half_height_sigma, _inflection, _noise_sigma, _valid_min,
-                               gaussian_smooth)
+from fwcore.engine.preprocess import (MIN_SIGMA, as_waveform, gaussian_smooth, half_height_sigma, inflection_distance,
+                                      residual_noise_sigma, valid_min)
 from fwcore.rng import randint, uniform
 
 PEAK_WINDOW = 5  # bins either side
@@ -57,14 +57,14 @@ def patent_peaks(smoothed, valid, background, threshold, max_echoes, first, last
                     is_peak = False
                     break
             if is_peak:
-                left = _inflection(residual, valid, i, -1)
-                right = _inflection(residual, valid, i, 1)
+                left = inflection_distance(residual, valid, i, -1)
+                right = inflection_distance(residual, valid, i, 1)
                 if left > 0.0 and right > 0.0:
                     sigma_hi = 3.0 * (left + right) / 2.0
                 elif left > 0.0 or right > 0.0:
                     sigma_hi = 3.0 * max(left, right)
                 else:
-                    sigma_hi = 3.0 * max(_half_height_sigma(residual, valid, i), MIN_SIGMA)
+                    sigma_hi = 3.0 * max(half_height_sigma(residual, valid, i), MIN_SIGMA)
                 ranges[count, 0] = 0.0
                 ranges[count, 1] = residual[i]
                 ranges[count, 2] = max(first, i - PEAK_WINDOW)
@@ -294,10 +294,10 @@ def patent_peak_ranges(samples, smoothing_sigma: float, valid=None, noise_thresh
                        max_echoes: int = 64) -> PeakSearchRange:
     """Peaks as the largest sample within +-5 bins and above noise_threshold x sigma_noise,
     each with the patent's search ranges for A, u and sigma."""
-    samples, valid = _as_waveform(samples, valid)
+    samples, valid = as_waveform(samples, valid)
     smoothed = gaussian_smooth(samples, smoothing_sigma, valid)
-    noise = float(_noise_sigma(samples, smoothed, valid))  # the method's formula, as the patent's peers use
-    background = float(_valid_min(smoothed, valid))
+    noise = float(residual_noise_sigma(samples, smoothed, valid))  # the method's formula, as the patent's peers use
+    background = float(valid_min(smoothed, valid))
     ranges = np.zeros((max_echoes, 7))
     first, last = np.flatnonzero(valid)[[0, -1]]
     n = patent_peaks(smoothed, valid, background, noise_threshold * noise, max_echoes, float(first), float(last),

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT_INLINE, SIMD_JIT, _bits_of_f32, fast_exp2, fast_log2
+from fwcore._jit import JIT_INLINE, SIMD_JIT, bits_of_f32, fast_exp2, fast_log2
 from fwcore.engine.model import PARAMS_PER_ECHO, bilinear, grid_column, table_reach, table_row
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
@@ -27,7 +27,7 @@ def _echo_reach(amplitude, h, p, eps):
     ratio = _F32(amplitude / eps)
     if ratio <= _F32(1.0):
         return -1.0
-    levels = _F32((_bits_of_f32(ratio) >> np.int32(23)) - np.int32(126))
+    levels = _F32((bits_of_f32(ratio) >> np.int32(23)) - np.int32(126))
     if p == 2.0:
         return h * math.sqrt(levels)
     return h * fast_exp2(fast_log2(levels) / _F32(p))
