@@ -126,7 +126,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         largest = 0.0
         for k in range(n_echoes):
             largest = max(largest, best[1 + PARAMS_PER_ECHO * k])
-        floor = max(p.min_amplitude_ratio * largest, p.min_snr * noise)
+        floor = max(p.min_amplitude_ratio * largest, p.add_min_snr * noise)
         peak = -1
         amplitude = 0.0
         for i in range(n):

@@ -84,3 +84,20 @@ def test_leica_mde_and_de_lower_the_initial_fit_error(leica_waveforms):
     # (over 3 x 4 ns) are flagged too wide, but 9 in 10 waveforms keep at least one echo
     kept = np.add.reduceat((mde.reject == 0).astype(int), mde.echo_offsets[:-1])
     assert (kept[np.diff(mde.echo_offsets) > 0] >= 1).mean() > 0.9
+
+
+def test_leica_keeps_no_echo_the_noise_cannot_support_under_the_ground(leica_dir):
+    # with the filter's SNR floor at 2 sigma, 7 kept echoes of 1.5-2.2 DN (sigma 0.7-0.85) lay 5-40 m under
+    # the sample's lowest system return; at 3 sigma, the initial estimate's own threshold, none does
+    from fwcore.instrument.measure import file_system_pulse
+    from fwcore.io import read_pulses
+    from fwcore.pulses import echo_positions, pulse_waveforms
+
+    path = leica_dir / "leica_a.las"
+    pulses = read_pulses(path)
+    config = DecompositionConfig()
+    pulse = file_system_pulse(path, pulses.return_xyz.shape[0], config)
+    result = decompose_batch(pulse_waveforms(pulses, 0), config, pulse)
+    z = echo_positions(pulses, result, pulse.range_offset_ps)[result.reject == 0, 2]
+    assert z.size > 1400
+    assert z.min() > pulses.return_xyz[:, 2].min() - 5.0
