@@ -99,8 +99,11 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
                       pulse=_pulse_from_args(args))
     except KeyboardInterrupt:
         print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
-              f"rerun the same command with --resume to complete it", file=sys.stderr)
-        return EXIT_INTERRUPTED
+              f"rerun the same command with --resume to complete it", file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        # as fwl watch: once a KeyboardInterrupt crossed Beam's compiled frames Python may end by SIGINT (-2,
+        # not 130) and wait for Beam's threads; the run removed its partial files already
+        os._exit(EXIT_INTERRUPTED)
     if args.resume and summary.get("taken") != "resumed":
         said = {"new": "nothing to resume: a new run", "complete": "already complete: nothing to do"}
         print(f"fwl run --resume: {args.output}: {said.get(summary.get('taken'), said['complete'])}")

@@ -244,17 +244,31 @@ def _inflection_distance(residual, peak, step):
     return -1.0
 
 
-def progressive_echoes(smoothed, background, threshold, max_echoes, fallback_sigma):
+def progressive_echoes(smoothed, background, threshold, max_echoes, fallback_sigma, floor_ratio=0.0):
     """Peel Gaussian echoes off the largest remaining peak above its sample's threshold (all samples valid;
-    sigma from the inflection points, one side doubling the other, else the half-height width)."""
+    sigma from the inflection points, one side doubling the other, else the half-height width); once the
+    largest peak left is under floor_ratio x the first echo, only peaks in an echo's return (a run of samples
+    above the threshold before peeling) or within one FWHM of an echo remain."""
     residual = np.asarray(smoothed, dtype=float) - background
     t = np.arange(residual.size)
-    echoes = []
+    above = residual > threshold
+    run = np.cumsum(np.r_[above[0], above[1:] & ~above[:-1]]) * above  # 1, 2, ... on each run, 0 elsewhere
+    reach = 2.0 * SQRT_2LN2 * fallback_sigma
+    allowed = np.ones(residual.size, bool)
+    echoes, echo_runs = [], []
     while len(echoes) < max_echoes:
-        candidates = np.flatnonzero(residual > threshold)
+        candidates = np.flatnonzero((residual > threshold) & allowed)
         if candidates.size == 0:
             break
         peak = int(candidates[np.argmax(residual[candidates])])
+        if echoes and residual[peak] < floor_ratio * echoes[0][0]:
+            near = np.isin(run, [r for r in echo_runs if r > 0])
+            for _, centre, _ in echoes:
+                near |= np.abs(t - centre) <= reach
+            if not near[peak]:
+                allowed &= near
+                continue
+        echo_runs.append(run[peak])
         left, right = _inflection_distance(residual, peak, -1), _inflection_distance(residual, peak, 1)
         if left > 0 and right > 0:
             sigma = 0.5 * (left + right)

@@ -70,11 +70,23 @@ def test_progressive_estimate_matches_the_naive_reference():
     smoothed = gaussian_smooth(y, 0.8)
     threshold = np.full(t.size, 3.0)
     amplitude, position, sigma = np.zeros(12), np.zeros(12), np.zeros(12)
+    for floor_ratio, at_least in ((0.0, 3), (0.35, 2)):
+        n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(),
+                                amplitude, position, sigma, floor_ratio)
+        expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0, floor_ratio)
+        assert n == len(expected) >= at_least
+        np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)
+    # the floor drops the weak echo at 110 (25 < 0.35 x 90, far from the others) but not the one at 70
+    assert not np.any(np.abs(position[:n] - 110) < 5) and np.any(np.abs(position[:n] - 70) < 5)
+    # a weak echo 2.4 FWHM after a strong one, in its return (the samples between stay above the threshold)
+    y = waveform_model(t, 12.0, [150.0, 25.0], [30.0, 47.0], [3.0, 4.0], [math.sqrt(2)] * 2)
+    smoothed = gaussian_smooth(y + np.random.default_rng(4).normal(0, 0.8, t.size), 0.8)
     n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(), amplitude,
-                            position, sigma)
-    expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0)
-    assert n == len(expected) >= 3
+                            position, sigma, 0.35)
+    expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0, 0.35)
+    assert n == len(expected)
     np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)
+    assert np.any(np.abs(position[:n] - 47) < 2)
 
 
 def test_a_return_a_target_widened_starts_as_wide_as_it_is():
@@ -190,3 +202,34 @@ def test_an_echo_is_measured_across_held_out_samples():
     # a peak on a valid sample just before a held-out one (centre 60.0) leans the filter and reads 2 samples
     assert np.mean(widths) == pytest.approx(3.0, rel=0.1) and min(widths) > 1.9
     assert single >= 5
+
+
+def test_sorted_median_is_numpys_to_the_bit():
+    from fwcore.engine.preprocess import _sorted_median
+
+    rng = np.random.default_rng(5)
+    for m in (1, 2, 3, 4, 7, 60, 61):
+        for values in (rng.normal(0, 1, m), np.round(rng.normal(10, 3, m)), np.full(m, 4.0)):
+            ordered = np.sort(values)
+            for k in range(1, m + 1):  # a prefix: the baseline's samples up to a level
+                assert _sorted_median(ordered, k) == np.median(ordered[:k])
+
+
+def test_baseline_matches_the_repeated_median_reference():
+    from fwcore.engine.preprocess import _baseline
+
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        y = np.round(waveform_model(np.arange(64.0), rng.uniform(5, 20), [rng.uniform(20, 300)], [rng.uniform(10, 50)],
+                                    [rng.uniform(1.5, 4)], [math.sqrt(2)]) + rng.normal(0, 1.5, 64))
+        valid = rng.random(64) > 0.1
+        noise = 1.5
+        values = y[valid]
+        level = np.median(values)  # the median, repeatedly leaving out what lies 3 sigma above it
+        for _ in range(8):
+            new = np.median(values[values <= level + 3 * noise])
+            if new == level:
+                break
+            level = new
+        expected = np.mean(values[np.abs(values - level) <= 3 * noise])
+        assert _baseline(y, valid, noise) == expected

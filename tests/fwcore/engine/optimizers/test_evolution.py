@@ -131,10 +131,12 @@ def test_evolution_never_worsens_the_best_and_stays_in_bounds():
 def test_mde_stops_on_a_riegl_baseline_no_echo_explains(riegl_response, stall_generations, generations):
     # pulse 875: a strong return, then a baseline that wanders 2-5 DN for 60 ns; LM does not settle and its fit
     # fails the noise model, so lm-mde searches, but no echo explains a baseline: MDE's best moves by less than
-    # the noise's share of the fitness, and the stall rule ends the search after one period with LM's fit
+    # the noise's share of the fitness, and the stall rule ends the search after one period with LM's fit.
+    # Without the selection, as the method proposes echoes: with it, the wandering bumps are under the weak-echo
+    # floor, never proposed, and LM's fit passes
     pulses = read_pulses(PointRange(str(RIEGL), 875, 876))
-    config = DecompositionConfig(model="system", stall_generations=stall_generations)
+    config = DecompositionConfig(model="system", stall_generations=stall_generations, select_echoes=False)
     pulse = nominal_pulse(riegl_response.fwhm_ps, response=riegl_response)
     result = decompose_batch(pulse_waveforms(pulses, 0), config, pulse, threads=1)
     assert result.nit[0] == generations
-    assert result.fit_error_raw[0] == pytest.approx(57.31, abs=0.01)
+    assert result.fit_error_raw[0] == pytest.approx(51.92, abs=0.01)
