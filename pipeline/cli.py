@@ -8,6 +8,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -87,9 +88,20 @@ def _decompose_csv(args: argparse.Namespace) -> int:
     return 0
 
 
+def _exit_interrupted(message: str) -> NoReturn:
+    """Say why on stderr and end now with EXIT_INTERRUPTED: once a KeyboardInterrupt crossed one of Beam's compiled
+    frames, even caught, Python ends by SIGINT (-2, not 130) and would wait for Beam's threads; the run removed
+    its partial files already."""
+    from pipeline.run import EXIT_INTERRUPTED
+
+    print(message, file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(EXIT_INTERRUPTED)
+
+
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.options import radiometry_config
-    from pipeline.run import EXIT_INTERRUPTED, run
+    from pipeline.run import run
 
     config = _config_from_args(args)
     radiometry = radiometry_config(args)
@@ -98,12 +110,8 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
                       pulse=_pulse_from_args(args))
     except KeyboardInterrupt:
-        print(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
-              f"rerun the same command with --resume to complete it", file=sys.stderr, flush=True)
-        sys.stdout.flush()
-        # as fwl watch: once a KeyboardInterrupt crossed Beam's compiled frames Python may end by SIGINT (-2,
-        # not 130) and wait for Beam's threads; the run removed its partial files already
-        os._exit(EXIT_INTERRUPTED)
+        _exit_interrupted(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
+                          f"rerun the same command with --resume to complete it")
     if args.resume and summary.get("taken") != "resumed":
         said = {"new": "nothing to resume: a new run", "complete": "already complete: nothing to do"}
         print(f"fwl run --resume: {args.output}: {said.get(summary.get('taken'), said['complete'])}")
@@ -139,7 +147,7 @@ def _say_what_was_not_done(summary: dict, output: str) -> None:
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.options import check_beam_args, radiometry_config
-    from pipeline.run import EXIT_INTERRUPTED, check_run_arguments, run, run_settings
+    from pipeline.run import check_run_arguments, run, run_settings
     from pipeline.watch import watch
 
     config = _config_from_args(args)
@@ -177,12 +185,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
               lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         if running:
-            print(f"fwl watch: interrupted while processing {', '.join(Path(p).name for p in running[0])}; "
-                  f"start fwl watch again to go on (their finished ranges are kept)", file=sys.stderr, flush=True)
-            sys.stdout.flush()
-            # now: Python ends by SIGINT (-2, not 130) once a KeyboardInterrupt crossed one of Beam's compiled
-            # frames, even caught, and would wait for Beam's threads; the run removed its partial files already
-            os._exit(EXIT_INTERRUPTED)
+            _exit_interrupted(f"fwl watch: interrupted while processing "
+                              f"{', '.join(Path(p).name for p in running[0])}; start fwl watch again to go on "
+                              f"(their finished ranges are kept)")
         print("fwl watch: stopped", flush=True)
     finally:
         signal.signal(signal.SIGINT, previous[0])
