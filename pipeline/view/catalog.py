@@ -14,6 +14,7 @@ import dataclasses
 import functools
 import glob
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from pipeline.layout import ECHOES, RUN_JSON
@@ -108,7 +109,9 @@ class Roots:
     def runs(self) -> list[Path]:
         found = set()
         for root in self.folders:
-            for marker in root.rglob(RUN_JSON):
+            for marker in files_under(root):
+                if marker.name != RUN_JSON:
+                    continue
                 folder = marker.parent.resolve()
                 if folder.is_relative_to(root) and is_complete_run(folder):
                     found.add(folder)
@@ -120,12 +123,27 @@ class Roots:
         runs = self.runs()
         found = set(self.files)
         for root in self.folders:
-            for path in root.rglob("*"):
+            for path in files_under(root):
                 if (path.suffix.lower() in INPUT_SUFFIXES and path.is_file()
                         and not any(path.is_relative_to(r) for r in runs)
-                        and _has_waveforms(path, path.stat().st_mtime_ns)):
+                        and _has_waveforms(path, _mtime_ns(path))):
                     found.add(path)  # a link keeps its own name and place in the folder
         return sorted(found)
+
+
+def files_under(root: Path) -> Iterator[Path]:
+    """Every file (and link) under `root`, not entering linked folders. A folder that vanishes while it is
+    walked (a running job's temporary files) is skipped: listing must not fail because a run is writing."""
+    for parent, _folders, names in os.walk(root, followlinks=False):
+        for name in names:
+            yield Path(parent) / name
+
+
+def _mtime_ns(path: Path) -> int:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:  # gone since it was listed: _has_waveforms then finds nothing to read
+        return -1
 
 
 @functools.lru_cache(maxsize=4096)

@@ -25,7 +25,7 @@ import numpy as np
 
 from pipeline.layout import GRID_MARK
 from pipeline.view import params
-from pipeline.view.catalog import Roots
+from pipeline.view.catalog import Roots, files_under
 from pipeline.view.queries import colour_range
 
 MAX_CELLS = 250_000  # cells one layer sends the page (a few MB of JSON), whatever the grid's size
@@ -60,7 +60,7 @@ def run_grids(roots: Roots, run: Path) -> list[Path]:
     """The grid folders of a run under the viewer's folders (links that leave a folder are not followed)."""
     found = set()
     for root in roots.folders:
-        for mark in root.rglob(GRID_MARK):
+        for mark in (m for m in files_under(root) if m.name == GRID_MARK):
             folder = mark.parent.resolve()
             if folder.is_relative_to(root) and mark.is_file() and belongs(folder, run):
                 found.add(folder)
