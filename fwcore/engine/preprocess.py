@@ -43,8 +43,14 @@ def gaussian_weights(sigma):
 
 
 @njit(**JIT_INLINE)
-def smoothed_sample(samples, valid, weights, i):
-    """The Gaussian filter (gaussian_weights) at sample i by normalized convolution over the valid samples."""
+def smoothed_value(total, norm, sample):
+    """The filter's value from weighted_sums' numerator and weight: the sample itself where no valid one is near."""
+    return total / norm if norm > 0.0 else sample
+
+
+@njit(**JIT_INLINE)
+def _window_sums(samples, valid, weights, i):
+    """Sample i's numerator and weight, over j ascending (what weighted_sums computes for every i)."""
     n = samples.size
     half = weights.size // 2
     acc = 0.0
@@ -54,7 +60,47 @@ def smoothed_sample(samples, valid, weights, i):
             w = weights[j - i + half]
             acc += w * samples[j]
             norm += w
-    return acc / norm if norm > 0.0 else samples[i]
+    return acc, norm
+
+
+@njit(**JIT_INLINE)
+def smoothed_sample(samples, valid, weights, i):
+    """The filter of weighted_sums at sample i alone."""
+    acc, norm = _window_sums(samples, valid, weights, i)
+    return smoothed_value(acc, norm, samples[i])
+
+
+@njit(**JIT)
+def weighted_sums(samples, valid, weights, sums, norms):
+    """The Gaussian filter by normalized convolution over the valid samples: for every sample i, the numerator
+    sums[i] = sum_j weights[j - i + half] samples[j] and the weight norms[i] = sum_j weights[j - i + half],
+    j over the valid samples within half = weights.size // 2 of i, ascending (smoothed_value divides).
+    Where a window is whole (no gap, not at an end), four samples are summed at once, each in its own
+    accumulator and in the same order: the same bits, without waiting on each add."""
+    n = samples.size
+    half = weights.size // 2
+    gaps = False
+    for i in range(n):
+        gaps |= not valid[i]
+    lo, hi = (0, 0) if gaps else (half, max(n - half, half))
+    whole = 0.0
+    for k in range(weights.size):
+        whole += weights[k]
+    blocked = lo + (hi - lo) // 4 * 4  # [lo, blocked): four at a time
+    for i in range(lo, blocked, 4):
+        a0 = a1 = a2 = a3 = 0.0
+        for k in range(weights.size):
+            w = weights[k]
+            j = i - half + k
+            a0 += w * samples[j]
+            a1 += w * samples[j + 1]
+            a2 += w * samples[j + 2]
+            a3 += w * samples[j + 3]
+        sums[i], sums[i + 1], sums[i + 2], sums[i + 3] = a0, a1, a2, a3
+        norms[i] = norms[i + 1] = norms[i + 2] = norms[i + 3] = whole
+    for i in range(n):
+        if i < lo or i >= blocked:
+            sums[i], norms[i] = _window_sums(samples, valid, weights, i)
 
 
 @njit(**JIT)
@@ -65,9 +111,10 @@ def _smooth(samples, valid, sigma, out):
         for i in range(n):
             out[i] = samples[i]
         return
-    weights = gaussian_weights(sigma)
+    norms = np.empty(n)
+    weighted_sums(samples, valid, gaussian_weights(sigma), out, norms)
     for i in range(n):
-        out[i] = smoothed_sample(samples, valid, weights, i)
+        out[i] = smoothed_value(out[i], norms[i], samples[i])
 
 
 @njit(**JIT)
@@ -93,7 +140,11 @@ def _residual_attenuation(valid, sigma, out):
         return
     weights = gaussian_weights(sigma)
     half = weights.size // 2
+    whole = -1.0  # a whole window's value (no gap, not at an end), the same for every such sample
     for i in range(n):
+        if half <= i < n - half and whole >= 0.0 and valid[i - half:i + half + 1].all():
+            out[i] = whole
+            continue
         norm = 0.0
         square = 0.0
         for j in range(max(0, i - half), min(n, i + half + 1)):
@@ -106,6 +157,8 @@ def _residual_attenuation(valid, sigma, out):
             continue
         own = weights[half] / norm
         out[i] = math.sqrt(max(1.0 - 2.0 * own + square / (norm * norm), 0.0))
+        if half <= i < n - half and valid[i - half:i + half + 1].all():
+            whole = out[i]
 
 
 @njit(**JIT_INLINE)
@@ -114,6 +167,48 @@ def _sorted_median(ordered, k):
     if k % 2 == 1:
         return ordered[k // 2]
     return (ordered[k // 2 - 1] + ordered[k // 2]) / 2
+
+
+_SHORT = 64  # up to this many values, insertion sort beats np.sort's quicksort (RIEGL's ~60-sample windows)
+
+
+@njit(**JIT)
+def _ascending(values, m):
+    """The first m values, sorted ascending, in a new array."""
+    if m > _SHORT:
+        return np.sort(values[:m])
+    ordered = values[:m].copy()
+    for i in range(1, m):
+        v = ordered[i]
+        j = i - 1
+        while j >= 0 and ordered[j] > v:
+            ordered[j + 1] = ordered[j]
+            j -= 1
+        ordered[j + 1] = v
+    return ordered
+
+
+@njit(**JIT)
+def _sorted_median_distance(ordered, m, centre):
+    """np.median(np.abs(ordered[:m] - centre)) to the bit, without a second sort: the distances below
+    and above the centre are two ascending runs (walking out from it), merged up to the middle."""
+    below = np.searchsorted(ordered[:m], centre) - 1  # the nearest value under the centre, walking down
+    above = below + 1
+    middle = (m - 1) // 2
+    previous = 0.0
+    for rank in range(m // 2 + 1):
+        if above < m and (below < 0 or abs(ordered[above] - centre) <= abs(ordered[below] - centre)):
+            current = abs(ordered[above] - centre)
+            above += 1
+        else:
+            current = abs(ordered[below] - centre)
+            below -= 1
+        if rank == middle and m % 2 == 1:
+            return current
+        if rank == m // 2:
+            return (previous + current) / 2
+        previous = current
+    return previous
 
 
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a normal's sigma from its median absolute deviation
@@ -154,9 +249,9 @@ def _robust_noise_sigma(samples, smoothed, valid, attenuation):
         scale = 1.0 / math.sqrt(2.0)
     if m == 0:
         return 0.0
-    v = values[:m]
-    centre = np.median(v)
-    return _MAD_TO_SIGMA * np.median(np.abs(v - centre)) * scale
+    ordered = _ascending(values, m)
+    centre = _sorted_median(ordered, m)
+    return _MAD_TO_SIGMA * _sorted_median_distance(ordered, m, centre) * scale
 
 
 @njit(**JIT)
@@ -170,7 +265,7 @@ def _baseline(samples, valid, noise):
         if valid[i]:
             values[m] = samples[i]
             m += 1
-    ordered = np.sort(values[:m])  # the samples up to a level are a prefix: one sort serves every median
+    ordered = _ascending(values, m)  # the samples up to a level are a prefix: one sort serves every median
     level = _sorted_median(ordered, m)
     for _ in range(8):
         k = np.searchsorted(ordered, level + 3.0 * noise, side="right")

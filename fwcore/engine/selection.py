@@ -23,7 +23,7 @@ from fwcore.engine.bounds import echo_bounds
 from fwcore.engine.filter import KEPT, mark_spurious
 from fwcore.engine.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.engine.preprocess import gaussian_weights, smoothed_sample
+from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
 
 
 
@@ -66,7 +66,7 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
     """Drop flagged echoes, weakest first, while a refit without one raises chi^2 by no more than
     the BIC's price of an echo. Returns (best, lower, upper, n_echoes, dropped, Jacobians)."""
     penalty = (3 if p.alpha_fixed else PARAMS_PER_ECHO) * math.log(times.size)
-    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+    chi2 = np.nan  # computed once an echo is flagged: most fits have none
     dropped = 0
     n_jacobians = 0
     while n_echoes > 0:
@@ -74,6 +74,8 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
         flagged = np.flatnonzero(reasons != KEPT)
         if flagged.size == 0:
             break
+        if np.isnan(chi2):
+            chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
         amplitude = np.array([best[1 + PARAMS_PER_ECHO * k] for k in flagged])
         removed = False
         for k in flagged[np.argsort(amplitude)]:
@@ -101,11 +103,13 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     height clears the filter's weak-echo floor, try one more echo there; keep it when chi^2 falls by more
     than its BIC price. At most p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
     penalty = (3 if p.alpha_fixed else PARAMS_PER_ECHO) * math.log(times.size)
-    chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
+    chi2 = np.nan  # computed once a candidate is found: most fits have none
     n = samples.size
     model = np.empty(times.size)
     residual = np.zeros(n)
     standard = np.zeros(n)
+    evidence = np.empty(n)  # the standardized residual smoothed with the pulse: its sums, then / norms
+    norms = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
     w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
@@ -129,17 +133,18 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         floor = max(p.min_amplitude_ratio * largest, p.add_min_snr * noise)
         peak = -1
         amplitude = 0.0
-        for i in range(n):
-            if not (valid[i] and first <= i <= last):
+        weighted_sums(standard, valid, w, evidence, norms)
+        for i in range(first, last + 1):
+            if not valid[i]:
                 continue
-            evidence = smoothed_sample(standard, valid, w, i)
-            if evidence > score:
+            smoothed = smoothed_value(evidence[i], norms[i], standard[i])
+            if smoothed > score:
                 # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
-                height = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
-                if height >= floor:
-                    score = evidence
+                echo = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
+                if echo >= floor:
+                    score = smoothed
                     peak = i
-                    amplitude = height
+                    amplitude = echo
         if peak < 0:
             break
         d = best.size
@@ -156,6 +161,8 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
                                          p.lm_iterations, p.lm_tolerance)
         n_jacobians += used
         trial_chi2 = squared_error(trial, n_echoes + 1, times, shape, raw, weights)
+        if np.isnan(chi2):
+            chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
         if chi2 - trial_chi2 <= penalty:
             break
         best, lower, upper, chi2 = trial, trial_lower, trial_upper, trial_chi2

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -22,6 +23,27 @@ def test_smoothing_ignores_invalid_samples_in_a_gap():
     valid = np.ones(40, bool)
     y[15:20], valid[15:20] = 0.0, False  # a zero gap must not pull neighbours down
     np.testing.assert_allclose(gaussian_smooth(y, 2.0, valid)[valid], 50.0)
+
+
+def test_the_filter_sums_each_sample_in_order_to_the_bit():
+    from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
+
+    rng = np.random.default_rng(8)
+    for (n, sigma), gaps in itertools.product(((60, 1.9), (63, 1.9), (7, 3.0), (17, 2.0), (300, 0.8)), (True, False)):
+        y = rng.normal(100, 5, n)
+        valid = rng.random(n) > 0.2 if gaps else np.ones(n, bool)  # no gap: whole windows, four at a time
+        weights = gaussian_weights(sigma)
+        half = weights.size // 2
+        sums, norms = np.empty(n), np.empty(n)
+        weighted_sums(y, valid, weights, sums, norms)
+        for i in range(n):  # one sample's sum, as a loop per sample adds it
+            total = norm = 0.0
+            for j in range(max(0, i - half), min(n, i + half + 1)):
+                if valid[j]:
+                    total += weights[j - i + half] * y[j]
+                    norm += weights[j - i + half]
+            assert sums[i] == total and norms[i] == norm
+            assert smoothed_sample(y, valid, weights, i) == smoothed_value(total, norm, y[i])
 
 
 def test_the_methods_noise_is_the_rms_of_raw_minus_smoothed():
@@ -213,6 +235,20 @@ def test_sorted_median_is_numpys_to_the_bit():
             ordered = np.sort(values)
             for k in range(1, m + 1):  # a prefix: the baseline's samples up to a level
                 assert _sorted_median(ordered, k) == np.median(ordered[:k])
+
+
+def test_one_sort_gives_the_median_absolute_deviation_to_the_bit():
+    from fwcore.engine.preprocess import _ascending, _sorted_median, _sorted_median_distance
+
+    rng = np.random.default_rng(7)
+    for m in (1, 2, 3, 4, 5, 8, 59, 60, 64, 65, 200):  # insertion sort up to 64, np.sort above
+        for values in (rng.normal(0, 1, m), np.round(rng.normal(10, 3, m)), np.full(m, 4.0),
+                       np.concatenate([rng.normal(0, 1, m - m // 4), rng.normal(40, 1, m // 4)])):
+            ordered = _ascending(np.concatenate([values, [np.inf]]), m)  # a longer buffer: its first m
+            assert np.array_equal(ordered, np.sort(values))
+            centre = _sorted_median(ordered, m)
+            assert centre == np.median(values)
+            assert _sorted_median_distance(ordered, m, centre) == np.median(np.abs(values - centre))
 
 
 def test_baseline_matches_the_repeated_median_reference():
