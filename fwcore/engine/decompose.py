@@ -92,7 +92,7 @@ def _measure(best, n_echoes, samples, smoothed, valid, shape, out):
 def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echoes):
     """The echoes sorted by position, in Chauve's parameters (an echo of the tabulated response: its
     equal-FWHM sigma, alpha NaN), each with the filter's reason."""
-    order = np.argsort(np.array([best[2 + PARAMS_PER_ECHO * k] for k in range(n_echoes)]))
+    order = np.argsort(best[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy())  # by u
     widths = np.empty(n_echoes)
     for j in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * order[j]

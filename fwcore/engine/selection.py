@@ -30,7 +30,7 @@ from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed
 @njit(**JIT)
 def spurious_reasons(x, n_echoes, first, last, pulse_fwhm, noise, p):
     """The filter's reason for each echo of individual x, in the individual's order."""
-    position = np.array([x[2 + PARAMS_PER_ECHO * k] for k in range(n_echoes)])
+    position = x[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy()  # every echo's u
     order = np.argsort(position)
     amplitude = np.empty(n_echoes)
     width = np.empty(n_echoes)
@@ -76,7 +76,7 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
             break
         if np.isnan(chi2):
             chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
-        amplitude = np.array([best[1 + PARAMS_PER_ECHO * k] for k in flagged])
+        amplitude = best[1 + PARAMS_PER_ECHO * flagged]
         removed = False
         for k in flagged[np.argsort(amplitude)]:
             reduced = _without_echo(best, k)

@@ -155,9 +155,9 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad):
     n_echoes = (d - 1) // PARAMS_PER_ECHO
     g = 0.0
     acc = 0.0
-    for i in range(m):  # the background's column is 1 everywhere
-        g += jac[i, 0] * weights[i] * residual[i]
-        acc += jac[i, 0] * jac[i, 0] * weights[i] * weights[i]
+    for i in range(m):  # the background's column is 1 everywhere: its products are exact without it
+        g += weights[i] * residual[i]
+        acc += weights[i] * weights[i]
     grad[0] = g
     jtj[0, 0] = acc
     for k in range(n_echoes):
@@ -188,15 +188,15 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     for i in range(lo, hi):
         w = weights[i]
         r = residual[i]
-        j0, j1, j2, j3, j4 = jac[i, 0], jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3]
+        j1, j2, j3, j4 = jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3]
         g1 += j1 * w * r
         g2 += j2 * w * r
         g3 += j3 * w * r
         g4 += j4 * w * r
-        b1 += j0 * j1 * w * w
-        b2 += j0 * j2 * w * w
-        b3 += j0 * j3 * w * w
-        b4 += j0 * j4 * w * w
+        b1 += j1 * w * w  # the background's column is 1: 1 * j1 is j1 exactly
+        b2 += j2 * w * w
+        b3 += j3 * w * w
+        b4 += j4 * w * w
         a11 += j1 * j1 * w * w
         a12 += j1 * j2 * w * w
         a13 += j1 * j3 * w * w
