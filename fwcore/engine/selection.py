@@ -108,8 +108,6 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     model = np.empty(times.size)
     residual = np.zeros(n)
     standard = np.zeros(n)
-    evidence = np.empty(n)  # the standardized residual smoothed with the pulse: its sums, then / norms
-    norms = np.empty(n)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
     w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
@@ -119,11 +117,15 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         individual_model(best, n_echoes, times, shape, model)
         score = p.noise_threshold * filtered_noise
         top = -np.inf
+        highest = 0.0  # the residual's largest sample (0 where invalid)
+        spread = 0.0  # and its largest magnitude
         for j in range(times.size):
             i = int(times[j])
             residual[i] = raw[j] - model[j]
             standard[i] = residual[i] * weights[j]
             top = max(top, standard[i])
+            highest = max(highest, residual[i])
+            spread = max(spread, abs(residual[i]))
         if top <= score:
             break  # a smoothing (a weighted mean) of the standardized residual cannot rise above its largest sample
         # an echo the filter would call weak is not a missed return: only candidates above its floor
@@ -131,8 +133,12 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         for k in range(n_echoes):
             largest = max(largest, best[1 + PARAMS_PER_ECHO * k])
         floor = max(p.min_amplitude_ratio * largest, p.add_min_snr * noise)
+        if (highest + 1e-9 * spread) * math.sqrt(2.0) < floor:
+            break  # nor can the residual's smoothing rise above its largest sample (within its rounding)
         peak = -1
         amplitude = 0.0
+        evidence = np.empty(n)  # the standardized residual smoothed with the pulse: its sums, then / norms
+        norms = np.empty(n)
         weighted_sums(standard, valid, w, evidence, norms)
         for i in range(first, last + 1):
             if not valid[i]:
