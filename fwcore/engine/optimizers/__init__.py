@@ -104,7 +104,7 @@ def _local_fit(p, x, n_echoes, times, shape, target, weights, lower, upper):
                               1e-9)
     else:
         _, used, done = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper,
-                                            p.lm_iterations, p.lm_tolerance)
+                                            p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
     return used, done
 
 

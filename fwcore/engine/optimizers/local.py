@@ -242,13 +242,14 @@ def _damping_after_gain(lam, gain, grad, jtj, x, trial):
 
 
 @njit(**JIT)
-def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance):
+def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance,
+                        chi2_tolerance=0.0):
     """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
     (weights: 1 / the noise sigma of each sample, or ones).
 
     Returns (weighted sum of squares, Jacobians evaluated, converged): converged when an accepted
-    step lowers the sum by less than `tolerance` of it or no step can lower it (damping runs away);
-    not when max_iterations ran out first.
+    step lowers the sum by less than `tolerance` of it or by less than `chi2_tolerance`, or no step can
+    lower it (damping runs away); not when max_iterations ran out first.
     """
     m = times.size
     d = x.size
@@ -304,7 +305,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             for i in range(m):
                 residual[i] = weights[i] * (trial_model[i] - target[i])
             ssr = trial_ssr
-            if gain <= tolerance * ssr:
+            if gain <= tolerance * ssr or gain <= chi2_tolerance:
                 done = True
                 break
             _normal_equations(jac, residual, weights, windows, jtj, grad)

@@ -79,8 +79,8 @@ def test_range_offset_is_where_the_system_puts_returns_against_the_echo_centre()
 def test_leica_range_offset_is_measured_on_its_single_returns(leica_dir):
     path = leica_dir / "leica_a.las"
     pulse = file_system_pulse(path, input_summary(path).records, DecompositionConfig(model="generalized"))
-    # 273 of the first 300 single-return pulses keep one echo; the system sits 1.19 ns before its centre
-    assert pulse.range_offset_source == "single returns (273)"
+    # 271 of the first 300 single-return pulses keep one echo; the system sits 1.19 ns before its centre
+    assert pulse.range_offset_source == "single returns (271)"
     assert pulse.range_offset_ps == pytest.approx(-1191.3, abs=1.0)
     assert pulse.fwhm_ps == pytest.approx(10980.0) and pulse.shape_tolerance == pytest.approx(0.0506, abs=1e-3)
 
