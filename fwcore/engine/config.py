@@ -252,6 +252,7 @@ class DecompositionConfig:
     # ... or by less than this much of chi^2 itself (the fits are weighted by the noise: chi^2 is in noise units).
     # A gain of 0.05 moves no parameter by more than a fifth of its standard error (Delta chi^2 = 1 is one);
     # on a short window, where chi^2 is about its 60 samples, it ends the fit a step before 1e-4 of chi^2 does.
+    # (The deconvolutions' amplitude fit keeps the relative rule alone.)
     lm_chi2_tolerance: float = setting(0.05, "LM also stops when a step lowers chi^2 by less than this",
                                        option=True, kernel=True, within="[0, inf)")
     # Population methods stop when the spread of the population's fitness is small
