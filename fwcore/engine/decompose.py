@@ -26,7 +26,8 @@ from fwcore.engine.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Mode
 from fwcore.engine.filter import mark_spurious
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.instrument.shape import EchoShape, analytic_shape, echo_shape
-from fwcore.engine.model import PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, fwhm, individual_model, tabulated_areas
+from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, echo_positions_of, fwhm,
+                                 individual_model, tabulated_areas)
 from fwcore.engine.optimizers import find_own_echoes, run_optimizer
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.engine.preprocess import initial_estimate
@@ -92,7 +93,7 @@ def _measure(best, n_echoes, samples, smoothed, valid, shape, out):
 def _write_echoes(best, n_echoes, first, last, pulse_fwhm, noise, p, shape, echoes):
     """The echoes sorted by position, in Chauve's parameters (an echo of the tabulated response: its
     equal-FWHM sigma, alpha NaN), each with the filter's reason."""
-    order = np.argsort(best[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy())  # by u
+    order = np.argsort(echo_positions_of(best, n_echoes))
     widths = np.empty(n_echoes)
     for j in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * order[j]

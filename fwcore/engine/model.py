@@ -135,6 +135,12 @@ def table_peak_offset(shape, s):
     return (1.0 - (fw - w)) * shape.peak_offsets[w] + (fw - w) * shape.peak_offsets[w + 1]
 
 
+@njit(**JIT_INLINE)
+def echo_positions_of(x, n_echoes):
+    """The positions u of individual x's echoes, in its order, as an array of their own."""
+    return x[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy()
+
+
 @njit(**JIT)
 def individual_model(x, n_echoes, times, shape, out):
     """The model of individual x at `times` (float64, ascending) into `out`: a generalized Gaussian over

@@ -70,6 +70,17 @@ def smoothed_sample(samples, valid, weights, i):
     return smoothed_value(acc, norm, samples[i])
 
 
+@njit(**JIT_INLINE)
+def _whole_windows(valid, half):
+    """The samples [lo, hi) whose window of half samples on each side is whole (no gap, not past an end): the
+    interior of a waveform without gaps, none of one with gaps (its windows are summed one by one)."""
+    n = valid.size
+    for i in range(n):
+        if not valid[i]:
+            return 0, 0
+    return half, max(n - half, half)
+
+
 @njit(**JIT)
 def weighted_sums(samples, valid, weights, sums, norms):
     """The Gaussian filter by normalized convolution over the valid samples: for every sample i, the numerator
@@ -79,10 +90,7 @@ def weighted_sums(samples, valid, weights, sums, norms):
     accumulator and in the same order: the same bits, without waiting on each add."""
     n = samples.size
     half = weights.size // 2
-    gaps = False
-    for i in range(n):
-        gaps |= not valid[i]
-    lo, hi = (0, 0) if gaps else (half, max(n - half, half))
+    lo, hi = _whole_windows(valid, half)
     whole = 0.0
     for k in range(weights.size):
         whole += weights[k]
@@ -140,10 +148,10 @@ def _residual_attenuation(valid, sigma, out):
         return
     weights = gaussian_weights(sigma)
     half = weights.size // 2
-    whole = -1.0  # a whole window's value (no gap, not at an end), the same for every such sample
+    lo, hi = _whole_windows(valid, half)
     for i in range(n):
-        if half <= i < n - half and whole >= 0.0 and valid[i - half:i + half + 1].all():
-            out[i] = whole
+        if lo < i < hi:  # a whole window's value is the same for every such sample
+            out[i] = out[lo]
             continue
         norm = 0.0
         square = 0.0
@@ -157,8 +165,6 @@ def _residual_attenuation(valid, sigma, out):
             continue
         own = weights[half] / norm
         out[i] = math.sqrt(max(1.0 - 2.0 * own + square / (norm * norm), 0.0))
-        if half <= i < n - half and valid[i - half:i + half + 1].all():
-            whole = out[i]
 
 
 @njit(**JIT_INLINE)

@@ -21,7 +21,8 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.engine.bounds import echo_bounds
 from fwcore.engine.filter import KEPT, mark_spurious
-from fwcore.engine.model import PARAMS_PER_ECHO, SQRT_2LN2, individual_model, table_peak_offset
+from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model,
+                                 table_peak_offset)
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
 
@@ -30,7 +31,7 @@ from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed
 @njit(**JIT)
 def spurious_reasons(x, n_echoes, first, last, pulse_fwhm, noise, p):
     """The filter's reason for each echo of individual x, in the individual's order."""
-    position = x[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy()  # every echo's u
+    position = echo_positions_of(x, n_echoes)
     order = np.argsort(position)
     amplitude = np.empty(n_echoes)
     width = np.empty(n_echoes)

@@ -109,9 +109,7 @@ class Roots:
     def runs(self) -> list[Path]:
         found = set()
         for root in self.folders:
-            for marker in files_under(root):
-                if marker.name != RUN_JSON:
-                    continue
+            for marker in files_under(root, RUN_JSON):
                 folder = marker.parent.resolve()
                 if folder.is_relative_to(root) and is_complete_run(folder):
                     found.add(folder)
@@ -131,12 +129,14 @@ class Roots:
         return sorted(found)
 
 
-def files_under(root: Path) -> Iterator[Path]:
-    """Every file (and link) under `root`, not entering linked folders. A folder that vanishes while it is
-    walked (a running job's temporary files) is skipped: listing must not fail because a run is writing."""
+def files_under(root: Path, named: str | None = None) -> Iterator[Path]:
+    """Every file (and link) under `root`, or those `named` so, not entering linked folders. A folder that
+    vanishes while it is walked (a running job's temporary files) is skipped: listing must not fail because a
+    run is writing."""
     for parent, _folders, names in os.walk(root, followlinks=False):
         for name in names:
-            yield Path(parent) / name
+            if named is None or name == named:
+                yield Path(parent) / name
 
 
 def _mtime_ns(path: Path) -> int:

@@ -60,7 +60,7 @@ def run_grids(roots: Roots, run: Path) -> list[Path]:
     """The grid folders of a run under the viewer's folders (links that leave a folder are not followed)."""
     found = set()
     for root in roots.folders:
-        for mark in (m for m in files_under(root) if m.name == GRID_MARK):
+        for mark in files_under(root, GRID_MARK):
             folder = mark.parent.resolve()
             if folder.is_relative_to(root) and mark.is_file() and belongs(folder, run):
                 found.add(folder)
