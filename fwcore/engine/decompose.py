@@ -145,7 +145,8 @@ def _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, 
     if not chi2 / max(times.size - best.size, 1) > p.raw_polish_gate:  # NaN too: no polish, as before
         return 0
     _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, raw, weights, lower, local_upper,
-                                     p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
+                                     p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                     p.lm_predicted_stop)
     return used
 
 
@@ -195,7 +196,8 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     if p.select_echoes and p.method != OPT_NONE and not p.own_echoes:
         if not local:  # a population's best is not at the least-squares optimum the refits compare with
             _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
-                                             p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
+                                             p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                             p.lm_predicted_stop)
             nfev += used
         if p.signal_dependent_noise:
             add_shot_noise(best, n_echoes, times, shape, raw, signal, variance)

@@ -447,14 +447,30 @@ def _beside_an_echo(i, returns, echo_return, position, count, reach):
     return False
 
 
+# A peak this close to a peeled echo (in pulse widths), and weaker than p.flank_ratio of it, is mostly the
+# residual of a peeled echo wider than its estimate (a sloped or rough target), not an echo (config: fast).
+FLANK_REACH_W = 0.75
+
+
+@njit(**JIT)
+def _on_a_flank(i, height, amplitude, position, count, reach, ratio):
+    """Whether sample i, `height` above background, lies within `reach` samples of one of the first `count`
+    echoes and under `ratio` times its amplitude."""
+    for k in range(count):
+        if abs(i - position[k]) < reach and height < ratio * amplitude[k]:
+            return True
+    return False
+
+
 @njit(**JIT)
 def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fallback_sigma, shape,
-                        amplitude, position, sigma, floor_ratio):
+                        amplitude, position, sigma, floor_ratio, flank_ratio):
     """Extract echoes one by one from the largest remaining peak that rises above its sample's
     threshold, each subtracted in the model's shape (a tabulated response takes its tail and afterpulse
     with it); returns how many were found. Once the largest peak left is under floor_ratio x the first
     (the filter's weak echo), only peaks in the return of an echo or within one FWHM of one stay
-    candidates: a shoulder or a broadened return's flank the fit needs, not a bump far from every echo."""
+    candidates: a shoulder or a broadened return's flank the fit needs, not a bump far from every echo.
+    A peak within FLANK_REACH_W pulse widths of an echo and under flank_ratio x its amplitude is never one."""
     n = smoothed.size
     residual = smoothed - background
     sample_times = np.arange(n).astype(np.float64)
@@ -477,6 +493,11 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
                 not _beside_an_echo(peak, returns, echo_return, position, count, reach):
             for i in range(n):  # every peak left is as weak: only those beside an echo stay candidates
                 searched[i] = searched[i] or not _beside_an_echo(i, returns, echo_return, position, count, reach)
+            continue
+        if _on_a_flank(peak, height, amplitude, position, count, FLANK_REACH_W * reach, flank_ratio):
+            for i in range(n):  # the whole flank: its every sample is as close and as weak
+                searched[i] = searched[i] or _on_a_flank(i, residual[i], amplitude, position, count,
+                                                         FLANK_REACH_W * reach, flank_ratio)
             continue
         echo_return[count] = returns[peak]
         if shape.tabulated:
@@ -549,8 +570,9 @@ def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smo
     # refit: on riegl_example3.pls 0.27 echoes a pulse, a third of the engine's time); the method's own estimate
     # (no selection, the paper) proposes every peak above the threshold
     floor_ratio = p.min_amplitude_ratio if p.select_echoes else 0.0
+    flank_ratio = p.flank_ratio if p.select_echoes else 0.0
     n = _progressive_echoes(smoothed, support, background, threshold, p.max_echoes, pulse_sigma, shape,
-                            amplitude, position, sigma, floor_ratio)
+                            amplitude, position, sigma, floor_ratio, flank_ratio)
     return noise, background, n
 
 

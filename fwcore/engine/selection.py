@@ -83,7 +83,8 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
             reduced = _without_echo(best, k)
             reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
             _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, shape, target, weights, reduced_lower,
-                                             reduced_upper, p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
+                                             reduced_upper, p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                             p.lm_predicted_stop)
             n_jacobians += used
             reduced_chi2 = squared_error(reduced, n_echoes - 1, times, shape, raw, weights)
             if reduced_chi2 - chi2 <= penalty:
@@ -165,7 +166,8 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         echo_bounds(amplitude, position, pulse_sigma, amplitude, noise, first, last, p.alpha_fixed, p.alpha_min,
                     p.alpha_max, shape, d, trial, trial_lower, scratch, trial_upper)
         _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, shape, target, weights, trial_lower, trial_upper,
-                                         p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
+                                         p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                         p.lm_predicted_stop)
         n_jacobians += used
         trial_chi2 = squared_error(trial, n_echoes + 1, times, shape, raw, weights)
         if np.isnan(chi2):

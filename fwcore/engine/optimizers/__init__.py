@@ -104,7 +104,8 @@ def _local_fit(p, x, n_echoes, times, shape, target, weights, lower, upper):
                               1e-9)
     else:
         _, used, done = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper,
-                                            p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance)
+                                            p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                            p.lm_predicted_stop)
     return used, done
 
 

@@ -225,10 +225,9 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
 
 
 @njit(**JIT)
-def _damping_after_gain(lam, gain, grad, jtj, x, trial):
-    """Nielsen's damping update after an accepted step x -> trial: by how well the linear model predicted
-    the gain, so that a step into a curved valley (overlapping echoes trading amplitude) is not followed
-    by a bolder one."""
+def _predicted_gain(grad, jtj, x, trial):
+    """How much the linearised model says the step x -> trial lowers the sum of squares: -(2 g.delta +
+    delta' JtJ delta), g = J^T W r (the gradient's half)."""
     d = x.size
     predicted = 0.0
     for r in range(d):
@@ -236,20 +235,33 @@ def _damping_after_gain(lam, gain, grad, jtj, x, trial):
         predicted -= 2.0 * grad[r] * delta
         for c in range(d):
             predicted -= delta * jtj[r, c] * (trial[c] - x[c])
+    return predicted
+
+
+@njit(**JIT)
+def _damping_after_gain(lam, gain, grad, jtj, x, trial):
+    """Nielsen's damping update after an accepted step x -> trial: by how well the linear model predicted
+    the gain, so that a step into a curved valley (overlapping echoes trading amplitude) is not followed
+    by a bolder one."""
+    predicted = _predicted_gain(grad, jtj, x, trial)
     # a clipped step's prediction means little: ratio 0.5 leaves the damping as it is
     ratio = gain / predicted if predicted > 0.0 else 0.5
     return max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
 
 
+_UNDAMPED = 1e-3  # LM's first damping, and the most at which its step is taken as the Gauss-Newton one
+
+
 @njit(**JIT)
 def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance,
-                        chi2_tolerance=0.0):
+                        chi2_tolerance=0.0, predict=False):
     """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
     (weights: 1 / the noise sigma of each sample, or ones).
 
     Returns (weighted sum of squares, Jacobians evaluated, converged): converged when an accepted
-    step lowers the sum by less than `tolerance` of it or by less than `chi2_tolerance`, or no step can
-    lower it (damping runs away); not when max_iterations ran out first.
+    step lowers the sum by less than `tolerance` of it or by less than `chi2_tolerance`, when the next
+    step's linear model promises less than `chi2_tolerance` (it is not taken; with `predict`), or when no
+    step can lower it (damping runs away); not when max_iterations ran out first.
     """
     m = times.size
     d = x.size
@@ -272,7 +284,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
         residual[i] = weights[i] * (model[i] - target[i])
         ssr += residual[i] * residual[i]
     n_jacobians = 1
-    lam = 1e-3
+    lam = _UNDAMPED
     growth = 2.0
     done = False
     _normal_equations(jac, residual, weights, windows, jtj, grad)
@@ -289,6 +301,11 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             continue
         for j in range(d):
             trial[j] = min(max(x[j] + step[j], lower[j]), upper[j])
+        # a step whose linear model promises under chi2_tolerance is not worth its Jacobian: stop before it
+        # (undamped steps only: a damped one is short by design and promises little anywhere)
+        if predict and chi2_tolerance > 0.0 and lam <= _UNDAMPED and _predicted_gain(grad, jtj, x, trial) <= chi2_tolerance:
+            done = True
+            break
         model_and_jacobian(trial, n_echoes, times, shape, trial_model, trial_jac, trial_windows)
         n_jacobians += 1
         trial_ssr = 0.0

@@ -94,7 +94,7 @@ def test_progressive_estimate_matches_the_naive_reference():
     amplitude, position, sigma = np.zeros(12), np.zeros(12), np.zeros(12)
     for floor_ratio, at_least in ((0.0, 3), (0.35, 2)):
         n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(),
-                                amplitude, position, sigma, floor_ratio)
+                                amplitude, position, sigma, floor_ratio, 0.0)
         expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0, floor_ratio)
         assert n == len(expected) >= at_least
         np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)
@@ -104,11 +104,33 @@ def test_progressive_estimate_matches_the_naive_reference():
     y = waveform_model(t, 12.0, [150.0, 25.0], [30.0, 47.0], [3.0, 4.0], [math.sqrt(2)] * 2)
     smoothed = gaussian_smooth(y + np.random.default_rng(4).normal(0, 0.8, t.size), 0.8)
     n = _progressive_echoes(smoothed, np.ones(t.size, bool), 12.0, threshold, 12, 3.0, analytic_shape(), amplitude,
-                            position, sigma, 0.35)
+                            position, sigma, 0.35, 0.0)
     expected = naive.progressive_echoes(smoothed, 12.0, 3.0, 12, 3.0, 0.35)
     assert n == len(expected)
     np.testing.assert_allclose(np.c_[amplitude[:n], position[:n], sigma[:n]], expected, rtol=1e-9)
     assert np.any(np.abs(position[:n] - 47) < 2)
+
+
+def test_the_residual_on_a_peeled_echos_flank_is_not_proposed():
+    from fwcore.engine.preprocess import _progressive_echoes
+
+    t = np.arange(80.0)
+
+    def peeled(second_amplitude, delay, flank_ratio):
+        y = waveform_model(t, 12.0, [100.0, second_amplitude], [30.0, 30.0 + delay], [2.0, 2.0], [math.sqrt(2)] * 2)
+        amplitude, position, sigma = np.zeros(12), np.zeros(12), np.zeros(12)
+        n = _progressive_echoes(gaussian_smooth(y, 0.5), np.ones(t.size, bool), 12.0, np.full(t.size, 3.0), 12, 2.0,
+                                analytic_shape(), amplitude, position, sigma, 0.05, flank_ratio)
+        return amplitude[:n], position[:n]
+
+    # two echoes 0.64 FWHM apart read as one broad return: peeled at 31, it leaves 5 counts at 30
+    amplitude, position = peeled(50.0, 3.0, 0.0)
+    assert amplitude.size == 2 and position[1] == pytest.approx(30.0) and amplitude[1] < 0.2 * amplitude[0]
+    amplitude, position = peeled(50.0, 3.0, 0.2)
+    assert amplitude.size == 1 and position[0] == pytest.approx(31.0)
+    # a weak echo 1.5 FWHM behind a strong one is no flank
+    amplitude, position = peeled(12.0, 7.0, 0.2)
+    assert amplitude.size == 2 and position[1] == pytest.approx(37.0)
 
 
 def test_a_return_a_target_widened_starts_as_wide_as_it_is():
