@@ -101,3 +101,20 @@ def test_tabulated_jacobian_matches_central_differences(leica_response):
         numeric = (tabulated_model(t, up[0], up[[1, 5]], up[[2, 6]], up[[3, 7]], shape)
                    - tabulated_model(t, down[0], down[[1, 5]], down[[2, 6]], down[[3, 7]], shape)) / (2 * h)
         np.testing.assert_allclose(jac[:, j], numeric, atol=2e-2 * max(1.0, np.abs(numeric).max()))
+
+
+def test_a_step_promising_less_than_the_chi2_tolerance_is_not_taken():
+    from fwcore.engine.optimizers.local import levenberg_marquardt
+
+    y = model_of_individual(TRUE, T) + np.random.default_rng(0).normal(0, 1.0, T.size)  # weights 1: chi^2 units
+    fits = {}
+    for predict in (False, True):
+        x = START.copy()
+        ssr, jacobians, converged = levenberg_marquardt(x, 2, T, analytic_shape(), y, np.ones(T.size), LOWER, UPPER,
+                                                        50, 1e-12, 0.05, predict)
+        fits[predict] = x, ssr, jacobians, converged
+    (x_made, ssr_made, made, done_made), (x_promised, ssr_promised, promised, done_promised) = fits[False], fits[True]
+    assert done_made and done_promised
+    assert promised == made - 1  # the Jacobian at the last step, which made its gain under 0.05, is never computed
+    assert 0.0 <= ssr_promised - ssr_made <= 0.05  # and that step would have gained under 0.05
+    np.testing.assert_allclose(x_promised[[2, 6]], x_made[[2, 6]], atol=0.02)
