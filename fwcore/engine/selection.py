@@ -104,6 +104,8 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     """Where the residual, matched-filtered with the system pulse, rises above the noise threshold and its
     height clears the filter's weak-echo floor, try one more echo there; keep it when chi^2 falls by more
     than its BIC price. At most p.max_added_echoes. Returns (best, lower, upper, n_echoes, added, Jacobians)."""
+    if p.max_added_echoes == 0 or n_echoes >= p.max_echoes:  # fast adds none: not even its residual's filter
+        return best, lower, upper, n_echoes, 0, 0
     penalty = (3 if p.alpha_fixed else PARAMS_PER_ECHO) * math.log(times.size)
     chi2 = np.nan  # computed once a candidate is found: most fits have none
     n = samples.size
