@@ -303,7 +303,8 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             trial[j] = min(max(x[j] + step[j], lower[j]), upper[j])
         # a step whose linear model promises under chi2_tolerance is not worth its Jacobian: stop before it
         # (undamped steps only: a damped one is short by design and promises little anywhere)
-        if predict and chi2_tolerance > 0.0 and lam <= _UNDAMPED and _predicted_gain(grad, jtj, x, trial) <= chi2_tolerance:
+        if predict and chi2_tolerance > 0.0 and lam <= _UNDAMPED \
+                and _predicted_gain(grad, jtj, x, trial) <= chi2_tolerance:
             done = True
             break
         model_and_jacobian(trial, n_echoes, times, shape, trial_model, trial_jac, trial_windows)
