@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE
+from fwcore._jit import JIT, JIT_INLINE, searchsorted_right
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
 from fwcore.instrument.shape import analytic_shape
@@ -194,27 +194,53 @@ def _ascending(values, m):
     return ordered
 
 
-@njit(**JIT)
-def _sorted_median_distance(ordered, m, centre):
-    """np.median(np.abs(ordered[:m] - centre)) to the bit, without a second sort: the distances below
-    and above the centre are two ascending runs (walking out from it), merged up to the middle."""
-    below = np.searchsorted(ordered[:m], centre) - 1  # the nearest value under the centre, walking down
-    above = below + 1
-    middle = (m - 1) // 2
-    previous = 0.0
-    for rank in range(m // 2 + 1):
-        if above < m and (below < 0 or abs(ordered[above] - centre) <= abs(ordered[below] - centre)):
-            current = abs(ordered[above] - centre)
-            above += 1
+@njit(**JIT_INLINE)
+def _select(values, m, k):
+    """The k-th smallest of values[:m] (0-based), rearranging them in place so that none before index k is
+    larger: quickselect, median-of-three pivot, a partition without branches on the data (on random
+    residuals an insertion sort mispredicts its every step)."""
+    lo, hi = 0, m - 1
+    while hi > lo:
+        mid = (lo + hi) >> 1
+        x, y, z = values[lo], values[mid], values[hi]
+        if (x <= y) == (y <= z):
+            p = mid
+        elif (y <= x) == (x <= z):
+            p = lo
         else:
-            current = abs(ordered[below] - centre)
-            below -= 1
-        if rank == middle and m % 2 == 1:
-            return current
-        if rank == m // 2:
-            return (previous + current) / 2
-        previous = current
-    return previous
+            p = hi
+        pivot = values[p]
+        values[p] = values[hi]
+        values[hi] = pivot
+        store = lo
+        for i in range(lo, hi):
+            v = values[i]
+            values[i] = values[store]
+            values[store] = v
+            store += v < pivot
+        values[hi] = values[store]
+        values[store] = pivot
+        if store == k:
+            return pivot
+        if store < k:
+            lo = store + 1
+        else:
+            hi = store - 1
+    return values[k]
+
+
+@njit(**JIT_INLINE)
+def _median_in_place(values, m):
+    """np.median(values[:m]) to the bit (an order statistic, or the mean of the middle two), values[:m]
+    rearranged; m >= 1."""
+    k = m // 2
+    upper = _select(values, m, k)
+    if m % 2 == 1:
+        return upper
+    lower = values[0]  # the middle pair's lower value: the largest before index k
+    for i in range(1, k):
+        lower = max(lower, values[i])
+    return (lower + upper) / 2
 
 
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a normal's sigma from its median absolute deviation
@@ -255,9 +281,10 @@ def _robust_noise_sigma(samples, smoothed, valid, attenuation):
         scale = 1.0 / math.sqrt(2.0)
     if m == 0:
         return 0.0
-    ordered = _ascending(values, m)
-    centre = _sorted_median(ordered, m)
-    return _MAD_TO_SIGMA * _sorted_median_distance(ordered, m, centre) * scale
+    centre = _median_in_place(values, m)
+    for i in range(m):
+        values[i] = abs(values[i] - centre)
+    return _MAD_TO_SIGMA * _median_in_place(values, m) * scale
 
 
 @njit(**JIT)
@@ -274,7 +301,7 @@ def _baseline(samples, valid, noise):
     ordered = _ascending(values, m)  # the samples up to a level are a prefix: one sort serves every median
     level = _sorted_median(ordered, m)
     for _ in range(8):
-        k = np.searchsorted(ordered, level + 3.0 * noise, side="right")
+        k = searchsorted_right(ordered, level + 3.0 * noise)
         new = _sorted_median(ordered, k)
         if new == level:
             break
@@ -337,7 +364,7 @@ def valid_min(values, valid):
     return best
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def inflection_distance(residual, valid, peak, step):
     """Distance from the peak to the first inflection point walking by `step` (+1 or -1).
 
@@ -360,7 +387,7 @@ def inflection_distance(residual, valid, peak, step):
     return -1.0
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def half_height_sigma(residual, valid, peak):
     """sigma from the half-height width (a Gaussian's FWHM = 2.3548 sigma); -1.0 if not bracketed."""
     left, right = half_height_crossings(residual, valid, peak, residual[peak])
@@ -373,7 +400,7 @@ def half_height_sigma(residual, valid, peak):
     return -1.0
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _echo_sigma(residual, valid, peak, fallback):
     """sigma = |p1 - p2| / 2 from the inflection points; one side doubles the other; none: half height."""
     left = inflection_distance(residual, valid, peak, -1)
@@ -391,7 +418,7 @@ def _echo_sigma(residual, valid, peak, fallback):
     return max(sigma, MIN_SIGMA)
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _vertex(values, valid, peak):
     """(position, height) of the parabola's vertex through a peak and its two neighbours, where both are valid."""
     if peak == 0 or peak == values.size - 1 or not (valid[peak - 1] and valid[peak + 1]):
@@ -400,7 +427,7 @@ def _vertex(values, valid, peak):
     return peak + shift, parabola_height(values, peak, shift)
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _tabulated_width(residual, valid, peak, centre, height, shape):
     """A tabulated echo's starting width: the response broadened by how much wider than the response's the
     residual's peak is at half height: on both sides where they widened alike (a target), on its narrower
@@ -421,7 +448,7 @@ def _tabulated_width(residual, valid, peak, centre, height, shape):
     return min(max(shape.s_min * ratio, shape.s_min), widest)
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _label_returns(residual, valid, threshold, out):
     """Number each run of valid samples whose denoised height clears the threshold (a return: 1, 2, ...);
     0 elsewhere."""
@@ -438,7 +465,7 @@ def _label_returns(residual, valid, threshold, out):
             out[i] = 0
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _beside_an_echo(i, returns, echo_return, position, count, reach):
     """Whether sample i lies in the return of one of the first `count` echoes, or within `reach` samples of one."""
     for k in range(count):
@@ -452,7 +479,7 @@ def _beside_an_echo(i, returns, echo_return, position, count, reach):
 FLANK_REACH_W = 0.75
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _on_a_flank(i, height, amplitude, position, count, reach, ratio):
     """Whether sample i, `height` above background, lies within `reach` samples of one of the first `count`
     echoes and under `ratio` times its amplitude."""

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT
+from fwcore._jit import JIT_INLINE
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def parabola_vertex(v, i):
     """Where the parabola through v[i - 1], v[i], v[i + 1] peaks, in samples from i (within half a sample;
     0 at an edge or where v does not bend down there)."""
@@ -23,7 +23,7 @@ def parabola_vertex(v, i):
     return min(max(0.5 * (v[i - 1] - v[i + 1]) / den, -0.5), 0.5) if den < 0 else 0.0
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def parabola_height(v, i, shift):
     """That parabola's height `shift` samples from i."""
     if i <= 0 or i >= v.size - 1:
@@ -31,7 +31,7 @@ def parabola_height(v, i, shift):
     return v[i] - 0.25 * (v[i - 1] - v[i + 1]) * shift
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def half_height_crossings(values, valid, peak, height):
     """(left, right): where the values first fall to half of `height` walking out from index `peak` over valid
     samples, interpolated; -1.0 for a side that does not fall that far. The kernels' (echo widths)."""

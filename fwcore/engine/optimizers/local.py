@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT
+from fwcore._jit import JIT, JIT_INLINE, searchsorted_left, searchsorted_right
 from fwcore.instrument.shape import analytic_shape
 from fwcore.engine.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
 
@@ -34,7 +34,7 @@ _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
 _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplitude
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
     windows[k] = [lo, hi): the samples where echo k's columns may be non-zero. A tabulated shape
@@ -50,8 +50,8 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
             before, after = table_reach(shape, s)
-            lo = np.searchsorted(times, u - before)
-            hi = np.searchsorted(times, u + after, side="right")
+            lo = searchsorted_left(times, u - before)
+            hi = searchsorted_right(times, u + after)
             windows[k, 0] = lo
             windows[k, 1] = hi
             add_table_echo_derivatives(shape, a, u, s, times, lo, hi, model, jac, base)
@@ -60,8 +60,8 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
         p = alpha * alpha
         # only the samples where the echo is above 1e-12 of its amplitude (times are ascending)
         reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
-        lo = np.searchsorted(times, u - reach)
-        hi = np.searchsorted(times, u + reach, side="right")
+        lo = searchsorted_left(times, u - reach)
+        hi = searchsorted_right(times, u + reach)
         windows[k, 0] = lo
         windows[k, 1] = hi
         for i in range(lo, hi):
@@ -93,11 +93,11 @@ def squared_error(x, n_echoes, times, shape, target, weights):
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
             before, after = table_reach(shape, s)
-            add_table_echo(shape, a, u, s, times, np.searchsorted(times, u - before),
-                           np.searchsorted(times, u + after, side="right"), model)
+            add_table_echo(shape, a, u, s, times, searchsorted_left(times, u - before),
+                           searchsorted_right(times, u + after), model)
             continue
         reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
-        for i in range(np.searchsorted(times, u - reach), np.searchsorted(times, u + reach, side="right")):
+        for i in range(searchsorted_left(times, u - reach), searchsorted_right(times, u + reach)):
             model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0
     for i in range(times.size):
@@ -105,7 +105,7 @@ def squared_error(x, n_echoes, times, shape, target, weights):
     return acc
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _solve_damped(jtj, grad, lam, free, step, a):
     """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky, `a` (d x d) its
     scratch; False if singular."""
@@ -144,7 +144,7 @@ def _solve_damped(jtj, grad, lam, free, step, a):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _normal_equations(jac, residual, weights, windows, jtj, grad):
     """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. Each sum runs only
     over the samples where both columns can be non-zero (their echoes' windows): the terms left
@@ -178,7 +178,7 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad):
 assert PARAMS_PER_ECHO == 4, "_echo_block keeps one accumulator per pair of an echo's 4 columns"
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     """One echo's gradient entries and its rows of J^T W J with itself and the background (columns 0 and
     base..base + 3), summed over its window [lo, hi)."""
@@ -224,7 +224,7 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     jtj[base + 3, base + 3] = a44
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _predicted_gain(grad, jtj, x, trial):
     """How much the linearised model says the step x -> trial lowers the sum of squares: -(2 g.delta +
     delta' JtJ delta), g = J^T W r (the gradient's half)."""
@@ -238,7 +238,7 @@ def _predicted_gain(grad, jtj, x, trial):
     return predicted
 
 
-@njit(**JIT)
+@njit(**JIT_INLINE)
 def _damping_after_gain(lam, gain, grad, jtj, x, trial):
     """Nielsen's damping update after an accepted step x -> trial: by how well the linear model predicted
     the gain, so that a step into a curved valley (overlapping echoes trading amplitude) is not followed
@@ -266,18 +266,20 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     m = times.size
     d = x.size
     free = lower < upper
-    model = np.empty(m)
-    jac = np.empty((m, d))
-    trial_model = np.empty(m)
-    trial_jac = np.empty((m, d))
-    windows = np.zeros((n_echoes, 2), dtype=np.int64)
-    trial_windows = np.zeros((n_echoes, 2), dtype=np.int64)
-    residual = np.empty(m)
-    jtj = np.empty((d, d))
-    factor = np.empty((d, d))  # the damped system's Cholesky factor
-    grad = np.empty(d)
-    step = np.empty(d)
-    trial = np.empty(d)
+    # the scratch arrays are views of one allocation: LM runs a few times a pulse, and on RIEGL's short
+    # waveforms a dozen allocations a call cost about as much as its arithmetic
+    scratch = np.empty(3 * m + 2 * m * d + 2 * d * d + 3 * d)
+    model, trial_model, residual = scratch[:m], scratch[m:2 * m], scratch[2 * m:3 * m]
+    o = 3 * m
+    jac = scratch[o:o + m * d].reshape((m, d))
+    trial_jac = scratch[o + m * d:o + 2 * m * d].reshape((m, d))
+    o += 2 * m * d
+    jtj = scratch[o:o + d * d].reshape((d, d))
+    factor = scratch[o + d * d:o + 2 * d * d].reshape((d, d))  # the damped system's Cholesky factor
+    o += 2 * d * d
+    grad, step, trial = scratch[o:o + d], scratch[o + d:o + 2 * d], scratch[o + 2 * d:o + 3 * d]
+    both_windows = np.zeros((2, n_echoes, 2), dtype=np.int64)
+    windows, trial_windows = both_windows[0], both_windows[1]
     model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for i in range(m):
@@ -355,6 +357,16 @@ def _ssr_and_gradient(x, n_echoes, times, shape, target, weights, free, model, j
     return ssr
 
 
+@njit(**JIT_INLINE)
+def _dot(a, b):
+    """sum a * b in index order: np.dot is BLAS, whose kernels (and so its last bits) differ from one CPU
+    to another, and a run must give the same echoes on every machine."""
+    acc = 0.0
+    for j in range(a.size):
+        acc += a[j] * b[j]
+    return acc
+
+
 @njit(**JIT)
 def _two_loop_direction(x, grad, lower, upper, free, s_hist, y_hist, rho, alpha_hist, stored, head, active,
                         direction):
@@ -367,15 +379,15 @@ def _two_loop_direction(x, grad, lower, upper, free, s_hist, y_hist, rho, alpha_
         direction[j] = 0.0 if active[j] else -grad[j]
     for q in range(stored):  # newest pair first
         slot = (head - 1 - q) % memory
-        a = rho[slot] * np.dot(s_hist[slot], direction)
+        a = rho[slot] * _dot(s_hist[slot], direction)
         alpha_hist[slot] = a
         direction -= a * y_hist[slot]
     if stored > 0:
         last = (head - 1) % memory
-        direction *= np.dot(s_hist[last], y_hist[last]) / np.dot(y_hist[last], y_hist[last])
+        direction *= _dot(s_hist[last], y_hist[last]) / _dot(y_hist[last], y_hist[last])
     for q in range(stored - 1, -1, -1):
         slot = (head - 1 - q) % memory
-        b = rho[slot] * np.dot(y_hist[slot], direction)
+        b = rho[slot] * _dot(y_hist[slot], direction)
         direction += (alpha_hist[slot] - b) * s_hist[slot]
     for j in range(d):
         if active[j]:
@@ -393,7 +405,7 @@ def _line_search(x, direction, ssr, grad, n_echoes, times, shape, target, weight
         for j in range(x.size):
             trial[j] = min(max(x[j] + step * direction[j], lower[j]), upper[j])
         new_ssr = _ssr_and_gradient(trial, n_echoes, times, shape, target, weights, free, model, jac, new_grad)
-        if new_ssr <= ssr + 1e-4 * np.dot(grad, trial - x):
+        if new_ssr <= ssr + 1e-4 * _dot(grad, trial - x):
             return new_ssr, True, k + 1
         step *= 0.5
     return new_ssr, False, 30
@@ -430,12 +442,12 @@ def lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, max_iteratio
         active = np.zeros(d, dtype=np.bool_)
         _two_loop_direction(x, grad, lower, upper, free, s_hist, y_hist, rho, alpha_hist, stored, head, active,
                             direction)
-        slope = np.dot(grad, direction)
+        slope = _dot(grad, direction)
         if slope >= 0.0:  # not a descent direction: restart from steepest descent
             stored = 0
             for j in range(d):
                 direction[j] = 0.0 if active[j] else -grad[j]
-            slope = np.dot(grad, direction)
+            slope = _dot(grad, direction)
             if slope >= 0.0:
                 done = True
                 break
@@ -448,12 +460,12 @@ def lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, max_iteratio
         slot = head % memory
         s_hist[slot] = trial - x
         y_hist[slot] = new_grad - grad
-        sy = np.dot(s_hist[slot], y_hist[slot])
+        sy = _dot(s_hist[slot], y_hist[slot])
         gain = ssr - new_ssr
         x[:] = trial
         grad[:] = new_grad
         ssr = new_ssr
-        if sy > 1e-12 * np.dot(y_hist[slot], y_hist[slot]):  # keep the inverse Hessian positive
+        if sy > 1e-12 * _dot(y_hist[slot], y_hist[slot]):  # keep the inverse Hessian positive
             rho[slot] = 1.0 / sy
             head = (head + 1) % memory
             stored = min(stored + 1, memory)
