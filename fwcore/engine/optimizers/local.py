@@ -266,8 +266,8 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     m = times.size
     d = x.size
     free = lower < upper
-    # the scratch arrays are views of one allocation: LM runs a few times a pulse, and on RIEGL's short
-    # waveforms a dozen allocations a call cost about as much as its arithmetic
+    # the float scratch is views of one allocation: LM runs a few times a pulse, and on RIEGL's short
+    # waveforms a dozen allocations a call cost a sizeable share of its arithmetic
     scratch = np.empty(3 * m + 2 * m * d + 2 * d * d + 3 * d)
     model, trial_model, residual = scratch[:m], scratch[m:2 * m], scratch[2 * m:3 * m]
     o = 3 * m
