@@ -13,7 +13,8 @@ true echo of its pulse lies at least W away and its SNR is at least 5; a kept
 echo is right when it is matched to a true echo (within 1 ns), or lies within
 0.5 W of the amplitude-weighted centre of a group of true echoes closer than W
 to each other (which no instrument splits) none of which is matched; recall
-is also given by separation, in pulse widths.
+is also given by separation, in pulse widths, each split beside the recall and
+RMSE of an ideal engine at the joint Cramer-Rao bound (fwcore.studies.bound).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import pyarrow.parquet as pq
 
 from fwcore.instrument.shape import echo_shape
 from fwcore.engine.model import tabulated_row
+from fwcore.studies.bound import echo_time_bounds_ps, expected_match
 from fwcore.studies.simulate import RANGE_M_PER_PS, RESPONSE_WIDEST, SensorConfig
 from fwcore.studies.truth import TRUTH_METADATA_KEY
 
@@ -38,6 +40,7 @@ _CM_PER_PS = RANGE_M_PER_PS * 100.0
 RESOLVABLE_MIN_SNR = 5.0
 GROUP_MATCH_W = 0.5  # a kept echo this many pulse widths from an unsplittable group's centre reports the group
 SEPARATION_BINS_W = (0.0, 0.5, 0.75, 1.0, 1.5, 2.0, np.inf)  # the nearest other true echo of the pulse, in W
+BOUND_FROM_W = 0.75  # the ideal engine's rows from this separation on (closer, an echo count is a choice, not a bound)
 _KEY_STRIDE = 1.0e6  # ps: wider than any packet, so pulse_id * stride + time never mixes pulses
 
 
@@ -314,19 +317,33 @@ def evaluate_run(results_dir: str | Path, truth_file: str | Path, match_ps: floa
     # the engine's target split: echoes the system can separate, well above the noise
     rows.append(_stats(label, "single or resolved, SNR >= 10", (separation != "overlapping") & (snr >= 10.0), None, pairs,
                        truth, found, crlb))
-    return rows + _resolution_rows(label, truth, found, pairs, crlb)
+    return rows + _resolution_rows(label, truth, found, pairs, crlb, sensor, match_ps)
 
 
-def _resolution_rows(label: str, truth: dict, found: dict, pairs, crlb: np.ndarray) -> list[dict]:
-    """score_resolution as rows: resolvable echoes (precision: kept echoes that are right) and recall by separation."""
-    scored = score_resolution(truth, found, pairs=pairs)
+def _resolution_rows(label: str, truth: dict, found: dict, pairs, crlb: np.ndarray, sensor: SensorConfig,
+                     match_ps: float) -> list[dict]:
+    """score_resolution as rows: resolvable echoes (precision: kept echoes that are right) and recall by separation,
+    each resolvable split followed by what an ideal engine would reach there (fwcore.studies.bound)."""
+    scored = score_resolution(truth, found, match_ps, pairs=pairs)
     _, apart, strong = resolvability(truth)
-    row = _stats(label, "resolvable: >= 1 W apart, SNR >= 5", strong & (apart >= 1.0), None, pairs, truth, found,
-                 crlb)
-    rows = [{**row, "precision": scored.precision}]
+    resolvable = strong & (apart >= 1.0)
+    bound = echo_time_bounds_ps(truth["pulse_id"], truth["time_ps"], truth["amplitude"], truth["sigma_ps"],
+                                truth["alpha"], sensor, wanted=strong & (apart >= BOUND_FROM_W))
+
+    def at_bound(split: str, within: np.ndarray) -> dict:
+        ideal = expected_match(bound[within], match_ps, _CM_PER_PS)
+        row = {c: float("nan") for c, _, _ in EVALUATION_COLUMNS}
+        return {**row, "run": label, "split": f"{split}, at the joint CRLB (an ideal engine)",
+                "true_echoes": ideal.true_echoes, "matched": round(ideal.expected_matched), "recall": ideal.recall,
+                "range_rmse_cm": ideal.range_rmse_cm}
+
+    row = _stats(label, "resolvable: >= 1 W apart, SNR >= 5", resolvable, None, pairs, truth, found, crlb)
+    rows = [{**row, "precision": scored.precision}, at_bound("resolvable", resolvable)]
     for b in scored.by_separation:
         within = strong & (apart >= b.lo_w) & (apart < b.hi_w)
         rows.append(_stats(label, f"{b.label} apart, SNR >= 5", within, None, pairs, truth, found, crlb))
+        if b.lo_w >= BOUND_FROM_W:
+            rows.append(at_bound(b.label, within))
     return rows
 
 

@@ -1,0 +1,109 @@
+"""What an ideal engine could resolve on a simulated flight: the joint Cramer-Rao bound of its echo times.
+
+Per pulse, every true echo's amplitude, time and width and the background are unknowns; the Fisher
+information of the simulator's noise (Gaussian sigma_noise^2 + shot x signal, plus 1/12 DN^2 of
+quantisation) over the packet's samples bounds the variance of each echo's time given all the others.
+An unbiased estimator at that bound, told how many echoes there are and their shape, lands within the
+match window of `fwl evaluate` with probability erf(window / (sigma sqrt 2)). Summed over the resolvable
+echoes, that is the recall no engine can beat on average, and the RMS error of the echoes that land is the
+range RMSE it would report: `fwl evaluate`'s resolvable rows beside the instrument's own limit. The
+single-echo CRLB column of `fwl evaluate` leaves the neighbours out; two echoes a pulse width apart share
+their samples, and their times trade against each other's amplitude and width.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from fwcore.engine.model import generalized_gaussian, tabulated_row
+from fwcore.instrument.shape import echo_shape
+from fwcore.studies.simulate import RESPONSE_WIDEST, SensorConfig
+
+_QUANTISATION_VARIANCE = 1.0 / 12.0  # DN^2: rounding to integer counts
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundMatch:
+    """The bound's expectation over a set of true echoes."""
+
+    true_echoes: int
+    expected_matched: float  # sum of each echo's probability to land within the match window
+    range_rmse_cm: float  # RMS of the errors that land (each a Gaussian truncated at the window)
+
+    @property
+    def recall(self) -> float:
+        return self.expected_matched / self.true_echoes if self.true_echoes else float("nan")
+
+
+def _pulse_model(sensor: SensorConfig, shape, amplitude, time_ps, sigma_ps, alpha, background, t_ps) -> np.ndarray:
+    """The noise-free packet of one pulse's echoes, as the simulator draws it (fwcore.studies.simulate)."""
+    out = np.full(t_ps.size, background, dtype=float)
+    for a, u, s, al in zip(amplitude, time_ps, sigma_ps, alpha):
+        if shape is not None:
+            grid, row, _ = tabulated_row(shape, s / sensor.sample_spacing_ps)
+            out += a * np.interp((t_ps - u) / sensor.sample_spacing_ps, grid, row, left=0.0, right=0.0)
+        else:
+            out += generalized_gaussian(t_ps, a, u, s, al)
+    return out
+
+
+def echo_time_bounds_ps(pulse_id: np.ndarray, time_ps: np.ndarray, amplitude: np.ndarray, sigma_ps: np.ndarray,
+                        alpha: np.ndarray, sensor: SensorConfig, wanted: np.ndarray | None = None) -> np.ndarray:
+    """Per true echo, the joint Cramer-Rao bound (ps, one sigma) of its time, with every echo of its pulse's
+    amplitude, time and width and the background unknown; NaN for pulses with no `wanted` echo (all by default)."""
+    pulse_id, time_ps, amplitude, sigma_ps, alpha = (np.asarray(a) for a in (pulse_id, time_ps, amplitude, sigma_ps,
+                                                                              alpha))
+    wanted = np.ones(pulse_id.size, bool) if wanted is None else np.asarray(wanted, bool)
+    shape = echo_shape(sensor.response, sensor.sample_spacing_ps, RESPONSE_WIDEST) if sensor.response is not None \
+        else None
+    t_ps = np.arange(sensor.samples_per_packet, dtype=float) * sensor.sample_spacing_ps
+    out = np.full(pulse_id.size, np.nan)
+    order = np.argsort(pulse_id, kind="stable")
+    starts = np.flatnonzero(np.r_[True, pulse_id[order][1:] != pulse_id[order][:-1]])
+    for lo, hi in zip(starts, np.r_[starts[1:], order.size]):
+        echoes = order[lo:hi]
+        if not wanted[echoes].any():
+            continue
+        # parameters: (amplitude, time, width) per echo, then the background
+        params = np.concatenate([np.column_stack([amplitude[echoes], time_ps[echoes], sigma_ps[echoes]]).ravel(), [0.0]])
+
+        def model(q: np.ndarray) -> np.ndarray:
+            return _pulse_model(sensor, shape, q[0:-1:3], q[1:-1:3], q[2:-1:3], alpha[echoes], q[-1], t_ps)
+
+        jacobian = np.empty((t_ps.size, params.size))
+        for j in range(params.size):  # central differences: the tabulated shape has no closed-form derivative
+            step = 1e-4 * max(abs(params[j]), 1.0)
+            up, down = params.copy(), params.copy()
+            up[j] += step
+            down[j] -= step
+            jacobian[:, j] = (model(up) - model(down)) / (2.0 * step)
+        signal = np.maximum(model(params), 0.0)
+        variance = sensor.noise_sigma ** 2 + sensor.shot_noise * signal + _QUANTISATION_VARIANCE
+        information = jacobian.T @ (jacobian / variance[:, None])
+        try:
+            covariance = np.linalg.inv(information)
+        except np.linalg.LinAlgError:  # an echo the samples do not constrain at all (outside the packet)
+            out[echoes] = np.inf
+            continue
+        out[echoes] = np.sqrt(np.maximum(np.diag(covariance)[1:-1:3], 0.0))
+    return out
+
+
+def expected_match(bound_ps: np.ndarray, match_ps: float, cm_per_ps: float) -> BoundMatch:
+    """The recall and the range RMSE of the matched echoes that an unbiased estimator at the bound would reach."""
+    bound_ps = np.asarray(bound_ps, float)
+    bound_ps = np.where(np.isnan(bound_ps), np.inf, bound_ps)  # not computed: nothing known, nothing lands
+    if bound_ps.size == 0:
+        return BoundMatch(0, 0.0, float("nan"))
+    a = np.where(bound_ps > 0, match_ps / np.where(bound_ps > 0, bound_ps, 1.0), np.inf)
+    land = np.array([math.erf(x / math.sqrt(2.0)) if np.isfinite(x) else 1.0 for x in a])
+    # variance of a normal truncated to +-match: sigma^2 (1 - 2 a phi(a) / (2 Phi(a) - 1))
+    phi = np.exp(-np.minimum(a, 40.0) ** 2 / 2.0) / math.sqrt(2.0 * math.pi)
+    truncated = np.where(land > 0, bound_ps ** 2 * (1.0 - 2.0 * np.where(np.isfinite(a), a, 0.0) * phi
+                                                    / np.maximum(land, 1e-300)), 0.0)
+    expected = float(land.sum())
+    rmse = math.sqrt(float((land * truncated).sum()) / expected) * cm_per_ps if expected > 0 else float("nan")
+    return BoundMatch(int(bound_ps.size), expected, rmse)
