@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, searchsorted_right
+from fwcore._jit import JIT, JIT_INLINE
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
 from fwcore.instrument.shape import analytic_shape
@@ -168,33 +168,6 @@ def _residual_attenuation(valid, sigma, out):
 
 
 @njit(**JIT_INLINE)
-def _sorted_median(ordered, k):
-    """The median of the first k values of an ascending array (np.median's value: the mean of the middle two)."""
-    if k % 2 == 1:
-        return ordered[k // 2]
-    return (ordered[k // 2 - 1] + ordered[k // 2]) / 2
-
-
-_SHORT = 64  # up to this many values, insertion sort beats np.sort's quicksort (RIEGL's ~60-sample windows)
-
-
-@njit(**JIT)
-def _ascending(values, m):
-    """The first m values, sorted ascending, in a new array."""
-    if m > _SHORT:
-        return np.sort(values[:m])
-    ordered = values[:m].copy()
-    for i in range(1, m):
-        v = ordered[i]
-        j = i - 1
-        while j >= 0 and ordered[j] > v:
-            ordered[j + 1] = ordered[j]
-            j -= 1
-        ordered[j + 1] = v
-    return ordered
-
-
-@njit(**JIT_INLINE)
 def _select(values, m, k):
     """The k-th smallest of values[:m] (0-based), rearranging them in place so that none before index k is
     larger: quickselect, median-of-three pivot, a partition without branches on the data (on random
@@ -230,17 +203,24 @@ def _select(values, m, k):
 
 
 @njit(**JIT_INLINE)
+def _median_of_smallest(values, m, k):
+    """The median of the k smallest of values[:m] (np.median's value, to the bit), values[:m] rearranged;
+    1 <= k <= m."""
+    j = k // 2
+    upper = _select(values, m, j)
+    if k % 2 == 1:
+        return upper
+    lower = values[0]  # the middle pair's lower value: the largest of the j smallest, which now lead
+    for i in range(1, j):
+        lower = max(lower, values[i])
+    return (lower + upper) / 2
+
+
+@njit(**JIT_INLINE)
 def _median_in_place(values, m):
     """np.median(values[:m]) to the bit (an order statistic, or the mean of the middle two), values[:m]
     rearranged; m >= 1."""
-    k = m // 2
-    upper = _select(values, m, k)
-    if m % 2 == 1:
-        return upper
-    lower = values[0]  # the middle pair's lower value: the largest before index k
-    for i in range(1, k):
-        lower = max(lower, values[i])
-    return (lower + upper) / 2
+    return _median_of_smallest(values, m, m)
 
 
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): a normal's sigma from its median absolute deviation
@@ -298,11 +278,17 @@ def _baseline(samples, valid, noise):
         if valid[i]:
             values[m] = samples[i]
             m += 1
-    ordered = _ascending(values, m)  # the samples up to a level are a prefix: one sort serves every median
-    level = _sorted_median(ordered, m)
+    # the samples up to a level are the k smallest: each median is a selection (values keep their order)
+    scratch = values[:m].copy()
+    level = _median_in_place(scratch, m)
     for _ in range(8):
-        k = searchsorted_right(ordered, level + 3.0 * noise)
-        new = _sorted_median(ordered, k)
+        threshold = level + 3.0 * noise
+        k = m  # a NaN threshold counts every sample, as np.searchsorted sorts NaN last
+        if not np.isnan(threshold):
+            k = 0
+            for i in range(m):
+                k += values[i] <= threshold
+        new = _median_of_smallest(scratch, m, k)
         if new == level:
             break
         level = new
