@@ -171,7 +171,8 @@ def _residual_attenuation(valid, sigma, out):
 def _select(values, m, k):
     """The k-th smallest of values[:m] (0-based), rearranging them in place so that none before index k is
     larger: quickselect, median-of-three pivot, a partition without branches on the data (on random
-    residuals an insertion sort mispredicts its every step)."""
+    residuals an insertion sort mispredicts its every step); the pivot's equals are gathered beside it, so
+    quantised samples (a few distinct counts over thousands of samples) take a pass each, not one a sample."""
     lo, hi = 0, m - 1
     while hi > lo:
         mid = (lo + hi) >> 1
@@ -193,12 +194,18 @@ def _select(values, m, k):
             store += v < pivot
         values[hi] = values[store]
         values[store] = pivot
-        if store == k:
-            return pivot
-        if store < k:
-            lo = store + 1
-        else:
+        if k < store:
             hi = store - 1
+            continue
+        equal = store + 1  # [store, equal): the pivot's value (the rest of the right part is above it)
+        for i in range(store + 1, hi + 1):
+            v = values[i]
+            values[i] = values[equal]
+            values[equal] = v
+            equal += v == pivot
+        if k < equal:
+            return pivot
+        lo = equal
     return values[k]
 
 

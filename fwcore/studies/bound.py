@@ -5,8 +5,8 @@ information of the simulator's noise (Gaussian sigma_noise^2 + shot x signal, pl
 quantisation) over the packet's samples bounds the variance of each echo's time given all the others.
 An unbiased estimator at that bound, told how many echoes there are and their shape, lands within the
 match window of `fwl evaluate` with probability erf(window / (sigma sqrt 2)). Summed over the resolvable
-echoes, that is the recall no engine can beat on average, and the RMS error of the echoes that land is the
-range RMSE it would report: `fwl evaluate`'s resolvable rows beside the instrument's own limit. The
+echoes, that is the recall no unbiased engine beats on average (a biased estimator is not held to the bound),
+and the RMS error of the echoes that land is the range RMSE it would report: `fwl evaluate`'s resolvable rows beside the instrument's own limit. The
 single-echo CRLB column of `fwl evaluate` leaves the neighbours out; two echoes a pulse width apart share
 their samples, and their times trade against each other's amplitude and width.
 """
