@@ -34,7 +34,7 @@ _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
 _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplitude
 
 
-@njit(**JIT_INLINE)
+@njit(**JIT)
 def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
     windows[k] = [lo, hi): the samples where echo k's columns may be non-zero. A tabulated shape
@@ -105,7 +105,7 @@ def squared_error(x, n_echoes, times, shape, target, weights):
     return acc
 
 
-@njit(**JIT_INLINE)
+@njit(**JIT)
 def _solve_damped(jtj, grad, lam, free, step, a):
     """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky, `a` (d x d) its
     scratch; False if singular."""
@@ -144,7 +144,7 @@ def _solve_damped(jtj, grad, lam, free, step, a):
     return True
 
 
-@njit(**JIT_INLINE)
+@njit(**JIT)
 def _normal_equations(jac, residual, weights, windows, jtj, grad):
     """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. Each sum runs only
     over the samples where both columns can be non-zero (their echoes' windows): the terms left
@@ -224,7 +224,7 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     jtj[base + 3, base + 3] = a44
 
 
-@njit(**JIT_INLINE)
+@njit(**JIT)
 def _predicted_gain(grad, jtj, x, trial):
     """How much the linearised model says the step x -> trial lowers the sum of squares: -(2 g.delta +
     delta' JtJ delta), g = J^T W r (the gradient's half)."""
@@ -238,7 +238,7 @@ def _predicted_gain(grad, jtj, x, trial):
     return predicted
 
 
-@njit(**JIT_INLINE)
+@njit(**JIT)
 def _damping_after_gain(lam, gain, grad, jtj, x, trial):
     """Nielsen's damping update after an accepted step x -> trial: by how well the linear model predicted
     the gain, so that a step into a curved valley (overlapping echoes trading amplitude) is not followed
