@@ -223,6 +223,15 @@ def neon_rows() -> None:
                   f"{held / fitted:6.3f}", flush=True)
 
 
+def run_and_evaluate(flight: Path, out: Path, *run_args: str) -> str:
+    """`fwl run` on a simulated flight (Parquet only) into `out`, then `fwl evaluate` against its truth: the table."""
+    subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(flight), "--output", str(out), "--formats",
+                    "parquet", *run_args], check=True, capture_output=True)
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", "evaluate", str(out), "--truth",
+                           str(flight.with_suffix(".truth.parquet"))], check=True, capture_output=True,
+                          text=True).stdout
+
+
 def simulation_rows(n_pulses: int) -> None:
     print(f"\nSimulated flights ({n_pulses} pulses, seed 7), the default configuration (fwl run, fwl evaluate): "
           "targets recall >= 0.97, precision >= 0.98, RMSE/CRLB <= 1.25")
@@ -237,11 +246,7 @@ def simulation_rows(n_pulses: int) -> None:
                 runs.insert(1, ("system", ["--system-response", response]))
             for model, given in runs:
                 out = Path(tmp) / f"{response}-{model}{'-given' if given else ''}"
-                subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(flight), "--output", str(out),
-                                "--model", model, "--formats", "parquet", *given], check=True, capture_output=True)
-                table = subprocess.run([sys.executable, "-m", "pipeline.cli", "evaluate", str(out), "--truth",
-                                        str(flight.with_suffix(".truth.parquet"))], check=True, capture_output=True,
-                                       text=True).stdout
+                table = run_and_evaluate(flight, out, "--model", model, *given)
                 row = next(line for line in table.splitlines() if "| all |" in line).split("|")
                 label = (f"{model}, {'given' if given else 'measured'}" if model == "system"
                          else "auto (the default)" if model == "auto" else model)
@@ -263,13 +268,7 @@ def resolution_rows(n_pulses: int = 2000, seed: int = 20261202) -> None:
             subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--system-response", response,
                             "--pulses", str(n_pulses), "--seed", str(seed), "--output", str(flight)], check=True,
                            capture_output=True)
-            out = Path(tmp) / f"{response}-run"
-            subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(flight), "--output", str(out),
-                            "--formats", "parquet"], check=True, capture_output=True)
-            table = subprocess.run([sys.executable, "-m", "pipeline.cli", "evaluate", str(out), "--truth",
-                                    str(flight.with_suffix(".truth.parquet"))], check=True, capture_output=True,
-                                   text=True).stdout
-            for line in table.splitlines():
+            for line in run_and_evaluate(flight, Path(tmp) / f"{response}-run").splitlines():
                 cells = [c.strip() for c in line.split("|")]
                 if len(cells) > 8 and cells[2] in wanted:
                     print(f"  {response:6} {cells[2]:50} true {cells[3]:>5} recall {cells[5]:>6} precision "

@@ -114,28 +114,20 @@ def log2_approx(x: np.ndarray) -> np.ndarray:
 
 # np.searchsorted, inlined. numba's is a call, and a kernel that calls any function increfs (atomically) every
 # array it was given on entry and decrefs it on exit; the model and Jacobian kernels search per echo and per
-# LM step. Both keep numba's comparisons, NaN sorting last, so every index is numba's.
+# LM step. numba's comparisons, NaN sorting last, so every index is numba's.
 @njit(**JIT_INLINE)
-def searchsorted_left(ordered, value):
-    """np.searchsorted(ordered, value): the first index whose entry is not below value."""
+def searchsorted(ordered, value, right=False):
+    """np.searchsorted(ordered, value, side="right" if right else "left"): the first index whose entry is above
+    value (right) or not below it (left)."""
     lo, hi = 0, ordered.size
     while lo < hi:
         mid = lo + ((hi - lo) >> 1)
         entry = ordered[mid]
-        if entry < value or (np.isnan(value) and not np.isnan(entry)):
-            lo = mid + 1
+        if right:
+            before = np.isnan(value) or entry <= value
         else:
-            hi = mid
-    return lo
-
-
-@njit(**JIT_INLINE)
-def searchsorted_right(ordered, value):
-    """np.searchsorted(ordered, value, side="right"): the first index whose entry is above value."""
-    lo, hi = 0, ordered.size
-    while lo < hi:
-        mid = lo + ((hi - lo) >> 1)
-        if np.isnan(value) or ordered[mid] <= value:
+            before = entry < value or (np.isnan(value) and not np.isnan(entry))
+        if before:
             lo = mid + 1
         else:
             hi = mid

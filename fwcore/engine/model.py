@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, searchsorted_left, searchsorted_right
+from fwcore._jit import JIT, JIT_INLINE, searchsorted
 
 GAUSSIAN_ALPHA = math.sqrt(2.0)
 LN2 = math.log(2.0)
@@ -154,8 +154,8 @@ def individual_model(x, n_echoes, times, shape, out):
         if shape.tabulated:
             before, after = table_reach(shape, x[base + 2])
             add_table_echo(shape, x[base], x[base + 1], x[base + 2], times,
-                           searchsorted_left(times, x[base + 1] - before),
-                           searchsorted_right(times, x[base + 1] + after), out)
+                           searchsorted(times, x[base + 1] - before),
+                           searchsorted(times, x[base + 1] + after, right=True), out)
             continue
         for i in range(times.size):
             out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])

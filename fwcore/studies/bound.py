@@ -5,10 +5,11 @@ information of the simulator's noise (Gaussian sigma_noise^2 + shot x signal, pl
 quantisation) over the packet's samples bounds the variance of each echo's time given all the others.
 An unbiased estimator at that bound, told how many echoes there are and their shape, lands within the
 match window of `fwl evaluate` with probability erf(window / (sigma sqrt 2)). Summed over the resolvable
-echoes, that is the recall no unbiased engine beats on average (a biased estimator is not held to the bound),
-and the RMS error of the echoes that land is the range RMSE it would report: `fwl evaluate`'s resolvable rows beside the instrument's own limit. The
-single-echo CRLB column of `fwl evaluate` leaves the neighbours out; two echoes a pulse width apart share
-their samples, and their times trade against each other's amplitude and width.
+echoes, that is the recall no unbiased engine beats on average (a biased estimator is not held to the
+bound), and the RMS error of the echoes that land is the range RMSE it would report: `fwl evaluate`'s
+resolvable rows beside the instrument's own limit. The single-echo CRLB column of `fwl evaluate` leaves the
+neighbours out; two echoes a pulse width apart share their samples, and their times trade against each
+other's amplitude and width.
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy.special import erf
 
-from fwcore.engine.model import generalized_gaussian, tabulated_row
+from fwcore.engine.model import tabulated_model, waveform_model
 from fwcore.instrument.shape import echo_shape
 from fwcore.studies.simulate import RESPONSE_WIDEST, SensorConfig
 
@@ -40,14 +42,10 @@ class BoundMatch:
 
 def _pulse_model(sensor: SensorConfig, shape, amplitude, time_ps, sigma_ps, alpha, background, t_ps) -> np.ndarray:
     """The noise-free packet of one pulse's echoes, as the simulator draws it (fwcore.studies.simulate)."""
-    out = np.full(t_ps.size, background, dtype=float)
-    for a, u, s, al in zip(amplitude, time_ps, sigma_ps, alpha):
-        if shape is not None:
-            grid, row, _ = tabulated_row(shape, s / sensor.sample_spacing_ps)
-            out += a * np.interp((t_ps - u) / sensor.sample_spacing_ps, grid, row, left=0.0, right=0.0)
-        else:
-            out += generalized_gaussian(t_ps, a, u, s, al)
-    return out
+    if shape is None:
+        return waveform_model(t_ps, background, amplitude, time_ps, sigma_ps, alpha)
+    spacing = sensor.sample_spacing_ps  # the response's table is in samples
+    return tabulated_model(t_ps / spacing, background, amplitude, time_ps / spacing, sigma_ps / spacing, shape)
 
 
 def echo_time_bounds_ps(pulse_id: np.ndarray, time_ps: np.ndarray, amplitude: np.ndarray, sigma_ps: np.ndarray,
@@ -96,14 +94,14 @@ def expected_match(bound_ps: np.ndarray, match_ps: float, cm_per_ps: float) -> B
     """The recall and the range RMSE of the matched echoes that an unbiased estimator at the bound would reach."""
     bound_ps = np.asarray(bound_ps, float)
     bound_ps = np.where(np.isnan(bound_ps), np.inf, bound_ps)  # not computed: nothing known, nothing lands
-    if bound_ps.size == 0:
-        return BoundMatch(0, 0.0, float("nan"))
-    a = np.where(bound_ps > 0, match_ps / np.where(bound_ps > 0, bound_ps, 1.0), np.inf)
-    land = np.array([math.erf(x / math.sqrt(2.0)) if np.isfinite(x) else 1.0 for x in a])
-    # variance of a normal truncated to +-match: sigma^2 (1 - 2 a phi(a) / (2 Phi(a) - 1))
-    phi = np.exp(-np.minimum(a, 40.0) ** 2 / 2.0) / math.sqrt(2.0 * math.pi)
-    truncated = np.where(land > 0, bound_ps ** 2 * (1.0 - 2.0 * np.where(np.isfinite(a), a, 0.0) * phi
-                                                    / np.maximum(land, 1e-300)), 0.0)
+    window = match_ps / bound_ps  # the window in bound sigmas (0 for an unconstrained echo)
+    land = erf(window / math.sqrt(2.0))
     expected = float(land.sum())
-    rmse = math.sqrt(float((land * truncated).sum()) / expected) * cm_per_ps if expected > 0 else float("nan")
-    return BoundMatch(int(bound_ps.size), expected, rmse)
+    if expected == 0.0:
+        return BoundMatch(int(bound_ps.size), expected, float("nan"))
+    lands = land > 0.0
+    a, sigma = window[lands], bound_ps[lands]
+    # variance of a normal truncated to +-window: sigma^2 (1 - 2 a phi(a) / (2 Phi(a) - 1))
+    truncated = sigma ** 2 * (1.0 - 2.0 * a * np.exp(-a ** 2 / 2.0) / math.sqrt(2.0 * math.pi) / land[lands])
+    return BoundMatch(int(bound_ps.size), expected, math.sqrt(float((land[lands] * truncated).sum()) / expected)
+                      * cm_per_ps)

@@ -40,12 +40,12 @@ def test_kernels_see_inf_and_nan():
 
 
 def test_inlined_searches_are_numpys_including_ties_and_nan():
-    from fwcore._jit import searchsorted_left, searchsorted_right
+    from fwcore._jit import searchsorted
 
     rng = np.random.default_rng(11)
     for n in (0, 1, 2, 7, 60):
         ordered = np.sort(np.round(rng.normal(0, 3, n)))  # rounded: ties
         keys = np.concatenate([ordered, ordered + 0.5, [-np.inf, np.inf, np.nan, -100.0, 100.0]])
         for key in keys:
-            assert searchsorted_left(ordered, key) == np.searchsorted(ordered, key)
-            assert searchsorted_right(ordered, key) == np.searchsorted(ordered, key, side="right")
+            assert searchsorted(ordered, key) == np.searchsorted(ordered, key)
+            assert searchsorted(ordered, key, right=True) == np.searchsorted(ordered, key, side="right")

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, searchsorted_left, searchsorted_right
+from fwcore._jit import JIT, JIT_INLINE, searchsorted
 from fwcore.instrument.shape import analytic_shape
 from fwcore.engine.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
 
@@ -50,8 +50,8 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
             before, after = table_reach(shape, s)
-            lo = searchsorted_left(times, u - before)
-            hi = searchsorted_right(times, u + after)
+            lo = searchsorted(times, u - before)
+            hi = searchsorted(times, u + after, right=True)
             windows[k, 0] = lo
             windows[k, 1] = hi
             add_table_echo_derivatives(shape, a, u, s, times, lo, hi, model, jac, base)
@@ -60,8 +60,8 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
         p = alpha * alpha
         # only the samples where the echo is above 1e-12 of its amplitude (times are ascending)
         reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
-        lo = searchsorted_left(times, u - reach)
-        hi = searchsorted_right(times, u + reach)
+        lo = searchsorted(times, u - reach)
+        hi = searchsorted(times, u + reach, right=True)
         windows[k, 0] = lo
         windows[k, 1] = hi
         for i in range(lo, hi):
@@ -93,11 +93,11 @@ def squared_error(x, n_echoes, times, shape, target, weights):
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
         if shape.tabulated:
             before, after = table_reach(shape, s)
-            add_table_echo(shape, a, u, s, times, searchsorted_left(times, u - before),
-                           searchsorted_right(times, u + after), model)
+            add_table_echo(shape, a, u, s, times, searchsorted(times, u - before),
+                           searchsorted(times, u + after, right=True), model)
             continue
         reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
-        for i in range(searchsorted_left(times, u - reach), searchsorted_right(times, u + reach)):
+        for i in range(searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)):
             model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0
     for i in range(times.size):
