@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import signal
 import sys
@@ -223,12 +224,15 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response
+    from fwcore.studies.forest import FOREST_SAMPLES
+    from fwcore.studies.forest_truth import TRUTH_RASTERS, truth_raster_path
     from fwcore.studies.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import calibration_path, trajectory_path, truth_path, write_flight
 
     output = check_suffix("fwl simulate", args.output, (".las", ".laz"), "a LAS file (its truth beside it)")
     # the flight's files are ours as a whole when its truth is: the one that carries fwl's mark
     claim_files("fwl simulate", [output, truth_path(output), trajectory_path(output), calibration_path(output)]
+                + [truth_raster_path(output, name) for name in TRUTH_RASTERS]
                 + ([output.with_suffix(".wdp")] if args.format != "las14-internal" else []),
                 lambda _: parquet_is_ours(truth_path(output)), args.overwrite)
     response = named_response(args.system_response, args.pulse_fwhm_ps) if args.system_response else None
@@ -236,11 +240,11 @@ def _simulate(args: argparse.Namespace) -> int:
         args.pulse_fwhm_ps = response.fwhm_ps
         args.sample_spacing_ps = args.sample_spacing_ps or SHIPPED_SPACING_PS.get(args.system_response, 1000.0)
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps or 1000.0,
-                          samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
+                          samples_per_packet=args.samples or (FOREST_SAMPLES if args.scene == "forest" else 200), digitizer_gain=args.gain, digitizer_offset=args.offset,
                           background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
                           bits=args.bits or (16 if args.radiometry else 8),
                           detection_threshold=args.detection_threshold, response=response)
-    scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
+    scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle or 20.0,
                         canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
                         weak_echo_fraction=args.weak_fraction, radiometry=args.radiometry,
                         # the climb spans the flight, whatever its length
@@ -248,10 +252,21 @@ def _simulate(args: argparse.Namespace) -> int:
                         altitude_change_s=args.pulses / SceneConfig.pulse_rate_hz,
                         beam_divergence_mrad=args.beam_divergence_mrad, patch_reflectance=args.patch_reflectance)
     start = time.perf_counter()
-    flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
+    rasters = []
+    if args.scene == "forest":
+        from fwcore.studies.forest import ForestConfig, forest_flight_scene
+        from fwcore.studies.forest_truth import write_forest_flight
+
+        scene = dataclasses.replace(forest_flight_scene(), altitude_m=args.altitude,
+                                    max_scan_angle_deg=args.max_scan_angle or forest_flight_scene().max_scan_angle_deg)
+        flight, rasters = write_forest_flight(args.output, args.pulses, sensor, scene, ForestConfig(), args.seed,
+                                              args.format)
+    else:
+        flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
     print(f"wrote {flight.las} ({args.format}, {sensor.bits}-bit): {flight.n_pulses} pulses, {flight.n_returns} "
           f"system returns; {flight.truth}: {flight.n_echoes} true echoes; {flight.trajectory.name}"
-          f"{'; ' + flight.calibration.name if flight.calibration else ''}; {time.perf_counter() - start:.1f} s")
+          f"{'; ' + flight.calibration.name if flight.calibration else ''}"
+          f"{''.join('; ' + p.name for p in rasters)}; {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -500,7 +515,7 @@ def _add_simulate(sub) -> None:
                         help="echoes of an instrument's response broadened by their targets: gaussian (of "
                              "--pulse-fwhm-ps), leica, riegl (measured, shipped) or a response file; default: the "
                              "method's generalized Gaussians")
-    sensor.add_argument("--samples", type=int, default=200, help="samples per packet")
+    sensor.add_argument("--samples", type=int, help="samples per packet (default 200; 360 with --scene forest)")
     sensor.add_argument("--gain", type=float, default=0.01, help="digitizer gain, volts per DN")
     sensor.add_argument("--offset", type=float, default=0.0, help="digitizer offset, volts")
     sensor.add_argument("--background", type=float, default=12.0, help="DN")
@@ -511,7 +526,12 @@ def _add_simulate(sub) -> None:
                         help="the online detector's threshold, x noise sigma")
     scene = s.add_argument_group("scene")
     scene.add_argument("--altitude", type=float, default=500.0, help="metres above the terrain")
-    scene.add_argument("--max-scan-angle", dest="max_scan_angle", type=float, default=20.0, help="degrees")
+    scene.add_argument("--scene", choices=["default", "forest"], default="default",
+                       help="default: echoes drawn pulse by pulse over rolling terrain; forest: a coherent forest "
+                            "(terrain with a break of slope and a ditch, crowns, a clearing, buildings) and its "
+                            "truth as 1 m GeoTIFFs (FILE.truth-dtm/chm/cover/pai.tif)")
+    scene.add_argument("--max-scan-angle", dest="max_scan_angle", type=float,
+                       help="degrees (default 20; 12 with --scene forest)")
     scene.add_argument("--canopy-cover", dest="canopy_cover", type=float, default=0.45)
     scene.add_argument("--roof-fraction", dest="roof_fraction", type=float, default=0.12)
     scene.add_argument("--weak-fraction", dest="weak_fraction", type=float, default=0.15,
