@@ -1,0 +1,10 @@
+"""What a waveform says of the forest, for every sensor: the ground (the lowest mode), RH0..RH100 from the
+cumulative energy above it (GEDI L2A), and canopy cover, PAI and the vertical profile from the canopy and ground
+energies (GEDI L2B).
+
+    signal.py    smoothing, the noise thresholds and the signal's extent (toploc, botloc)
+    ground.py    the lowest mode: the ground
+    rh.py        RH0..RH100
+    canopy.py    rv, rg, Pgap, cover, PAI, PAVD
+    waveform.py  the settings and the batch: every pulse's metrics in one call
+"""

@@ -1,0 +1,143 @@
+"""Every pulse's forest metrics in one call: the settings (GEDI L2A's algorithm 1 by default), the per-pulse record
+and the batch function over the flat samples the readers hand on.
+
+    waveform_metrics(samples, offsets, noise_mean, noise_sd, first_z, metres_per_sample, cos_zenith, settings)
+        -> WaveformMetrics: ground_z, rh (n, 101), rv, rg, pgap, cover, pai, cover_z / pai_z / pavd_z (n, 30),
+           and a reason per pulse ('' when measured; otherwise why its metrics are null)
+
+Heights come from each waveform's own vertical axis: the first sample's elevation and the vertical drop per
+sample (GEDI: elevation_bin0 to elevation_lastbin over count - 1 samples; airborne: the beam's direction).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fwcore.metrics.canopy import CanopySettings, GroundPulse, canopy_cover, canopy_energy, gap_probability, \
+    ground_return, plant_area_index, vertical_profile
+from fwcore.metrics.ground import lowest_mode
+from fwcore.metrics.rh import PERCENTILES, energy_positions, relative_heights
+from fwcore.metrics.signal import gaussian_smooth, signal_extent, subbin_grid
+
+NO_SIGNAL = "no signal above the noise thresholds"
+NO_GROUND = "no mode above the back threshold: no ground"
+NO_NOISE = "no finite noise estimate"
+NOT_FINITE = "non-finite samples"
+NO_AXIS = "no vertical axis (the beam is horizontal or its geolocation is missing)"
+
+
+@dataclasses.dataclass(frozen=True)
+class MetricSettings:
+    """How a waveform's signal, ground and heights are found (GEDI L2A's rx_processing settings) and the canopy's
+    constants (L2B). Widths are in samples; thresholds in noise standard deviations above the noise mean."""
+
+    smoothing_width: float = 6.5  # rx_smoothing_width_locs: the signal's extent and the RH energy
+    smoothing_width_zcross: float = 6.5  # rx_smoothing_width_zcross: the modes
+    front_threshold_sd: float = 3.0  # rx_front_threshold: the signal starts above it
+    back_threshold_sd: float = 6.0  # rx_back_threshold: the signal ends above it; a mode must clear it
+    subbins: int = 4  # rx_subbin_resolution: positions to a quarter sample
+    signal_search_buffer: float = 1.0  # L2B: samples kept either side of the signal for its energies
+    ground_centre_buffer: float = 4.0  # L2B: the ground return's centre within this many samples of the ground
+    canopy: CanopySettings = CanopySettings()
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "MetricSettings":
+        return cls(**{**d, "canopy": CanopySettings(**d.get("canopy", {}))})
+
+
+GEDI_ALGORITHM_1 = MetricSettings()
+
+
+@dataclasses.dataclass(frozen=True)
+class WaveformMetrics:
+    """Per pulse (n rows): positions in samples from the first, heights in metres; NaN where `reason` says why."""
+
+    toploc: np.ndarray
+    botloc: np.ndarray
+    ground_index: np.ndarray
+    ground_z: np.ndarray
+    rh: np.ndarray  # (n, 101) RH0..RH100, m above the ground
+    rv: np.ndarray  # canopy energy (sample units of the waveform's digital numbers)
+    rg: np.ndarray  # ground energy
+    pgap: np.ndarray
+    cover: np.ndarray
+    pai: np.ndarray
+    cover_z: np.ndarray  # (n, bins)
+    pai_z: np.ndarray
+    pavd_z: np.ndarray  # m2/m3
+    reason: list[str]
+
+    def __len__(self) -> int:
+        return self.ground_z.size
+
+
+def empty_metrics(n: int, bins: int) -> dict[str, np.ndarray]:
+    return {"toploc": np.full(n, np.nan), "botloc": np.full(n, np.nan), "ground_index": np.full(n, np.nan),
+            "ground_z": np.full(n, np.nan), "rh": np.full((n, PERCENTILES.size), np.nan), "rv": np.full(n, np.nan),
+            "rg": np.full(n, np.nan), "pgap": np.full(n, np.nan), "cover": np.full(n, np.nan),
+            "pai": np.full(n, np.nan), "cover_z": np.full((n, bins), np.nan), "pai_z": np.full((n, bins), np.nan),
+            "pavd_z": np.full((n, bins), np.nan)}
+
+
+def pulse_metrics(samples: np.ndarray, noise_mean: float, noise_sd: float, first_z: float,
+                  metres_per_sample: float, cos_zenith: float, pulse: GroundPulse,
+                  settings: MetricSettings = GEDI_ALGORITHM_1) -> dict:
+    """One waveform's metrics as a dict of scalars and arrays, with 'reason' ('' when measured); `pulse` is the
+    transmitted pulse's shape the ground return is fitted with."""
+    if not (np.isfinite(noise_mean) and np.isfinite(noise_sd)):
+        return {"reason": NO_NOISE}
+    if not np.isfinite(samples).all():
+        return {"reason": NOT_FINITE}
+    if not (np.isfinite(first_z) and np.isfinite(metres_per_sample) and metres_per_sample > 0):
+        return {"reason": NO_AXIS}
+    smoothed = gaussian_smooth(samples, settings.smoothing_width)
+    x, values = subbin_grid(smoothed, settings.subbins)
+    back = noise_mean + settings.back_threshold_sd * noise_sd
+    toploc, botloc = signal_extent(x, values, noise_mean + settings.front_threshold_sd * noise_sd, back)
+    if not np.isfinite(toploc):
+        return {"reason": NO_SIGNAL}
+    zcross_smoothed = (smoothed if settings.smoothing_width_zcross == settings.smoothing_width
+                       else gaussian_smooth(samples, settings.smoothing_width_zcross))
+    ground = lowest_mode(zcross_smoothed, toploc, botloc, back, settings.subbins)
+    if not np.isfinite(ground):
+        return {"reason": NO_GROUND, "toploc": toploc, "botloc": botloc}
+    energy = values - noise_mean
+    rh = relative_heights(energy_positions(x, energy, toploc, botloc), ground, metres_per_sample)
+    # L2B's energies: the raw waveform above the noise mean, within the signal and a buffer (1-based like its fit)
+    sample = np.arange(1, samples.size + 1)
+    buffer = settings.signal_search_buffer
+    signal = np.where((sample > toploc - buffer) & (sample < botloc + buffer), np.maximum(samples - noise_mean, 0), 0)
+    model, rg = ground_return(signal, ground, pulse, settings.ground_centre_buffer)
+    canopy = canopy_energy(signal, model, ground)
+    rv = float(canopy.sum())
+    pgap = float(gap_probability(rv, rg, settings.canopy.rhov_rhog))
+    cover_z, pai_z, pavd_z = vertical_profile((ground - np.arange(samples.size)) * metres_per_sample, canopy, rv, rg,
+                                              cos_zenith, settings.canopy)
+    return {"reason": "", "toploc": toploc, "botloc": botloc, "ground_index": ground,
+            "ground_z": first_z - ground * metres_per_sample, "rh": rh, "rv": rv, "rg": rg, "pgap": pgap,
+            "cover": float(canopy_cover(pgap, cos_zenith)),
+            "pai": float(plant_area_index(pgap, cos_zenith, settings.canopy.rossg, settings.canopy.omega)),
+            "cover_z": cover_z, "pai_z": pai_z, "pavd_z": pavd_z}
+
+
+def waveform_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.ndarray, noise_sd: np.ndarray,
+                     first_z: np.ndarray, metres_per_sample: np.ndarray, cos_zenith: np.ndarray,
+                     pulse: np.ndarray, settings: MetricSettings = GEDI_ALGORITHM_1) -> WaveformMetrics:
+    """Every waveform's metrics: waveform i is samples[offsets[i]:offsets[i + 1]]; per-waveform arrays beside, and
+    `pulse` (n, 4): each shot's transmitted pulse as GroundPulse fields (sigma, its error, gamma, its error)."""
+    n = offsets.size - 1
+    out = empty_metrics(n, settings.canopy.profile_heights.size)
+    reasons = []
+    for i in range(n):
+        row = pulse_metrics(samples[offsets[i]:offsets[i + 1]], float(noise_mean[i]), float(noise_sd[i]),
+                            float(first_z[i]), float(metres_per_sample[i]), float(cos_zenith[i]),
+                            GroundPulse(*map(float, pulse[i])), settings)
+        reasons.append(row.pop("reason"))
+        for name, value in row.items():
+            out[name][i] = value
+    return WaveformMetrics(**out, reason=reasons)
