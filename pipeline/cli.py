@@ -367,7 +367,7 @@ def _grid(args: argparse.Namespace) -> int:
     from pipeline.grid import grid_run
     from pipeline.layout import GRID_DIR
 
-    summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height)
+    summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
           f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
           f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
@@ -420,6 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate(sub)
     _add_compact(sub)
     _add_info(sub)
+    _add_classify(sub)
     _add_grid(sub)
     _add_view(sub)
     return parser
@@ -590,8 +591,37 @@ def _add_grid(sub) -> None:
                                     "own grid/ folder, where fwl view finds them)")
     g.add_argument("--crs", help="the CRS to declare (e.g. EPSG:25832) where the run's inputs name none")
     g.add_argument("--bin-height", dest="bin_height", type=float, default=1.0,
-                   help="height of the profile's bins above each cell's lowest echo (default 1 m)")
+                   help="height of the profile's bins above each cell's lowest echo, and of pavd.tif's above the "
+                        "terrain (default 1 m)")
+    g.add_argument("--classify", action="store_true",
+                   help="classify the run's echoes first (as fwl classify) if they are not yet: the forest's maps "
+                        "(dtm, dsm, chm, cover, pai, pavd, rh98, rh50) need the classes")
     g.set_defaults(handler=_grid)
+
+
+def _classify(args: argparse.Namespace) -> int:
+    from fwcore.terrain.ground import GroundConfig
+    from pipeline.classify import classify_run, summary_line
+
+    config = GroundConfig(cloth_resolution=args.cloth_resolution, rigidness=args.rigidness)
+    print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config)))
+    return 0
+
+
+def _add_classify(sub) -> None:
+    from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M
+
+    c = sub.add_parser("classify", help="classify a run's kept echoes (ASPRS ground, building, vegetation by height) "
+                                        "and give each its height above the terrain, in the run's echo table")
+    c.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
+    c.add_argument("--tile", type=float, default=DEFAULT_TILE_M, help="tile size, metres (default %(default)g)")
+    c.add_argument("--overlap", type=float, default=DEFAULT_OVERLAP_M,
+                   help="margin each tile is processed with, metres (default %(default)g)")
+    c.add_argument("--cloth-resolution", dest="cloth_resolution", type=float, default=1.0,
+                   help="the cloth simulation filter's grid, metres (default 1)")
+    c.add_argument("--rigidness", type=int, choices=[1, 2, 3], default=2,
+                   help="the cloth's rigidness: 1 steep terrain, 2 moderate slopes, 3 flat (default 2)")
+    c.set_defaults(handler=_classify)
 
 
 def _add_view(sub) -> None:

@@ -6,6 +6,8 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
     count.tif        kept echoes per cell
     reflectance.tif  their mean reflectance (amplitude.tif, their mean amplitude, where the run has no radiometry)
     profile.tif      echo energy in height bins above the cell's lowest echo, one band a bin (NaN: no echo)
+    dtm, dsm, chm, cover, pai, pavd, rh98, rh50 .tif   the forest's (pipeline.forest_maps), where the echoes
+                     are classified (`fwl classify RUN`, or `fwl grid --classify`: pipeline.classify)
     fwl-grid.json    what was gridded, how, and the files: the mark of the folder as fwl grid's
 
 The echo table is read a record batch at a time (pyarrow), twice: the statistics, then the profile (its heights
@@ -149,10 +151,11 @@ def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: f
 
 
 def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None, crs: str | None = None,
-             bin_height: float = DEFAULT_BIN_HEIGHT_M) -> dict:
+             bin_height: float = DEFAULT_BIN_HEIGHT_M, classify: bool = False) -> dict:
     """The maps of a finished run's kept echoes into `output` (None: the run's grid/ folder; see the module);
     what was written, as in fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where
-    the run's inputs name none or name it wrongly."""
+    the run's inputs name none or name it wrongly. Where the run's echoes are classified (`fwl classify`, or
+    here with `classify`), the forest's maps too (pipeline.forest_maps)."""
     import pyproj
 
     run_dir = Path(run_dir)
@@ -166,13 +169,23 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
     grid = Grid.covering(*bounds, cell)
     HeightProfile(grid, np.zeros(0), bin_height, 1)  # the bin height checked before the folder is touched
     claim_output(output)
+    forest = {}
+    from pipeline.classify import classify_run, is_classified
+
+    if classify and not is_classified(run_dir):
+        classify_run(run_dir)
+    if is_classified(run_dir):
+        from pipeline.forest_maps import forest_maps
+
+        files = echo_files(run_dir)
+        forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit)
     stats = _statistics(files, grid)
     profile = _profile(files, grid, stats, bin_height)
-    return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs))
+    return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs), forest)
 
 
 def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats: CellStatistics,
-                profile: HeightProfile, crs_given: bool) -> dict:
+                profile: HeightProfile, crs_given: bool, forest: dict | None = None) -> dict:
     highest, lowest = stats.heights()
     empty = stats.count == 0
     z_unit = COLUMNS["z"].unit
@@ -190,6 +203,7 @@ def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats:
                         [f"energy [{COLUMNS['energy'].unit}] {lo:g}-{hi:g} m above the lowest echo"
                          if math.isfinite(hi) else f"energy [{COLUMNS['energy'].unit}] {lo:g} m and more above the "
                          "lowest echo" for lo, hi in profile.edges()]),
+        **(forest or {}),
     }
     tags = {"SOFTWARE": "fwlidar fwl grid", "RUN": str(run_dir.resolve()), "CELL_M": f"{grid.cell:g}"}
     for name, (bands, dtype, nodata, descriptions) in maps.items():

@@ -47,10 +47,10 @@ class ForestConfig:
     tree_height_m: tuple[float, float] = (8.0, 28.0)
     crown_depth_ratio: tuple[float, float] = (0.35, 0.6)  # crown depth / tree height
     crown_radius_ratio: tuple[float, float] = (0.12, 0.22)  # crown radius / tree height
-    leaf_density: tuple[float, float] = (0.08, 0.2)  # m2/m3 at the crown base ...
+    leaf_density: tuple[float, float] = (0.05, 0.15)  # m2/m3 at the crown base ...
     top_density_factor: float = 2.0  # ... this many times more at the crown top
-    shell_density: tuple[float, float] = (0.5, 1.0)  # m2/m3 in the outer shell of the crown ...
-    shell_fraction: float = 0.12  # ... this fraction of the crown's normalised radius
+    shell_density: tuple[float, float] = (2.0, 4.0)  # m2/m3 in the outer shell of the crown ...
+    shell_fraction: float = 0.06  # ... this fraction of the crown's normalised radius
     clearing_radius_m: float = 16.0
     buildings: int = 3
     building_size_m: tuple[float, float] = (8.0, 16.0)
@@ -175,16 +175,20 @@ def forest_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     before = np.concatenate([np.ones((n, 1)), left[:, :-1]], axis=1)
     share = (before * from_top)[:, ::-1]  # the pulse's energy each bin intercepts
     transmitted = left[:, -1]
-    # layers of LAYER_M: their energy, energy-weighted height and spread
+    # layers of LAYER_M down from the first leaf the beam meets: their energy, energy-weighted height, spread
     per = int(round(LAYER_M / STEP_M))
-    layers = steps // per
+    layers = int(math.ceil(steps / per))
     h = (np.arange(steps) + 0.5) * STEP_M
-    s = share[:, :layers * per].reshape(n, layers, per)
-    hh = h[:layers * per].reshape(layers, per)
-    energy = s.sum(axis=2)
+    met = share > 0
+    top = np.where(met.any(axis=1), steps - 1 - np.argmax(met[:, ::-1], axis=1), steps - 1)
+    layer = np.clip((top[:, None] - np.arange(steps)[None, :]) // per, 0, layers - 1)
+    key = (np.arange(n)[:, None] * layers + layer).ravel()
+    energy = np.bincount(key, weights=share.ravel(), minlength=n * layers).reshape(n, layers)
+    moment = np.bincount(key, weights=(share * h).ravel(), minlength=n * layers).reshape(n, layers)
+    second = np.bincount(key, weights=(share * h * h).ravel(), minlength=n * layers).reshape(n, layers)
     with np.errstate(invalid="ignore", divide="ignore"):
-        centre = (s * hh).sum(axis=2) / energy
-        spread = np.sqrt(np.maximum((s * hh ** 2).sum(axis=2) / energy - centre ** 2, 0.0))
+        centre = moment / energy
+        spread = np.sqrt(np.maximum(second / energy - centre ** 2, 0.0))
     energy = np.where(energy >= MIN_LAYER_SHARE, energy, 0.0)
     strongest = np.argsort(-energy, axis=1)[:, :MAX_ECHOES - 1]
     e_k = np.take_along_axis(energy, strongest, axis=1)

@@ -2,7 +2,9 @@
 
 Beside SIM.las and SIM.truth.parquet (the truth of every echo), 1 m GeoTIFFs in the flight's frame:
 SIM.truth-dtm.tif (terrain z), SIM.truth-chm.tif (canopy height, 0 where open or roofed), SIM.truth-cover.tif
-(the vertical projection of the crowns, 0..1), SIM.truth-pai.tif (plant area index, m2/m2).
+(the vertical projection of the crowns, 0..1), SIM.truth-pai.tif (plant area index, m2/m2), SIM.truth-pgap.tif
+(the gap probability at nadir, exp(-G PAI) averaged over the cell: 1 - it is GEDI L2B's cover) and
+SIM.truth-roof.tif (1 where a roof covers the cell).
 """
 
 from __future__ import annotations
@@ -13,20 +15,20 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.studies.forest import (STEP_M, TRACE_TOP_M, Forest, ForestConfig, draw_forest, flight_bounds,
+from fwcore.studies.forest import (G_PROJECTION, STEP_M, TRACE_TOP_M, Forest, ForestConfig, draw_forest, flight_bounds,
                                    simulate_forest_chunks, terrain)
 from fwcore.studies.forest_trace import trace_leaf_area
 from fwcore.studies.simulate import SceneConfig, SensorConfig
 from fwcore.studies.truth import WrittenFlight, write_flight
 
-TRUTH_RASTERS = ("dtm", "chm", "cover", "pai")
+TRUTH_RASTERS = ("dtm", "chm", "cover", "pai", "pgap", "roof")
 
 
 @dataclasses.dataclass(frozen=True)
 class ForestTruth:
     """The forest per cell (rows north to south from `north`, columns east from `west`): terrain z, canopy
     height above it (0 where open or roofed), crown cover (0..1: the vertical projection of the crowns), plant
-    area index (m2/m2), and whether a roof covers the cell."""
+    area index (m2/m2), gap probability at nadir, and whether a roof covers the cell (1) or not (0)."""
 
     west: float
     north: float
@@ -35,6 +37,7 @@ class ForestTruth:
     chm: np.ndarray
     cover: np.ndarray
     pai: np.ndarray
+    pgap: np.ndarray
     roof: np.ndarray
 
 
@@ -65,7 +68,8 @@ def forest_truth(drawn: Forest, cell: float = 1.0, sub: int = 4) -> ForestTruth:
     dtm = terrain(cx[None, :], cy[:, None], drawn.config)
     roof = np.isfinite(roof_up).reshape(shape).mean(axis=2) > 0.5
     return ForestTruth(west, north, cell, dtm, np.where(roof, 0.0, top.reshape(shape).max(axis=2)),
-                       crowned.reshape(shape).mean(axis=2), pai.reshape(shape).mean(axis=2), roof)
+                       crowned.reshape(shape).mean(axis=2), pai.reshape(shape).mean(axis=2),
+                       np.exp(-G_PROJECTION * pai).reshape(shape).mean(axis=2), roof.astype(float))
 
 
 def truth_raster_path(las_path: str | Path, name: str) -> Path:
