@@ -107,7 +107,9 @@ def draw_forest(bounds: tuple[float, float, float, float], forest: ForestConfig,
     xmin, ymin, xmax, ymax = bounds
     cx, cy = xmin + (xmax - xmin) * rng.uniform(0.3, 0.7), ymin + (ymax - ymin) * rng.uniform(0.2, 0.45)
     buildings = []
-    while len(buildings) < forest.buildings:
+    for _ in range(1000 * forest.buildings):  # a small scene may hold fewer: give up rather than loop
+        if len(buildings) == forest.buildings or xmax - xmin < 60 or ymax - ymin < 60:
+            break
         w, h = rng.uniform(*forest.building_size_m, 2)
         bx, by = rng.uniform(xmin + 20, max(xmax - 20 - w, xmin + 21)), rng.uniform(ymin + 20, ymax - 20 - h)
         box = (bx, by, bx + w, by + h)
