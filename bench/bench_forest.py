@@ -94,7 +94,7 @@ def sylva_chain(las: Path, grid_dtm, truth_file: Path) -> dict:
     d, i = cKDTree(xyz).query(np.column_stack([cloud.x, cloud.y, cloud.z]), distance_upper_bound=0.5)
     surface = np.asarray(t.column("surface").to_pylist(), object)
     truth_ground = (d < 0.5) & (surface[np.minimum(i, len(surface) - 1)] == "ground")
-    found = np.asarray(cloud.classification) == 2
+    found = np.asarray(cloud.attrs["classification"]) == 2
     return {"dtm": north_up(dtm), "chm": north_up(chm), "ground": ground_scores(found, truth_ground),
             "decompose_s": decompose_s, "chain_s": chain_s, "echoes": int(len(cloud.x))}
 

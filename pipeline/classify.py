@@ -1,5 +1,5 @@
 """`fwl classify RUN_DIR`: every kept echo of a finished run classified (ASPRS: 2 ground, 6 building, 3/4/5
-vegetation by height, 1 otherwise) with its height above the terrain, written into the run's echo table
+vegetation by height, 7 low noise, 1 otherwise) with its height above the terrain, written into the run's echo table
 (`classification`, `height`; null for spurious echoes). `fwl grid` runs it first when the table has no classes.
 
 Tile by tile with an overlap (fwcore.terrain.tiles), so that a survey of any size streams:
@@ -114,6 +114,7 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
     rows = sum(pq.ParquetFile(f).metadata.num_rows for f in files)
     ground = np.zeros(rows, bool)
     building = np.zeros(rows, bool)
+    noise = np.zeros(rows, bool)
     height = np.full(rows, np.nan, np.float32)
     spill = run_dir / SPILL_DIR
     shutil.rmtree(spill, ignore_errors=True)
@@ -127,10 +128,11 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
             core = t.in_core(e["x"], e["y"])
             r = e["row"][core]
             ground[r], building[r], height[r] = result.ground[core], result.building[core], result.height[core]
+            noise[r] = result.noise[core]
             path.unlink()
     finally:
         shutil.rmtree(spill, ignore_errors=True)
-    codes = asprs_classes(height, ground, building)
+    codes = asprs_classes(height, ground, building, noise)
     by_class = _write_columns(files, codes, height)
     return Classified(int(sum(by_class.values())), by_class, len(tiles), tile, overlap)
 
@@ -166,7 +168,7 @@ def _write_columns(files: list[Path], codes: np.ndarray, height: np.ndarray) -> 
 
 def summary_line(result: Classified) -> str:
     names = {1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation", 5: "high vegetation",
-             6: "building"}
+             6: "building", 7: "low noise"}
     parts = ", ".join(f"{names.get(k, k)} {v:,}" for k, v in sorted(result.by_class.items()))
     return (f"fwl classify: {result.echoes:,} kept echoes in {result.tiles} tiles of {result.tile_m:g} m "
             f"(overlap {result.overlap_m:g} m): {parts}")

@@ -145,7 +145,7 @@ COLUMNS = {c.name: c for c in (
                                                "GeoParquet 1.1's covering: box queries read it"),
     Column("kept", BOOL, "", "false for a spurious echo"),
     Column("classification", pa.uint8(), "", "ASPRS class: 2 ground, 6 building, 3/4/5 low/medium/high vegetation, "
-                                            "1 unclassified (fwl classify; null before it)"),
+                                            "7 low noise, 1 unclassified (fwl classify; null before it)"),
     Column("height", F64, "m", "the echo's height above the terrain (fwl classify's; null before it)"),
     Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept)"),
     Column("status", STR, "", "'' when decomposed, else why not"),

@@ -1,5 +1,5 @@
 """Which echoes are the ground: the cloth simulation filter (Zhang et al. 2016) on each pulse's last echo,
-then a densification against the terrain it finds.
+then a densification against the terrain it finds; echoes far below the ground around them are noise first.
 
 A waveform's ground can only be its pulse's last kept echo (nothing below the ground returns light), so the
 cloth is dropped on the last echoes only: branches and leaves above are never candidates, whatever the cloth
@@ -48,6 +48,37 @@ def last_echoes(pulse: np.ndarray, echo_index: np.ndarray) -> np.ndarray:
     return last
 
 
+NOISE_CELL_M = 5.0
+NOISE_MARGIN_M = 3.0
+NOISE_QUANTILE = 0.1
+
+
+def low_noise(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = NOISE_CELL_M,
+              margin: float = NOISE_MARGIN_M) -> np.ndarray:
+    """Echoes far below the ground around them (a spurious echo past the last surface): more than `margin`
+    under the lowest of the NOISE_QUANTILE quantiles of z in the 3 x 3 cells around theirs. The cloth would
+    hang on one of them (inverted, it is the highest peak) and call the true ground above it off-ground."""
+    x, y, z = (np.asarray(a, float) for a in (x, y, z))
+    if x.size == 0:
+        return np.zeros(0, bool)
+    col = np.floor((x - x.min()) / cell).astype(np.int64)
+    row = np.floor((y - y.min()) / cell).astype(np.int64)
+    width, height = int(col.max()) + 3, int(row.max()) + 3
+    key = (row + 1) * width + col + 1
+    order = np.lexsort((z, key))
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
+    counts = np.diff(np.r_[starts, sorted_key.size])
+    low = np.full(width * height, np.inf)
+    low[sorted_key[starts]] = z[order][starts + np.floor(NOISE_QUANTILE * (counts - 1)).astype(np.int64)]
+    grid = low.reshape(height, width)
+    floor = np.full_like(grid, np.inf)
+    for dr in (-1, 0, 1):  # the lowest of the neighbourhood's quantiles: a hollow's floor is not noise
+        for dc in (-1, 0, 1):
+            floor[1:-1, 1:-1] = np.minimum(floor[1:-1, 1:-1], grid[1 + dr:height - 1 + dr, 1 + dc:width - 1 + dc])
+    return z < floor.ravel()[key] - margin
+
+
 def cloth_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, config: GroundConfig = GroundConfig()) -> np.ndarray:
     """The cloth simulation filter's ground (cloth-simulation-filter, the authors' C++), True for ground."""
     import CSF
@@ -79,7 +110,7 @@ def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, last: np.ndarra
 
     x, y, z, last = (np.asarray(a) for a in (x, y, z, last))
     ground = np.zeros(x.size, bool)
-    candidates = np.flatnonzero(last)
+    candidates = np.flatnonzero(last & ~low_noise(x, y, z))
     if candidates.size < 3:
         ground[candidates] = True
         return ground

@@ -14,7 +14,7 @@ import numpy as np
 from fwcore.grid import Grid
 from fwcore.terrain.buildings import building_echoes
 from fwcore.terrain.dtm import interpolate
-from fwcore.terrain.ground import GroundConfig, classify_ground, last_echoes
+from fwcore.terrain.ground import GroundConfig, classify_ground, last_echoes, low_noise
 
 DEFAULT_TILE_M = 100.0
 DEFAULT_OVERLAP_M = 20.0
@@ -72,13 +72,14 @@ def tiles_over(grid: Grid, tile: float = DEFAULT_TILE_M, overlap: float = DEFAUL
 
 @dataclasses.dataclass(frozen=True)
 class TileTerrain:
-    """One tile's results: per echo given (core and margin) ground, building and height above the terrain;
-    the terrain at the core's cell centres (rows, cols)."""
+    """One tile's results: per echo given (core and margin) ground, building, low noise and height above the
+    terrain; the terrain at the core's cell centres (rows, cols)."""
 
     ground: np.ndarray
     building: np.ndarray
     height: np.ndarray
     dtm: np.ndarray
+    noise: np.ndarray
 
 
 def tile_terrain(tile: Tile, x: np.ndarray, y: np.ndarray, z: np.ndarray, pulse: np.ndarray,
@@ -87,7 +88,8 @@ def tile_terrain(tile: Tile, x: np.ndarray, y: np.ndarray, z: np.ndarray, pulse:
     x, y, z = (np.asarray(a, float) for a in (x, y, z))
     cx, cy = tile.centres()
     if x.size == 0:
-        return TileTerrain(np.zeros(0, bool), np.zeros(0, bool), np.zeros(0), np.full(cx.shape, np.nan))
+        return TileTerrain(np.zeros(0, bool), np.zeros(0, bool), np.zeros(0), np.full(cx.shape, np.nan),
+                           np.zeros(0, bool))
     last = last_echoes(pulse, echo_index)
     ground = classify_ground(x, y, z, last, config)
     g = np.flatnonzero(ground)
@@ -95,4 +97,4 @@ def tile_terrain(tile: Tile, x: np.ndarray, y: np.ndarray, z: np.ndarray, pulse:
     _, owner, per_pulse = np.unique(np.asarray(pulse), return_inverse=True, return_counts=True)
     building = building_echoes(x, y, z, height, per_pulse[owner] == 1) & ~ground
     dtm = interpolate(x[g], y[g], z[g], cx, cy)
-    return TileTerrain(ground, building, height, dtm)
+    return TileTerrain(ground, building, height, dtm, low_noise(x, y, z) & ~ground)

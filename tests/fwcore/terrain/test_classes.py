@@ -10,3 +10,6 @@ def test_classes_by_height_ground_and_buildings_first():
     ground = np.array([True, False, False, False, False, False, False, False])
     building = np.array([False, False, False, False, False, True, False, False])
     np.testing.assert_array_equal(asprs_classes(height, ground, building), [2, 1, 3, 4, 5, 6, 1, 1])
+    noise = np.zeros(8, bool)
+    noise[1] = True
+    assert asprs_classes(height, ground, building, noise)[1] == 7

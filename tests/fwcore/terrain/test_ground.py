@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fwcore.terrain.ground import GroundConfig, classify_ground, cloth_ground, last_echoes
+from fwcore.terrain.ground import GroundConfig, classify_ground, cloth_ground, last_echoes, low_noise
 
 
 def test_the_last_echo_of_each_pulse_whatever_the_row_order():
@@ -58,3 +58,14 @@ def test_the_cloth_alone_and_its_settings_checked():
     assert not ground[branch].any() and ground[~branch].mean() > 0.99  # the cloth misses a few at the plot's edges
     with pytest.raises(ValueError, match="rigidness"):
         GroundConfig(rigidness=4)
+
+
+def test_an_echo_far_below_the_ground_is_noise_and_does_not_hang_the_cloth():
+    x, y, z, pulse, echo, truth = _forest(np.random.default_rng(5), ditch=True)
+    z = z.copy()
+    i = np.flatnonzero(truth)[7]
+    z[i] -= 19.0  # a spurious echo past the ground
+    noise = low_noise(x, y, z)
+    assert noise[i] and noise.sum() == 1  # the ditch's floor is not noise
+    truth[i] = False
+    np.testing.assert_array_equal(classify_ground(x, y, z, last_echoes(pulse, echo)), truth)
