@@ -94,16 +94,22 @@ def canopy_accuracy(cover: Raster, pai: Raster, truth_pgap: Raster, truth_pai: R
                     seen: np.ndarray) -> dict[str, float]:
     """Cover and PAI of blocks (the maps' cells) against the truth averaged over them: cover against L2B's
     definition (1 - the mean gap probability) and against the crowns' projection; PAI's median relative error
-    where the truth's PAI is at least 0.5 (where a ratio means something)."""
+    where the truth's PAI is at least 0.5 (where a ratio means something), against the mean PAI and against the
+    PAI the mean gap probability means (L2B's estimate of it assumes no clumping, omega 1)."""
     gap = block_mean(truth_pgap, cover)
     t_pai = block_mean(truth_pai, pai)
     crowns = block_mean(truth_cover, cover)
     ok = seen & np.isfinite(gap) & np.isfinite(cover.values)
     dense = ok & (t_pai >= 0.5) & np.isfinite(pai.values)
+    with np.errstate(divide="ignore"):
+        effective = -np.log(gap) / 0.5
     return {"cover_median_abs_error": float(np.median(np.abs(cover.values - (1 - gap))[ok])),
             "cover_vs_crowns_median_abs_error": float(np.median(np.abs(cover.values - crowns)[ok])),
             "pai_median_relative_error": float(np.median(np.abs(pai.values - t_pai)[dense] / t_pai[dense])),
             "pai_median_bias": float(np.median((pai.values - t_pai)[dense] / t_pai[dense])),
+            # the PAI a gap probability means without clumping (-ln(mean Pgap) / G): what L2B's PAI estimates
+            "pai_effective_median_relative_error": float(np.median(
+                np.abs(pai.values - effective)[dense] / effective[dense])),
             "blocks": int(ok.sum()), "pai_blocks": int(dense.sum())}
 
 

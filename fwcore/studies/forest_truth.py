@@ -114,3 +114,41 @@ def write_forest_flight(output: str | Path, n_pulses: int, sensor: SensorConfig,
     flight = write_flight(output, n_pulses, sensor, scene, seed, layout, chunks,
                           {"forest": dataclasses.asdict(forest)})
     return flight, write_truth_rasters(output, forest_truth(drawn))
+
+
+def scene_footprint(drawn: Forest, x: float, y: float, radius: float, spacing: float = 0.5
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a large footprint centred at (x, y) sees of the scene itself: vertical rays on a grid of `spacing`
+    within `radius`, each step's intercepted share of the ray by Beer's law and what reaches the ground (or the
+    roof), as (dx, dy, z, energy) with energies in the scene's proportions (reflectance x share): the truth a
+    footprint built from the airborne echoes (fwcore.terrain.footprint) is measured against."""
+    from fwcore.studies.forest import GROUND_REFLECTANCE, ROOF_REFLECTANCE, VEGETATION_REFLECTANCE
+
+    offsets = np.arange(-radius, radius + spacing / 2, spacing)
+    dx, dy = (a.ravel() for a in np.meshgrid(offsets, offsets))
+    inside = dx ** 2 + dy ** 2 <= radius ** 2
+    dx, dy = dx[inside], dy[inside]
+    ground = terrain(x + dx, y + dy, drawn.config)
+    steps = int(round(TRACE_TOP_M / STEP_M))
+    lad, roof_up = trace_leaf_area(np.column_stack([x + dx, y + dy, ground]), np.tile([0.0, 0.0, -1.0], (dx.size, 1)),
+                                   STEP_M, steps, drawn.index, drawn.buildings)
+    q = 1.0 - np.exp(-G_PROJECTION * lad * STEP_M)
+    from_top = q[:, ::-1]
+    left = np.cumprod(1.0 - from_top, axis=1)
+    share = (np.concatenate([np.ones((dx.size, 1)), left[:, :-1]], axis=1) * from_top)[:, ::-1]
+    transmitted = left[:, -1]
+    heights = (np.arange(steps) + 0.5) * STEP_M
+    roofed = np.isfinite(roof_up)
+    e = 0.05  # the ground's incidence at nadir: its normal by central differences
+    gx = (terrain(x + dx + e, y + dy, drawn.config) - terrain(x + dx - e, y + dy, drawn.config)) / (2 * e)
+    gy = (terrain(x + dx, y + dy + e, drawn.config) - terrain(x + dx, y + dy - e, drawn.config)) / (2 * e)
+    cos_ground = 1.0 / np.sqrt(1.0 + gx ** 2 + gy ** 2)
+    veg = share > 0
+    rows = np.nonzero(veg)[0]
+    out_dx = np.concatenate([dx[rows], dx])
+    out_dy = np.concatenate([dy[rows], dy])
+    out_z = np.concatenate([ground[rows] + heights[np.nonzero(veg)[1]],
+                            np.where(roofed, ground + np.nan_to_num(roof_up), ground)])
+    out_e = np.concatenate([VEGETATION_REFLECTANCE * share[veg],
+                            np.where(roofed, ROOF_REFLECTANCE, GROUND_REFLECTANCE * cos_ground * transmitted)])
+    return out_dx, out_dy, out_z, out_e

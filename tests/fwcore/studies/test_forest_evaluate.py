@@ -26,3 +26,4 @@ def test_errors_by_hand():
     a = canopy_accuracy(cover, pai, truth_gap, truth_pai, crowns, np.ones((1, 1), bool))
     assert np.isclose(a["cover_median_abs_error"], 0.05) and np.isclose(a["cover_vs_crowns_median_abs_error"], 0.3)
     assert np.isclose(a["pai_median_relative_error"], 0.1)
+    assert np.isclose(a["pai_effective_median_relative_error"], abs(2.2 + np.log(0.25) / 0.5) / (-np.log(0.25) / 0.5))
