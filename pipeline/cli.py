@@ -421,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_compact(sub)
     _add_info(sub)
     _add_classify(sub)
+    _add_footprints(sub)
     _add_grid(sub)
     _add_view(sub)
     return parser
@@ -597,6 +598,29 @@ def _add_grid(sub) -> None:
                    help="classify the run's echoes first (as fwl classify) if they are not yet: the forest's maps "
                         "(dtm, dsm, chm, cover, pai, pavd, rh98, rh50) need the classes")
     g.set_defaults(handler=_grid)
+
+
+def _footprints(args: argparse.Namespace) -> int:
+    from pipeline.footprints import footprints_run
+
+    path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs)
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(path, columns=["reason"]).column("reason").to_pylist()
+    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured -> {path}")
+    return 0
+
+
+def _add_footprints(sub) -> None:
+    f = sub.add_parser("footprints", help="what GEDI would record over a run: 25 m footprints' waveforms built from "
+                                          "the airborne echoes, and their GEDI metrics, as GeoParquet")
+    f.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
+    where = f.add_mutually_exclusive_group(required=True)
+    where.add_argument("--gedi", help="a GEDI L2A granule (.h5): footprints at its shots over the run")
+    where.add_argument("--spacing", type=float, help="footprints on a square grid of this spacing, metres")
+    f.add_argument("--output", help="the GeoParquet file (default RUN_DIR/footprints.parquet)")
+    f.add_argument("--crs", help="the run's CRS where its inputs name none (to place GEDI's shots)")
+    f.set_defaults(handler=_footprints)
 
 
 def _classify(args: argparse.Namespace) -> int:
