@@ -8,6 +8,7 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
     profile.tif      echo energy in height bins above the cell's lowest echo, one band a bin (NaN: no echo)
     dtm, dsm, chm, cover, pai, pavd, rh98, rh50 .tif   the forest's (pipeline.forest_maps), where the echoes
                      are classified (`fwl classify RUN`, or `fwl grid --classify`: pipeline.classify)
+    survey.vpc       a QGIS virtual point cloud over the run's copc/ files (where it has them): the survey as one layer
     fwl-grid.json    what was gridded, how, and the files: the mark of the folder as fwl grid's
 
 The echo table is read a record batch at a time (pyarrow), twice: the statistics, then the profile (its heights
@@ -27,7 +28,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
-from pipeline.layout import ECHOES, GRID_DIR, GRID_MARK
+from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
@@ -35,6 +36,7 @@ MARK = GRID_MARK
 BATCH_ROWS = 1_000_000
 DEFAULT_BIN_HEIGHT_M = 1.0
 BLOCK = 256  # COG tiles, pixels a side
+VPC_FILE = "survey.vpc"
 
 
 def echo_files(run_dir: Path) -> list[Path]:
@@ -208,12 +210,19 @@ def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats:
     tags = {"SOFTWARE": "fwlidar fwl grid", "RUN": str(run_dir.resolve()), "CELL_M": f"{grid.cell:g}"}
     for name, (bands, dtype, nodata, descriptions) in maps.items():
         _write_cog(output / name, bands, grid, wkt, dtype, nodata, descriptions, tags)
+    written = sorted(maps)
+    copc = sorted((run_dir / COPC).glob("*.copc.laz"))
+    if copc:  # the survey's point clouds as one QGIS layer
+        from pipeline.vpc import write_vpc
+
+        write_vpc(copc, output / VPC_FILE)
+        written = sorted([*written, VPC_FILE])
     summary = {"run": str(run_dir.resolve()), "cell_m": grid.cell, "width": grid.width, "height": grid.height,
                "west": grid.west, "north": grid.north, "crs": wkt, "crs_source": "--crs" if crs_given else
                ("the run's echo table" if wkt else "none: the run's inputs name no CRS (give --crs)"),
                "echoes": int(stats.count.sum()), "cells_with_echoes": int((~empty).sum()),
                "mean_of": value, "bin_height_m": profile.bin_height, "bins": profile.bins,
-               "files": sorted(maps)}
+               "files": written}
     tmp = output / (MARK + ".tmp")
     tmp.write_text(json.dumps(summary, indent=2) + "\n")
     tmp.replace(output / MARK)
