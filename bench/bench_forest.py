@@ -106,6 +106,28 @@ def sylva_chain(cloud, grid_dtm, truth_file: Path, **csf) -> dict:
             "chain_s": chain_s, "echoes": int(len(cloud.x))}
 
 
+def footprint_accuracy(path: Path, seed: int, pulses: int) -> dict:
+    """Footprints from the air against the same footprints drawn from the scene (vertical rays every 0.5 m)."""
+    import pyarrow.parquet as pq
+
+    from fwcore.studies.forest import ForestConfig, draw_forest, flight_bounds, forest_flight_scene
+    from fwcore.studies.forest_truth import scene_footprint
+    from fwcore.terrain.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+
+    fp = pq.read_table(path).to_pydict()
+    drawn = draw_forest(flight_bounds(pulses, forest_flight_scene()), ForestConfig(), seed)
+    s = FootprintSensor()
+    d_ground, d_rh98, d_cover = [], [], []
+    for x, y, ground, rh98, cover in zip(fp["x"], fp["y"], fp["ground_z"], fp["rh98"], fp["cover"]):
+        truth = footprint_metrics(*footprint_waveform(*scene_footprint(drawn, x, y, s.radius_m), s), s)
+        d_ground.append(ground - truth.get("ground_z", np.nan))
+        d_rh98.append(rh98 - truth["rh"][98] if "rh" in truth else np.nan)
+        d_cover.append(cover - truth.get("cover", np.nan))
+    return {"footprints": len(d_ground), "footprint_median_abs_dground_m": float(np.nanmedian(np.abs(d_ground))),
+            "footprint_median_abs_drh98_m": float(np.nanmedian(np.abs(d_rh98))),
+            "footprint_median_abs_dcover": float(np.nanmedian(np.abs(d_cover)))}
+
+
 def main() -> None:
     from fwcore.studies.forest_evaluate import Raster, canopy_accuracy, terrain_accuracy
 
@@ -138,6 +160,9 @@ def main() -> None:
 
     ours.update(canopy_accuracy(cover5, pai5, truth["pgap"], truth["pai"], truth["cover"],
                                 binary_erosion(seen5, iterations=2)))
+    seconds["footprints"] = fwl("footprints", str(run), "--spacing", "10", "--output",
+                                str(work / f"footprints{args.seed}.parquet"))
+    ours.update(footprint_accuracy(work / f"footprints{args.seed}.parquet", args.seed, args.pulses))
     report = {"pulses": args.pulses, "seed": args.seed, "seconds": seconds, "fwlidar": ours}
     if not args.skip_sylva:
         cloud, decompose_s = sylva_cloud(las)

@@ -51,12 +51,14 @@ def test_cover_and_pai_of_5_m_blocks_against_the_truth(maps, forest_flight):
     from scipy.ndimage import binary_erosion
 
     truth = {n: _read(truth_raster_path(forest_flight, n)) for n in TRUTH_RASTERS}
-    seen = binary_erosion(_read(maps[5] / "count.tif").values > 0, iterations=2)
+    seen = binary_erosion(_read(maps[5] / "count.tif").values > 0)  # whole blocks of the swath
     a = canopy_accuracy(_read(maps[5] / "cover.tif"), _read(maps[5] / "pai.tif"), truth["pgap"], truth["pai"],
                         truth["cover"], seen)
-    assert a["blocks"] > 50
+    assert a["blocks"] > 30
     assert a["cover_median_abs_error"] <= 0.05, a
-    assert a["pai_median_relative_error"] <= 0.45, a  # PAI from the mean gap: below the mean PAI where it clumps
+    # PAI from the mean gap (L2B's, no clumping): near the PAI that gap means, below the mean PAI where crowns
+    # and gaps share a block (docs/forest.md)
+    assert a["pai_effective_median_relative_error"] <= 0.25 and a["pai_median_bias"] < 0, a
 
 
 def test_pavd_bands_sum_to_the_pai_and_rh98_tops_rh50(maps):
