@@ -9,6 +9,7 @@ Tile by tile with an overlap (fwcore.terrain.tiles), so that a survey of any siz
     2. each tile alone: the ground filter, roofs and heights over its core and margin; its core's echoes'
        results kept by their row in the table (a byte and a float32 an echo)
     3. each echo file rewritten with the two columns (atomically: a file is old or new, never half)
+    4. the run's LAS and COPC files rewritten with the classes (pipeline.classes_las)
 
 Memory: one tile's echoes at a time, plus five bytes per echo of the survey for the results of step 2.
 """
@@ -16,7 +17,6 @@ Memory: one tile's echoes at a time, plus five bytes per echo of the survey for 
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 from pathlib import Path
 from typing import Iterator
@@ -30,6 +30,7 @@ from fwcore.grid import Grid
 from fwcore.terrain.classes import asprs_classes
 from fwcore.terrain.ground import GroundConfig
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, Tile, tile_terrain, tiles_over
+from pipeline.classes_las import classify_point_clouds
 from pipeline.grid import BATCH_ROWS, _bounds, echo_files
 from pipeline.outputs import read_run
 from pipeline.tables import COLUMNS
@@ -48,6 +49,7 @@ class Classified:
     tiles: int
     tile_m: float
     overlap_m: float
+    points_classified: int = 0  # points of the run's LAS and COPC files given their echo's class
 
 
 def is_classified(run_dir: str | Path) -> bool:
@@ -130,11 +132,13 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
             ground[r], building[r], height[r] = result.ground[core], result.building[core], result.height[core]
             noise[r] = result.noise[core]
             path.unlink()
+        codes = asprs_classes(height, ground, building, noise)
+        by_class = _write_columns(files, codes, height)
+        del ground, building, noise, height, codes
+        matched = classify_point_clouds(run_dir, files, spill)
     finally:
         shutil.rmtree(spill, ignore_errors=True)
-    codes = asprs_classes(height, ground, building, noise)
-    by_class = _write_columns(files, codes, height)
-    return Classified(int(sum(by_class.values())), by_class, len(tiles), tile, overlap)
+    return Classified(int(sum(by_class.values())), by_class, len(tiles), tile, overlap, sum(matched.values()))
 
 
 def _write_columns(files: list[Path], codes: np.ndarray, height: np.ndarray) -> dict[int, int]:
@@ -171,8 +175,6 @@ def summary_line(result: Classified) -> str:
              6: "building", 7: "low noise"}
     parts = ", ".join(f"{names.get(k, k)} {v:,}" for k, v in sorted(result.by_class.items()))
     return (f"fwl classify: {result.echoes:,} kept echoes in {result.tiles} tiles of {result.tile_m:g} m "
-            f"(overlap {result.overlap_m:g} m): {parts}")
+            f"(overlap {result.overlap_m:g} m): {parts}; {result.points_classified:,} points of the LAS and COPC "
+            f"files classified")
 
-
-def classify_json(result: Classified) -> str:
-    return json.dumps(dataclasses.asdict(result))
