@@ -11,7 +11,8 @@ over each cell's echoes, fwcore.metrics.canopy).
     pavd.tif   plant area volume density, a band a bin of --bin-height above the terrain
     rh98.tif, rh50.tif  the height above the terrain under which 98 % / 50 % of the cell's echo energy lies
 
-Memory: the grids (a float per cell per map, and the two profiles' bins per cell), one tile's ground echoes.
+Memory: the grids (a float per cell per map, and the two profiles' bins per cell, float32, as many as the tallest
+echo needs), one tile's ground echoes.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tiles_over
 from pipeline.grid import _batches
 
 SPILL_DIR = ".forest-maps"
-PROFILE_TOP_M = 80.0  # the profiles' bins reach this far above the terrain (taller echoes in the top bin)
+ROWS_AT_ONCE = 100_000
+PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this far above the terrain
 
 
 def tiled_dtm(files: list[Path], grid: Grid, run_dir: Path, tile: float = DEFAULT_TILE_M,
@@ -88,10 +90,13 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     dsm, chm = np.full(cells, -np.inf), np.full(cells, -np.inf)
     seen = np.zeros(cells, bool)
     rv, rg = np.zeros(cells), np.zeros(cells)
-    bins = int(math.ceil(PROFILE_TOP_M / bin_height)) + 1
+    tallest = max((float(np.nanmax(b["height"])) for b in _batches(files, ["x", "y", "height"])
+                   if np.isfinite(b["height"]).any()), default=0.0)
+    bins = int(math.ceil(min(max(tallest, 0.0), PROFILE_TOP_M) / bin_height)) + 2  # the tallest echo's, and the ground's
     bottom = -bin_height  # one bin below the terrain: the ground's own energy
     energy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # every echo's, for RH
     canopy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # the vegetation's, for PAVD
+    energy.sums, canopy.sums = energy.sums.astype(np.float32), canopy.sums.astype(np.float32)  # half the memory
     for b in _batches(files, ["x", "y", "z", "classification", "height", "energy"]):
         cell = grid.index(b["x"], b["y"])
         inside = cell >= 0
@@ -113,9 +118,14 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     chm = np.where(seen, np.maximum(np.where(np.isfinite(chm), chm, 0.0), 0.0), np.nan)
     cover, pai = cover_and_pai(rv, rg)
     pai = np.where(np.isfinite(pai), pai, np.nan)
-    pavd = plant_area_density(canopy.sums[:, 1:], rv, rg, bin_height)  # from the terrain up
-    pavd = np.where(np.isfinite(pavd), pavd, np.nan).astype(np.float32)
-    rh = {k: relative_heights(energy.sums, bottom, bin_height, k) for k in (98, 50)}
+    pavd = np.empty((cells, bins - 1), np.float32)
+    rh = {k: np.empty(cells) for k in (98, 50)}
+    for lo in range(0, cells, ROWS_AT_ONCE):  # the profiles' float64 arithmetic a slice of cells at a time
+        part = slice(lo, lo + ROWS_AT_ONCE)
+        p = plant_area_density(canopy.sums[part, 1:], rv[part], rg[part], bin_height)  # from the terrain up
+        pavd[part] = np.where(np.isfinite(p), p, np.nan)
+        for k in rh:
+            rh[k][part] = relative_heights(energy.sums[part], bottom, bin_height, k)
     r = grid.raster
     edges = [(k * bin_height, (k + 1) * bin_height) for k in range(bins - 1)]
     return {
