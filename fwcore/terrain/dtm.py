@@ -1,17 +1,37 @@
-"""Terrain models from ground echoes: a triangulation (linear inside the ground's hull, the nearest ground
-outside it), so that the terrain under a canopy or a roof is the plane of the ground around it."""
+"""Terrain models from ground echoes: a triangulation of the ground thinned to one mean point a metre (linear
+inside the ground's hull, the nearest ground outside it), so that the terrain under a canopy or a roof is the
+plane of the ground around it."""
 
 from __future__ import annotations
 
 import numpy as np
 
 
-def interpolate(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The ground's surface at (x, y): linear on the Delaunay triangulation of the ground echoes, the nearest
-    ground echo's z outside their hull; NaN without ground."""
+THIN_CELL_M = 1.0
+
+
+def thin(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, cell: float = THIN_CELL_M
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One point per cell of `cell` metres: the mean of its ground echoes (on a plane the mean lies on it; it
+    averages the ranges' noise, and a triangulation of a fifth of the points is five times quicker)."""
+    gx, gy, gz = (np.asarray(a, float) for a in (gx, gy, gz))
+    if gx.size == 0:
+        return gx, gy, gz
+    col = np.floor((gx - gx.min()) / cell).astype(np.int64)
+    row = np.floor((gy - gy.min()) / cell).astype(np.int64)
+    _, owner, counts = np.unique(row * (col.max() + 1) + col, return_inverse=True, return_counts=True)
+    return tuple(np.bincount(owner, weights=v) / counts for v in (gx, gy, gz))
+
+
+def interpolate(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, x: np.ndarray, y: np.ndarray,
+                thin_cell: float | None = THIN_CELL_M) -> np.ndarray:
+    """The ground's surface at (x, y): linear on the Delaunay triangulation of the ground echoes (thinned to one
+    a `thin_cell`, None: all), the nearest one's z outside their hull; NaN without ground."""
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
     gx, gy, gz = (np.asarray(a, float) for a in (gx, gy, gz))
+    if thin_cell:
+        gx, gy, gz = thin(gx, gy, gz, thin_cell)
     x, y = np.asarray(x, float), np.asarray(y, float)
     if gx.size == 0:
         return np.full(x.shape, np.nan)

@@ -93,8 +93,10 @@ def tile_terrain(tile: Tile, x: np.ndarray, y: np.ndarray, z: np.ndarray, pulse:
     last = last_echoes(pulse, echo_index)
     ground = classify_ground(x, y, z, last, config)
     g = np.flatnonzero(ground)
-    height = z - interpolate(x[g], y[g], z[g], x, y)
+    # one triangulation for the echoes' heights and the cells' terrain
+    surface = interpolate(x[g], y[g], z[g], np.concatenate([x, cx.ravel()]), np.concatenate([y, cy.ravel()]))
+    height = z - surface[:x.size]
     _, owner, per_pulse = np.unique(np.asarray(pulse), return_inverse=True, return_counts=True)
     building = building_echoes(x, y, z, height, per_pulse[owner] == 1) & ~ground
-    dtm = interpolate(x[g], y[g], z[g], cx, cy)
+    dtm = surface[x.size:].reshape(cx.shape)
     return TileTerrain(ground, building, height, dtm, low_noise(x, y, z) & ~ground)
