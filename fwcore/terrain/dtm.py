@@ -40,14 +40,27 @@ def interpolate(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, x: np.ndarray, y
     query = np.column_stack([x.ravel(), y.ravel()]) - origin
     if gx.size < 3:
         return NearestNDInterpolator(ground, gz)(query).reshape(x.shape)
+    z = np.full(query.shape[0], np.nan)
     try:
-        z = LinearNDInterpolator(ground, gz)(query)
+        inside = _in_hull(ground, query)  # scipy searches every triangle for a point outside the hull: not those
+        z[inside] = LinearNDInterpolator(ground, gz)(query[inside])
     except Exception:  # noqa: BLE001  collinear ground (a single line of echoes): no triangle to be linear on
-        z = np.full(query.shape[0], np.nan)
+        pass
     outside = ~np.isfinite(z)
     if outside.any():
         z[outside] = NearestNDInterpolator(ground, gz)(query[outside])
     return z.reshape(x.shape)
+
+
+def _in_hull(points: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Queries inside (or on) the convex hull of the points, by its facets' half-planes."""
+    from scipy.spatial import ConvexHull
+
+    equations = ConvexHull(points).equations  # a x + b y + c <= 0 inside
+    inside = np.ones(query.shape[0], bool)
+    for a, b, c in equations:
+        inside &= a * query[:, 0] + b * query[:, 1] + c <= 1e-9
+    return inside
 
 
 def bilinear(raster: np.ndarray, west: float, north: float, cell: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
