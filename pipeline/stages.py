@@ -19,6 +19,7 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
+from fwcore.metrics.pulses import batch_metrics
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -114,13 +115,15 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
 
 
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
-    """Every echo placed along its beam, its range and radiometry computed, the range's tables built."""
+    """Every echo placed along its beam, its range and radiometry computed, every pulse's forest metrics
+    (fwcore.metrics), the range's tables built."""
     pulses, result, source = item.pulses, item.result, item.task.source
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
+    metrics = batch_metrics(pulses, result, source.system)
     echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
-                                 columns, source.crs_wkt)
+                                 columns, source.crs_wkt, metrics)
     cloud = decomposed_echoes(pulses, result, xyz)
     kept = result.reject == 0
     cloud.update({name: values[kept] for name, values in columns.items()})
