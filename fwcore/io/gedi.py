@@ -152,7 +152,7 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         rx, offsets = _slices(g, "rxwaveform", g["rx_sample_start_index"][lo:hi][keep].astype(np.int64), count[keep])
         tx_count = g["tx_sample_count"][lo:hi][keep].astype(np.int64)
         tx, tx_offsets = _slices(g, "txwaveform", g["tx_sample_start_index"][lo:hi][keep].astype(np.int64), tx_count)
-        elevation = np.radians(geo["local_beam_elevation"][lo:hi][keep].astype(np.float64))
+        elevation = geo["local_beam_elevation"][lo:hi][keep].astype(np.float64)  # radians
         degrade = geo["degrade"][lo:hi][keep].astype(np.int8) if "degrade" in geo else np.zeros(keep.sum(), np.int8)
         shape = np.stack([g[k][lo:hi][keep].astype(np.float64) for k in TX_SHAPE_FIELDS], axis=1) \
             if all(k in g for k in TX_SHAPE_FIELDS) else None
