@@ -134,9 +134,15 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
 
     granule = opened or open_gedi(point_range.path)
     beam, first = granule.beam_of(point_range.start)
-    lo, hi = point_range.start - first, point_range.stop - first
-    if point_range.max_pulses is not None:
-        hi = min(hi, lo + point_range.max_pulses)
+    stop = point_range.stop if point_range.max_pulses is None else min(point_range.stop,
+                                                                        point_range.start + point_range.max_pulses)
+    beam_end = first + granule.shots[granule.beams.index(beam)]
+    if stop > beam_end:  # a range over several beams (a file's head, measuring its pulse): beam by beam
+        return concatenate([read_gedi(PointRange(point_range.path, start, min(stop, end)), granule)
+                            for start, end in zip(granule.first_shot[:-1], granule.first_shot[1:])
+                            if start < stop and end > point_range.start
+                            for start in [max(int(start), point_range.start)]])
+    lo, hi = point_range.start - first, stop - first
     with h5py.File(point_range.path, "r") as f:
         g = f[beam]
         geo = g["geolocation"]
