@@ -73,7 +73,9 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config, overrides)  # the file does not record it: measured on it
     found = input_crs(path, crs)
-    source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named)
+    settings, settings_source = file_metric_settings(path)
+    source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named, settings,
+                       settings_source)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:
@@ -83,6 +85,24 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
             remaining -= r.max_pulses
         tasks.append(ReadTask(source, r))
     return tasks
+
+
+def file_metric_settings(path: str) -> tuple[dict | None, str]:
+    """A GEDI L1B's forest-metric settings: those of the algorithm its L2A granule beside it selected most,
+    else None (algorithm 1's, the defaults)."""
+    from fwcore.io.formats import GEDI_L1B, format_of
+    from fwcore.io.gedi import l2a_beside, l2a_settings
+
+    if format_of(path) is not GEDI_L1B:
+        return None, ""
+    l2a = l2a_beside(path)
+    if l2a is None:
+        return None, "GEDI L2A algorithm 1's (no L2A granule beside the L1B)"
+    try:
+        algorithm, settings = l2a_settings(l2a)
+    except (OSError, ValueError, KeyError) as err:
+        return None, f"GEDI L2A algorithm 1's ({l2a.name} unreadable: {err})"
+    return settings, f"{l2a.name}: algorithm {algorithm}"
 
 
 def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range: int,

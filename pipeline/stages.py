@@ -20,6 +20,7 @@ import numpy as np
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.metrics.pulses import batch_metrics
+from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -121,7 +122,8 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
-    metrics = batch_metrics(pulses, result, source.system)
+    settings = MetricSettings.from_dict(source.metric_settings) if source.metric_settings else None
+    metrics = batch_metrics(pulses, result, source.system, settings)
     echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
                                  columns, source.crs_wkt, metrics)
     cloud = decomposed_echoes(pulses, result, xyz)

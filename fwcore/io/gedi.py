@@ -227,3 +227,36 @@ def describe_gedi(path: str | Path) -> dict:
                                       float(np.nanmax(lat))] if shots else None}
     return {"file": str(path), "format": "GEDI L1B", "shots": granule.point_count, "beams": beams,
             "crs": "EPSG:4979", "problems": []}
+
+
+def l2a_beside(path: str | Path) -> Path | None:
+    """The L2A granule of the same orbit beside an L1B one (GEDI02_A_<time>_O<orbit>_... for GEDI01_B_<time>_
+    O<orbit>_...), where there is one."""
+    path = Path(path)
+    parts = path.name.split("_")
+    if len(parts) < 4 or not path.name.startswith("GEDI01_B_"):
+        return None
+    found = sorted(path.parent.glob(f"GEDI02_A_{parts[2]}_{parts[3]}_*.h5"))
+    return found[0] if found else None
+
+
+def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:
+    """The L2A granule's waveform settings of `algorithm` (default: the one it selected most often), as the
+    fields of fwcore.metrics.waveform.MetricSettings, and that algorithm's number."""
+    import h5py
+
+    names = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
+             "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
+             "subbins": "rx_subbin_resolution"}
+    with h5py.File(path, "r") as f:
+        beams = [k for k in f if k.startswith("BEAM") and "selected_algorithm" in f[k]]
+        if not beams:
+            raise WaveformFileError(f"{path}: not a GEDI L2A granule (no beam with selected_algorithm)")
+        if algorithm is None:
+            selected = np.concatenate([f[b]["selected_algorithm"][:] for b in beams])
+            selected = selected[selected > 0]
+            algorithm = int(np.bincount(selected).argmax()) if selected.size else 1
+        ancillary = f[beams[0]][f"rx_processing_a{algorithm}/ancillary"]
+        settings = {field: float(ancillary[name][0]) for field, name in names.items()}
+    settings["subbins"] = int(settings["subbins"])
+    return algorithm, settings

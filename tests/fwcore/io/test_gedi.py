@@ -77,3 +77,14 @@ def test_a_written_granule_rejects_what_cannot_be_used_and_counts_add_up(tmp_pat
     expected = {int(s): r for s, r in zip(truth.shot_number, truth.reject) if r}
     words = {"samples": NO_SAMPLES, "stale": STALE, "geolocation": NO_GEOLOCATION}
     assert rejected == {s: words[r] for s, r in expected.items()}
+
+
+def test_the_l2a_beside_gives_its_selected_algorithms_settings(tmp_path):
+    from fwcore.io.gedi import l2a_beside, l2a_settings
+
+    assert l2a_beside(L1B) == L2A
+    algorithm, settings = l2a_settings(L2A)
+    assert algorithm == 1 and settings == {"smoothing_width": 6.5, "smoothing_width_zcross": 6.5,
+                                           "front_threshold_sd": 3.0, "back_threshold_sd": 6.0, "subbins": 4}
+    assert l2a_settings(L2A, 2)[1]["smoothing_width_zcross"] == 3.5
+    assert l2a_beside(tmp_path / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5") is None
