@@ -213,7 +213,14 @@ GEDI_L1B = Format(name="GEDI L1B", kind="a GEDI L1B granule (HDF5)", signature=H
                   summary=lambda path, opened=None: InputSummary((opened or GEDI_L1B.open(path)).point_count, False),
                   crs=lambda path, opened=None: (opened or GEDI_L1B.open(path)).crs_wkt,
                   sniff=_lazy("fwcore.io.gedi", "is_gedi_l1b"))
-FORMATS = (LAS, PULSEWAVES, GEDI_L1B, NEON_CSV)
+LVIS_L1B = Format(name="LVIS L1B", kind="an LVIS L1B waveform file (HDF5)", signature=HDF5_SIGNATURE,
+                  reads_with="fwl run", open=_lazy("fwcore.io.lvis", "open_lvis"),
+                  describe=_lazy("fwcore.io.lvis", "describe_lvis"), plan=_lazy("fwcore.io.lvis", "plan_lvis_ranges"),
+                  read=_lazy("fwcore.io.lvis", "read_lvis"),
+                  summary=lambda path, opened=None: InputSummary((opened or LVIS_L1B.open(path)).point_count, False),
+                  crs=lambda path, opened=None: (opened or LVIS_L1B.open(path)).crs_wkt,
+                  sniff=_lazy("fwcore.io.lvis", "is_lvis_l1b"))
+FORMATS = (LAS, PULSEWAVES, GEDI_L1B, LVIS_L1B, NEON_CSV)
 
 
 def format_of(path: str | Path) -> Format:
