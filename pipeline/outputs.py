@@ -29,7 +29,17 @@ from typing import Any
 from pipeline.layout import (BUCKET_SUFFIX, GRID_DIR, GRID_MARK, LOGS, MANIFEST, OUTPUT_DIRS, PARTS, RANGE_SUFFIX,
                              RUN_JSON, TILE_SUFFIX)
 
-INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
+INPUT_SUFFIXES = (".las", ".laz", ".pls", ".h5")  # what a folder given as input is expanded to (.h5: waveforms only)
+
+
+def is_flight_line(path: Path) -> bool:
+    """A file a folder given as input offers: its suffix, and for HDF5 a GEDI or LVIS L1B granule (not the L2A and
+    L2B granules that often lie beside them)."""
+    if path.suffix.lower() != ".h5":
+        return path.suffix.lower() in INPUT_SUFFIXES
+    from fwcore.io.formats import kind_of
+
+    return kind_of(path).format is not None
 
 
 class OutputFolderError(ValueError):
@@ -71,10 +81,11 @@ def match_inputs(inputs: list[str]) -> MatchedInputs:
             found = []
             for m in sorted(matched):
                 if Path(m).is_dir():
-                    named = sorted(p for p in Path(m).iterdir() if p.suffix.lower() in INPUT_SUFFIXES)
+                    named = sorted(p for p in Path(m).iterdir() if p.suffix.lower() in INPUT_SUFFIXES
+                                   and (not p.is_file() or is_flight_line(p)))
                     inside = [str(p) for p in named if p.is_file()]
                     if not inside:
-                        not_taken.append((m, "a folder that holds no .las, .laz or .pls file"))
+                        not_taken.append((m, "a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file"))
                     not_taken += [(str(p), _not_a_file(p)) for p in named if not p.is_file()]
                     found += inside
                 elif Path(m).is_file():

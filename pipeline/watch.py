@@ -29,7 +29,7 @@ from typing import Callable
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.io import needs_packet_file, packet_file
-from pipeline.outputs import INPUT_SUFFIXES, OutputFolderError, check_settings, input_identity, read_manifest
+from pipeline.outputs import OutputFolderError, check_settings, input_identity, is_flight_line, read_manifest
 
 LOG = logging.getLogger("fwl")
 Snapshot = tuple[tuple[int, int], ...]  # (size, mtime_ns) of an input and of its packet file
@@ -38,7 +38,7 @@ Snapshot = tuple[tuple[int, int], ...]  # (size, mtime_ns) of an input and of it
 def input_files(folder: Path) -> list[Path]:
     """The inputs a folder holds now (its *.las, *.laz and *.pls, not recursive), sorted, as the paths a run
     records (a symbolic link resolved to its target, as fwl run resolves its inputs)."""
-    return sorted({p.resolve() for p in folder.iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES})
+    return sorted({p.resolve() for p in folder.iterdir() if p.is_file() and is_flight_line(p)})
 
 
 def snapshot(path: Path) -> Snapshot | None:
