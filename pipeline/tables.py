@@ -169,7 +169,7 @@ COLUMNS = {c.name: c for c in (
     Column("model", STR, "", "the echo model"),
     Column("ground_z", F64, "CRS unit", "the ground's height: the waveform's lowest mode (GEDI L2A's elev_lowestmode; "
                                         "null: see metrics_reason)"),
-    Column("rh", pa.list_(pa.float32(), 101), "m", "RH0..RH100: the height above the ground below which 0..100 % of "
+    Column("rh", pa.list_(pa.float32()), "m", "RH0..RH100: the height above the ground below which 0..100 % of "
                                                    "the waveform's energy lies (GEDI L2A), truncated to cm"),
     Column("rv", F64, "DN sample", "the canopy's energy: the waveform above the ground return, above the ground (L2B)"),
     Column("rg", F64, "DN sample", "the ground's energy: the fitted ground return's area (L2B)"),
@@ -313,14 +313,15 @@ def _forest_columns(metrics, rows: np.ndarray) -> dict:
         return {**{c: pa.nulls(n, COLUMNS[c].type) for c in _FOREST if c != "metrics_reason"},
                 "metrics_reason": _strings("not measured", n)}
     def listed(values: np.ndarray, column: str) -> pa.Array:
+        """Per row a list of the values (float32), null where the row measured nothing."""
         values = values[rows].astype(np.float32)
-        flat = pa.array(values.ravel(), pa.float32(), from_pandas=True)
-        measured = np.isfinite(values).any(axis=1)
-        width = values.shape[1] if values.ndim == 2 else 0
-        array = pa.FixedSizeListArray.from_arrays(flat, width) if column == "rh" else \
-            pa.ListArray.from_arrays(pa.array(np.arange(n + 1) * width, pa.int32()), flat)
-        return pa.array(array.to_pylist(), COLUMNS[column].type) if measured.all() else \
-            pa.array([v if m else None for v, m in zip(array.to_pylist(), measured)], COLUMNS[column].type)
+        measured = np.isfinite(values).any(axis=1) if values.size else np.zeros(n, bool)
+        if measured.all():
+            flat = pa.array(values.ravel(), pa.float32())
+            width = values.shape[1]  # 101 RH values, or the profile's bins (a plain list: Parquet reads a fixed-size
+            # list with null rows back as empty lists)
+            return pa.ListArray.from_arrays(pa.array(np.arange(n + 1) * width, pa.int32()), flat)
+        return pa.array([v.tolist() if m else None for v, m in zip(values, measured)], COLUMNS[column].type)
     return {**{c: _null_where_nan(getattr(metrics, c)[rows]) for c in ("ground_z", "rv", "rg", "cover", "pai")},
             "rh": listed(metrics.rh, "rh"), "pavd_z": listed(metrics.pavd_z, "pavd_z"),
             "metrics_reason": [metrics.reason[i] for i in rows]}
