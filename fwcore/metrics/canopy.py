@@ -81,28 +81,81 @@ def _cost(p, x, y):
 
 
 @njit(**JIT)
+def _residual_and_jacobian(p, x, y, residual, jac):
+    """The model minus y at x, and its derivatives in amplitude, centre, sigma and gamma (analytic)."""
+    amplitude, centre, sigma, gamma = p[0], p[1], p[2], p[3]
+    root2 = math.sqrt(2.0)
+    for i in range(x.size):
+        u = gamma * (centre + 0.5 * gamma * sigma * sigma - x[i])
+        v = (centre + gamma * sigma * sigma - x[i]) / max(1e-12, root2 * sigma)
+        e = math.exp(u)
+        f = math.erfc(v)
+        df = -2.0 / math.sqrt(math.pi) * math.exp(-v * v)  # d erfc(v) / dv
+        half = 0.5 * amplitude * gamma * e
+        value = half * f
+        if not (math.isfinite(value) and math.isfinite(df * half)):
+            residual[i] = -y[i]
+            jac[i, 0] = jac[i, 1] = jac[i, 2] = jac[i, 3] = 0.0
+            continue
+        residual[i] = value - y[i]
+        jac[i, 0] = 0.5 * gamma * e * f
+        jac[i, 1] = half * (gamma * f + df / (root2 * sigma))
+        jac[i, 2] = half * (gamma * gamma * sigma * f + df * (-(centre - x[i]) / (root2 * sigma * sigma) + gamma / root2))
+        jac[i, 3] = 0.5 * amplitude * e * f + half * ((centre + gamma * sigma * sigma - x[i]) * f + df * sigma / root2)
+
+
+@njit(**JIT)
+def _solve4(a, b, out):
+    """a (k x k, symmetric positive definite after damping) \\ b by Gaussian elimination with partial pivoting, in
+    place: for four unknowns a LAPACK call costs more than the arithmetic."""
+    k = b.size
+    m = a.copy()
+    r = b.copy()
+    for c in range(k):
+        pivot = c
+        for i in range(c + 1, k):
+            if abs(m[i, c]) > abs(m[pivot, c]):
+                pivot = i
+        if pivot != c:
+            for j in range(k):
+                m[c, j], m[pivot, j] = m[pivot, j], m[c, j]
+            r[c], r[pivot] = r[pivot], r[c]
+        for i in range(c + 1, k):
+            f = m[i, c] / m[c, c]
+            for j in range(c, k):
+                m[i, j] -= f * m[c, j]
+            r[i] -= f * r[c]
+    for c in range(k - 1, -1, -1):
+        acc = r[c]
+        for j in range(c + 1, k):
+            acc -= m[c, j] * out[j]
+        out[c] = acc / m[c, c]
+
+
+@njit(**JIT)
 def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
-    """Levenberg-Marquardt on the four parameters, forward-difference Jacobian, a parameter its gradient holds at
-    a bound kept there and each step projected into the bounds; stops when a step no longer lowers the cost by a relative 1e-12 or after `iterations` steps."""
+    """Levenberg-Marquardt on the four parameters, analytic Jacobian, a parameter its gradient holds at a bound
+    kept there and each step projected into the bounds; stops when a step no longer lowers the cost by a
+    relative 1e-9 or after `iterations` steps."""
     n, k = x.size, 4
     jac = np.empty((n, k))
     residual = np.empty(n)
     trial = np.empty(k)
+    delta = np.empty(k)
     cost = _cost(p, x, y)
     damping = 1e-3
     for _ in range(iterations):
+        _residual_and_jacobian(p, x, y, residual, jac)
+        normal = np.zeros((k, k))
+        gradient = np.zeros(k)
         for i in range(n):
-            residual[i] = _extended_gaussian_at(p[0], p[1], p[2], p[3], x[i]) - y[i]
+            for j in range(k):
+                gradient[j] += jac[i, j] * residual[i]
+                for l in range(j, k):
+                    normal[j, l] += jac[i, j] * jac[i, l]
         for j in range(k):
-            h = 1e-7 * max(abs(p[j]), 1e-3)
-            trial[:] = p
-            trial[j] = p[j] + h if p[j] + h <= upper[j] else p[j] - h
-            step = trial[j] - p[j]
-            for i in range(n):
-                jac[i, j] = (_extended_gaussian_at(trial[0], trial[1], trial[2], trial[3], x[i]) - y[i]
-                             - residual[i]) / step
-        normal = jac.T @ jac
-        gradient = jac.T @ residual
+            for l in range(j):
+                normal[j, l] = normal[l, j]
         for j in range(k):  # a parameter held at a bound by its gradient stays there: the step is in the others
             if (p[j] <= lower[j] and gradient[j] > 0) or (p[j] >= upper[j] and gradient[j] < 0):
                 normal[j, :] = 0.0
@@ -110,11 +163,12 @@ def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
                 normal[j, j] = 1.0
                 gradient[j] = 0.0
         improved = False
+        new_cost = cost
         for _ in range(30):
             a = normal.copy()
             for j in range(k):
                 a[j, j] += damping * max(normal[j, j], 1e-12)
-            delta = np.linalg.solve(a, -gradient)
+            _solve4(a, -gradient, delta)
             for j in range(k):
                 trial[j] = min(max(p[j] + delta[j], lower[j]), upper[j])
             new_cost = _cost(trial, x, y)
@@ -128,7 +182,7 @@ def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
         p[:] = trial
         cost = new_cost
         damping = max(damping / 10.0, 1e-12)
-        if relative < 1e-12:
+        if relative < 1e-9:
             break
     return p
 

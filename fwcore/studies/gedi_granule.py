@@ -53,7 +53,7 @@ def _beam(rng: np.random.Generator, index: int, shots: int, samples: int, faults
         if not count[i]:
             continue
         wave = _extended_gaussian(x, rng.uniform(3000, 15000), ground[i] - 4, 4.3, 0.13)
-        for _ in range(rng.integers(0, 4)):  # canopy layers between the top and the ground
+        for _ in range(rng.integers(0, 4) if ground[i] - top[i] > 20 else 0):  # canopy layers above the ground
             centre = rng.uniform(top[i], ground[i] - 10)
             wave += rng.uniform(10, 120) * np.exp(-0.5 * ((x - centre) / rng.uniform(4, 12)) ** 2)
         rx.append(wave + NOISE_MEAN + rng.normal(0, NOISE_SD, samples))
