@@ -366,7 +366,8 @@ def _planned(plan: FilePlan) -> dict:
             "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
             "system_response": s.system.response.to_dict() if s.system.response else None,
             "model": s.system.model or None, "model_choice": s.system.model_choice or None,
-            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt}}
+            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt},
+            "metric_settings": s.metric_settings, "metric_settings_source": s.metric_settings_source or None}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:

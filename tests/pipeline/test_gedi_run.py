@@ -95,3 +95,9 @@ def test_unusable_shots_are_rejected_and_each_beam_adds_up(tmp_path):
         out_of = set(rejected.pulse_id) & shots
         assert len(done) + len(out_of) == 10 and not done & out_of
     assert set(rejected.reason.str.split(" ").str[0]) == {"no", "stale"}
+
+
+def test_run_json_says_whose_settings_the_metrics_took(gedi_run):
+    (entry,) = json.loads((gedi_run / "run.json").read_text())["inputs"]
+    assert entry["metric_settings_source"].endswith("_sub.h5: algorithm 1")
+    assert entry["metric_settings"]["smoothing_width"] == 6.5
