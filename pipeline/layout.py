@@ -2,6 +2,7 @@
 per-file outputs assembled from the parts. Every name written under an output folder is spelled here.
 
     fwl-output.json                  the manifest: written first, claims the folder (pipeline.outputs)
+    fwl.lock                         held by the one command writing the folder (pipeline.lock)
     run.json                         written last: the mark of a complete run
     echoes/<stem>-<range>.parquet    a range's tables; fwl compact replaces the echo parts by <stem>-tile-NNNN
     pulses/<stem>-<range>.parquet
@@ -33,6 +34,7 @@ from pipeline.tables import rejected_table
 
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
+LOCK = "fwl.lock"  # names the command writing the folder, while it does (pipeline.lock)
 ECHOES, PULSES, REJECTED = "echoes", "pulses", "rejected"  # the tables, a Parquet part per range
 LAS, COPC, MCAP = "las", "copc", "mcap"  # the per-file outputs
 LOGS = "logs"

@@ -36,6 +36,7 @@ from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.layout import (assemble_file, log_to_file, mark_range_done, plan_path, write_file_rejection,
                              write_rejections)
+from pipeline.faults import WRITING, raised_as_fault
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
 from pipeline.sinks import write_json
@@ -66,11 +67,12 @@ class RangeStages(beam.DoFn):
         warm_up(self.settings.config)
 
     def process(self, task: ReadTask):
-        outcome = run_range(task, self.settings)
-        if outcome.rejected:  # the one place where the dead letter leaves
-            write_rejections(self.settings.output, task, outcome.rejected)
-        # the one place where a range's end is recorded
-        mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
+        outcome = run_range(task, self.settings)  # a MachineFault fails the job: the range gets no mark
+        with raised_as_fault(WRITING, self.settings.output, task.label):
+            if outcome.rejected:  # the one place where the dead letter leaves
+                write_rejections(self.settings.output, task, outcome.rejected)
+            # the one place where a range's end is recorded
+            mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
         for name, counter in self.counters.items():
             counter.inc(getattr(outcome, name))
         if outcome.part is not None:
@@ -96,9 +98,10 @@ class PlanFile(beam.DoFn):
     def process(self, item: InputToPlan):
         began = time.perf_counter()
         plan = plan_input(item, self.config, self.points_per_range, self.limit)
-        if plan.rejection:
-            write_file_rejection(self.output, plan.rejection)
-        write_json(plan_path(self.output, item.stem), plan.to_json())
+        with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
+            if plan.rejection:
+                write_file_rejection(self.output, plan.rejection)
+            write_json(plan_path(self.output, item.stem), plan.to_json())
         LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
         yield item.stem
 
@@ -145,4 +148,10 @@ class AssembleFiles(beam.PTransform):
     formats: frozenset[str] = frozenset(("las", "mcap"))
 
     def expand(self, files):
-        return files | "Assemble" >> beam.Map(assemble_file, self.output, self.laz, self.formats)
+        return files | "Assemble" >> beam.Map(assemble_file_or_fault, self.output, self.laz, self.formats)
+
+
+def assemble_file_or_fault(item: tuple, output: str, laz: bool, formats: frozenset[str]) -> str:
+    """layout.assemble_file, a fault of the machine raised as a MachineFault naming the input's files."""
+    with raised_as_fault(WRITING, output, f"assembling {item[0]}"):
+        return assemble_file(item, output, laz, formats)
