@@ -121,7 +121,8 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
-        print(f"fwl run: {args.output} holds an incomplete run (no run.json); no pulse was rejected for this "
+        kept = f"{stopped.finished} of {stopped.ranges} ranges finished and are kept; " if stopped.ranges else ""
+        print(f"fwl run: {args.output} holds an incomplete run (no run.json): {kept}no pulse was rejected for this "
               f"(exit code {EXIT_MACHINE})", file=sys.stderr)
         return EXIT_MACHINE
     except KeyboardInterrupt:

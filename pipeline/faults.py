@@ -6,19 +6,28 @@ the data, and a resumed run redoes every range they stopped.
 
     machine_fault(err, doing, path, where) -> MachineFault | None   an OSError or MemoryError, typed
     raised_as_fault(doing, path, where)                             a with-block that raises them typed
+    note_fault(output, name, fault) / noted_faults(output)         a worker's fault, told to the driver
     faults_in(err, output)                                          the distinct faults behind a failed run
     RunStopped                                                      what `fwl run` raises: exit 5, one line each
 
-A MachineFault is carried by its one-line message alone: Beam's worker processes hand the driver an error's
-text, not the error, and Beam rebuilds an error from its first argument when it adds the step's name.
+A MachineFault is carried by its one-line message alone. A worker does not fail its job with it (the
+DirectRunner's worker processes could hang on a failed bundle, 1 run in 3 on a full disk): it leaves the range
+without its mark and notes the fault in a file beside the marks, or, when the output cannot take even that (a
+full disk), in this machine's temporary folder; the driver finds the ranges without a mark and reads the notes.
+A fault the driver meets itself (or a job that failed) is found in the error and its text.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
+import os
 import re
+import tempfile
 from pathlib import Path
+
+from pipeline.layout import FAULT_SUFFIX, PARTS
 
 # errors of the machine whatever the file: no space or quota, no permission, a read-only or lost filesystem,
 # an I/O error, no memory, too many open files, a file larger than the filesystem takes
@@ -40,6 +49,7 @@ REMEDIES = {
     "ENOMEM": "give the workers more memory (fewer --direct_num_workers, smaller --points-per-range)",
     MEMORY: "give the workers more memory (fewer --direct_num_workers, smaller --points-per-range)",
     "EMFILE": "raise the open-file limit (ulimit -n)", "ENFILE": "raise the system's open-file limit",
+    "ELOST": "see the workers' logs in logs/ (a worker killed by the out-of-memory killer: give it more memory)",
 }
 
 _MESSAGE = re.compile(r"machine fault (?P<code>[A-Za-z]+): (?P<strerror>[^;\n]*); (?P<doing>reading|writing): "
@@ -85,8 +95,6 @@ def machine_fault(err: BaseException, doing: str, path: str | Path, where: str =
         return None
     if err.errno not in MACHINE_ERRNOS and not (err.errno == errno.ENOENT and doing == WRITING):
         return None
-    import os
-
     return MachineFault.of(errno.errorcode.get(err.errno, str(err.errno)), os.strerror(err.errno), doing,
                            err.filename or path, where)
 
@@ -103,6 +111,68 @@ def raised_as_fault(doing: str, path: str | Path, where: str = ""):
         raise fault from err
 
 
+def _elsewhere(output: str | Path) -> Path:
+    """Where a worker notes a fault the output cannot take (a full disk): this machine's temporary folder."""
+    key = hashlib.sha256(str(Path(output).resolve()).encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / "fwl-faults" / key
+
+
+def note_fault(output: str | Path, name: str, fault: MachineFault) -> None:
+    """The fault of the range (or input) `name`, for the driver: beside the marks, else in the temporary folder;
+    a note that neither takes is lost (the driver then finds the range without its mark all the same)."""
+    text = str(fault)
+    for folder in (Path(output) / PARTS, _elsewhere(output)):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / f"{name}{FAULT_SUFFIX}").write_text(text)
+            return
+        except OSError:
+            continue
+
+
+def noted_faults(output: str | Path) -> list[MachineFault]:
+    """The faults workers noted for this output (both places), one per cause."""
+    found = []
+    for folder in (Path(output) / PARTS, _elsewhere(output)):
+        for path in sorted(folder.glob(f"*{FAULT_SUFFIX}")) if folder.is_dir() else []:
+            try:
+                found += [MachineFault(m.group(0)) for m in _MESSAGE.finditer(path.read_text())]
+            except OSError:
+                continue
+    return _one_per_cause(found)
+
+
+def clear_faults(output: str | Path) -> None:
+    """The notes of an earlier attempt, gone before a job (a fault that stays is noted again)."""
+    for folder in (Path(output) / PARTS, _elsewhere(output)):
+        for path in folder.glob(f"*{FAULT_SUFFIX}") if folder.is_dir() else []:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    with contextlib.suppress(OSError):
+        _elsewhere(output).rmdir()
+
+
+def output_fault(output: str | Path, unfinished: int) -> MachineFault:
+    """What the driver can say of ranges that ended without their mark and without a note: a full disk if the
+    output's has no space left, else a worker lost (killed, out of memory)."""
+    try:
+        stats = os.statvfs(output)
+        full = stats.f_bavail * stats.f_frsize < (1 << 20)
+    except OSError:
+        full = False
+    if full:
+        return MachineFault.of("ENOSPC", os.strerror(errno.ENOSPC), WRITING, output, f"{unfinished} ranges")
+    return MachineFault.of("ELOST", "ended without a word (a worker killed, or out of memory?)", WRITING, output,
+                           f"{unfinished} ranges")
+
+
+def _one_per_cause(faults: list[MachineFault]) -> list[MachineFault]:
+    distinct: dict[str, MachineFault] = {}
+    for fault in faults:
+        distinct.setdefault(fault.code, fault)
+    return list(distinct.values())
+
+
 def faults_in(err: BaseException, output: str | Path) -> list[MachineFault]:
     """The distinct machine faults behind `err` (one per code, the first said), from the error and its chain
     and from their text (a worker's fault reaches the driver as text inside Beam's error); [] when none."""
@@ -117,18 +187,17 @@ def faults_in(err: BaseException, output: str | Path) -> list[MachineFault]:
             for m in _MESSAGE.finditer(text):
                 found.append(MachineFault(m.group(0)))
         e = e.__cause__ or e.__context__
-    distinct: dict[str, MachineFault] = {}
-    for fault in found:
-        distinct.setdefault(fault.code, fault)
-    return list(distinct.values())
+    return _one_per_cause(found)
 
 
 class RunStopped(Exception):
     """A run stopped by faults of the machine (MachineFault): nothing rejected for them, the ranges that finished
     kept for --resume."""
 
-    def __init__(self, faults: list[MachineFault], output: str | Path):
+    def __init__(self, faults: list[MachineFault], output: str | Path, finished: int | None = None,
+                 ranges: int | None = None):
         self.faults, self.output = faults, str(output)
+        self.finished, self.ranges = finished, ranges  # the ranges that ended, of all: the first are kept
         super().__init__("; ".join(f.said() for f in faults))
 
     def lines(self, resume: str) -> list[str]:

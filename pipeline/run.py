@@ -33,7 +33,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
-from pipeline.faults import RunStopped, faults_in
+from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
 from pipeline.lock import folder_lock
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
@@ -417,6 +417,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
                                 resume, add, radiometry, crs, pulse, settings, matched.not_taken, beam_args)
+    except RunStopped:
+        raise
     except Exception as err:
         faults = faults_in(err, output)  # a full disk, no permission, ...: no fault of the data
         if not faults:
@@ -466,8 +468,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     result, jobs, calibration = None, Jobs(options, small_in_process), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
+            clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
             plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range, limit,
                                jobs)
+            stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
@@ -499,10 +503,14 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                                             | "DecomposeFlight" >> DecomposeFlight(
                                                                 config, str(output), formats, spread=not jobs.dask,
                                                                 radiometry=radiometry)), small)
+            unfinished = [t for t in todo if not range_is_complete(output, t)]
+            if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
+                stop_on_noted_faults(output, len(unfinished), len(tasks))
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
                 jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
                          small)
+            stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
@@ -512,6 +520,17 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
                      for path, plan in plans.items()}, calibration, total)
+
+
+def stop_on_noted_faults(output: Path, unfinished: int = 0, ranges: int = 0) -> None:
+    """RunStopped when the workers noted faults of the machine, or `unfinished` ranges of `ranges` ended without
+    their mark; the notes go (those in the temporary folder, outside the output, with them)."""
+    faults = noted_faults(output)
+    if not faults and not unfinished:
+        return
+    clear_faults(output)
+    raise RunStopped(faults or [output_fault(output, unfinished)], output, ranges - unfinished if ranges else None,
+                     ranges or None)
 
 
 def crs_line(plans: dict[str, FilePlan]) -> str | None:
