@@ -5,8 +5,8 @@ import os
 
 import pytest
 
-from pipeline.faults import (MACHINE_ERRNOS, MEMORY, READING, WRITING, MachineFault, RunStopped, faults_in,
-                             machine_fault, raised_as_fault)
+from pipeline.faults import (MACHINE_ERRNOS, MEMORY, READING, WRITING, MachineFault, RunStopped, clear_faults,
+                             faults_in, machine_fault, note_fault, noted_faults, output_fault, raised_as_fault)
 
 
 @pytest.mark.parametrize("number", sorted(MACHINE_ERRNOS))
@@ -87,3 +87,19 @@ def test_a_stopped_run_says_one_line_per_cause_with_the_remedy_and_the_resume():
         "No space left on device (ENOSPC) writing /out/echoes/a.parquet (a.las points 0-5): free space on the disk "
         "of /out/echoes, then fwl run a.las --output /out --resume"]
     assert str(stopped) == faults[0].said()
+
+
+def test_a_fault_noted_where_the_output_takes_nothing_is_found_in_the_temporary_folder(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "parts").write_text("a file where parts/ should be: the output takes no note")
+    fault = MachineFault.of("ENOSPC", "No space left on device", "writing", out / "echoes" / "a.parquet", "a.las")
+    note_fault(out, "a-000000000000", fault)
+    assert [f.said() for f in noted_faults(out)] == [fault.said()]
+    clear_faults(out)
+    assert noted_faults(out) == []
+
+
+def test_ranges_ended_without_a_word_are_a_full_disk_only_when_it_is_full(tmp_path):
+    lost = output_fault(tmp_path, 3)
+    assert (lost.code, lost.where) == ("ELOST", "3 ranges") and "out-of-memory killer" in lost.remedy()
