@@ -7,7 +7,8 @@ The file (LOCK, beside the manifest) names its holder: the command, the host, th
 kernel releases a flock when its holder dies, even by SIGKILL, so a lock left by a dead holder on this host is
 taken over, with a warning naming it. A holder on another host cannot be seen: its lock is refused, with how to
 remove it if that holder is gone. A process that holds a folder's lock takes it again freely (fwl watch holds
-its output's for its batches' runs). Readers (fwl view) take no lock.
+its output's for its batches' runs); another thread of it is refused as another process would be. Readers
+(fwl view) take no lock.
 """
 
 from __future__ import annotations
@@ -20,13 +21,16 @@ import json
 import logging
 import os
 import socket
+import threading
 from pathlib import Path
 
 from pipeline.layout import LOCK
 from pipeline.outputs import OutputFolderError
 
 LOG = logging.getLogger(__name__)
-_HELD: dict[str, int] = {}  # folder -> how many times this process took it (the outermost releases it)
+# (folder, thread) -> how many times that thread of this process took it (the outermost releases it); another
+# thread (fwl view's jobs) opens the file anew, and flock refuses it as it would another process
+_HELD: dict[tuple[str, int], int] = {}
 
 
 class FolderLockedError(OutputFolderError):
@@ -112,7 +116,7 @@ def folder_lock(folder: str | Path, command: str):
     """Hold `folder`'s lock (made, with the folder, if need be) for the block; released, its file removed, after.
     FolderLockedError names the holder when another process has it; OutputFolderError when `folder` is a file."""
     folder = Path(folder).resolve()
-    key = str(folder)
+    key = (str(folder), threading.get_ident())
     if key in _HELD:
         _HELD[key] += 1
         try:

@@ -6,6 +6,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -86,6 +87,23 @@ def test_a_holder_on_another_host_is_refused_with_how_to_clear_it(tmp_path):
         with folder_lock(folder, "fwl run"):
             pass
     assert read_holder(folder / LOCK)["host"] == "elsewhere"  # its word stands
+
+
+def test_another_thread_of_the_holder_is_refused_as_another_process_is(tmp_path):
+    refused = []
+
+    def second():
+        try:
+            with folder_lock(tmp_path / "out", "fwl run"):
+                pass
+        except FolderLockedError as err:
+            refused.append(str(err))
+
+    with folder_lock(tmp_path / "out", "fwl run"):
+        thread = threading.Thread(target=second)
+        thread.start()
+        thread.join()
+    assert len(refused) == 1 and f"(pid {os.getpid()} on " in refused[0]
 
 
 def test_a_file_where_the_folder_should_be_is_refused(tmp_path):
