@@ -34,9 +34,9 @@ from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
+from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.layout import (assemble_file, log_to_file, mark_range_done, part_name, plan_path,
                              write_file_rejection, write_rejections)
-from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
 from pipeline.sinks import write_json
