@@ -24,6 +24,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import input_summary, open_input, plan_point_ranges
 from fwcore.io.crs import input_crs
 from fwcore.io.records import PointRange
+from pipeline.faults import READING, machine_fault
 from pipeline.layout import plan_path
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
@@ -107,10 +108,14 @@ def file_metric_settings(path: str) -> tuple[dict | None, str]:
 
 def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range: int,
                limit: int | None = None) -> FilePlan:
-    """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception."""
+    """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception
+    but a fault of the machine (pipeline.faults: an I/O error, no memory), which is no fault of the file."""
     try:
         tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.pulse)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
+        fault = machine_fault(err, READING, item.path, f"planning {item.name}")
+        if fault is not None:
+            raise fault from err
         reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
         return FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open", reason))
     return FilePlan(tasks[0].source if tasks else None, tuple(t.point_range for t in tasks))

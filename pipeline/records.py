@@ -57,6 +57,12 @@ class ReadTask:
     def start(self) -> int:
         return self.point_range.start
 
+    @property
+    def label(self) -> str:
+        """The range for a person (logs, errors): its input and points; never the task's repr, which holds the
+        file's system response."""
+        return f"{self.source.name} points {self.point_range.start}-{self.point_range.stop}"
+
 
 class Rejection(NamedTuple):
     """The dead letter: a pulse (or a whole range or file, pulse_id -1) that leaves unprocessed, and why."""
