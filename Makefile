@@ -27,6 +27,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_instrument.py
 	$(BIN)/python bench/bench_query.py --compact
 	$(BIN)/python bench/bench_small.py
+	$(BIN)/python bench/bench_gedi.py
 
 docs: $(STAMP)
 	$(BIN)/python docs/screenshot.py

@@ -17,14 +17,40 @@ from fwcore.rng import pulse_seeds
 UNCLASSIFIED = 1
 
 
+SIGNAL_THRESHOLD_SD = 3.0  # GEDI L2A's front threshold: the signal starts 3 noise sigmas above the noise mean
+SIGNAL_MARGIN_SAMPLES = 40  # kept either side of the signal: the pulse's rise and tail, and noise to fit beside it
+
+
+def signal_windows(pulses: PulseBatch) -> np.ndarray:
+    """Per sample, whether the engine sees it: all of them, except in waveforms whose file records the noise
+    (GEDI), where the long noise either side of the signal is set aside: from SIGNAL_MARGIN_SAMPLES before the
+    smoothed waveform first rises SIGNAL_THRESHOLD_SD noise sigmas above the noise mean to as many after it last
+    does (a GEDI shot's 800 samples hold about 150 of signal; a waveform that never rises keeps them all)."""
+    valid = np.ones(pulses.samples.size, dtype=bool)
+    if pulses.noise_mean is None or pulses.noise_sd is None:
+        return valid
+    kernel = np.exp(-0.5 * (np.arange(-12, 13) / 4.0) ** 2)
+    kernel /= kernel.sum()
+    for i in range(len(pulses)):
+        lo, hi = pulses.sample_offsets[i], pulses.sample_offsets[i + 1]
+        smoothed = np.convolve(pulses.samples[lo:hi], kernel, mode="same")[12:-12]  # the edges' zeros left out
+        above = np.flatnonzero(smoothed > pulses.noise_mean[i] + SIGNAL_THRESHOLD_SD * pulses.noise_sd[i]) + 12
+        if above.size:
+            valid[lo:hi] = False
+            valid[lo + max(above[0] - SIGNAL_MARGIN_SAMPLES, 0):lo + min(above[-1] + SIGNAL_MARGIN_SAMPLES + 1, hi - lo)] = True
+    return valid
+
+
 def pulse_waveforms(pulses: PulseBatch, seed: int) -> WaveformBatch:
     """The engine's input: one waveform per row, seeded from the run seed, the pulse's identity and
     its returning segment (never the file name or the packet offset: every encoding of the data
-    draws the same random streams)."""
+    draws the same random streams); where the file records the noise, its sigma as the engine's floor and
+    only the signal's window valid (signal_windows)."""
     return WaveformBatch(
-        samples=pulses.samples, valid=np.ones(pulses.samples.size, dtype=bool), offsets=pulses.sample_offsets,
+        samples=pulses.samples, valid=signal_windows(pulses), offsets=pulses.sample_offsets,
         sample_spacing_ps=pulses.sample_spacing_ps.astype(np.float64),
-        seeds=pulse_seeds(seed, pulses.pulse_id, pulses.segments() + 256 * pulses.channels()))
+        seeds=pulse_seeds(seed, pulses.pulse_id, pulses.segments() + 256 * pulses.channels()),
+        noise_floor=pulses.noise_sd)
 
 
 def echo_times_ps(pulses: PulseBatch, result: BatchDecomposition, range_offset_ps: float = 0.0) -> np.ndarray:

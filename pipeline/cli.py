@@ -15,6 +15,8 @@ import numpy as np
 
 import fwcore
 from fwcore.engine.config import DecompositionConfig, Model, Optimizer
+from pipeline.faults import WRITING, machine_fault
+from pipeline.lock import folder_lock
 from pipeline.progress import quiet_imports
 from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
                               record_command_folder)
@@ -100,9 +102,16 @@ def _exit_interrupted(message: str) -> NoReturn:
     os._exit(EXIT_INTERRUPTED)
 
 
+def resume_command(argv: list[str]) -> str:
+    """The command that goes on with a stopped run: the same one, with --resume."""
+    import shlex
+
+    return "fwl " + shlex.join([a for a in argv if a != "--resume"] + ["--resume"])
+
+
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.options import radiometry_config
-    from pipeline.run import run
+    from pipeline.run import EXIT_MACHINE, RunStopped, run
 
     config = _config_from_args(args)
     radiometry = radiometry_config(args)
@@ -110,6 +119,13 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
                       pulse=_pulse_from_args(args))
+    except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
+        for line in stopped.lines(resume_command(args.argv)):
+            print(f"fwl run: stopped: {line}", file=sys.stderr)
+        kept = f"{stopped.finished} of {stopped.ranges} ranges finished and are kept; " if stopped.ranges else ""
+        print(f"fwl run: {args.output} holds an incomplete run (no run.json): {kept}no pulse was rejected for this "
+              f"(exit code {EXIT_MACHINE})", file=sys.stderr)
+        return EXIT_MACHINE
     except KeyboardInterrupt:
         _exit_interrupted(f"fwl run: interrupted; {args.output} holds an incomplete run (no run.json): "
                           f"rerun the same command with --resume to complete it")
@@ -182,8 +198,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     # a clean stop on Ctrl-C and on the TERM of a service manager, even when started with SIGINT ignored (`&`)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler), signal.signal(signal.SIGTERM, stop)
     try:
-        watch(args.folder, args.output, config, settings, run_batch, args.poll, args.once,
-              lambda line: print(line, flush=True))
+        with folder_lock(args.output, "fwl watch"):  # for the whole watch: its batches' runs take it again
+            watch(args.folder, args.output, config, settings, run_batch, args.poll, args.once,
+                  lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         if running:
             _exit_interrupted(f"fwl watch: interrupted while processing "
@@ -286,11 +303,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     table = markdown_table(rows, EVALUATION_COLUMNS)
     print(table, end="")
     if args.output:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        if output.suffix.lower() == ".csv":
-            write_csv(output, rows)
-        else:
-            output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
+        with folder_lock(output.parent, "fwl evaluate"):
+            if output.suffix.lower() == ".csv":
+                write_csv(output, rows)
+            else:
+                output.write_text(f"Echoes matched within {args.match_ps:g} ps against {args.truth}\n\n{table}")
         print(f"wrote {output}")
     return 0
 
@@ -299,7 +316,10 @@ def _compact(args: argparse.Namespace) -> int:
     from pipeline.compact import compact_run
 
     sizes = {k: v for k, v in (("tile_rows", args.tile_rows), ("row_group_rows", args.row_group_rows)) if v}
-    done = compact_run(args.run_dir, say=print, **sizes)
+    if not Path(args.run_dir).is_dir():  # named as compact_run names it, without making it
+        raise FileNotFoundError(f"{args.run_dir}: no such folder")
+    with folder_lock(args.run_dir, "fwl compact"):
+        done = compact_run(args.run_dir, say=print, **sizes)
     print(f"fwl compact: {args.run_dir}: echoes/ holds {done['tiles']} tiles, {done['echoes']:,} echoes")
     return 0
 
@@ -367,7 +387,12 @@ def _grid(args: argparse.Namespace) -> int:
     from pipeline.grid import grid_run
     from pipeline.layout import GRID_DIR
 
-    summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
+    if not Path(args.run_dir).is_dir():  # named as grid_run names it, without making it
+        raise FileNotFoundError(f"{args.run_dir}: no such folder")
+    # the folder it writes: the run's own (its grid/ goes with the run), or --output; --classify writes the run's
+    with folder_lock(args.output or args.run_dir, "fwl grid"), \
+            folder_lock(args.run_dir if args.classify else (args.output or args.run_dir), "fwl grid"):
+        summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
           f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
           f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
@@ -449,7 +474,9 @@ def _add_run(sub) -> None:
                        epilog="Any other option must be a Beam pipeline option (--runner, --dask_client_address, ...); "
                               "the default runner is the DirectRunner with 2 worker processes. Exit codes: 0 all "
                               "decomposed, 3 some inputs or pulses rejected (see DIR/rejected/), 4 nothing decomposed, "
-                              "2 usage error (nothing touched), 130 interrupted.")
+                              "5 stopped by a fault of the machine (a full disk, no permission, an I/O error, no "
+                              "memory: fix it, then --resume), 2 usage error (nothing touched; also when another "
+                              "command is writing DIR), 130 interrupted.")
     r.add_argument("inputs", nargs="*", help="LAS/LAZ or PulseWaves (.pls) files, glob patterns or folders "
                                               "(their *.las, *.laz, *.pls); "
                                              "default: the bundled Leica sample")
@@ -628,7 +655,10 @@ def _classify(args: argparse.Namespace) -> int:
     from pipeline.classify import classify_run, summary_line
 
     config = GroundConfig(cloth_resolution=args.cloth_resolution, rigidness=args.rigidness)
-    print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config)))
+    if not Path(args.run_dir).is_dir():
+        raise FileNotFoundError(f"{args.run_dir}: no such folder")
+    with folder_lock(args.run_dir, "fwl classify"):  # it rewrites the run's echo table and point clouds
+        print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config)))
     return 0
 
 
@@ -674,6 +704,7 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         if args.command in ("run", "watch"):
             return args.handler(args, rest)
@@ -683,6 +714,12 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as err:  # OptionError is a ValueError
         print(f"fwl: error: {err}", file=sys.stderr)
         return 2
+    except (OSError, MemoryError) as err:  # a full disk, no permission...: what to fix, in one line
+        fault = machine_fault(err, WRITING, getattr(args, "output", None) or ".", f"fwl {args.command}")
+        if fault is None:
+            raise
+        print(f"fwl: error: {fault.said()}: {fault.remedy()}, then run the command again", file=sys.stderr)
+        return 5  # pipeline.run.EXIT_MACHINE (pipeline.run imports Beam)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
-from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK
+from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK, LOCK
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
@@ -103,15 +103,15 @@ def claim_output(output: Path) -> None:
     refused, untouched."""
     if output.exists() and not output.is_dir():
         raise OutputFolderError(f"{output}: exists and is not a folder")
-    if output.is_dir() and any(output.iterdir()):
+    if output.is_dir() and any(p.name != LOCK for p in output.iterdir()):
         mark = output / MARK
         try:
             own = set(json.loads(mark.read_text())["files"]) | {MARK}
         except (OSError, ValueError, KeyError, TypeError):
             raise OutputFolderError(f"{output}: not empty and not an fwl grid output folder (no readable {MARK}); "
                                     f"choose a new or empty folder") from None
-        foreign = sorted(p.name for p in output.iterdir() if p.name not in own and p.name.removesuffix(".tmp")
-                         not in own)
+        foreign = sorted(p.name for p in output.iterdir() if p.name not in own | {LOCK}
+                         and p.name.removesuffix(".tmp") not in own)
         if foreign:
             raise OutputFolderError(f"{output}: holds files fwl grid did not write: {', '.join(foreign[:5])}")
         for name in own:

@@ -2,12 +2,14 @@
 per-file outputs assembled from the parts. Every name written under an output folder is spelled here.
 
     fwl-output.json                  the manifest: written first, claims the folder (pipeline.outputs)
+    fwl.lock                         held by the one command writing the folder (pipeline.lock)
     run.json                         written last: the mark of a complete run
     echoes/<stem>-<range>.parquet    a range's tables; fwl compact replaces the echo parts by <stem>-tile-NNNN
     pulses/<stem>-<range>.parquet
     rejected/<stem>-<range>.parquet  a range's Rejections; rejected/<stem>.parquet a file's
     parts/<stem>-<range>.las|.mcap   a range's point cloud and MCAP parts, until its file is assembled
     parts/<stem>-<range>.json        the range's mark, written last: its planned pulses and its files' sizes
+    parts/<stem>-<range>.fault       a fault of the machine that stopped the range, for the driver (pipeline.faults)
     parts/plans/<stem>.json          a file's plan
     las/<stem>.las, copc/<stem>.copc.laz, mcap/<stem>.mcap   assembled from the parts
     logs/                            the driver's and each worker's log
@@ -33,6 +35,7 @@ from pipeline.tables import rejected_table
 
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
+LOCK = "fwl.lock"  # names the command writing the folder, while it does (pipeline.lock)
 ECHOES, PULSES, REJECTED = "echoes", "pulses", "rejected"  # the tables, a Parquet part per range
 LAS, COPC, MCAP = "las", "copc", "mcap"  # the per-file outputs
 LOGS = "logs"
@@ -48,6 +51,7 @@ STAGED = COMPACT / ECHOES  # the new echoes/, complete before it replaces the ol
 REPLACED = COMPACT / "replaced"  # the old echoes/, between the two renames
 FINISHED = Path(PARTS) / "compact-finished"  # the staging of a finished compaction, on its way out
 RANGE_DIGITS = 12
+FAULT_SUFFIX = ".fault"  # parts/<name>.fault: a worker's note of a fault of the machine (pipeline.faults)
 # after an input's stem, as regular expressions: a range's part, a tile of fwl compact, a bucket of its staging
 RANGE_SUFFIX, TILE_SUFFIX, BUCKET_SUFFIX = rf"-\d{{{RANGE_DIGITS}}}", r"-tile-\d{4,}", r"-bucket-\d{4,}"
 
@@ -134,7 +138,8 @@ def range_is_complete(output: str | Path, task: ReadTask) -> bool:
 
 def remove_range_files(output: str | Path, task: ReadTask) -> None:
     """A range to be redone loses what an earlier attempt left of it: a part without a mark is never trusted."""
-    remove_parts(range_files(output, task) + [progress_mark(output, task.source.stem, task.start)])
+    mark = progress_mark(output, task.source.stem, task.start)
+    remove_parts(range_files(output, task) + [mark, mark.with_suffix(FAULT_SUFFIX)])
 
 
 # ---------------------------------------------------------------- rejections, logs

@@ -26,10 +26,20 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from pipeline.layout import (BUCKET_SUFFIX, GRID_DIR, GRID_MARK, LOGS, MANIFEST, OUTPUT_DIRS, PARTS, RANGE_SUFFIX,
-                             RUN_JSON, TILE_SUFFIX)
+from pipeline.layout import (BUCKET_SUFFIX, GRID_DIR, GRID_MARK, LOCK, LOGS, MANIFEST, OUTPUT_DIRS, PARTS,
+                             RANGE_SUFFIX, RUN_JSON, TILE_SUFFIX)
 
-INPUT_SUFFIXES = (".las", ".laz", ".pls")  # what a folder given as input is expanded to
+INPUT_SUFFIXES = (".las", ".laz", ".pls", ".h5")  # what a folder given as input is expanded to (.h5: waveforms only)
+
+
+def is_flight_line(path: Path) -> bool:
+    """A file a folder given as input offers: its suffix, and for HDF5 a GEDI or LVIS L1B granule (not the L2A and
+    L2B granules that often lie beside them)."""
+    if path.suffix.lower() != ".h5":
+        return path.suffix.lower() in INPUT_SUFFIXES
+    from fwcore.io.formats import kind_of
+
+    return kind_of(path).format is not None
 
 
 class OutputFolderError(ValueError):
@@ -71,10 +81,11 @@ def match_inputs(inputs: list[str]) -> MatchedInputs:
             found = []
             for m in sorted(matched):
                 if Path(m).is_dir():
-                    named = sorted(p for p in Path(m).iterdir() if p.suffix.lower() in INPUT_SUFFIXES)
+                    named = sorted(p for p in Path(m).iterdir() if p.suffix.lower() in INPUT_SUFFIXES
+                                   and (not p.is_file() or is_flight_line(p)))
                     inside = [str(p) for p in named if p.is_file()]
                     if not inside:
-                        not_taken.append((m, "a folder that holds no .las, .laz or .pls file"))
+                        not_taken.append((m, "a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file"))
                     not_taken += [(str(p), _not_a_file(p)) for p in named if not p.is_file()]
                     found += inside
                 elif Path(m).is_file():
@@ -199,10 +210,13 @@ def _grid_files(folder: Path) -> set[str]:
 
 
 def _files_under(folder: Path) -> list[PurePosixPath]:
+    """The files under `folder`, relative; not its lock (pipeline.lock), which is its writer's, not an output."""
     out = []
     for root, dirs, files in os.walk(folder):
         dirs.sort()
         for f in sorted(files):
+            if f == LOCK and Path(root) == folder:
+                continue
             out.append(PurePosixPath(Path(root, f).relative_to(folder).as_posix()))
         for d in dirs:  # a symlinked folder is not followed, and not ours
             if Path(root, d).is_symlink():
@@ -217,7 +231,7 @@ def earlier_run_files(folder: Path) -> list[PurePosixPath]:
     if not folder.is_dir():
         raise OutputFolderError(f"{folder}: exists and is not a folder")
     files = _files_under(folder)
-    if not files and not any(folder.iterdir()):
+    if not files and not _holds_anything(folder):
         return []
     manifest = folder / MANIFEST
     if not manifest.is_file():
@@ -313,9 +327,14 @@ def mark_inputs_done(folder: Path, paths: list[str], planned: dict[str, dict]) -
     write_manifest(folder, manifest.get("settings"), manifest["inputs"], manifest.get("started"))
 
 
+def _holds_anything(folder: Path) -> bool:
+    """Anything in `folder` but its lock."""
+    return any(p.name != LOCK for p in folder.iterdir())
+
+
 def _is_new(folder: Path) -> bool:
-    """Nothing there yet to resume or add to: no folder, or an empty one."""
-    return not folder.exists() or (folder.is_dir() and not any(folder.iterdir()))
+    """Nothing there yet to resume or add to: no folder, or an empty one (but for its lock)."""
+    return not folder.exists() or (folder.is_dir() and not _holds_anything(folder))
 
 
 def _fingerprinted(folder: Path, how: str) -> dict:
@@ -332,7 +351,8 @@ def resume_output_folder(folder: Path, inputs: list[str], settings: dict,
     """Claim `folder` to go on with its interrupted run: the same inputs, unchanged, and the same settings,
     else ResumeError naming what differs. Returns the inputs' names (those the folder gave them: fwl watch
     names inputs as they come) and "resumed"; "new" when there was nothing to resume (a new or empty folder,
-    now claimed as by take_output_folder); "complete" when its run had finished (left as is)."""
+    now claimed as by take_output_folder); "complete" when its run had finished (left as is), unless it failed
+    (nothing decomposed: its inputs are done again)."""
     if _is_new(folder):
         names = InputNames.of(inputs)
         take_output_folder(folder, names, inputs, settings, identities)
@@ -355,9 +375,13 @@ def resume_output_folder(folder: Path, inputs: list[str], settings: dict,
             raise ResumeError(f"{path}: changed since the interrupted run in {folder} read it "
                               f"({'; '.join(changed)}); {fix}")
     names = _names_of(manifest["inputs"])
-    if is_complete(folder):
+    if is_complete(folder) and read_run(folder).get("status") != "failed":
         return names, "complete"
-    (folder / RUN_JSON).unlink(missing_ok=True)  # a damaged one
+    if is_complete(folder):  # failed: done again (earlier fwl rejected the pulses of a full disk's ranges)
+        for entry in manifest["inputs"]:
+            entry["done"] = False
+        write_manifest(folder, manifest.get("settings"), manifest["inputs"], manifest.get("started"))
+    (folder / RUN_JSON).unlink(missing_ok=True)  # a damaged one, or a failed run's
     return names, "resumed"
 
 
@@ -415,7 +439,7 @@ def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT
     # <stem>.las, <stem>-<range>.parquet, <stem>-tile-<n>.parquet (fwl compact), ...: not <stem>.las.las, the file
     # of an input whose stem is <stem>.las
     own = re.compile(re.escape(stem) + rf"({RANGE_SUFFIX}|{TILE_SUFFIX}|{BUCKET_SUFFIX})?"
-                     + r"\.(parquet|las|laz|copc\.laz|mcap|json)(\.tmp)?")
+                     + r"\.(parquet|las|laz|copc\.laz|mcap|json|fault)(\.tmp)?")
     gone = []
     for d in dirs:
         for p in sorted((folder / d).rglob("*")) if d != LOGS and (folder / d).is_dir() else []:

@@ -24,6 +24,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import input_summary, open_input, plan_point_ranges
 from fwcore.io.crs import input_crs
 from fwcore.io.records import PointRange
+from pipeline.faults import READING, machine_fault
 from pipeline.layout import plan_path
 from pipeline.outputs import InputNames
 from pipeline.records import InputFile, ReadTask, Rejection
@@ -73,7 +74,9 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config, overrides)  # the file does not record it: measured on it
     found = input_crs(path, crs)
-    source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named)
+    settings, settings_source = file_metric_settings(path)
+    source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named, settings,
+                       settings_source)
     tasks, remaining = [], limit
     for r in ranges:
         if remaining is not None:
@@ -85,12 +88,34 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     return tasks
 
 
+def file_metric_settings(path: str) -> tuple[dict | None, str]:
+    """A GEDI L1B's forest-metric settings: those of the algorithm its L2A granule beside it selected most,
+    else None (algorithm 1's, the defaults)."""
+    from fwcore.io.formats import GEDI_L1B, format_of
+    from fwcore.io.gedi import l2a_beside, l2a_settings
+
+    if format_of(path) is not GEDI_L1B:
+        return None, ""
+    l2a = l2a_beside(path)
+    if l2a is None:
+        return None, "GEDI L2A algorithm 1's (no L2A granule beside the L1B)"
+    try:
+        algorithm, settings = l2a_settings(l2a)
+    except (OSError, ValueError, KeyError) as err:
+        return None, f"GEDI L2A algorithm 1's ({l2a.name} unreadable: {err})"
+    return settings, f"{l2a.name}: algorithm {algorithm}"
+
+
 def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range: int,
                limit: int | None = None) -> FilePlan:
-    """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception."""
+    """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception
+    but a fault of the machine (pipeline.faults: an I/O error, no memory), which is no fault of the file."""
     try:
         tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.pulse)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
+        fault = machine_fault(err, READING, item.path, f"planning {item.name}")
+        if fault is not None:
+            raise fault from err
         reason = str(err) if isinstance(err, (OSError, ValueError)) else f"{type(err).__name__}: {err}"
         return FilePlan(None, (), Rejection(item.name, item.stem, -1, -1, "open", reason))
     return FilePlan(tasks[0].source if tasks else None, tuple(t.point_range for t in tasks))

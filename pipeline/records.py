@@ -33,6 +33,10 @@ class InputFile:
     crs_wkt: str | None = None  # the CRS every output writes (fwcore.io.crs.input_crs: --crs, else the file's)
     crs_source: str = ""  # where it came from
     crs_named: bool = False  # an EPSG code, a WKT record or --crs; not only a unit, nor nothing
+    # the forest metrics' settings (fwcore.metrics.waveform.MetricSettings fields) where the file's products give
+    # them (a GEDI L1B's L2A beside it), and from where; None: the defaults for its pulse
+    metric_settings: dict | None = None
+    metric_settings_source: str = ""
 
     def to_dict(self) -> dict:
         return {**dataclasses.asdict(self), "system": self.system.to_dict()}
@@ -52,6 +56,12 @@ class ReadTask:
     @property
     def start(self) -> int:
         return self.point_range.start
+
+    @property
+    def label(self) -> str:
+        """The range for a person (logs, errors): its input and points; never the task's repr, which holds the
+        file's system response."""
+        return f"{self.source.name} points {self.point_range.start}-{self.point_range.stop}"
 
 
 class Rejection(NamedTuple):

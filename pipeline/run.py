@@ -3,8 +3,10 @@
     validate options and inputs -> take the output folder -> run -> count what was written -> run.json
 
 Exit codes of `fwl run` (see the README): 0 every pulse decomposed; 3 some inputs or pulses rejected,
-the rest written; 4 nothing decomposed (every input or pulse rejected); 2 a usage error (bad option,
-no such input, an output folder that holds what is not ours), nothing touched; 130 interrupted.
+the rest written; 4 nothing decomposed (every input or pulse rejected); 5 stopped by a fault of the machine
+(a full disk, no permission, an I/O error, a lost mount, no memory: pipeline.faults), nothing rejected for it,
+rerun with --resume once it is fixed; 2 a usage error (bad option, no such input, an output folder that holds
+what is not ours, or that another command is writing), nothing touched; 130 interrupted.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
+from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
+from pipeline.lock import folder_lock
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
                               input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
@@ -45,11 +49,12 @@ from pipeline.sinks import write_part
 from pipeline.tables import empty_rejected_table
 from pipeline.transforms import NAMESPACE, AssembleFiles, DecomposeFlight, PlanFiles
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "IncompleteRunError",
-           "OutputFolderError", "ResumeError", "is_complete", "read_run", "run", "run_settings"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_MACHINE", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE",
+           "IncompleteRunError", "OutputFolderError", "ResumeError", "RunStopped", "is_complete", "read_run", "run",
+           "run_settings"]
 
 LOG = logging.getLogger(__name__)  # the driver's: to driver.log and, for warnings, the terminal
-EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
+EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_MACHINE, EXIT_INTERRUPTED = 0, 2, 3, 4, 5, 130
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "problems", "echoes_kept",
           "echoes_spurious")
@@ -366,7 +371,8 @@ def _planned(plan: FilePlan) -> dict:
             "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
             "system_response": s.system.response.to_dict() if s.system.response else None,
             "model": s.system.model or None, "model_choice": s.system.model_choice or None,
-            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt}}
+            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt},
+            "metric_settings": s.metric_settings, "metric_settings_source": s.metric_settings_source or None}
 
 
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
@@ -397,6 +403,9 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
     code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `pulse` (--system-pulse-fwhm-ps,
     --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
+    A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
+    rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
+    pipeline.lock) is a FolderLockedError, an OutputFolderError.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
     output = Path(output).resolve()
@@ -405,6 +414,24 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     paths = matched.paths
     settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, pulse)
     check_radiometry(paths, radiometry)
+    try:
+        with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
+            return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
+                                resume, add, radiometry, crs, pulse, settings, matched.not_taken, beam_args)
+    except RunStopped:
+        raise
+    except Exception as err:
+        faults = faults_in(err, output)  # a full disk, no permission, ...: no fault of the data
+        if not faults:
+            raise
+        raise RunStopped(faults, output) from err
+
+
+def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, formats: frozenset[str],
+                 limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
+                 resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, pulse: PulseOverrides,
+                 settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None) -> dict:
+    """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
         return {**read_run(output), "taken": taken}
@@ -417,7 +444,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
                         radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), pulse)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, matched.not_taken, crs, pulse)
+                     taken, radiometry, not_taken, crs, pulse)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -442,8 +469,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     result, jobs, calibration = None, Jobs(options, small_in_process), None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
+            clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
             plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range, limit,
                                jobs)
+            stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
             radiometry, calibration = calibrate(plans, config, radiometry, say)
@@ -475,10 +504,14 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                                             | "DecomposeFlight" >> DecomposeFlight(
                                                                 config, str(output), formats, spread=not jobs.dask,
                                                                 radiometry=radiometry)), small)
+            unfinished = [t for t in todo if not range_is_complete(output, t)]
+            if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
+                stop_on_noted_faults(output, len(unfinished), len(tasks))
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
                 jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
                          small)
+            stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
@@ -488,6 +521,17 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
                     {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
                      for path, plan in plans.items()}, calibration, total)
+
+
+def stop_on_noted_faults(output: Path, unfinished: int = 0, ranges: int = 0) -> None:
+    """RunStopped when the workers noted faults of the machine, or `unfinished` ranges of `ranges` ended without
+    their mark; the notes go (those in the temporary folder, outside the output, with them)."""
+    faults = noted_faults(output)
+    if not faults and not unfinished:
+        return
+    clear_faults(output)
+    raise RunStopped(faults or [output_fault(output, unfinished)], output, ranges - unfinished if ranges else None,
+                     ranges or None)
 
 
 def crs_line(plans: dict[str, FilePlan]) -> str | None:

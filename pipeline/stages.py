@@ -6,7 +6,8 @@
     geolocate_range(item, ...)    -> GeolocatedRange: positions, radiometry, the range's tables
     write_range(item, ...)        -> RangePart: the Parquet parts, and the LAS and MCAP parts under parts/
     run_range(task, settings)     -> RangeOutcome: all four in turn; a stage that fails rejects the range
-                                     (every pulse it still holds) with the stage and the reason
+                                     (every pulse it still holds) with the stage and the reason, unless the
+                                     machine failed (pipeline.faults): then MachineFault, and nothing rejected
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
+from fwcore.metrics.pulses import batch_metrics
+from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -27,6 +30,7 @@ from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry.equations import RadiometryConfig
 from fwcore.engine.records import STATUS_REASONS, WaveformBatch, model_samples
 from pipeline.copc import has_point_cloud_parts
+from pipeline.faults import READING, WRITING, MachineFault, machine_fault
 from pipeline.geoparquet import write_echo_part
 from pipeline.layout import ECHOES, LAS, MCAP, PULSES, part_paths
 from pipeline.plan import planned_pulses
@@ -114,13 +118,16 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
 
 
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
-    """Every echo placed along its beam, its range and radiometry computed, the range's tables built."""
+    """Every echo placed along its beam, its range and radiometry computed, every pulse's forest metrics
+    (fwcore.metrics), the range's tables built."""
     pulses, result, source = item.pulses, item.result, item.task.source
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
+    settings = MetricSettings.from_dict(source.metric_settings) if source.metric_settings else None
+    metrics = batch_metrics(pulses, result, source.system, settings)
     echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
-                                 columns, source.crs_wkt)
+                                 columns, source.crs_wkt, metrics)
     cloud = decomposed_echoes(pulses, result, xyz)
     kept = result.reject == 0
     cloud.update({name: values[kept] for name, values in columns.items()})
@@ -130,18 +137,25 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
 def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], calibrated: bool) -> RangePart:
     """The range's Parquet parts, and its LAS and MCAP parts under parts/: all of them or none."""
     task, paths = item.task, part_paths(output, item.task)
+    writing = paths[ECHOES]  # the part being written, named by a fault of the machine
     try:
         if "parquet" in formats:
             write_echo_part(item.echoes, paths[ECHOES].parent, paths[ECHOES].stem)
+            writing = paths[PULSES]
             write_part(item.pulses, paths[PULSES].parent, paths[PULSES].stem)
         if has_point_cloud_parts(formats):
+            writing = paths[LAS]
             write_point_cloud(paths[LAS], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
         if "mcap" in formats:
+            writing = paths[MCAP]
             write_mcap(paths[MCAP], item.cloud, item.views, task.source.adjusted_standard_gps_time,
                        task.source.crs_wkt)
-    except Exception:
+    except Exception as err:
         remove_parts(list(paths.values()))  # a range is written whole or not at all
-        raise
+        fault = machine_fault(err, WRITING, writing, task.label)
+        if fault is None or fault is err:
+            raise
+        raise fault from err
     return RangePart(task.source.stem, task.source.path, task.start,
                      str(paths[LAS]) if has_point_cloud_parts(formats) else "",
                      str(paths[MCAP]) if "mcap" in formats else "", task.source.adjusted_standard_gps_time)
@@ -182,8 +196,17 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
         held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats)
         stage = "write"
         outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated)
+    except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected
+        LOG.error("%s: %s stopped: %s", task.label, stage, fault.said())
+        raise
     except Exception as err:  # noqa: BLE001  any failure of one range must not stop the others
-        LOG.exception("%s: %s failed", stage, task)
+        fault = machine_fault(err, WRITING if stage == "write" else READING,
+                              settings.output if stage == "write" else task.source.path, task.label)
+        if fault is not None:
+            LOG.error("%s: %s stopped: %s", task.label, stage, fault.said())
+            raise fault from err
+        LOG.error("%s: %s failed: %s: %s", task.label, stage, type(err).__name__, err)
+        LOG.debug("%s: %s failed", task.label, stage, exc_info=True)
         outcome.rejected += reject_range(task, None if held is task else held, stage, f"{type(err).__name__}: {err}")
         return outcome
     kept = int(np.count_nonzero(held.echoes.column("kept").to_numpy(zero_copy_only=False)))

@@ -170,6 +170,19 @@ COLUMNS = {c.name: c for c in (
     Column("shape_tolerance", F64, "1", "the model's relative shape error on the file's pulse"),
     Column("optimizer", STR, "", "the optimizer"),
     Column("model", STR, "", "the echo model"),
+    Column("ground_z", F64, "CRS unit", "the ground's height: the waveform's lowest mode (GEDI L2A's elev_lowestmode; "
+                                        "null: see metrics_reason)"),
+    Column("rh", pa.list_(pa.float32()), "m", "RH0..RH100: the height above the ground below which 0..100 % of "
+                                                   "the waveform's energy lies (GEDI L2A), truncated to cm"),
+    Column("rv", F64, "DN sample", "the canopy's energy: the waveform above the ground return, above the ground (L2B)"),
+    Column("rg", F64, "DN sample", "the ground's energy: the fitted ground return's area (L2B)"),
+    Column("cover", F64, "1", "canopy cover: cos(zenith) (1 - Pgap), Pgap = 1 - rv / (rv + 1.5 rg) (GEDI L2B)"),
+    Column("pai", F64, "m2/m2", "plant area index: -ln(Pgap) cos(zenith) / (0.5 x 1) (GEDI L2B)"),
+    Column("pavd_z", pa.list_(pa.float32()), "m2/m3", "plant area volume density in 5 m bins from the ground up "
+                                                      "(0-5, 5-10, ... m; GEDI L2B)"),
+    Column("metrics_reason", STR, "", "'' when the forest metrics were measured, else why they are null"),
+    Column("stale_return_flag", pa.int8(), "", "GEDI L1B's stale return flag (null: not recorded)"),
+    Column("degrade_flag", pa.int8(), "", "GEDI L1B's degraded pointing or positioning flag (null: not recorded)"),
     Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
     Column("reason", STR, "", "why"),
 )}
@@ -182,6 +195,7 @@ _FIT = ("fit_error", "fit_error_raw", "rmse", "r2")
 _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes", "n_echoes_kept", "model_evaluations",
            "nit", "message")
 _METHOD = ("optimizer", "model")
+_FOREST = ("ground_z", "rh", "rv", "rg", "cover", "pai", "pavd_z", "metrics_reason")
 # Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
 TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
@@ -191,7 +205,8 @@ TABLES = {
                "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
-               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD),
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, "stale_return_flag",
+               "degrade_flag"),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
     "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", CSV_ENERGY,
                    "background", "kept", "reject_reason", *_FIT, *_METHOD),
@@ -295,11 +310,37 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
             **{c: np.asarray(radiometry[c], dtype=object).tolist() for c in ("radiometry", "reflectance_basis")}}
 
 
+def _forest_columns(metrics, rows: np.ndarray) -> dict:
+    """fwcore.metrics.waveform.WaveformMetrics at rows, NaN as null; all null without them."""
+    n = rows.size
+    if metrics is None:
+        return {**{c: pa.nulls(n, COLUMNS[c].type) for c in _FOREST if c != "metrics_reason"},
+                "metrics_reason": _strings("not measured", n)}
+    def listed(values: np.ndarray, column: str) -> pa.Array:
+        """Per row a list of the values (float32), null where the row measured nothing."""
+        values = values[rows].astype(np.float32)
+        measured = np.isfinite(values).any(axis=1) if values.size else np.zeros(n, bool)
+        if measured.all():
+            flat = pa.array(values.ravel(), pa.float32())
+            width = values.shape[1]  # 101 RH values, or the profile's bins (a plain list: Parquet reads a fixed-size
+            # list with null rows back as empty lists)
+            return pa.ListArray.from_arrays(pa.array(np.arange(n + 1) * width, pa.int32()), flat)
+        return pa.array([v.tolist() if m else None for v, m in zip(values, measured)], COLUMNS[column].type)
+    return {**{c: _null_where_nan(getattr(metrics, c)[rows]) for c in ("ground_z", "rv", "rg", "cover", "pai")},
+            "rh": listed(metrics.rh, "rh"), "pavd_z": listed(metrics.pavd_z, "pavd_z"),
+            "metrics_reason": [metrics.reason[i] for i in rows]}
+
+
+def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
+    return pa.nulls(rows.size, pa.int8()) if values is None else pa.array(values[rows], pa.int8())
+
+
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
                  pulse: SystemPulse, xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
-                 crs_wkt: str | None = None) -> tuple[pa.Table, pa.Table]:
+                 crs_wkt: str | None = None, metrics=None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
-    `ok`; the geometry's CRS is `crs_wkt` (the run's, fwcore.io.crs.input_crs), else the input file's."""
+    `ok`, with their forest metrics (fwcore.metrics) where given; the geometry's CRS is `crs_wkt` (the run's,
+    fwcore.io.crs.input_crs), else the input file's."""
     from fwcore.engine.model import sigma_to_time_unit
 
     owner = result.echo_waveform
@@ -329,7 +370,9 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         **_record_columns("pulses", result, sel), **_echo_counts(result, sel),
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, pulse.fwhm_ps),
-        "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size)})
+        "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size),
+        **_forest_columns(metrics, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
+        "degrade_flag": _flag(pulses.degrade_flag, sel)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
     anchors = geo_metadata(*pulses.anchor[sel].T, projjson, covering=False)

@@ -34,8 +34,9 @@ from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
-from pipeline.layout import (assemble_file, log_to_file, mark_range_done, plan_path, write_file_rejection,
-                             write_rejections)
+from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
+from pipeline.layout import (assemble_file, log_to_file, mark_range_done, part_name, plan_path,
+                             write_file_rejection, write_rejections)
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
 from pipeline.sinks import write_json
@@ -60,21 +61,40 @@ class RangeStages(beam.DoFn):
     def __init__(self, settings: RangeSettings):
         self.settings = settings
         self.counters = {name: Metrics.counter(NAMESPACE, name) for name in self.COUNTERS}
+        self.stopped: MachineFault | None = None  # a fault of this worker's output: its later ranges not tried
 
     def setup(self):
         log_to_file(self.settings.output)
         warm_up(self.settings.config)
 
     def process(self, task: ReadTask):
-        outcome = run_range(task, self.settings)
-        if outcome.rejected:  # the one place where the dead letter leaves
-            write_rejections(self.settings.output, task, outcome.rejected)
-        # the one place where a range's end is recorded
-        mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
+        if self.stopped is not None:  # this worker's output takes nothing: the range is not tried, nor marked
+            return
+        try:
+            outcome = run_range(task, self.settings)  # a fault there is said in the worker's log by run_range
+        except MachineFault as fault:
+            self._stop(task, fault)
+            return
+        try:
+            with raised_as_fault(WRITING, self.settings.output, task.label):
+                if outcome.rejected:  # the one place where the dead letter leaves
+                    write_rejections(self.settings.output, task, outcome.rejected)
+                # the one place where a range's end is recorded
+                mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
+        except MachineFault as fault:
+            LOG.error("%s: stopped: %s", task.label, fault.said())
+            self._stop(task, fault)
+            return
         for name, counter in self.counters.items():
             counter.inc(getattr(outcome, name))
         if outcome.part is not None:
             yield outcome.part
+
+    def _stop(self, task: ReadTask, fault: MachineFault) -> None:
+        """The range ends without its mark (a resumed run redoes it), its fault noted for the driver."""
+        note_fault(self.settings.output, part_name(task.source.stem, task.start), fault)
+        if fault.doing == WRITING:  # a full or read-only output fails every range: stop trying them
+            self.stopped = fault
 
     def teardown(self):
         for handler in logging.getLogger("fwl").handlers:  # the worker's log file, complete
@@ -95,10 +115,16 @@ class PlanFile(beam.DoFn):
 
     def process(self, item: InputToPlan):
         began = time.perf_counter()
-        plan = plan_input(item, self.config, self.points_per_range, self.limit)
-        if plan.rejection:
-            write_file_rejection(self.output, plan.rejection)
-        write_json(plan_path(self.output, item.stem), plan.to_json())
+        try:
+            plan = plan_input(item, self.config, self.points_per_range, self.limit)
+            with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
+                if plan.rejection:
+                    write_file_rejection(self.output, plan.rejection)
+                write_json(plan_path(self.output, item.stem), plan.to_json())
+        except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
+            LOG.error("%s: stopped: %s", item.name, fault.said())
+            note_fault(self.output, item.stem, fault)
+            return
         LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
         yield item.stem
 
@@ -145,4 +171,15 @@ class AssembleFiles(beam.PTransform):
     formats: frozenset[str] = frozenset(("las", "mcap"))
 
     def expand(self, files):
-        return files | "Assemble" >> beam.Map(assemble_file, self.output, self.laz, self.formats)
+        return files | "Assemble" >> beam.Map(assemble_file_or_fault, self.output, self.laz, self.formats)
+
+
+def assemble_file_or_fault(item: tuple, output: str, laz: bool, formats: frozenset[str]) -> str:
+    """layout.assemble_file; a fault of the machine noted for the driver (the parts stay for a resumed run)."""
+    try:
+        with raised_as_fault(WRITING, output, f"assembling {item[0]}"):
+            return assemble_file(item, output, laz, formats)
+    except MachineFault as fault:
+        LOG.error("%s: stopped: %s", item[0], fault.said())
+        note_fault(output, item[0], fault)
+        return item[0]

@@ -29,16 +29,17 @@ from typing import Callable
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.io import needs_packet_file, packet_file
-from pipeline.outputs import INPUT_SUFFIXES, OutputFolderError, check_settings, input_identity, read_manifest
+from pipeline.faults import RunStopped
+from pipeline.outputs import OutputFolderError, check_settings, input_identity, is_flight_line, read_manifest
 
 LOG = logging.getLogger("fwl")
 Snapshot = tuple[tuple[int, int], ...]  # (size, mtime_ns) of an input and of its packet file
 
 
 def input_files(folder: Path) -> list[Path]:
-    """The inputs a folder holds now (its *.las, *.laz and *.pls, not recursive), sorted, as the paths a run
-    records (a symbolic link resolved to its target, as fwl run resolves its inputs)."""
-    return sorted({p.resolve() for p in folder.iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES})
+    """The inputs a folder holds now (its *.las, *.laz, *.pls and GEDI/LVIS L1B *.h5, not recursive), sorted, as
+    the paths a run records (a symbolic link resolved to its target, as fwl run resolves its inputs)."""
+    return sorted({p.resolve() for p in folder.iterdir() if p.is_file() and is_flight_line(p)})
 
 
 def snapshot(path: Path) -> Snapshot | None:
@@ -115,6 +116,9 @@ def watch(folder: str | Path, output: str | Path, config: DecompositionConfig, s
                 summary = run_batch(batch)
             except OutputFolderError:
                 raise  # the output folder itself cannot be used: waiting changes nothing
+            except RunStopped as stopped:  # a full disk...: said in one line each, tried again once fixed
+                for line in stopped.lines("the watch tries the batch again at its next poll"):
+                    say(f"fwl watch: stopped: {line}")
             except Exception as err:  # noqa: BLE001  a file moved away, a failed job: the watch goes on
                 LOG.exception("fwl watch: batch %s failed", batch)
                 say(f"fwl watch: this batch did not finish ({type(err).__name__}: {err}); its files are tried "

@@ -151,7 +151,7 @@ def _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, 
 
 
 @njit(**JIT)
-def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape, local, out, echoes):
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, shape, local, out, echoes):
     """One waveform end to end into its result record `out` and echo records `echoes`."""
     n = samples.size
     first, last = _valid_span(valid)
@@ -162,7 +162,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
     pos0 = np.zeros(p.max_echoes)
     sig0 = np.zeros(p.max_echoes)
     noise, background, n_echoes = initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed,
-                                                   amp0, pos0, sig0)
+                                                   amp0, pos0, sig0, noise_floor)
     n_initial = n_echoes
     times, fit_target, raw = _valid_arrays(samples, smoothed, valid, p.fit_denoised)
     variance = np.empty(times.size)
@@ -227,15 +227,15 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, seed, p, shape,
 
 
 @njit(**JIT)
-def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, seeds, p, shape, local, out,
-                     echoes, first, stop):
+def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, noise_floor, seeds, p, shape,
+                     local, out, echoes, first, stop):
     """Waveforms first..stop-1 of the batch (those of status 0), each into its own records."""
     for w in range(first, stop):
         if status[w] != 0:
             continue
         lo, hi = offsets[w], offsets[w + 1]
-        _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], seeds[w], p, shape,
-                       local, out[w], echoes[w])
+        _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], noise_floor[w], seeds[w], p,
+                       shape, local, out[w], echoes[w])
 
 
 # ---------------------------------------------------------------- Python API
@@ -298,13 +298,14 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
     samples = np.where(batch.valid, batch.samples, 0.0)  # invalid samples never reach the kernel's sums
     samples[~np.isfinite(samples)] = 0.0
     shapes = echo_shapes(config, pulse, batch.sample_spacing_ps)
+    noise_floor = np.zeros(n) if batch.noise_floor is None else np.nan_to_num(batch.noise_floor.astype(np.float64))
     params = config.kernel_params(pulse.echo_model(config.model), pulse.shape_tolerance)
     for spacing, shape in shapes.items():
         # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
         group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
                        smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
-                       pulse_sigma_samples(pulse, batch.sample_spacing_ps), batch.seeds, params,
+                       pulse_sigma_samples(pulse, batch.sample_spacing_ps), noise_floor, batch.seeds, params,
                        shape, OPTIMIZERS[config.optimizer].local, out, echoes)
         _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]

@@ -564,10 +564,11 @@ def _smoothing_support(valid, sigma, out):
 
 
 @njit(**JIT)
-def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed, amplitude, position, sigma):
+def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed, amplitude, position, sigma,
+                     noise_floor):
     """The method's section 1.2, the kernel the engine runs: denoise into `smoothed`, measure the
     noise and background, then peel up to p.max_echoes echoes off (fwcore.engine.config.KernelParams).
-    Returns (noise sigma, background, echo count).
+    Returns (noise sigma, background, echo count); the noise is at least `noise_floor` (the file's own, or 0).
 
     p.robust_noise: the noise is the robust white sigma, inflated for the correlation of neighbouring
     samples (the noise an echo-wide feature sees), and the background the robust baseline;
@@ -582,6 +583,7 @@ def initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smo
     else:
         noise = max(residual_noise_sigma(samples, smoothed, valid), p.min_noise_sigma)
         background = valid_min(smoothed, valid)
+    noise = max(noise, noise_floor)
     threshold = np.empty(samples.size)
     support = np.empty(samples.size, dtype=np.bool_)
     _smoothing_support(valid, smoothing_sigma, support)
@@ -662,7 +664,7 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     noise, background, n = initial_estimate(
         samples, valid, float(smoothing_sigma), float(fallback_sigma),
         settings.kernel_params(Model.GENERALIZED, shape_tolerance),
-        analytic_shape() if shape is None else shape, smoothed, amplitude, position, sigma)
+        analytic_shape() if shape is None else shape, smoothed, amplitude, position, sigma, 0.0)
     return InitialEstimate(smoothed, float(noise), float(background), amplitude[:n], position[:n], sigma[:n])
 
 

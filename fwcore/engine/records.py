@@ -46,6 +46,9 @@ class WaveformBatch:
     offsets: np.ndarray  # int64, n + 1
     sample_spacing_ps: np.ndarray  # float64, n
     seeds: np.ndarray  # uint64, n: from fwcore.rng.pulse_seed
+    # float64, n: the noise sigma the file records per waveform (GEDI's L1B), below which the engine's own estimate
+    # may not fall: a waveform the instrument smoothed has correlated noise its residuals underestimate; None: 0
+    noise_floor: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.offsets.size - 1

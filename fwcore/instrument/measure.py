@@ -141,7 +141,7 @@ def _head_records(pulses: PulseBatch, records: int, seed: int) -> WaveformBatch:
     every = pulse_waveforms(pulses, seed)
     end = every.offsets[n]
     return WaveformBatch(every.samples[:end], every.valid[:end], every.offsets[:n + 1], every.sample_spacing_ps[:n],
-                         every.seeds[:n])
+                         every.seeds[:n], None if every.noise_floor is None else every.noise_floor[:n])
 
 
 def _file_width(pulses: PulseBatch | None, name: str) -> tuple[float, str]:

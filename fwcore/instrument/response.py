@@ -267,8 +267,17 @@ def pulses_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | N
 
 
 def file_response(pulses) -> SystemResponse | None:
-    """The response of a file's first pulses: on the system's single returns where the file has them,
-    otherwise on its strongest isolated echoes; None where too few qualify."""
+    """The response of a file's first pulses: on its transmitted waveforms where it records them with their
+    shape (GEDI), else on the system's single returns where the file has them, otherwise on its strongest
+    isolated echoes; None where too few qualify."""
+    if pulses.outgoing is not None and pulses.outgoing.size and pulses.transmit_shape is not None:
+        # GEDI records each shot's transmitted pulse, which its returns are made of (PulseWaves' outgoing
+        # waveforms are the system's own monitor channel, not measured here as the response)
+        spacing = float(np.median(pulses.outgoing_spacing_ps))
+        response = response_of_waveforms([pulses.outgoing_samples(i) for i in range(len(pulses))], spacing,
+                                         "transmitted waveforms")
+        if response is not None:
+            return response
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
     response = pulses_response(pulses, single, "single returns") if single.size else None
     return response or pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")

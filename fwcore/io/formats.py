@@ -1,4 +1,5 @@
-"""The formats read, as a table: one entry per format (LAS/LAZ, PulseWaves, NEON CSV) with what it can do,
+"""The formats read, as a table: one entry per format (LAS/LAZ, PulseWaves, GEDI L1B, LVIS L1B, NEON CSV) with what
+it can do,
 and the entry points that look a file's format up in it instead of branching on it.
 
     format_of(path)          -> Format         by the file's first bytes (and name)
@@ -22,6 +23,7 @@ from fwcore.io.records import PointRange, PulseBatch
 LAS_SIGNATURE = b"LASF"
 PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"  # a .pls's and a .wvs's first bytes
 NEON_CSV_HEADER = b"waveform_id,n_samples"
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"  # GEDI and LVIS granules: told apart by their groups (Format.sniff)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +40,8 @@ class Kind:
 UNREADABLE, EMPTY = Kind("an unreadable file"), Kind("an empty file")
 TEXT, CSV_TEXT = Kind("a text file", text=True), Kind("a text file (CSV)", text=True)
 FOREIGN_BINARY = Kind("a binary file of no format fwl reads")
+FOREIGN_HDF5 = Kind("an HDF5 file of no layout fwl reads (GEDI L2A and L2B granules hold no waveforms: give the "
+                    "L1B)")
 WAVES_FILE = Kind("a PulseWaves waves file (.wvs: the samples of the .pls beside it)", beside=True)
 WDP_FILE = Kind("a LAS waveform packet file (.wdp: the samples of the .las beside it)", beside=True)
 WDZ_FILE = Kind("a LASzip waveform packet file (.wdz: the samples of the .laz beside it)", beside=True)
@@ -68,8 +72,10 @@ def kind_of(path: str | Path) -> Kind:
         return UNREADABLE
     head = head.removeprefix(b"\xef\xbb\xbf")  # a CSV saved with a byte-order mark
     for fmt in FORMATS:
-        if head.startswith(fmt.signature):
+        if head.startswith(fmt.signature) and (fmt.sniff is None or fmt.sniff(path)):
             return Kind(fmt.kind, fmt)
+    if head.startswith(HDF5_SIGNATURE):
+        return FOREIGN_HDF5
     if head.startswith(WAVES_SIGNATURE):
         return WAVES_FILE
     if not head:
@@ -146,6 +152,7 @@ class Format:
     summary: Callable[..., InputSummary] | None = None
     crs: Callable[..., str | None] | None = None
     samples_beside: Callable[[Path], Path | None] | None = None
+    sniff: Callable[[Path], bool] | None = None  # for a signature several formats share (HDF5): is it this one?
 
 
 def _lazy(module: str, name: str) -> Callable:
@@ -200,7 +207,20 @@ PULSEWAVES = Format(name="PulseWaves", kind="a PulseWaves pulse file (.pls)", si
 NEON_CSV = Format(name="NEON waveform CSV", kind="a NEON-layout waveform CSV", signature=NEON_CSV_HEADER,
                   reads_with="fwl decompose-csv", open=_lazy("fwcore.io.neon", "read_neon_csv"),
                   describe=_neon_describe)
-FORMATS = (LAS, PULSEWAVES, NEON_CSV)
+GEDI_L1B = Format(name="GEDI L1B", kind="a GEDI L1B granule (HDF5)", signature=HDF5_SIGNATURE, reads_with="fwl run",
+                  open=_lazy("fwcore.io.gedi", "open_gedi"), describe=_lazy("fwcore.io.gedi", "describe_gedi"),
+                  plan=_lazy("fwcore.io.gedi", "plan_gedi_ranges"), read=_lazy("fwcore.io.gedi", "read_gedi"),
+                  summary=lambda path, opened=None: InputSummary((opened or GEDI_L1B.open(path)).point_count, False),
+                  crs=lambda path, opened=None: (opened or GEDI_L1B.open(path)).crs_wkt,
+                  sniff=_lazy("fwcore.io.gedi", "is_gedi_l1b"))
+LVIS_L1B = Format(name="LVIS L1B", kind="an LVIS L1B waveform file (HDF5)", signature=HDF5_SIGNATURE,
+                  reads_with="fwl run", open=_lazy("fwcore.io.lvis", "open_lvis"),
+                  describe=_lazy("fwcore.io.lvis", "describe_lvis"), plan=_lazy("fwcore.io.lvis", "plan_lvis_ranges"),
+                  read=_lazy("fwcore.io.lvis", "read_lvis"),
+                  summary=lambda path, opened=None: InputSummary((opened or LVIS_L1B.open(path)).point_count, False),
+                  crs=lambda path, opened=None: (opened or LVIS_L1B.open(path)).crs_wkt,
+                  sniff=_lazy("fwcore.io.lvis", "is_lvis_l1b"))
+FORMATS = (LAS, PULSEWAVES, GEDI_L1B, LVIS_L1B, NEON_CSV)
 
 
 def format_of(path: str | Path) -> Format:

@@ -151,11 +151,29 @@ def _table_line(t: dict) -> str:
     return line + ("; used by " + ", ".join(t["used_by"]) if t["used_by"] else "; used by no sampling")
 
 
+def _format_granule(info: dict) -> str:
+    lines = [f"{info['file']}: {info['format']}, {info['shots']} shots, CRS {info['crs']}"]
+    for name, beam in info.get("beams", {}).items():
+        b = beam["bounds"]
+        lines.append(f"  {name}: {beam['shots']} shots, {beam['samples']['min']}-{beam['samples']['max']} samples, "
+                     f"{beam['stale']} stale" + (f"; lon {b[0]:.5f}..{b[2]:.5f}, lat {b[1]:.5f}..{b[3]:.5f}" if b else ""))
+    if "samples" in info and not isinstance(info["samples"], dict):
+        lines.append(f"  {info['samples']} samples a shot")
+    if info.get("bounds"):
+        b = info["bounds"]
+        lines.append(f"  lon {b[0]:.5f}..{b[2]:.5f}, lat {b[1]:.5f}..{b[3]:.5f}")
+    for p in info.get("problems", []):
+        lines.append(f"  PROBLEM: {p}")
+    return "\n".join(lines)
+
+
 def format_info(info: dict) -> str:
     """The human-readable form of describe_file's dictionary."""
     if "waveforms" in info:  # a NEON-layout CSV: waveforms, no header
         return (f"{info['file']}: {info['format']}\n  waveforms: {info['waveforms']}, "
                 f"{info['samples']['min']}-{info['samples']['max']} samples each (fwl decompose-csv reads it)")
+    if info["format"] in ("GEDI L1B", "LVIS L1B"):  # HDF5 granules: shots (by beam), samples, CRS, bounds
+        return _format_granule(info)
     lines = [f"{info['file']}: {info['format']} {info['version']}"
              + (f", point format {info['point_format']}" if "point_format" in info else "")]
     for key in ("system_identifier", "generating_software"):

@@ -73,6 +73,15 @@ class PulseBatch:
     # per row: the packet time (ps, like echo times) at which the beam is at the scanner's optical centre, where
     # the file says (PulseWaves with a constant optical-centre-to-anchor offset); NaN or None where it does not
     sensor_location_ps: np.ndarray | None = None
+    # per row, where the file records them (GEDI, LVIS): the noise mean and standard deviation of the digitizer,
+    # the beam's zenith cosine, the transmitted pulse's extended Gaussian (sigma, its error, gamma, its error;
+    # samples) and the quality flags the mission sets
+    noise_mean: np.ndarray | None = None
+    noise_sd: np.ndarray | None = None
+    cos_zenith: np.ndarray | None = None
+    transmit_shape: np.ndarray | None = None  # (n, 4)
+    stale_return_flag: np.ndarray | None = None
+    degrade_flag: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.pulse_id.size

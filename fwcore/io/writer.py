@@ -43,6 +43,12 @@ RADIOMETRY_FLAGS = {"unavailable": 0, "relative": 1, "calibrated": 2}
 def point_cloud_template(template: str | Path) -> dict:
     """Scales, offsets, CRS (WKT) and system identifier of the input the cloud is made from (LAS or PulseWaves)."""
     template = Path(template)
+    from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
+
+    fmt = format_of(template)
+    if fmt in (GEDI_L1B, LVIS_L1B):  # degrees to 1e-7 (1 cm), heights to the millimetre
+        return {"scales": np.array([1e-7, 1e-7, 1e-3]), "offsets": np.zeros(3),
+                "wkt": fmt.crs(template), "system_identifier": fmt.name.split()[0], "geokeys": []}
     if template.suffix.lower() == ".pls":
         from fwcore.io.pulsewaves import open_pulsewaves
 

@@ -14,16 +14,19 @@ a waveform's energy.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.special import erfc
+from numba import njit
+
+from fwcore._jit import JIT
 
 RHOV_RHOG = 0.6 / 0.4  # L2B's default reflectances of vegetation and ground
 ROSSG = 0.5
 OMEGA = 1.0
 PROFILE_STEP_M = 5.0
 PROFILE_TOP_M = 150.0  # L2B's maxheight_cuttoff: 30 bins of 5 m
+TAIL_SAMPLES = 150  # fitted beyond the signal's last sample
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,14 +63,142 @@ class GroundPulse:
         return cls(sigma, sigma / 3.0, 1.0, 0.3)
 
 
+@njit(**JIT)
+def _extended_gaussian_at(amplitude, centre, sigma, gamma, x):
+    spread = gamma * sigma * sigma
+    y = amplitude * 0.5 * gamma * math.exp(gamma * (centre + 0.5 * spread - x)) * \
+        math.erfc((centre + spread - x) / max(1e-12, math.sqrt(2.0) * sigma))
+    return y if math.isfinite(y) else 0.0
+
+
+@njit(**JIT)
+def _cost(p, x, y):
+    total = 0.0
+    for i in range(x.size):
+        r = _extended_gaussian_at(p[0], p[1], p[2], p[3], x[i]) - y[i]
+        total += r * r
+    return total
+
+
+@njit(**JIT)
+def _residual_and_jacobian(p, x, y, residual, jac):
+    """The model minus y at x, and its derivatives in amplitude, centre, sigma and gamma (analytic)."""
+    amplitude, centre, sigma, gamma = p[0], p[1], p[2], p[3]
+    root2 = math.sqrt(2.0)
+    for i in range(x.size):
+        u = gamma * (centre + 0.5 * gamma * sigma * sigma - x[i])
+        v = (centre + gamma * sigma * sigma - x[i]) / max(1e-12, root2 * sigma)
+        e = math.exp(u)
+        f = math.erfc(v)
+        df = -2.0 / math.sqrt(math.pi) * math.exp(-v * v)  # d erfc(v) / dv
+        half = 0.5 * amplitude * gamma * e
+        value = half * f
+        if not (math.isfinite(value) and math.isfinite(df * half)):
+            residual[i] = -y[i]
+            jac[i, 0] = jac[i, 1] = jac[i, 2] = jac[i, 3] = 0.0
+            continue
+        residual[i] = value - y[i]
+        jac[i, 0] = 0.5 * gamma * e * f
+        jac[i, 1] = half * (gamma * f + df / (root2 * sigma))
+        jac[i, 2] = half * (gamma * gamma * sigma * f + df * (-(centre - x[i]) / (root2 * sigma * sigma) + gamma / root2))
+        jac[i, 3] = 0.5 * amplitude * e * f + half * ((centre + gamma * sigma * sigma - x[i]) * f + df * sigma / root2)
+
+
+@njit(**JIT)
+def _solve4(a, b, out):
+    """a (k x k, symmetric positive definite after damping) \\ b by Gaussian elimination with partial pivoting, in
+    place: for four unknowns a LAPACK call costs more than the arithmetic."""
+    k = b.size
+    m = a.copy()
+    r = b.copy()
+    for c in range(k):
+        pivot = c
+        for i in range(c + 1, k):
+            if abs(m[i, c]) > abs(m[pivot, c]):
+                pivot = i
+        if pivot != c:
+            for j in range(k):
+                m[c, j], m[pivot, j] = m[pivot, j], m[c, j]
+            r[c], r[pivot] = r[pivot], r[c]
+        for i in range(c + 1, k):
+            f = m[i, c] / m[c, c]
+            for j in range(c, k):
+                m[i, j] -= f * m[c, j]
+            r[i] -= f * r[c]
+    for c in range(k - 1, -1, -1):
+        acc = r[c]
+        for j in range(c + 1, k):
+            acc -= m[c, j] * out[j]
+        out[c] = acc / m[c, c]
+
+
+@njit(**JIT)
+def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
+    """Levenberg-Marquardt on the four parameters, analytic Jacobian, a parameter its gradient holds at a bound
+    kept there and each step projected into the bounds; stops when a step no longer lowers the cost by a
+    relative 1e-9 or after `iterations` steps."""
+    n, k = x.size, 4
+    jac = np.empty((n, k))
+    residual = np.empty(n)
+    trial = np.empty(k)
+    delta = np.empty(k)
+    cost = _cost(p, x, y)
+    damping = 1e-3
+    for _ in range(iterations):
+        _residual_and_jacobian(p, x, y, residual, jac)
+        normal = np.zeros((k, k))
+        gradient = np.zeros(k)
+        for i in range(n):
+            for j in range(k):
+                gradient[j] += jac[i, j] * residual[i]
+                for l in range(j, k):
+                    normal[j, l] += jac[i, j] * jac[i, l]
+        for j in range(k):
+            for l in range(j):
+                normal[j, l] = normal[l, j]
+        for j in range(k):  # a parameter held at a bound by its gradient stays there: the step is in the others
+            if (p[j] <= lower[j] and gradient[j] > 0) or (p[j] >= upper[j] and gradient[j] < 0):
+                normal[j, :] = 0.0
+                normal[:, j] = 0.0
+                normal[j, j] = 1.0
+                gradient[j] = 0.0
+        improved = False
+        new_cost = cost
+        for _ in range(30):
+            a = normal.copy()
+            for j in range(k):
+                a[j, j] += damping * max(normal[j, j], 1e-12)
+            _solve4(a, -gradient, delta)
+            for j in range(k):
+                trial[j] = min(max(p[j] + delta[j], lower[j]), upper[j])
+            new_cost = _cost(trial, x, y)
+            if new_cost < cost:
+                improved = True
+                break
+            damping *= 10.0
+        if not improved:
+            break
+        relative = (cost - new_cost) / max(cost, 1e-300)
+        p[:] = trial
+        cost = new_cost
+        damping = max(damping / 10.0, 1e-12)
+        if relative < 1e-9:
+            break
+    return p
+
+
+@njit(**JIT)
+def _extended_gaussian(p, x, out):
+    for i in range(x.size):
+        out[i] = _extended_gaussian_at(p[0], p[1], p[2], p[3], x[i])
+
+
 def extended_gaussian(params: np.ndarray, x: np.ndarray) -> np.ndarray:
     """amplitude (its area), centre, sigma, gamma -> the exponentially modified Gaussian at x (L2B's form)."""
-    amplitude, centre, sigma, gamma = params
-    spread = gamma * sigma * sigma
-    with np.errstate(over="ignore", invalid="ignore"):
-        y = amplitude * 0.5 * gamma * np.exp(gamma * (centre + 0.5 * spread - x)) * \
-            erfc((centre + spread - x) / max(1e-12, np.sqrt(2.0) * sigma))
-    return np.nan_to_num(y, nan=0.0, posinf=0.0)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    out = np.empty(x.size)
+    _extended_gaussian(np.asarray(params, dtype=np.float64), x, out)
+    return out
 
 
 def ground_return(signal: np.ndarray, ground: float, pulse: GroundPulse,
@@ -79,14 +210,17 @@ def ground_return(signal: np.ndarray, ground: float, pulse: GroundPulse,
     Sample i sits at i + 1 in the fit, as in NASA's L2B (a 1-based index against L2A's 0-based zcross): with it
     this reproduces L2B's rv and rg; without it both are off by 5-70 %."""
     x = np.arange(1, signal.size + 1, dtype=np.float64)
-    fitted = x > ground - 2 * centre_buffer
+    # below the signal the samples are 0 and so, 150 samples on, is the model (its tail e^-(gamma 150) < 1e-8):
+    # those samples add nothing to the fit but time
+    last_signal = np.flatnonzero(signal)[-1] + 1 if signal.any() else signal.size
+    fitted = (x > ground - 2 * centre_buffer) & (x <= last_signal + TAIL_SAMPLES)
     lower = np.array([-np.inf, ground - centre_buffer, pulse.sigma - 3 * pulse.sigma_error,
                       pulse.gamma - 3 * pulse.gamma_error])
     upper = np.array([np.inf, ground + centre_buffer, np.inf, pulse.gamma + 3 * pulse.gamma_error])
     start = np.clip([signal.max(), ground, pulse.sigma, pulse.gamma], lower + 1e-9, upper - 1e-9)
-    fit = least_squares(lambda p: extended_gaussian(p, x[fitted]) - signal[fitted], start, bounds=(lower, upper),
-                        max_nfev=100)
-    return extended_gaussian(fit.x, x), float(fit.x[0])
+    p = _fit_extended_gaussian(x[fitted], np.ascontiguousarray(signal[fitted], dtype=np.float64),
+                               start.astype(np.float64), lower, upper, 100)
+    return extended_gaussian(p, x), float(p[0])
 
 
 def canopy_energy(signal: np.ndarray, ground_model: np.ndarray, ground: float) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Every pulse's forest metrics in one call: the settings (GEDI L2A's algorithm 1 by default), the per-pulse record
 and the batch function over the flat samples the readers hand on.
 
-    waveform_metrics(samples, offsets, noise_mean, noise_sd, first_z, metres_per_sample, cos_zenith, settings)
-        -> WaveformMetrics: ground_z, rh (n, 101), rv, rg, pgap, cover, pai, cover_z / pai_z / pavd_z (n, 30),
+    waveform_metrics(samples, offsets, noise_mean, noise_sd, first_z, metres_per_sample, cos_zenith, pulse, settings)
+        -> WaveformMetrics (the numba kernel, fwcore.metrics.kernel; reference_metrics: the same in NumPy): ground_z, rh (n, 101), rv, rg, pgap, cover, pai, cover_z / pai_z / pavd_z (n, 30),
            and a reason per pulse ('' when measured; otherwise why its metrics are null)
 
 Heights come from each waveform's own vertical axis: the first sample's elevation and the vertical drop per
@@ -125,11 +125,43 @@ def pulse_metrics(samples: np.ndarray, noise_mean: float, noise_sd: float, first
             "cover_z": cover_z, "pai_z": pai_z, "pavd_z": pavd_z}
 
 
+REASONS = ("", NO_NOISE, NOT_FINITE, NO_AXIS, NO_SIGNAL, NO_GROUND)  # by fwcore.metrics.kernel's codes
+
+
 def waveform_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.ndarray, noise_sd: np.ndarray,
                      first_z: np.ndarray, metres_per_sample: np.ndarray, cos_zenith: np.ndarray,
                      pulse: np.ndarray, settings: MetricSettings = GEDI_ALGORITHM_1) -> WaveformMetrics:
-    """Every waveform's metrics: waveform i is samples[offsets[i]:offsets[i + 1]]; per-waveform arrays beside, and
-    `pulse` (n, 4): each shot's transmitted pulse as GroundPulse fields (sigma, its error, gamma, its error)."""
+    """Every waveform's metrics (the numba kernel, fwcore.metrics.kernel; pulse_metrics is its reference):
+    waveform i is samples[offsets[i]:offsets[i + 1]]; per-waveform arrays beside, and `pulse` (n, 4): each shot's
+    transmitted pulse as GroundPulse fields (sigma, its error, gamma, its error)."""
+    from fwcore.metrics.kernel import metrics_kernel
+
+    n = offsets.size - 1
+    bins = settings.canopy.profile_heights.size
+    out = empty_metrics(n, bins)
+    scalars = np.full((n, 10), np.nan)
+    reason = np.zeros(n, dtype=np.int8)
+    f64 = lambda a: np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (n,)))  # noqa: E731
+    canopy = settings.canopy
+    metrics_kernel(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(offsets, dtype=np.int64),
+                   f64(noise_mean), f64(noise_sd), f64(first_z), f64(metres_per_sample), f64(cos_zenith),
+                   np.ascontiguousarray(np.asarray(pulse, dtype=np.float64).reshape(n, 4)),
+                   np.array([settings.smoothing_width, settings.smoothing_width_zcross], dtype=np.float64),
+                   np.array([settings.front_threshold_sd, settings.back_threshold_sd], dtype=np.float64),
+                   int(settings.subbins),
+                   np.array([settings.signal_search_buffer, settings.ground_centre_buffer], dtype=np.float64),
+                   np.array([canopy.rhov_rhog, canopy.rossg, canopy.omega, canopy.profile_step_m], dtype=np.float64),
+                   reason, scalars, out["rh"], out["cover_z"], out["pai_z"], out["pavd_z"])
+    for column, name in enumerate(("toploc", "botloc", "ground_index", "ground_z", "rv", "rg", "pgap", "cover",
+                                   "pai")):
+        out[name] = scalars[:, column]
+    return WaveformMetrics(**out, reason=[REASONS[r] for r in reason])
+
+
+def reference_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.ndarray, noise_sd: np.ndarray,
+                      first_z: np.ndarray, metres_per_sample: np.ndarray, cos_zenith: np.ndarray,
+                      pulse: np.ndarray, settings: MetricSettings = GEDI_ALGORITHM_1) -> WaveformMetrics:
+    """waveform_metrics by pulse_metrics, a waveform at a time in NumPy: the kernel's reference."""
     n = offsets.size - 1
     out = empty_metrics(n, settings.canopy.profile_heights.size)
     reasons = []

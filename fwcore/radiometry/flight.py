@@ -18,7 +18,7 @@ from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.io import PointRange, crs_wkt, read_pulses
-from fwcore.io.formats import PULSEWAVES, format_of
+from fwcore.io.formats import GEDI_L1B, LVIS_L1B, PULSEWAVES, format_of
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.radiometry.equations import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
@@ -104,6 +104,9 @@ def _file_radiometry(path: str, adjusted_standard_gps_time: bool, config: Radiom
             why = f"{name}: its coordinates are not metres (geographic or feet): no range"
         else:
             source, why = f"trajectory {Path(config.trajectory).name}", ""
+    if not source and not why and format_of(path) in (GEDI_L1B, LVIS_L1B):
+        why = (f"{name}: {format_of(path).name}'s coordinates are geographic (degrees): no range per echo; its "
+               f"energies are in pulses/")
     if not source and not why:
         why = f"{name}: a LAS file does not record where its scanner was: give --trajectory"
     return FileRadiometry(str(path), source, why, divergence, divergence_source, system, wkt)

@@ -151,6 +151,9 @@ def _has_waveforms(path: Path, mtime_ns: int) -> bool:
     """PulseWaves always; LAS/LAZ only with a waveform point format (4, 5, 9, 10)."""
     if path.suffix.lower() == ".pls":
         return True
+    if path.suffix.lower() == ".h5":  # a GEDI or LVIS L1B granule; L2A and L2B hold no waveforms
+        from pipeline.outputs import is_flight_line
+        return is_flight_line(path)
     import laspy
     try:
         with laspy.open(path) as f:

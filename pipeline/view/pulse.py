@@ -24,6 +24,7 @@ from fwcore.instrument.response import SystemResponse
 from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.engine.model import sigma_to_time_unit
 from fwcore.engine.preprocess import gaussian_smooth
+from fwcore.metrics.pulses import vertical_axis
 from fwcore.pulses import pulse_waveforms
 from pipeline.layout import range_start
 from pipeline.view import queries
@@ -44,6 +45,10 @@ class RawPulse:
     return_location_ps: np.ndarray
     return_number: np.ndarray
     return_intensity: np.ndarray
+    valid: np.ndarray | None = None  # the samples the engine saw (fwcore.pulses.signal_windows); None: all
+    noise_floor: float = 0.0  # the noise sigma the file records (GEDI), the engine's floor
+    first_z: float = float("nan")  # the first sample's height and the height a sample drops (m): forest markers
+    metres_per_sample: float = float("nan")
 
 
 @functools.lru_cache(maxsize=16)
@@ -89,11 +94,16 @@ def load_pulse(run: Path, source_file: str,
         config = config.replace(model=Model(row["model"]))
     pulse = run_pulse(summary, source_file, row)
     pulses, i = _find_in_ranges(inputs[source_file], int(summary.get("points_per_range") or 5000), part, pulse_id)
-    seed = int(pulse_waveforms(pulses, config.seed).seeds[i])
+    engine_input = pulse_waveforms(pulses, config.seed)
+    seed = int(engine_input.seeds[i])
     lo, hi = pulses.return_offsets[i], pulses.return_offsets[i + 1]
+    first_z, drop = vertical_axis(pulses)
     raw = RawPulse(pulses.pulse_samples(i).astype(float), float(pulses.sample_spacing_ps[i]), seed,
                    pulses.return_location_ps[lo:hi].astype(float), pulses.return_number[lo:hi].astype(int),
-                   pulses.return_intensity[lo:hi].astype(int))
+                   pulses.return_intensity[lo:hi].astype(int),
+                   engine_input.valid[pulses.sample_offsets[i]:pulses.sample_offsets[i + 1]].copy(),
+                   0.0 if engine_input.noise_floor is None else float(engine_input.noise_floor[i]),
+                   float(first_z[i]), float(drop[i]))
     return raw, config, pulse, row
 
 
@@ -134,7 +144,9 @@ def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> 
 
 def decompose_pulse(raw: RawPulse, config: DecompositionConfig, pulse: SystemPulse) -> dict:
     """The engine on one pulse, and everything the pulse view draws: times in ps, amplitudes in counts."""
-    batch = WaveformBatch.from_waveforms([raw.samples], raw.sample_spacing_ps, [raw.seed])
+    batch = WaveformBatch.from_waveforms([raw.samples], raw.sample_spacing_ps, [raw.seed],
+                                         None if raw.valid is None else [raw.valid])
+    batch = dataclasses.replace(batch, noise_floor=np.array([raw.noise_floor]))
     result = decompose_batch(batch, config, pulse, threads=1).waveform(0)
     spacing = raw.sample_spacing_ps
     t = np.arange(raw.samples.size, dtype=float)
@@ -178,6 +190,20 @@ def _response_curve(model: Model, pulse: SystemPulse, result, spacing: float) ->
     return {"time_ps": (result.position[k] * spacing - lobe_centroid_ps(response) + response.times).tolist(),
             "counts": (result.background + result.amplitude[k] * response.response).tolist(),
             "source": response.source}
+
+
+def forest_markers(raw: RawPulse, row: dict) -> dict | None:
+    """Where the pulse's ground and RH25/50/75/98 lie on its waveform (ps from the first sample), from its row's
+    ground_z and rh; None where the run measured none."""
+    ground, rh = row.get("ground_z"), row.get("rh")
+    if ground is None or rh is None or not np.isfinite(raw.metres_per_sample) or raw.metres_per_sample <= 0:
+        return None
+
+    def time_ps(z: float) -> float:
+        return (raw.first_z - z) / raw.metres_per_sample * raw.sample_spacing_ps
+    return {"ground_time_ps": time_ps(ground),
+            "rh": [{"k": k, "height_m": float(rh[k]), "time_ps": time_ps(ground + float(rh[k]))}
+                   for k in (25, 50, 75, 98) if rh[k] is not None]}
 
 
 def system_returns(raw: RawPulse) -> list[dict]:

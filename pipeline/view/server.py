@@ -45,8 +45,8 @@ from pipeline.view import params, queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from pipeline.view.params import BadRequest
-from pipeline.view.pulse import (decompose_pulse, load_pulse, reproduces, system_return_points, system_returns,
-                                 try_config, try_pulse)
+from pipeline.view.pulse import (decompose_pulse, forest_markers, load_pulse, reproduces, system_return_points,
+                                 system_returns, try_config, try_pulse)
 
 STATIC = Path(__file__).resolve().parent / "static"
 MAX_BODY = 64 * 1024
@@ -57,8 +57,16 @@ def _plotly_js() -> Path:
     return Path(str(resources.files("plotly") / "package_data" / "plotly.min.js"))
 
 
+JS_SAFE_INTEGER = 2**53 - 1  # beyond it a JavaScript number is not exact: GEDI's shot numbers go as strings
+
+
+def _exact(value: int) -> int | str:
+    return str(value) if abs(value) > JS_SAFE_INTEGER else value
+
+
 def jsonable(value):
-    """numpy arrays and scalars to JSON types; NaN and infinities to null (JSON has no NaN)."""
+    """numpy arrays and scalars to JSON types; NaN and infinities to null (JSON has no NaN); integers beyond
+    JavaScript's exact range to strings."""
     if isinstance(value, dict):
         return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -66,6 +74,8 @@ def jsonable(value):
     if isinstance(value, np.ndarray):
         if value.dtype.kind == "f":
             return [v if math.isfinite(v) else None for v in value.astype(float).tolist()]
+        if value.dtype.kind in "iu" and value.size and np.abs(value.astype(np.float64)).max() > JS_SAFE_INTEGER:
+            return [_exact(int(v)) for v in value.ravel().tolist()] if value.ndim == 1 else jsonable(list(value))
         return value.tolist()
     if isinstance(value, np.generic):
         return jsonable(value.item())
@@ -73,6 +83,8 @@ def jsonable(value):
         return value if math.isfinite(value) else None
     if isinstance(value, Path):
         return str(value)
+    if isinstance(value, int) and not isinstance(value, bool):
+        return _exact(value)
     return value
 
 
@@ -242,7 +254,7 @@ class Viewer:
                                               [r["z"] for r in rows])
         return {"run": ident, "file": source_file, "pulse_id": pulse_id, "pulse": row, "echo_rows": rows,
                 "map": {"x": mx, "y": my, "z": mz}, "fit": fit, "system_returns": system_returns(raw),
-                "reproduced": reproduces(fit, rows)}
+                "forest": forest_markers(raw, row), "reproduced": reproduces(fit, rows)}
 
     def grids(self, query) -> dict:
         ident = params.name(params.query_value(query, "run"), "run")

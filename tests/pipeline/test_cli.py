@@ -153,10 +153,10 @@ def test_a_folder_a_pattern_matches_that_holds_no_input_is_named_not_skipped(lei
     summary = json.loads((out / "run.json").read_text())
     assert code == 3 and summary["status"] == "partial"
     assert summary["not_inputs"] == [{"path": str(tmp_path / "dir.las"),
-                                      "reason": "a folder that holds no .las, .laz or .pls file"}]
+                                      "reason": "a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file"}]
     assert summary["counts"]["files_rejected"] == 0 and summary["counts"]["pulses_decomposed"] == 20
     said = capfd.readouterr()
-    assert "dir.las: a folder that holds no .las, .laz or .pls file" in said.err + said.out
+    assert "dir.las: a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file" in said.err + said.out
     assert "rejected/" not in said.out  # nothing there to see: the summary says what happened
 
 

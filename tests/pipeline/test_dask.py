@@ -102,3 +102,22 @@ def test_planning_on_the_workers_gives_the_drivers_plans(tmp_path, leica_dir, cl
                                                                             spread=not jobs.dask))
         assert read_plans(out, inputs) == expected, runner
         assert (out / "rejected" / "broken.parquet").is_file()
+
+
+def test_a_gedi_granule_on_the_cluster_gives_the_direct_runners_shots(tmp_path, leica_dir, cluster):
+    """GEDI's beams split into ranges of shots run on the workers as on the DirectRunner: the same shots, echoes
+    and forest metrics."""
+    import numpy as np
+
+    granule = str(leica_dir.parent / "gedi" / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5")
+    args = ["--points-per-range", "30", "--formats", "parquet", "--optimizer", "lm"]
+    assert main(["run", granule, "--output", str(tmp_path / "direct"), *args]) == 0
+    assert main(["run", granule, "--output", str(tmp_path / "dask"), *args,
+                 "--runner=apache_beam.runners.dask.dask_runner.DaskRunner", f"--dask_client_address={cluster}"]) == 0
+    direct, dask = (rows(tmp_path / r, "pulses", ["pulse_id"]) for r in ("direct", "dask"))
+    assert len(direct) == 164 and direct.pulse_id.equals(dask.pulse_id)
+    for column in ("ground_z", "cover", "pai", "n_echoes_kept"):
+        assert direct[column].equals(dask[column]), column
+    assert np.array_equal(np.stack(direct.rh.to_numpy()), np.stack(dask.rh.to_numpy()))
+    echoes = [rows(tmp_path / r, "echoes", ["pulse_id", "echo_index"]) for r in ("direct", "dask")]
+    assert echoes[0][["x", "y", "z", "amplitude"]].equals(echoes[1][["x", "y", "z", "amplitude"]])

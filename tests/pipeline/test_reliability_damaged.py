@@ -71,7 +71,7 @@ def test_the_run_finishes_with_the_partial_code_and_leaves_the_inputs_alone(dama
     assert snapshot(root / "in") == before
     # what the patterns match and is no file to read: named, with why
     assert {Path(n["path"]).name: n["reason"] for n in summary["not_inputs"]} == {
-        "dir.las": "a folder that holds no .las, .laz or .pls file",
+        "dir.las": "a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file",
         "missing.las": f"a link to {root / 'in' / 'gone.las'}, which does not exist"}
     assert set(NOT_INPUTS) == {Path(n["path"]).name for n in summary["not_inputs"]}
 

@@ -143,7 +143,7 @@ def test_a_folder_input_expands_to_its_las_and_laz_files(leica_dir, tmp_path):
     assert [p.rsplit("/", 1)[-1] for p in expand_inputs([str(leica_dir)])] == ["leica_a.las", "leica_a.laz"]
     assert expand_inputs([str(leica_dir / "leica_a.las"), str(leica_dir / "*.las")]) == \
         [str((leica_dir / "leica_a.las").resolve())]
-    with pytest.raises(FileNotFoundError, match="a folder that holds no .las, .laz or .pls file"):
+    with pytest.raises(FileNotFoundError, match="a folder that holds no .las, .laz, .pls or GEDI/LVIS L1B .h5 file"):
         expand_inputs([str(tmp_path)])
 
 

@@ -1,17 +1,20 @@
 """Planning on arrays and files; the stages on the DirectRunner with TestPipeline + assert_that."""
 
+import errno
 import shutil
 from pathlib import Path
 
 import apache_beam as beam
 import pyarrow.parquet as pq
+import pytest
 from apache_beam.testing.test_pipeline import TestPipeline
 from apache_beam.testing.util import assert_that, equal_to
 
 from fwcore.engine.config import DecompositionConfig
-from pipeline.layout import assemble_file, written_parts
+from pipeline.faults import MachineFault, clear_faults, noted_faults
+from pipeline.layout import assemble_file, progress_mark, written_parts
 from pipeline.outputs import InputNames
-from pipeline.plan import plan_inputs as _plan_inputs, planned_pulses
+from pipeline.plan import InputToPlan, plan_input, plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import RangePart
 from pipeline.stages import RangeSettings, decompose_range, read_range, run_range
 from pipeline.transforms import RangeStages
@@ -143,3 +146,35 @@ def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, 
     assembled = laspy.read(tmp_path / "out" / "las" / "leica_a.las")
     assert points[0] > 0 and assembled.header.point_count == sum(points)
     assert not list((tmp_path / "out" / "parts").glob("*.las"))  # the parts are removed once in the file
+
+
+def test_a_full_disk_at_a_ranges_mark_ends_it_unmarked_noted_and_the_workers_next_ranges_untried(tmp_path, leica_dir,
+                                                                                                  monkeypatch):
+    config = DecompositionConfig(optimizer="lm", lm_iterations=5)
+    first, second = plan_inputs([str(leica_dir / "leica_a.las")], config, 300)[0][:2]
+    out = str(tmp_path / "out")
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("pipeline.transforms.mark_range_done", full)
+    stages = RangeStages(_settings(out, config))
+    assert list(stages.process(first)) == []  # the job goes on: a failed bundle could hang the runner's workers
+    assert not progress_mark(out, "leica_a", 0).exists()  # a resumed run redoes it
+    assert [(f.code, f.path, f.where) for f in noted_faults(out)] == [("ENOSPC", out, "leica_a.las points 0-300")]
+    monkeypatch.setattr("pipeline.transforms.run_range", lambda *a: pytest.fail("a range tried on a full disk"))
+    assert list(stages.process(second)) == [] and not progress_mark(out, "leica_a", 300).exists()
+    clear_faults(out)
+    assert noted_faults(out) == [] and not list((tmp_path / "out" / "parts").glob("*.fault"))
+
+
+def test_an_io_error_reading_an_input_to_plan_is_the_machines_not_the_files(leica_dir, monkeypatch):
+    def lost(*args, **kwargs):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr("pipeline.plan.plan_file", lost)
+    path = str(leica_dir / "leica_a.las")
+    with pytest.raises(MachineFault) as caught:
+        plan_input(InputToPlan(path, "leica_a.las", "leica_a"), DecompositionConfig(), 400)
+    assert caught.value.said() == f"Input/output error (EIO) reading {path} (planning leica_a.las)"
+    assert caught.value.remedy() == f"check the disk or network mount that holds {leica_dir}"

@@ -10,9 +10,11 @@ import time
 
 import pytest
 
+from fwcore.engine.config import DecompositionConfig
 from pipeline.cli import main
+from pipeline.faults import MachineFault, RunStopped
 from pipeline.outputs import input_identity, read_run
-from pipeline.watch import FolderWatch, due, snapshot
+from pipeline.watch import FolderWatch, due, snapshot, watch
 
 RUN = ["--preset", "fast", "--formats", "parquet,las", "--direct_num_workers=1", "--direct_running_mode=in_memory"]
 
@@ -197,3 +199,16 @@ def test_ctrl_c_stops_the_watch_within_seconds_at_any_moment(tmp_path, leica_dir
         assert finished == (at == "idle")
     said = "fwl watch: stopped" in stdout if finished else "interrupted while processing leica_a.las" in stderr
     assert said, (stdout, stderr)
+
+
+def test_a_batch_stopped_by_the_machine_is_said_in_one_line_and_the_watch_goes_on(tmp_path, leica_copy):
+    out, said = tmp_path / "out", []
+    fault = MachineFault.of("ENOSPC", "No space left on device", "writing", out / "echoes" / "a.parquet", "a.las")
+
+    def full(paths):
+        raise RunStopped([fault], out)
+
+    assert watch(leica_copy.parent, out, DecompositionConfig(), {}, full, poll=0.05, once=True, say=said.append) == 0
+    assert said[1:] == ["fwl watch: 1 new or replaced file(s): leica_a.las",
+                        f"fwl watch: stopped: {fault.said()}: free space on the disk of {out / 'echoes'}, then the "
+                        f"watch tries the batch again at its next poll"]

@@ -461,12 +461,30 @@ function signalRange(fit, returns) {
   return [Math.max(0, Math.min(...times) - pad) / NS, Math.min(end, Math.max(...times) + pad) / NS];
 }
 
-function waveformLayout(returns, fit) {
+// the pulse's ground (its lowest mode) and RH25/50/75/98, where the run measured them (fwcore.metrics)
+function forestShapes(forest) {
+  if (!forest) return [];
+  const line = (t, color, dash) => ({ type: "line", xref: "x", yref: "paper", x0: t / NS, x1: t / NS, y0: 0, y1: 1,
+    line: { color, width: 1.5, dash } });
+  return [line(forest.ground_time_ps, "#7a4a10", "solid"),
+    ...forest.rh.map((r) => line(r.time_ps, "rgba(40,130,60,0.8)", "dot"))];
+}
+
+function forestAnnotations(forest) {
+  if (!forest) return [];
+  const note = (t, text, color) => ({ x: t / NS, y: 0.02, xref: "x", yref: "paper", text, showarrow: false,
+    textangle: -90, xanchor: "right", font: { size: 10, color } });
+  return [note(forest.ground_time_ps, "ground", "#7a4a10"),
+    ...forest.rh.map((r) => note(r.time_ps, `RH${r.k} ${r.height_m.toFixed(2)} m`, "#287c3c"))];
+}
+
+function waveformLayout(returns, fit, forest = null) {
   // the legend below the plot, in rows: the plot keeps its width
   return { margin: { l: 55, r: 10, t: 18, b: 95 },
     xaxis: { title: { text: "time (ns from the first sample)" }, range: signalRange(fit, returns) },
     yaxis: { title: { text: "amplitude (DN)" } },
-    shapes: returnShapes(returns), annotations: returnAnnotations(returns),
+    shapes: [...returnShapes(returns), ...forestShapes(forest)],
+    annotations: [...returnAnnotations(returns), ...forestAnnotations(forest)],
     legend: { orientation: "h", x: 0, y: -0.2, yanchor: "top", font: { size: 10 } } };
 }
 
@@ -516,7 +534,7 @@ async function showPulse(file, pulse) {
     `(${data.echo_rows.filter((e) => e.kept).length} kept), ${data.system_returns.length} system returns, ` +
     `${fit.config.optimizer} / ${fit.config.model}`;
   const plot = $("waveform");
-  await Plotly.react(plot, waveformTraces(fit), waveformLayout(data.system_returns, fit), { responsive: true, displaylogo: false });
+  await Plotly.react(plot, waveformTraces(fit), waveformLayout(data.system_returns, fit, data.forest), { responsive: true, displaylogo: false });
   plot.dataset.pulse = data.pulse_id;
   plot.dataset.file = data.file;
   plot.dataset.components = fit.echoes.length;

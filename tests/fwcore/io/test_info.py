@@ -45,3 +45,13 @@ def test_cli_json_for_several_files(capsys, leica_dir):
 def test_cli_names_a_missing_file(capsys, tmp_path):
     assert main(["info", str(tmp_path / "gone.las")]) == 2
     assert "gone.las: no such file" in capsys.readouterr().err
+
+
+def test_a_gedi_granule_is_described_by_its_beams(leica_dir):
+    from fwcore.io import describe_file
+    from fwcore.io.info import format_info
+
+    granule = leica_dir.parent / "gedi" / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
+    text = format_info(describe_file(granule))
+    assert "GEDI L1B, 164 shots, CRS EPSG:4979" in text
+    assert "  BEAM0101: 73 shots, 765-878 samples, 0 stale; lon -44.13661..-44.11382" in text

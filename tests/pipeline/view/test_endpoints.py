@@ -313,3 +313,44 @@ def test_fwl_view_says_when_its_port_is_taken(viewed, capsys):
     port = urlsplit(viewed.url).port
     assert main(["view", str(viewed.run), "--no-browser", "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_a_gedi_shot_is_reproduced_with_its_ground_and_rh_markers(tmp_path):
+    """A GEDI L1B granule picked in the viewer (its L2A beside it is not offered): a shot's refit reproduces the run
+    (the same noise floor and signal window), its shot number comes back exact (beyond JavaScript's 2^53), and the
+    page gets its ground and RH markers at the heights the run measured."""
+    import shutil
+    from pathlib import Path
+
+    from pipeline.view.jobs import Jobs
+    from pipeline.view.server import make_server, serve_in_thread, url_of
+    from tests.pipeline.view.conftest import Viewed
+
+    gedi = Path(__file__).resolve().parents[3] / "examples" / "data" / "gedi"
+    for name in ("GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5",
+                 "GEDI02_A_2019108080338_O01964_T05337_02_001_01_sub.h5"):
+        shutil.copy(gedi / name, tmp_path / name)
+    runs = tmp_path / "runs"
+    args = ["--limit", "12", "--optimizer", "lm", "--formats", "parquet", "--direct_num_workers=1",
+            "--direct_running_mode=in_memory"]
+    server = make_server([tmp_path], port=0, runs_dir=runs, jobs=Jobs(runs, args, 10))
+    serve_in_thread(server)
+    try:
+        v = Viewed(url_of(server), tmp_path, runs / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub", "", "", [])
+        (listed,) = v.get("/api/catalog")["inputs"]
+        assert listed["name"].startswith("GEDI01_B_")
+        listed = v.decompose(listed["id"])
+        assert listed["job"]["status"] == "done"
+        pulses = v.pulses()
+        shot = int(pulses.pulse_id.iloc[0])
+        p = v.get(f"/api/pulse?run={listed['run']}&file={listed['name']}&pulse={shot}")
+        assert p["reproduced"] and int(p["pulse_id"]) == shot and shot > 2**53
+        forest = p["forest"]
+        row = pulses.set_index("pulse_id").loc[shot]
+        heights = {m["k"]: m["height_m"] for m in forest["rh"]}
+        assert heights[98] == pytest.approx(float(row.rh[98]), abs=1e-5)
+        # the ground marker lies on the waveform, at the lowest mode, below RH98's marker in time order
+        assert 0 < forest["rh"][-1]["time_ps"] < forest["ground_time_ps"] < p["fit"]["time_ps"][-1]
+    finally:
+        server.shutdown()
+        server.server_close()

@@ -1,0 +1,262 @@
+"""NASA GEDI L1B granules (HDF5): every beam's shots as pulses.
+
+A granule holds one group per beam (BEAM0000 ... BEAM1011). A beam's received waveforms are one flat array
+(`rxwaveform`): shot i's are `rx_sample_count[i]` samples from `rx_sample_start_index[i]`, which counts from 1;
+its transmitted pulses likewise (`txwaveform`, 128 samples a shot). Samples are 1 ns apart; a sample's position
+interpolates bin0 (the first sample) to lastbin (the last) over count - 1 steps. Positions are WGS84 longitude
+and latitude (degrees) and ellipsoid heights (m): EPSG:4979.
+
+Shots are numbered beam by beam in the beams' name order; a range never crosses a beam, so a granule of millions
+of shots is planned from the shot counts alone and each range reads only its own slice of the arrays.
+A shot with no samples, a stale return (the digitizer's previous waveform) or no geolocation is rejected with
+its reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from fwcore.io.errors import WaveformFileError
+from fwcore.io.records import PointRange, PulseBatch
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+SAMPLE_SPACING_PS = 1000.0
+EPSG_4979_SOURCE = "GEDI: WGS84 longitude, latitude and ellipsoid height (EPSG:4979)"
+TX_SHAPE_FIELDS = ("tx_egsigma", "tx_egsigma_error", "tx_eggamma", "tx_eggamma_error")
+NO_SAMPLES = "no samples (rx_sample_count 0)"
+STALE = "stale return (stale_return_flag 1): the digitizer held the previous shot's waveform"
+NO_GEOLOCATION = "no geolocation (elevation_bin0 or elevation_lastbin not finite)"
+
+
+def wgs84_3d_wkt() -> str:
+    import pyproj
+
+    return pyproj.CRS.from_epsg(4979).to_wkt()
+
+
+def is_gedi_l1b(path: str | Path) -> bool:
+    """An HDF5 file with a BEAM group holding received waveforms (`rxwaveform`)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return any(k.startswith("BEAM") and "rxwaveform" in f[k] for k in f)
+    except (OSError, ValueError):
+        return False
+
+
+@dataclasses.dataclass(frozen=True)
+class GediGranule:
+    """A granule's index: its beams in name order and their shot counts (what planning needs)."""
+
+    path: str
+    beams: tuple[str, ...]
+    shots: tuple[int, ...]
+    crs_wkt: str
+    crs_source: str = EPSG_4979_SOURCE
+
+    @property
+    def point_count(self) -> int:
+        return sum(self.shots)
+
+    @property
+    def first_shot(self) -> np.ndarray:
+        """Each beam's first shot in the granule's numbering, and the total after them."""
+        return np.r_[0, np.cumsum(self.shots)]
+
+    def beam_of(self, start: int) -> tuple[str, int]:
+        """The beam that holds shot `start` of the granule's numbering, and its first shot there."""
+        i = int(np.searchsorted(self.first_shot, start, side="right") - 1)
+        return self.beams[i], int(self.first_shot[i])
+
+
+def open_gedi(path: str | Path) -> GediGranule:
+    """The granule's beams and shot counts; a file that is not a GEDI L1B granule names what is wrong."""
+    import h5py
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such GEDI granule")
+    try:
+        with h5py.File(path, "r") as f:
+            beams = sorted(k for k in f if k.startswith("BEAM") and "rxwaveform" in f[k])
+            shots = tuple(int(f[b]["shot_number"].shape[0]) for b in beams)
+    except OSError as err:
+        raise WaveformFileError(f"{path}: not a readable HDF5 file ({err})") from None
+    if not beams:
+        raise WaveformFileError(f"{path}: an HDF5 file without GEDI L1B beams (no BEAM group holds rxwaveform); "
+                                f"L2A and L2B granules hold no waveforms: give the L1B (GEDI01_B_*.h5)")
+    return GediGranule(str(path), tuple(beams), shots, wgs84_3d_wkt())
+
+
+def plan_gedi_ranges(path: str | Path, points_per_range: int = 10_000, opened: GediGranule | None = None
+                     ) -> list[PointRange]:
+    """Ranges of at most `points_per_range` shots, beam by beam: every shot in exactly one."""
+    granule = opened or open_gedi(path)
+    ranges = []
+    for first, count in zip(granule.first_shot[:-1], granule.shots):
+        for start in range(int(first), int(first) + count, max(1, points_per_range)):
+            stop = min(start + points_per_range, int(first) + count)
+            ranges.append(PointRange(str(path), start, stop, n_pulses=stop - start))
+    return ranges
+
+
+def _beam_number(group, name: str) -> int:
+    """The beam's number as L1B's `beam` dataset says (BEAM0101 -> 5), else read from its name in binary."""
+    if "beam" in group and group["beam"].shape[0]:
+        return int(group["beam"][0])
+    return int(name.removeprefix("BEAM"), 2)
+
+
+def _slices(group, field: str, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each shot's samples of a flat waveform array (start indices from 1), read in one slice, and the offsets."""
+    counts = np.where(starts > 0, counts, 0)
+    if not counts.any():
+        return np.zeros(0), np.zeros(counts.size + 1, dtype=np.int64)
+    lo = int((starts[counts > 0] - 1).min())
+    hi = int((starts[counts > 0] - 1 + counts[counts > 0]).max())
+    block = group[field][lo:hi].astype(np.float64)
+    parts = [block[s - 1 - lo:s - 1 - lo + c] for s, c in zip(starts, counts)]
+    return (np.concatenate(parts) if parts else np.zeros(0)), np.r_[0, np.cumsum(counts)].astype(np.int64)
+
+
+def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None = None) -> PulseBatch:
+    """The shots of a range (a whole granule given its path: its first beam's range is not enough, so every
+    range is read) as pulses: received samples, the transmitted pulse as the outgoing waveform, each sample
+    geolocated from bin0 to lastbin."""
+    if not isinstance(point_range, PointRange):
+        granule = opened or open_gedi(point_range)
+        return concatenate([read_gedi(r, granule) for r in plan_gedi_ranges(point_range, 10**9, granule)])
+    import h5py
+
+    granule = opened or open_gedi(point_range.path)
+    beam, first = granule.beam_of(point_range.start)
+    stop = point_range.stop if point_range.max_pulses is None else min(point_range.stop,
+                                                                        point_range.start + point_range.max_pulses)
+    beam_end = first + granule.shots[granule.beams.index(beam)]
+    if stop > beam_end:  # a range over several beams (a file's head, measuring its pulse): beam by beam
+        return concatenate([read_gedi(PointRange(point_range.path, start, min(stop, end)), granule)
+                            for start, end in zip(granule.first_shot[:-1], granule.first_shot[1:])
+                            if start < stop and end > point_range.start
+                            for start in [max(int(start), point_range.start)]])
+    lo, hi = point_range.start - first, stop - first
+    with h5py.File(point_range.path, "r") as f:
+        g = f[beam]
+        geo = g["geolocation"]
+        shot = g["shot_number"][lo:hi].astype(np.int64)
+        count = g["rx_sample_count"][lo:hi].astype(np.int64)
+        stale = g["stale_return_flag"][lo:hi].astype(np.int8) if "stale_return_flag" in g else np.zeros(hi - lo, np.int8)
+        z0, zl = geo["elevation_bin0"][lo:hi], geo["elevation_lastbin"][lo:hi]
+        bin0 = np.stack([geo["longitude_bin0"][lo:hi], geo["latitude_bin0"][lo:hi], z0], axis=1)
+        last = np.stack([geo["longitude_lastbin"][lo:hi], geo["latitude_lastbin"][lo:hi], zl], axis=1)
+        located = np.isfinite(bin0).all(axis=1) & np.isfinite(last).all(axis=1) & (np.abs(bin0[:, 2]) < 1e5)
+        reasons = np.where(count <= 0, NO_SAMPLES, np.where(stale == 1, STALE, np.where(~located, NO_GEOLOCATION, "")))
+        keep = reasons == ""
+        rx, offsets = _slices(g, "rxwaveform", g["rx_sample_start_index"][lo:hi][keep].astype(np.int64), count[keep])
+        tx_count = g["tx_sample_count"][lo:hi][keep].astype(np.int64)
+        tx, tx_offsets = _slices(g, "txwaveform", g["tx_sample_start_index"][lo:hi][keep].astype(np.int64), tx_count)
+        elevation = geo["local_beam_elevation"][lo:hi][keep].astype(np.float64)  # radians
+        degrade = geo["degrade"][lo:hi][keep].astype(np.int8) if "degrade" in geo else np.zeros(keep.sum(), np.int8)
+        shape = np.stack([g[k][lo:hi][keep].astype(np.float64) for k in TX_SHAPE_FIELDS], axis=1) \
+            if all(k in g for k in TX_SHAPE_FIELDS) else None
+        noise = g["noise_mean_corrected"][lo:hi][keep].astype(np.float64)
+        noise_sd = g["noise_stddev_corrected"][lo:hi][keep].astype(np.float64)
+        time = geo["delta_time"][lo:hi][keep].astype(np.float64)
+        channel = _beam_number(g, beam)
+    n, steps = int(keep.sum()), np.maximum(count[keep] - 1, 1).astype(np.float64)
+    # position = anchor + (L0 - t) direction with the anchor at bin0 and L0 = 0: direction = (bin0 - lastbin) / span
+    direction = (bin0[keep] - last[keep]) / (steps * SAMPLE_SPACING_PS)[:, None]
+    empty_i = np.zeros(0, dtype=np.int64)
+    return PulseBatch(
+        source_file=str(point_range.path), pulse_id=shot[keep], packet_offset=np.flatnonzero(keep) + point_range.start,
+        descriptor_index=np.zeros(n, np.int16), gps_time=time, anchor=bin0[keep], anchor_location_ps=np.zeros(n),
+        direction=direction, scan_angle=np.degrees(np.arccos(np.clip(np.abs(np.sin(elevation)), 0, 1))),
+        point_source_id=np.zeros(n, np.uint16), scan_direction_flag=np.zeros(n, np.uint8),
+        edge_of_flight_line=np.zeros(n, np.uint8), user_data=np.zeros(n, np.uint8),
+        sample_spacing_ps=np.full(n, SAMPLE_SPACING_PS), digitizer_gain=np.ones(n), digitizer_offset=np.zeros(n),
+        bits_per_sample=np.full(n, 16, np.uint8), samples=rx, sample_offsets=offsets,
+        return_xyz=np.zeros((0, 3)), return_number=empty_i, return_intensity=empty_i,
+        return_location_ps=np.zeros(0), return_offsets=np.zeros(n + 1, dtype=np.int64),
+        channel=np.full(n, channel, np.int16), outgoing=tx, outgoing_offsets=tx_offsets,
+        outgoing_spacing_ps=np.full(n, SAMPLE_SPACING_PS),
+        rejected=tuple((int(s), str(r)) for s, r in zip(shot[~keep], reasons[~keep])),
+        noise_mean=noise, noise_sd=noise_sd, cos_zenith=np.abs(np.sin(elevation)), transmit_shape=shape,
+        stale_return_flag=stale[keep], degrade_flag=degrade)
+
+
+def concatenate(batches: list[PulseBatch]) -> PulseBatch:
+    """Several ranges' pulses of one file as one batch (flat arrays joined, offsets shifted)."""
+    if len(batches) == 1:
+        return batches[0]
+    values = {}
+    for field in dataclasses.fields(PulseBatch):
+        parts = [getattr(b, field.name) for b in batches]
+        if field.name == "source_file":
+            values[field.name] = parts[0]
+        elif field.name == "rejected":
+            values[field.name] = tuple(r for p in parts for r in p)
+        elif any(p is None for p in parts):
+            values[field.name] = None
+        elif field.name.endswith("offsets"):
+            shift = np.cumsum([0] + [p[-1] for p in parts[:-1]])
+            values[field.name] = np.concatenate([parts[0][:1]] + [p[1:] + s for p, s in zip(parts, shift)])
+        else:
+            values[field.name] = np.concatenate(parts)
+    return PulseBatch(**values)
+
+
+def describe_gedi(path: str | Path) -> dict:
+    """`fwl info`: the beams, their shots and samples, the footprint's bounds and the CRS, from the index only."""
+    import h5py
+
+    granule = open_gedi(path)
+    beams = {}
+    with h5py.File(path, "r") as f:
+        for name, shots in zip(granule.beams, granule.shots):
+            g = f[name]
+            count = g["rx_sample_count"][:]
+            geo = g["geolocation"]
+            lon = np.r_[geo["longitude_bin0"][:], geo["longitude_lastbin"][:]]
+            lat = np.r_[geo["latitude_bin0"][:], geo["latitude_lastbin"][:]]
+            beams[name] = {"shots": shots, "samples": {"min": int(count.min()) if shots else 0, "max": int(count.max()) if shots else 0},
+                           "stale": int(g["stale_return_flag"][:].sum()) if "stale_return_flag" in g else 0,
+                           "bounds": [float(np.nanmin(lon)), float(np.nanmin(lat)), float(np.nanmax(lon)),
+                                      float(np.nanmax(lat))] if shots else None}
+    return {"file": str(path), "format": "GEDI L1B", "shots": granule.point_count, "beams": beams,
+            "crs": "EPSG:4979", "problems": []}
+
+
+def l2a_beside(path: str | Path) -> Path | None:
+    """The L2A granule of the same orbit beside an L1B one (GEDI02_A_<time>_O<orbit>_... for GEDI01_B_<time>_
+    O<orbit>_...), where there is one."""
+    path = Path(path)
+    parts = path.name.split("_")
+    if len(parts) < 4 or not path.name.startswith("GEDI01_B_"):
+        return None
+    found = sorted(path.parent.glob(f"GEDI02_A_{parts[2]}_{parts[3]}_*.h5"))
+    return found[0] if found else None
+
+
+def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:
+    """The L2A granule's waveform settings of `algorithm` (default: the one it selected most often), as the
+    fields of fwcore.metrics.waveform.MetricSettings, and that algorithm's number."""
+    import h5py
+
+    names = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
+             "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
+             "subbins": "rx_subbin_resolution"}
+    with h5py.File(path, "r") as f:
+        beams = [k for k in f if k.startswith("BEAM") and "selected_algorithm" in f[k]]
+        if not beams:
+            raise WaveformFileError(f"{path}: not a GEDI L2A granule (no beam with selected_algorithm)")
+        if algorithm is None:
+            selected = np.concatenate([f[b]["selected_algorithm"][:] for b in beams])
+            selected = selected[selected > 0]
+            algorithm = int(np.bincount(selected).argmax()) if selected.size else 1
+        ancillary = f[beams[0]][f"rx_processing_a{algorithm}/ancillary"]
+        settings = {field: float(ancillary[name][0]) for field, name in names.items()}
+    settings["subbins"] = int(settings["subbins"])
+    return algorithm, settings

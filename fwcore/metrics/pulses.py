@@ -1,0 +1,66 @@
+"""The forest metrics of a batch of decomposed pulses, whatever the sensor: each waveform's vertical axis from its
+geolocation, the noise the file records (GEDI's L1B) or the engine measured, the transmitted pulse's shape the
+file records (GEDI's extended Gaussian) or the file's system pulse, and the settings for the sensor's pulse.
+
+For a small-footprint airborne pulse (0.5 m) the same definitions measure the column of the beam: its ground is
+the lowest mode of that one waveform, its cover the share of energy the canopy returned before the ground
+(a gap or a hit, not a fraction of a 25 m footprint); aggregate pulses over map cells or footprints for cover
+and PAI that mean what GEDI's mean.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fwcore.engine.records import BatchDecomposition
+from fwcore.instrument.pulse import SystemPulse
+from fwcore.io.records import PulseBatch
+from fwcore.metrics.waveform import GEDI_ALGORITHM_1, MetricSettings, WaveformMetrics, waveform_metrics
+
+FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+# GEDI's transmitted pulse is about 4.3 samples sigma and L2A smooths with a width of 6.5: other sensors keep the
+# ratio, so a waveform is smoothed in proportion to its own pulse
+SMOOTHING_WIDTH_PER_PULSE_SIGMA = 6.5 / 4.3
+
+
+def settings_for_pulse(pulse_sigma_samples: float, base: MetricSettings = GEDI_ALGORITHM_1) -> MetricSettings:
+    """GEDI's settings with the smoothing scaled to a sensor's pulse (sigma in samples)."""
+    width = float(pulse_sigma_samples) * SMOOTHING_WIDTH_PER_PULSE_SIGMA
+    return dataclasses.replace(base, smoothing_width=width, smoothing_width_zcross=width)
+
+
+def vertical_axis(pulses: PulseBatch) -> tuple[np.ndarray, np.ndarray]:
+    """Each waveform's first sample's height and the height it drops per sample (m), from its geolocation:
+    position = anchor + (L0 - t) direction."""
+    first_z = pulses.anchor[:, 2] + pulses.anchor_location_ps * pulses.direction[:, 2]
+    return first_z, pulses.direction[:, 2] * pulses.sample_spacing_ps
+
+
+def zenith_cosine(pulses: PulseBatch) -> np.ndarray:
+    """The beam's zenith cosine: as the file records it (GEDI), else from its direction (a projected CRS)."""
+    if pulses.cos_zenith is not None:
+        return pulses.cos_zenith
+    length = np.linalg.norm(pulses.direction, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(length > 0, np.abs(pulses.direction[:, 2]) / length, np.nan)
+
+
+def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemPulse,
+                  settings: MetricSettings | None = None) -> WaveformMetrics:
+    """Every pulse's metrics (`settings`: the file's, e.g. its L2A algorithm's; else GEDI's scaled to its pulse
+    where the file records no transmitted shape)."""
+    spacing = np.maximum(pulses.sample_spacing_ps, 1e-9)
+    sigma = pulse.fwhm_ps / spacing / FWHM_PER_SIGMA
+    if pulses.transmit_shape is not None:
+        shape = pulses.transmit_shape
+    else:
+        shape = np.stack([sigma, sigma / 3.0, np.ones_like(sigma), np.full_like(sigma, 0.3)], axis=1)
+    if settings is None:
+        settings = GEDI_ALGORITHM_1 if pulses.transmit_shape is not None else settings_for_pulse(np.median(sigma))
+    noise_mean = pulses.noise_mean if pulses.noise_mean is not None else result.background
+    noise_sd = pulses.noise_sd if pulses.noise_sd is not None else result.noise_sigma
+    first_z, drop = vertical_axis(pulses)
+    return waveform_metrics(pulses.samples, pulses.sample_offsets, noise_mean, noise_sd, first_z, drop,
+                            zenith_cosine(pulses), shape, settings)

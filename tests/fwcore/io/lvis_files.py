@@ -1,0 +1,41 @@
+"""LVIS L1B files written from the product's data dictionary (LFID, SHOTNUMBER, TIME, LON0/LAT0/Z0, LON<k>/LAT<k>/
+Z<k>, INCIDENTANGLE, SIGMEAN, TXWAVE, RXWAVE), with a forest's waveform per shot: canopy, then the ground."""
+
+import h5py
+import numpy as np
+
+STEP_M = 0.15  # 1 ns of two-way travel at nadir
+
+
+def write_lvis(path, shots: int, samples: int = 1024, tx_samples: int = 128, seed: int = 0, east_of_180=False,
+               with_sigmean=True, bad_shot: int | None = None) -> dict:
+    """A file of `shots` shots; the truth per shot (ground sample, canopy top sample) is returned."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(samples, dtype=np.float64)
+    ground = rng.uniform(0.6, 0.8, shots) * samples
+    top = ground - rng.uniform(60, 200, shots)
+    rx = np.empty((shots, samples))
+    for i in range(shots):
+        wave = 400 * np.exp(-0.5 * ((x - ground[i]) / 3.0) ** 2)
+        wave += 80 * np.exp(-0.5 * ((x - (top[i] + 15)) / 8.0) ** 2)
+        rx[i] = wave + 100 + rng.normal(0, 2.0, samples)
+    tx = 500 * np.exp(-0.5 * ((np.arange(tx_samples) - 30) / 3.0) ** 2) + 100
+    z0 = 300.0 + ground * STEP_M + rng.normal(0, 0.5, shots)
+    lon = (-105.5 + np.arange(shots) * 1e-4) % 360 if east_of_180 else -105.5 + np.arange(shots) * 1e-4
+    last = samples - 1
+    with h5py.File(path, "w") as f:
+        f["LFID"] = np.full(shots, 1411500, np.uint32)
+        f["SHOTNUMBER"] = np.arange(1000, 1000 + shots, dtype=np.uint32)
+        f["TIME"] = 50000.0 + np.arange(shots) * 1e-3
+        f["LON0"], f["LAT0"], f["Z0"] = lon, np.full(shots, 40.0), z0
+        f[f"LON{last}"], f[f"LAT{last}"], f[f"Z{last}"] = lon, np.full(shots, 40.0), z0 - last * STEP_M
+        f["INCIDENTANGLE"] = np.zeros(shots, np.float32)
+        f["AZIMUTH"] = np.zeros(shots, np.float32)
+        if with_sigmean:
+            f["SIGMEAN"] = np.full(shots, 100.0, np.float32)
+        f["TXWAVE"] = np.tile(tx, (shots, 1)).astype(np.uint16)
+        rx = rx.astype(np.float32)
+        if bad_shot is not None:
+            rx[bad_shot, 10] = np.nan
+        f["RXWAVE"] = rx
+    return {"ground": ground, "top": top, "z0": z0, "lon": lon}

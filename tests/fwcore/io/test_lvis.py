@@ -1,0 +1,45 @@
+"""LVIS L1B files in the product's layout: sample counts, longitudes east of 180, no SIGMEAN, a damaged shot."""
+
+import numpy as np
+import pytest
+
+from fwcore.io import describe_file, format_of, plan_point_ranges, read_pulses
+from fwcore.io.errors import WaveformFileError
+from fwcore.io.formats import LVIS_L1B
+from fwcore.io.lvis import NOT_FINITE, open_lvis
+from tests.fwcore.io.lvis_files import STEP_M, write_lvis
+
+
+@pytest.mark.parametrize("samples,east", [(1024, False), (512, True)])
+def test_every_sample_is_placed_between_the_first_and_last(tmp_path, samples, east):
+    path = tmp_path / "LVIS1B_test.h5"
+    truth = write_lvis(path, 10, samples=samples, east_of_180=east)
+    assert format_of(path) is LVIS_L1B and open_lvis(path).last == samples - 1
+    pulses = read_pulses(path)
+    assert len(pulses) == 10 and np.allclose(pulses.sample_spacing_ps, 2 * STEP_M / 299792458.0e-12)
+    t_last = (samples - 1) * pulses.sample_spacing_ps
+    last = pulses.anchor + (pulses.anchor_location_ps - t_last)[:, None] * pulses.direction
+    assert np.allclose(last[:, 2], truth["z0"] - (samples - 1) * STEP_M)
+    assert (pulses.anchor[:, 0] < -100).all()  # 254.5 east is -105.5
+    assert describe_file(path)["samples"] == samples
+
+
+def test_noise_from_the_first_samples_without_sigmean_and_a_damaged_shot_rejected(tmp_path):
+    path = tmp_path / "LVIS1B_damaged.h5"
+    write_lvis(path, 8, with_sigmean=False, bad_shot=3)
+    ranges = plan_point_ranges(path, 3)
+    batches = [read_pulses(r) for r in ranges]
+    assert sum(len(b) for b in batches) == 7 and [r for b in batches for _, r in b.rejected] == [NOT_FINITE]
+    noise = np.concatenate([b.noise_mean for b in batches])
+    assert np.allclose(noise, 100.0, atol=1.0)
+
+
+def test_an_hdf5_without_the_layout_names_what_is_missing(tmp_path):
+    import h5py
+
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f["RXWAVE"] = np.zeros((2, 4))
+        f["Z0"] = np.zeros(2)
+    with pytest.raises(WaveformFileError, match="missing LAT0, LON0, SHOTNUMBER"):
+        open_lvis(path)

@@ -1,0 +1,47 @@
+"""The numba kernel against its NumPy reference (pulse_metrics, a waveform at a time) on the shared GEDI beams and
+on waveforms that provoke every reason for null metrics."""
+
+import numpy as np
+import pytest
+
+from fwcore.metrics.waveform import MetricSettings, NO_AXIS, NO_GROUND, NO_NOISE, NO_SIGNAL, NOT_FINITE, \
+    reference_metrics, waveform_metrics
+
+FIELDS = ("toploc", "botloc", "ground_index", "ground_z", "rh", "rv", "rg", "pgap", "cover", "pai", "cover_z", "pai_z",
+          "pavd_z")
+
+
+def _both(*args, **kwargs):
+    return waveform_metrics(*args, **kwargs), reference_metrics(*args, **kwargs)
+
+
+@pytest.mark.parametrize("settings", [MetricSettings(), MetricSettings(smoothing_width_zcross=3.5,
+                                                                       back_threshold_sd=4.0)])
+def test_the_kernel_is_its_reference_on_gedi(gedi_beams, settings):
+    for b in gedi_beams:
+        args = (b["samples"], b["offsets"], b["noise_mean"], b["noise_sd"], b["first_z"], b["metres_per_sample"],
+                b["cos_zenith"], b["pulse"])
+        kernel, reference = _both(*args, settings=settings)
+        assert kernel.reason == reference.reason
+        for name in FIELDS:
+            assert np.allclose(getattr(kernel, name), getattr(reference, name), rtol=1e-6, atol=1e-6,
+                               equal_nan=True), name
+
+
+def test_every_reason_for_null_metrics():
+    x = np.arange(200.0)
+    pulse = 100 + 400 * np.exp(-0.5 * ((x - 120) / 4) ** 2)
+    waves = [pulse, np.full(200, 100.0), np.r_[pulse[:50], np.nan, pulse[51:]], pulse, pulse]
+    samples = np.concatenate(waves)
+    offsets = np.arange(6) * 200
+    noise_mean = np.array([100.0, 100.0, 100.0, np.nan, 100.0])
+    first_z = np.array([50.0, 50.0, 50.0, 50.0, np.nan])
+    kernel, reference = _both(samples, offsets, noise_mean, np.full(5, 2.0), first_z, np.full(5, 0.15), np.ones(5),
+                              np.tile([4.0, 0.1, 0.1, 0.01], (5, 1)))
+    assert kernel.reason == reference.reason == ["", NO_SIGNAL, NOT_FINITE, NO_NOISE, NO_AXIS]
+    assert abs(kernel.ground_z[0] - (50.0 - 120 * 0.15)) < 0.04
+    # a signal still rising at the waveform's end (cut off by the range gate): no mode, no ground
+    rising = 100 + np.linspace(0.0, 60.0, 200)
+    k, r = _both(rising, np.array([0, 200]), np.array([100.0]), np.array([2.0]), np.array([50.0]), np.array([0.15]),
+                 np.ones(1), np.array([[4.0, 0.1, 0.1, 0.01]]))
+    assert k.reason == r.reason == [NO_GROUND]

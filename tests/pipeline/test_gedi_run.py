@@ -1,0 +1,103 @@
+"""`fwl run` on GEDI L1B: the shared granule's shots decomposed with their forest metrics, which reproduce NASA's
+L2A and L2B for the same shots; a written granule's unusable shots rejected with reasons, the counts adding up
+per beam; every echo inside its shot's footprint; EPSG:4979 in every output."""
+
+import json
+from pathlib import Path
+
+import h5py
+import laspy
+import numpy as np
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+import pytest
+
+from fwcore.studies.gedi_granule import write_granule
+from pipeline.cli import main
+
+GEDI = Path(__file__).resolve().parents[2] / "examples" / "data" / "gedi"
+L1B = GEDI / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
+L2A = GEDI / "GEDI02_A_2019108080338_O01964_T05337_02_001_01_sub.h5"
+L2B = GEDI / "GEDI02_B_2019108080338_O01964_T05337_02_001_01_sub.h5"
+
+
+@pytest.fixture(scope="module")
+def gedi_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gedi")
+    assert main(["run", str(L1B), "--output", str(out), "--formats", "parquet,las", "--optimizer", "lm",
+                 "--points-per-range", "40"]) == 0
+    return out
+
+
+def _table(run, name):
+    return ds.dataset(str(run / name), format="parquet").to_table().to_pandas()
+
+
+def _nasa(product, fields):
+    rows = []
+    with h5py.File(product) as f:
+        for beam in (k for k in f if k.startswith("BEAM")):
+            rows.append({"shot": f[beam]["shot_number"][:].astype(np.int64),
+                         **{k: f[beam][k][:] for k in fields}})
+    return {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+
+
+def test_pulses_reproduce_l2a_and_l2b(gedi_run):
+    pulses = _table(gedi_run, "pulses").set_index("pulse_id")
+    l2a = _nasa(L2A, ("rh", "elev_lowestmode", "quality_flag"))
+    l2b = _nasa(L2B, ("cover", "pai"))
+    shots = l2a["shot"][l2a["quality_flag"] == 1]
+    ours = pulses.loc[shots]
+    rh = np.stack(ours.rh.to_numpy())
+    theirs = {s: i for i, s in enumerate(l2a["shot"])}
+    index = np.array([theirs[s] for s in shots])
+    for k in (25, 50, 75, 98):
+        d = np.abs(rh[:, k] - l2a["rh"][index, k])
+        assert np.median(d) <= 0.02 and np.percentile(d, 90) <= 0.10, k
+    d = np.abs(ours.ground_z.to_numpy() - l2a["elev_lowestmode"][index])
+    assert np.median(d) <= 0.02 and np.percentile(d, 90) <= 0.10
+    b_index = {s: i for i, s in enumerate(l2b["shot"])}
+    ib = np.array([b_index[s] for s in shots])
+    assert np.median(np.abs(ours.cover.to_numpy() - l2b["cover"][ib])) <= 0.01
+    assert np.median(np.abs(ours.pai.to_numpy() - l2b["pai"][ib])) <= 0.02
+    assert (ours.metrics_reason == "").all() and len(ours.pavd_z.iloc[0]) == 30
+
+
+def test_every_echo_lies_in_its_shots_footprint_and_the_crs_is_4979(gedi_run):
+    echoes = _table(gedi_run, "echoes")
+    with h5py.File(L1B) as f:
+        geo = {k: np.concatenate([f[b]["geolocation"][k][:] for b in f if b.startswith("BEAM")])
+               for k in ("shot_number", "longitude_bin0", "longitude_lastbin", "latitude_bin0", "latitude_lastbin",
+                         "elevation_bin0", "elevation_lastbin")}
+    row = {int(s): i for i, s in enumerate(geo["shot_number"])}
+    i = np.array([row[s] for s in echoes.pulse_id])
+    for axis, lo, hi in (("x", "longitude_bin0", "longitude_lastbin"), ("y", "latitude_bin0", "latitude_lastbin"),
+                         ("z", "elevation_lastbin", "elevation_bin0")):
+        low, high = np.minimum(geo[lo][i], geo[hi][i]), np.maximum(geo[lo][i], geo[hi][i])
+        value = echoes[axis].to_numpy()
+        assert ((value >= low - 1e-9) & (value <= high + 1e-9)).all(), axis
+    meta = json.loads(pq.read_schema(next((gedi_run / "echoes").glob("*.parquet"))).metadata[b"geo"])
+    assert meta["columns"]["geometry"]["crs"]["id"]["code"] == 4979
+    las = laspy.read(next((gedi_run / "las").glob("*.las")))
+    assert las.header.parse_crs().to_epsg() == 4979 and abs(np.asarray(las.x).mean() + 44.1) < 0.1
+
+
+def test_unusable_shots_are_rejected_and_each_beam_adds_up(tmp_path):
+    path = tmp_path / "GEDI01_B_written.h5"
+    truth = write_granule(path, 10, seed=5, beams=("BEAM0000", "BEAM1011"), samples=300)
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--output", str(out), "--formats", "parquet", "--optimizer", "lm",
+                 "--points-per-range", "4"]) == 3  # rejections: the run says so
+    pulses, rejected = _table(out, "pulses"), _table(out, "rejected")
+    for beam in ("BEAM0000", "BEAM1011"):
+        shots = set(truth.shot_number[truth.beam == beam].tolist())
+        done = set(pulses.pulse_id) & shots
+        out_of = set(rejected.pulse_id) & shots
+        assert len(done) + len(out_of) == 10 and not done & out_of
+    assert set(rejected.reason.str.split(" ").str[0]) == {"no", "stale"}
+
+
+def test_run_json_says_whose_settings_the_metrics_took(gedi_run):
+    (entry,) = json.loads((gedi_run / "run.json").read_text())["inputs"]
+    assert entry["metric_settings_source"].endswith("_sub.h5: algorithm 1")
+    assert entry["metric_settings"]["smoothing_width"] == 6.5

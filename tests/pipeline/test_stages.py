@@ -1,0 +1,72 @@
+"""A range's stages: a fault of the machine at any sink fails the range without rejecting a pulse."""
+
+import errno
+import logging
+import os
+
+import pytest
+
+from fwcore.engine.config import DecompositionConfig
+from pipeline.faults import MEMORY, MachineFault
+from pipeline.layout import part_name
+from pipeline.outputs import InputNames
+from pipeline.plan import plan_inputs
+from pipeline.stages import RangeSettings, run_range
+
+CONFIG = DecompositionConfig(optimizer="lm", lm_iterations=5)
+FORMATS = frozenset({"parquet", "las", "mcap"})
+# each sink of write_range, and the part it writes
+SINKS = {"write_echo_part": "echoes/{}.parquet", "write_part": "pulses/{}.parquet",
+         "write_point_cloud": "parts/{}.las", "write_mcap": "parts/{}.mcap"}
+
+
+@pytest.fixture(scope="module")
+def task(leica_dir):
+    paths = [str(leica_dir / "leica_a.las")]
+    return plan_inputs(paths, InputNames.of(paths), CONFIG, 300)[0][0]
+
+
+def _failing(number):
+    def write(*args, **kwargs):
+        raise OSError(number, os.strerror(number))
+    return write
+
+
+@pytest.mark.parametrize("number", [errno.ENOSPC, errno.EACCES, errno.EIO])
+@pytest.mark.parametrize("sink", sorted(SINKS))
+def test_a_machine_fault_at_each_sink_fails_the_range_names_the_part_and_leaves_nothing(tmp_path, monkeypatch, task,
+                                                                                       caplog, sink, number):
+    monkeypatch.setattr(f"pipeline.stages.{sink}", _failing(number))
+    out = tmp_path / "out"
+    with caplog.at_level(logging.INFO, logger="fwl"), pytest.raises(MachineFault) as caught:
+        run_range(task, RangeSettings(str(out), CONFIG, FORMATS))
+    fault = caught.value
+    assert (fault.code, fault.doing, fault.where) == (errno.errorcode[number], "writing", "leica_a.las points 0-300")
+    assert fault.path == str(out / SINKS[sink].format(part_name("leica_a", 0)))
+    assert [p for p in out.rglob("*") if p.is_file()] == []  # a range is written whole or not at all
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert said == [f"leica_a.las points 0-300: write stopped: {fault.said()}"]  # one line, no repr of the task
+
+
+def test_no_memory_while_decomposing_is_the_machines_fault_too(tmp_path, monkeypatch, task):
+    def out_of_memory(*args, **kwargs):
+        raise MemoryError()
+
+    monkeypatch.setattr("pipeline.stages.decompose_batch", out_of_memory)
+    with pytest.raises(MachineFault) as caught:
+        run_range(task, RangeSettings(str(tmp_path / "out"), CONFIG, FORMATS))
+    assert (caught.value.code, caught.value.doing, caught.value.path) == (MEMORY, "reading", task.source.path)
+
+
+def test_a_data_fault_still_rejects_the_ranges_pulses_in_one_log_line(tmp_path, monkeypatch, task, caplog):
+    def damaged(*args, **kwargs):
+        raise ValueError("non-finite samples")
+
+    monkeypatch.setattr("pipeline.stages.decompose_batch", damaged)
+    with caplog.at_level(logging.INFO, logger="fwl"):
+        outcome = run_range(task, RangeSettings(str(tmp_path / "out"), CONFIG, FORMATS))
+    assert outcome.pulses_rejected == outcome.pulses_read == 265 and outcome.part is None
+    assert {(r.stage, r.reason) for r in outcome.rejected} == \
+        {("decompose", "points 0-300: ValueError: non-finite samples")}
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert said == ["leica_a.las points 0-300: decompose failed: ValueError: non-finite samples"]
