@@ -15,7 +15,7 @@ from pipeline.cli import main
 
 @pytest.fixture(scope="session")
 def classified(forest_run):
-    assert not is_classified(forest_run)
+    """The session's forest run classified (again, if fwl grid --classify did it first: the same classes)."""
     assert main(["classify", str(forest_run), "--tile", "60", "--overlap", "15"]) == 0
     assert is_classified(forest_run)
     return forest_run
@@ -44,6 +44,19 @@ def test_ground_echoes_against_the_truth(classified, forest_flight):
     roof[fi] = np.asarray(truth.column("surface").to_pylist(), object)[ti] == "roof"
     if roof.sum() > 50:  # the flight's buildings: found, and nothing else called one
         assert (code[roof] == 6).mean() > 0.7 and roof[code == 6].mean() > 0.95
+
+
+def test_a_run_before_fwl_classify_is_not_classified(tmp_path):
+    from pipeline.grid import echo_files
+
+    run = tmp_path / "run"
+    (run / "echoes").mkdir(parents=True)
+    table = pa.table({"kept": [True, False], "classification": pa.array([None, None], pa.uint8())})
+    pq.write_table(table, run / "echoes" / "a.parquet")
+    assert echo_files(run) and not is_classified(run)
+    pq.write_table(pa.table({"kept": [True, False], "classification": pa.array([2, None], pa.uint8())}),
+                    run / "echoes" / "a.parquet")
+    assert is_classified(run)
 
 
 def test_spurious_echoes_have_no_class_and_a_second_run_is_the_same(classified):
