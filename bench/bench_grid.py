@@ -1,6 +1,6 @@
 """fwl grid benchmark: a run's echo table of N echoes gridded, seconds and peak memory.
 
-    python bench/bench_grid.py [--echoes 10000000] [--cell 1] [--workdir DIR]
+    python bench/bench_grid.py [--echoes 10000000] [--cell 1] [--workdir DIR] [--classify]
 
 The run folder is synthetic but of the run's layout: run.json, and echoes/ parts of 50,000 echoes with every
 column of the echo table (pipeline.tables.table_schema("echoes")), about 7% of them spurious (kept false),
@@ -31,7 +31,7 @@ def write_run(folder: Path, echoes: int) -> int:
     """A run folder whose echo table holds `echoes` rows; the kept echoes' count."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from bench_copc import flight_echoes
+    from bench_copc import PULSE_RATE_HZ, flight_echoes
 
     from pipeline.tables import table_schema
 
@@ -45,7 +45,8 @@ def write_run(folder: Path, echoes: int) -> int:
         kept = rng.random(n) > 0.07
         values = {"x": e["x"][:n], "y": e["y"][:n], "z": e["z"][:n], "amplitude": e["amplitude"][:n],
                   "energy": e["echo_energy"][:n], "gps_time": e["gps_time"][:n], "kept": kept,
-                  "echo_index": e["return_number"][:n] - 1, "echo_count": e["number_of_returns"][:n]}
+                  "echo_index": e["return_number"][:n] - 1, "echo_count": e["number_of_returns"][:n],
+                  "pulse_id": np.round(e["gps_time"][:n] * PULSE_RATE_HZ).astype(np.int64)}  # a pulse's echoes share it
         columns = []
         for field in schema:
             if field.name in values:
@@ -67,6 +68,8 @@ def main() -> None:
     parser.add_argument("--echoes", type=int, default=10_000_000)
     parser.add_argument("--cell", type=float, default=1.0)
     parser.add_argument("--workdir")
+    parser.add_argument("--classify", action="store_true",
+                        help="fwl classify the run first (measured alone), so that fwl grid writes the forest's maps")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(dir=args.workdir) as work:
         work = Path(work)
@@ -76,20 +79,28 @@ def main() -> None:
         print(f"echo table: {args.echoes:,} echoes ({kept:,} kept), {size:.0f} MiB in "
               f"{len(list((work / 'run' / 'echoes').glob('*.parquet')))} parts, written in "
               f"{time.perf_counter() - began:.0f} s", flush=True)
-        began = time.perf_counter()
-        child = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "grid", str(work / "run"), "--cell",
-                                  str(args.cell), "--output", str(work / "maps"), "--crs", "EPSG:25832"],
-                                 env={**os.environ, "PYTHONPATH": str(ROOT)})
-        _, status, usage = os.wait4(child.pid, 0)
-        seconds = time.perf_counter() - began
-        if status:
-            raise RuntimeError("fwl grid failed")
+        if args.classify:  # the forest's maps need the classes: fwl classify first, measured alone
+            seconds, peak = _measured(["classify", str(work / "run")])
+            print(f"fwl classify: {kept:,} kept echoes in {seconds:.1f} s, peak {peak:.0f} MiB", flush=True)
+        seconds, peak = _measured(["grid", str(work / "run"), "--cell", str(args.cell), "--output",
+                                   str(work / "maps"), "--crs", "EPSG:25832"])
         summary = json.loads((work / "maps" / "fwl-grid.json").read_text())
         assert summary["echoes"] == kept
         print("| echoes | kept | cell | cells | bins | s | kept echoes/s | peak MiB |")
         print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         print(f"| {args.echoes:,} | {kept:,} | {args.cell:g} m | {summary['width'] * summary['height']:,} | "
-              f"{summary['bins']} | {seconds:.1f} | {kept / seconds:,.0f} | {usage.ru_maxrss / 1024:.0f} |")
+              f"{summary['bins']} | {seconds:.1f} | {kept / seconds:,.0f} | {peak:.0f} |")
+        print(f"maps: {', '.join(summary['files'])}")
+
+
+def _measured(args: list[str]) -> tuple[float, float]:
+    """An fwl command in a fresh process: its wall seconds and peak memory (MiB, its maximum RSS)."""
+    began = time.perf_counter()
+    child = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], env={**os.environ, "PYTHONPATH": str(ROOT)})
+    _, status, usage = os.wait4(child.pid, 0)
+    if status:
+        raise RuntimeError(f"fwl {args[0]} failed")
+    return time.perf_counter() - began, usage.ru_maxrss / 1024
 
 
 if __name__ == "__main__":

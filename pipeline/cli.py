@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import signal
 import sys
@@ -240,12 +241,15 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response
+    from fwcore.studies.forest import FOREST_SAMPLES
+    from fwcore.studies.forest_truth import TRUTH_RASTERS, truth_raster_path
     from fwcore.studies.simulate import SceneConfig, SensorConfig
     from fwcore.studies.truth import calibration_path, trajectory_path, truth_path, write_flight
 
     output = check_suffix("fwl simulate", args.output, (".las", ".laz"), "a LAS file (its truth beside it)")
     # the flight's files are ours as a whole when its truth is: the one that carries fwl's mark
     claim_files("fwl simulate", [output, truth_path(output), trajectory_path(output), calibration_path(output)]
+                + [truth_raster_path(output, name) for name in TRUTH_RASTERS]
                 + ([output.with_suffix(".wdp")] if args.format != "las14-internal" else []),
                 lambda _: parquet_is_ours(truth_path(output)), args.overwrite)
     response = named_response(args.system_response, args.pulse_fwhm_ps) if args.system_response else None
@@ -253,11 +257,11 @@ def _simulate(args: argparse.Namespace) -> int:
         args.pulse_fwhm_ps = response.fwhm_ps
         args.sample_spacing_ps = args.sample_spacing_ps or SHIPPED_SPACING_PS.get(args.system_response, 1000.0)
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps or 1000.0,
-                          samples_per_packet=args.samples, digitizer_gain=args.gain, digitizer_offset=args.offset,
+                          samples_per_packet=args.samples or (FOREST_SAMPLES if args.scene == "forest" else 200), digitizer_gain=args.gain, digitizer_offset=args.offset,
                           background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
                           bits=args.bits or (16 if args.radiometry else 8),
                           detection_threshold=args.detection_threshold, response=response)
-    scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle,
+    scene = SceneConfig(altitude_m=args.altitude, max_scan_angle_deg=args.max_scan_angle or 20.0,
                         canopy_cover=args.canopy_cover, roof_fraction=args.roof_fraction,
                         weak_echo_fraction=args.weak_fraction, radiometry=args.radiometry,
                         # the climb spans the flight, whatever its length
@@ -265,10 +269,21 @@ def _simulate(args: argparse.Namespace) -> int:
                         altitude_change_s=args.pulses / SceneConfig.pulse_rate_hz,
                         beam_divergence_mrad=args.beam_divergence_mrad, patch_reflectance=args.patch_reflectance)
     start = time.perf_counter()
-    flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
+    rasters = []
+    if args.scene == "forest":
+        from fwcore.studies.forest import ForestConfig, forest_flight_scene
+        from fwcore.studies.forest_truth import write_forest_flight
+
+        scene = dataclasses.replace(forest_flight_scene(), altitude_m=args.altitude,
+                                    max_scan_angle_deg=args.max_scan_angle or forest_flight_scene().max_scan_angle_deg)
+        flight, rasters = write_forest_flight(args.output, args.pulses, sensor, scene, ForestConfig(), args.seed,
+                                              args.format)
+    else:
+        flight = write_flight(args.output, args.pulses, sensor, scene, args.seed, args.format)
     print(f"wrote {flight.las} ({args.format}, {sensor.bits}-bit): {flight.n_pulses} pulses, {flight.n_returns} "
           f"system returns; {flight.truth}: {flight.n_echoes} true echoes; {flight.trajectory.name}"
-          f"{'; ' + flight.calibration.name if flight.calibration else ''}; {time.perf_counter() - start:.1f} s")
+          f"{'; ' + flight.calibration.name if flight.calibration else ''}"
+          f"{''.join('; ' + p.name for p in rasters)}; {time.perf_counter() - start:.1f} s")
     return 0
 
 
@@ -374,9 +389,10 @@ def _grid(args: argparse.Namespace) -> int:
 
     if not Path(args.run_dir).is_dir():  # named as grid_run names it, without making it
         raise FileNotFoundError(f"{args.run_dir}: no such folder")
-    # the folder it writes: the run's own (its grid/ goes with the run), or --output
-    with folder_lock(args.output or args.run_dir, "fwl grid"):
-        summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height)
+    # the folder it writes: the run's own (its grid/ goes with the run), or --output; --classify writes the run's
+    with folder_lock(args.output or args.run_dir, "fwl grid"), \
+            folder_lock(args.run_dir if args.classify else (args.output or args.run_dir), "fwl grid"):
+        summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
           f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
           f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
@@ -429,6 +445,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate(sub)
     _add_compact(sub)
     _add_info(sub)
+    _add_classify(sub)
+    _add_footprints(sub)
     _add_grid(sub)
     _add_view(sub)
     return parser
@@ -526,7 +544,7 @@ def _add_simulate(sub) -> None:
                         help="echoes of an instrument's response broadened by their targets: gaussian (of "
                              "--pulse-fwhm-ps), leica, riegl (measured, shipped) or a response file; default: the "
                              "method's generalized Gaussians")
-    sensor.add_argument("--samples", type=int, default=200, help="samples per packet")
+    sensor.add_argument("--samples", type=int, help="samples per packet (default 200; 360 with --scene forest)")
     sensor.add_argument("--gain", type=float, default=0.01, help="digitizer gain, volts per DN")
     sensor.add_argument("--offset", type=float, default=0.0, help="digitizer offset, volts")
     sensor.add_argument("--background", type=float, default=12.0, help="DN")
@@ -537,7 +555,12 @@ def _add_simulate(sub) -> None:
                         help="the online detector's threshold, x noise sigma")
     scene = s.add_argument_group("scene")
     scene.add_argument("--altitude", type=float, default=500.0, help="metres above the terrain")
-    scene.add_argument("--max-scan-angle", dest="max_scan_angle", type=float, default=20.0, help="degrees")
+    scene.add_argument("--scene", choices=["default", "forest"], default="default",
+                       help="default: echoes drawn pulse by pulse over rolling terrain; forest: a coherent forest "
+                            "(terrain with a break of slope and a ditch, crowns, a clearing, buildings) and its "
+                            "truth as 1 m GeoTIFFs (FILE.truth-dtm/chm/cover/pai.tif)")
+    scene.add_argument("--max-scan-angle", dest="max_scan_angle", type=float,
+                       help="degrees (default 20; 12 with --scene forest)")
     scene.add_argument("--canopy-cover", dest="canopy_cover", type=float, default=0.45)
     scene.add_argument("--roof-fraction", dest="roof_fraction", type=float, default=0.12)
     scene.add_argument("--weak-fraction", dest="weak_fraction", type=float, default=0.15,
@@ -596,8 +619,63 @@ def _add_grid(sub) -> None:
                                     "own grid/ folder, where fwl view finds them)")
     g.add_argument("--crs", help="the CRS to declare (e.g. EPSG:25832) where the run's inputs name none")
     g.add_argument("--bin-height", dest="bin_height", type=float, default=1.0,
-                   help="height of the profile's bins above each cell's lowest echo (default 1 m)")
+                   help="height of the profile's bins above each cell's lowest echo, and of pavd.tif's above the "
+                        "terrain (default 1 m)")
+    g.add_argument("--classify", action="store_true",
+                   help="classify the run's echoes first (as fwl classify) if they are not yet: the forest's maps "
+                        "(dtm, dsm, chm, cover, pai, pavd, rh98, rh50) need the classes")
     g.set_defaults(handler=_grid)
+
+
+def _footprints(args: argparse.Namespace) -> int:
+    from pipeline.footprints import footprints_run
+
+    path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs)
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(path, columns=["reason"]).column("reason").to_pylist()
+    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured -> {path}")
+    return 0
+
+
+def _add_footprints(sub) -> None:
+    f = sub.add_parser("footprints", help="what GEDI would record over a run: 25 m footprints' waveforms built from "
+                                          "the airborne echoes, and their GEDI metrics, as GeoParquet")
+    f.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
+    where = f.add_mutually_exclusive_group(required=True)
+    where.add_argument("--gedi", help="a GEDI L2A granule (.h5): footprints at its shots over the run")
+    where.add_argument("--spacing", type=float, help="footprints on a square grid of this spacing, metres")
+    f.add_argument("--output", help="the GeoParquet file (default RUN_DIR/footprints.parquet)")
+    f.add_argument("--crs", help="the run's CRS where its inputs name none (to place GEDI's shots)")
+    f.set_defaults(handler=_footprints)
+
+
+def _classify(args: argparse.Namespace) -> int:
+    from fwcore.terrain.ground import GroundConfig
+    from pipeline.classify import classify_run, summary_line
+
+    config = GroundConfig(cloth_resolution=args.cloth_resolution, rigidness=args.rigidness)
+    if not Path(args.run_dir).is_dir():
+        raise FileNotFoundError(f"{args.run_dir}: no such folder")
+    with folder_lock(args.run_dir, "fwl classify"):  # it rewrites the run's echo table and point clouds
+        print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config)))
+    return 0
+
+
+def _add_classify(sub) -> None:
+    from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M
+
+    c = sub.add_parser("classify", help="classify a run's kept echoes (ASPRS ground, building, vegetation by height) "
+                                        "and give each its height above the terrain, in the run's echo table")
+    c.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
+    c.add_argument("--tile", type=float, default=DEFAULT_TILE_M, help="tile size, metres (default %(default)g)")
+    c.add_argument("--overlap", type=float, default=DEFAULT_OVERLAP_M,
+                   help="margin each tile is processed with, metres (default %(default)g)")
+    c.add_argument("--cloth-resolution", dest="cloth_resolution", type=float, default=1.0,
+                   help="the cloth simulation filter's grid, metres (default 1)")
+    c.add_argument("--rigidness", type=int, choices=[1, 2, 3], default=2,
+                   help="the cloth's rigidness: 1 steep terrain, 2 moderate slopes, 3 flat (default 2)")
+    c.set_defaults(handler=_classify)
 
 
 def _add_view(sub) -> None:

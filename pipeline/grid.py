@@ -6,6 +6,9 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
     count.tif        kept echoes per cell
     reflectance.tif  their mean reflectance (amplitude.tif, their mean amplitude, where the run has no radiometry)
     profile.tif      echo energy in height bins above the cell's lowest echo, one band a bin (NaN: no echo)
+    dtm, dsm, chm, cover, pai, pavd, rh98, rh50 .tif   the forest's (pipeline.forest_maps), where the echoes
+                     are classified (`fwl classify RUN`, or `fwl grid --classify`: pipeline.classify)
+    survey.vpc       a QGIS virtual point cloud over the run's copc/ files (where it has them): the survey as one layer
     fwl-grid.json    what was gridded, how, and the files: the mark of the folder as fwl grid's
 
 The echo table is read a record batch at a time (pyarrow), twice: the statistics, then the profile (its heights
@@ -25,7 +28,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
-from pipeline.layout import ECHOES, GRID_DIR, GRID_MARK, LOCK
+from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK, LOCK
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
@@ -33,6 +36,7 @@ MARK = GRID_MARK
 BATCH_ROWS = 1_000_000
 DEFAULT_BIN_HEIGHT_M = 1.0
 BLOCK = 256  # COG tiles, pixels a side
+VPC_FILE = "survey.vpc"
 
 
 def echo_files(run_dir: Path) -> list[Path]:
@@ -149,10 +153,11 @@ def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: f
 
 
 def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None, crs: str | None = None,
-             bin_height: float = DEFAULT_BIN_HEIGHT_M) -> dict:
+             bin_height: float = DEFAULT_BIN_HEIGHT_M, classify: bool = False) -> dict:
     """The maps of a finished run's kept echoes into `output` (None: the run's grid/ folder; see the module);
     what was written, as in fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where
-    the run's inputs name none or name it wrongly."""
+    the run's inputs name none or name it wrongly. Where the run's echoes are classified (`fwl classify`, or
+    here with `classify`), the forest's maps too (pipeline.forest_maps)."""
     import pyproj
 
     run_dir = Path(run_dir)
@@ -166,13 +171,23 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
     grid = Grid.covering(*bounds, cell)
     HeightProfile(grid, np.zeros(0), bin_height, 1)  # the bin height checked before the folder is touched
     claim_output(output)
+    forest = {}
+    from pipeline.classify import classify_run, is_classified
+
+    if classify and not is_classified(run_dir):
+        classify_run(run_dir)
+    if is_classified(run_dir):
+        from pipeline.forest_maps import forest_maps
+
+        files = echo_files(run_dir)
+        forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit)
     stats = _statistics(files, grid)
     profile = _profile(files, grid, stats, bin_height)
-    return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs))
+    return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs), forest)
 
 
 def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats: CellStatistics,
-                profile: HeightProfile, crs_given: bool) -> dict:
+                profile: HeightProfile, crs_given: bool, forest: dict | None = None) -> dict:
     highest, lowest = stats.heights()
     empty = stats.count == 0
     z_unit = COLUMNS["z"].unit
@@ -190,16 +205,24 @@ def _write_maps(output: Path, run_dir: Path, grid: Grid, wkt: str | None, stats:
                         [f"energy [{COLUMNS['energy'].unit}] {lo:g}-{hi:g} m above the lowest echo"
                          if math.isfinite(hi) else f"energy [{COLUMNS['energy'].unit}] {lo:g} m and more above the "
                          "lowest echo" for lo, hi in profile.edges()]),
+        **(forest or {}),
     }
     tags = {"SOFTWARE": "fwlidar fwl grid", "RUN": str(run_dir.resolve()), "CELL_M": f"{grid.cell:g}"}
     for name, (bands, dtype, nodata, descriptions) in maps.items():
         _write_cog(output / name, bands, grid, wkt, dtype, nodata, descriptions, tags)
+    written = sorted(maps)
+    copc = sorted((run_dir / COPC).glob("*.copc.laz"))
+    if copc:  # the survey's point clouds as one QGIS layer
+        from pipeline.vpc import write_vpc
+
+        write_vpc(copc, output / VPC_FILE)
+        written = sorted([*written, VPC_FILE])
     summary = {"run": str(run_dir.resolve()), "cell_m": grid.cell, "width": grid.width, "height": grid.height,
                "west": grid.west, "north": grid.north, "crs": wkt, "crs_source": "--crs" if crs_given else
                ("the run's echo table" if wkt else "none: the run's inputs name no CRS (give --crs)"),
                "echoes": int(stats.count.sum()), "cells_with_echoes": int((~empty).sum()),
                "mean_of": value, "bin_height_m": profile.bin_height, "bins": profile.bins,
-               "files": sorted(maps)}
+               "files": written}
     tmp = output / (MARK + ".tmp")
     tmp.write_text(json.dumps(summary, indent=2) + "\n")
     tmp.replace(output / MARK)

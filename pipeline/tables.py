@@ -144,6 +144,9 @@ COLUMNS = {c.name: c for c in (
     Column(BBOX_COLUMN, BBOX_TYPE, "CRS unit", "the geometry's bounding box (xmin = xmax = x, ymin = ymax = y), "
                                                "GeoParquet 1.1's covering: box queries read it"),
     Column("kept", BOOL, "", "false for a spurious echo"),
+    Column("classification", pa.uint8(), "", "ASPRS class: 2 ground, 6 building, 3/4/5 low/medium/high vegetation, "
+                                            "7 low noise, 1 unclassified (fwl classify; null before it)"),
+    Column("height", F64, "m", "the echo's height above the terrain (fwl classify's; null before it)"),
     Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept)"),
     Column("status", STR, "", "'' when decomposed, else why not"),
     Column("n_samples", I32, "", "samples in the waveform"),
@@ -198,7 +201,8 @@ TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
                "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
-               "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, BBOX_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD),
+               "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, BBOX_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD,
+               "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
                "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, "stale_return_flag",
@@ -353,7 +357,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
-        **_kept(result), **_method(config, pulse, owner.size)})
+        **_kept(result), **_method(config, pulse, owner.size),
+        "classification": pa.nulls(owner.size, pa.uint8()), "height": pa.nulls(owner.size, F64)})  # fwl classify's
     sel = np.flatnonzero(ok)
     table = _table("pulses", {
         "source_file": _strings(source_file, sel.size), "pulse_id": pulses.pulse_id[sel],

@@ -150,9 +150,8 @@ def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 120.0 + 6.0 * np.sin(x / 90.0) + 4.0 * np.cos(y / 70.0) + 1.5 * np.sin((x + y) / 23.0)
 
 
-def _pulse_geometry(first: int, n: int, scene: SceneConfig):
-    """Per pulse first..first+n-1: GPS time, scan angle, sensor position, beam, the range to the ground and
-    where the beam meets it (no random draw)."""
+def scan_geometry(first: int, n: int, scene: SceneConfig):
+    """Per pulse first..first+n-1: GPS time, scan angle (radians), the scanner's position and the unit beam."""
     i = first + np.arange(n)
     gps = scene.start_gps_time + i / scene.pulse_rate_hz
     line, step = np.divmod(i, scene.pulses_per_line)
@@ -161,6 +160,13 @@ def _pulse_geometry(first: int, n: int, scene: SceneConfig):
     angle = np.radians(scene.max_scan_angle_deg) * np.where(forward, 2 * frac - 1, 1 - 2 * frac)
     sensor_xyz = sensor_position(gps, scene)
     beam = np.stack([np.zeros(n), np.sin(angle), -np.cos(angle)], axis=1)
+    return gps, angle, sensor_xyz, beam
+
+
+def _pulse_geometry(first: int, n: int, scene: SceneConfig):
+    """Per pulse first..first+n-1: GPS time, scan angle, sensor position, beam, the range to the ground and
+    where the beam meets it (no random draw)."""
+    gps, angle, sensor_xyz, beam = scan_geometry(first, n, scene)
     # ground range: two fixed-point steps on the terrain height are plenty at these slopes
     ground_range = (sensor_xyz[:, 2] - 120.0) / np.cos(angle)
     for _ in range(3):
@@ -369,8 +375,16 @@ def _chunk_rng(seed: int, chunk: int) -> np.random.Generator:
 def _simulate_chunk(first: int, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, rng: np.random.Generator,
                     source_file: str) -> SimulatedFlight:
     """Pulses first..first+n_pulses-1 of the flight."""
-    gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind, reflectance, incidence = \
-        _scene_echoes(first, n_pulses, scene, sensor, rng)
+    return chunk_of_echoes(first, n_pulses, sensor, scene, rng, source_file,
+                           _scene_echoes(first, n_pulses, scene, sensor, rng))
+
+
+def chunk_of_echoes(first: int, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, rng: np.random.Generator,
+                    source_file: str, echoes: tuple) -> SimulatedFlight:
+    """The pulses of a chunk whose surfaces a scene has placed: echoes = (gps, angle, sensor_xyz, beam, count,
+    ranges, amplitude, width, alpha, kind, reflectance, incidence), per pulse up to MAX_ECHOES in time order;
+    the sensor renders, adds noise and detects (the forest scene, fwcore.studies.forest, places its own)."""
+    gps, angle, sensor_xyz, beam, count, ranges, amplitude, width, alpha, kind, reflectance, incidence = echoes
     has = np.arange(MAX_ECHOES)[None, :] < count[:, None]
     top_range = ranges[:, 0]
     noise_draws = rng.standard_normal(n_pulses * sensor.samples_per_packet)  # drawn first, as before the phase

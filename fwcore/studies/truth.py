@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 import pyarrow as pa
@@ -73,13 +74,18 @@ def write_calibration_reference(path: str | Path, n_pulses: int, scene: SceneCon
 
 
 def write_flight(output: str | Path, n_pulses: int, sensor: SensorConfig, scene: SceneConfig, seed: int,
-                 layout: str = "las13-wdp") -> WrittenFlight:
+                 layout: str = "las13-wdp", chunks: Iterable | None = None,
+                 extra_meta: dict | None = None) -> WrittenFlight:
     """Simulate a flight into `output` (and its packets) and its truth beside it, one chunk of pulses in
-    memory at a time (fwcore.studies.simulate.CHUNK_PULSES), whatever n_pulses."""
+    memory at a time (fwcore.studies.simulate.CHUNK_PULSES), whatever n_pulses. `chunks`: another scene's
+    chunks of the same flight (the forest's), `extra_meta` what it adds to the truth's metadata."""
     output = Path(output)
     n_returns = n_echoes = 0
-    with WaveformLasWriter(output, layout) as las, TruthWriter(truth_path(output), sensor, scene, seed) as truth:
-        for chunk in simulate_chunks(n_pulses, sensor, scene, seed, source_file=output.name):
+    if chunks is None:
+        chunks = simulate_chunks(n_pulses, sensor, scene, seed, source_file=output.name)
+    with WaveformLasWriter(output, layout) as las, \
+            TruthWriter(truth_path(output), sensor, scene, seed, extra_meta) as truth:
+        for chunk in chunks:
             las.write(chunk.pulses, bits=sensor.bits)
             truth.write(chunk.truth)
             n_returns += chunk.pulses.return_xyz.shape[0]
@@ -95,9 +101,11 @@ class TruthWriter:
     """The truth table, chunk by chunk (a row group each), with the sensor, scene and seed in its metadata.
     If the writing fails, the partial table is removed."""
 
-    def __init__(self, path: str | Path, sensor: SensorConfig, scene: SceneConfig, seed: int) -> None:
+    def __init__(self, path: str | Path, sensor: SensorConfig, scene: SceneConfig, seed: int,
+                 extra_meta: dict | None = None) -> None:
         self.path = Path(path)
-        self._meta = {"sensor": dataclasses.asdict(sensor), "scene": dataclasses.asdict(scene), "seed": seed}
+        self._meta = {"sensor": dataclasses.asdict(sensor), "scene": dataclasses.asdict(scene), "seed": seed,
+                      **(extra_meta or {})}
         self._writer: pq.ParquetWriter | None = None
 
     def __enter__(self) -> "TruthWriter":

@@ -31,7 +31,10 @@ from pipeline.view.queries import colour_range
 MAX_CELLS = 250_000  # cells one layer sends the page (a few MB of JSON), whatever the grid's size
 # each map fwl grid writes: how its cells combine when the layer is served coarser
 MAPS = {"highest.tif": "max", "lowest.tif": "min", "count.tif": "sum", "profile.tif": "sum",
-        "reflectance.tif": "mean", "amplitude.tif": "mean"}
+        "reflectance.tif": "mean", "amplitude.tif": "mean",
+        # the forest's (pipeline.forest_maps): surfaces as their highest, the rest as means
+        "dtm.tif": "mean", "dsm.tif": "max", "chm.tif": "max", "cover.tif": "mean", "pai.tif": "mean",
+        "pavd.tif": "mean", "rh98.tif": "max", "rh50.tif": "mean"}
 LOCAL_FRAME = ("the map draws this earth-centred run in east and north metres about its centre; a grid of its "
                "earth-centred x and y has no place on it")
 DESCRIPTION = re.compile(r"(?P<what>[^\[]*?)\s*\[(?P<unit>[^\]]*)\]\s*(?P<rest>.*)")
