@@ -6,6 +6,8 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
     count.tif        kept echoes per cell
     reflectance.tif  their mean reflectance (amplitude.tif, their mean amplitude, where the run has no radiometry)
     profile.tif      echo energy in height bins above the cell's lowest echo, one band a bin (NaN: no echo)
+    rh98, rh50, cover, pai, ground .tif   for GEDI and LVIS runs, the mean of the shots' own metrics per cell
+                     (pipeline.pulse_maps)
     dtm, dsm, chm, cover, pai, pavd, rh98, rh50 .tif   the forest's (pipeline.forest_maps), where the echoes
                      are classified (`fwl classify RUN`, or `fwl grid --classify`: pipeline.classify)
     survey.vpc       a QGIS virtual point cloud over the run's copc/ files (where it has them): the survey as one layer
@@ -30,6 +32,7 @@ import pyarrow.parquet as pq
 from fwcore.grid import CellStatistics, Grid, HeightProfile
 from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK, LOCK
 from pipeline.outputs import OutputFolderError, read_run
+from pipeline.pulse_maps import large_footprint_run, shot_metric_maps
 from pipeline.tables import COLUMNS, GEO_METADATA_KEY
 
 MARK = GRID_MARK
@@ -181,6 +184,8 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
 
         files = echo_files(run_dir)
         forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit)
+    elif large_footprint_run(run_dir):  # GEDI, LVIS: each shot is a footprint's sample of the forest
+        forest = shot_metric_maps(run_dir, grid)
     stats = _statistics(files, grid)
     profile = _profile(files, grid, stats, bin_height)
     return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs), forest)
