@@ -112,7 +112,7 @@ def footprint_accuracy(path: Path, seed: int, pulses: int) -> dict:
 
     from fwcore.studies.forest import ForestConfig, draw_forest, flight_bounds, forest_flight_scene
     from fwcore.studies.forest_truth import scene_footprint
-    from fwcore.terrain.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+    from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
 
     fp = pq.read_table(path).to_pydict()
     drawn = draw_forest(flight_bounds(pulses, forest_flight_scene()), ForestConfig(), seed)

@@ -1,7 +1,7 @@
 """`fwl footprints RUN_DIR (--gedi L2A.h5 | --spacing METRES) [--output FILE]`: what GEDI would record over a run,
 as GeoParquet (default RUN_DIR/footprints.parquet).
 
-Each footprint's waveform is built from the run's kept echoes around it (fwcore.terrain.footprint: their energy
+Each footprint's waveform is built from the run's kept echoes around it (fwcore.metrics.footprint: their energy
 on a common vertical axis, weighted by GEDI's Gaussian footprint, through GEDI's pulse) and measured as GEDI's
 L2A and L2B measure theirs (fwcore.metrics). Footprints are centred on a granule's shots (their lowest mode's
 latitude and longitude, in the run's CRS) or on a square grid of `spacing` over the run; a footprint centred
@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fwcore.terrain.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
 from pipeline.grid import _batches, _bounds, echo_files, run_crs_wkt
 from pipeline.outputs import read_run
 

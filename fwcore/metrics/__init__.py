@@ -6,5 +6,7 @@ energies (GEDI L2B).
     ground.py    the lowest mode: the ground
     rh.py        RH0..RH100
     canopy.py    rv, rg, Pgap, cover, PAI, PAVD
-    waveform.py  the settings and the batch: every pulse's metrics in one call
+    waveform.py  the settings and the batch: every pulse's metrics in one call (kernel.py: its numba kernel)
+    pulses.py    a PulseBatch's metrics, whatever the sensor
+    footprint.py a large footprint's waveform built from small ones (GEDI from the air)
 """

@@ -121,7 +121,7 @@ def scene_footprint(drawn: Forest, x: float, y: float, radius: float, spacing: f
     """What a large footprint centred at (x, y) sees of the scene itself: vertical rays on a grid of `spacing`
     within `radius`, each step's intercepted share of the ray by Beer's law and what reaches the ground (or the
     roof), as (dx, dy, z, energy) with energies in the scene's proportions (reflectance x share): the truth a
-    footprint built from the airborne echoes (fwcore.terrain.footprint) is measured against."""
+    footprint built from the airborne echoes (fwcore.metrics.footprint) is measured against."""
     from fwcore.studies.forest import GROUND_REFLECTANCE, ROOF_REFLECTANCE, VEGETATION_REFLECTANCE
 
     offsets = np.arange(-radius, radius + spacing / 2, spacing)

@@ -9,7 +9,7 @@ import pytest
 
 from fwcore.studies.forest import ForestConfig, draw_forest, flight_bounds, forest_flight_scene
 from fwcore.studies.forest_truth import scene_footprint
-from fwcore.terrain.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
 from pipeline.cli import main
 from tests.pipeline.conftest import FOREST_PULSES
 

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from fwcore.terrain.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
 
 
 def test_one_echo_is_the_pulse_at_its_elevation_weighted_by_the_footprint():

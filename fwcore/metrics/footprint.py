@@ -2,8 +2,6 @@
 discrete returns): each airborne echo's energy on a common vertical axis, weighted by the large footprint's
 Gaussian at the echo's distance from its centre, then through the large sensor's pulse; its metrics are GEDI's
 (fwcore.metrics.waveform: L2A's ground and RH, L2B's cover, PAI and profile).
-
-(The lead's architecture puts this in fwcore/metrics/footprint.py; it lives here until the two are unified.)
 """
 
 from __future__ import annotations
