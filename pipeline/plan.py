@@ -89,10 +89,11 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
 
 
 def file_metric_settings(path: str) -> tuple[dict | None, str]:
-    """A GEDI L1B's forest-metric settings: those of the algorithm its L2A granule beside it selected most,
-    else None (algorithm 1's, the defaults)."""
+    """A GEDI L1B's forest-metric settings: every algorithm's of the L2A granule beside it, each shot taking the
+    one L2A selected for it ({"default": the most selected, "algorithms": {number: settings}}), else None
+    (algorithm 1's, the defaults)."""
     from fwcore.io.formats import GEDI_L1B, format_of
-    from fwcore.io.gedi import l2a_beside, l2a_settings
+    from fwcore.io.gedi import l2a_algorithm_settings, l2a_beside
 
     if format_of(path) is not GEDI_L1B:
         return None, ""
@@ -100,10 +101,11 @@ def file_metric_settings(path: str) -> tuple[dict | None, str]:
     if l2a is None:
         return None, "GEDI L2A algorithm 1's (no L2A granule beside the L1B)"
     try:
-        algorithm, settings = l2a_settings(l2a)
+        algorithm, settings = l2a_algorithm_settings(l2a)
     except (OSError, ValueError, KeyError) as err:
         return None, f"GEDI L2A algorithm 1's ({l2a.name} unreadable: {err})"
-    return settings, f"{l2a.name}: algorithm {algorithm}"
+    return ({"default": algorithm, "algorithms": {str(a): s for a, s in settings.items()}},
+            f"{l2a.name}: each shot's selected algorithm (algorithm {algorithm} for most)")
 
 
 def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range: int,

@@ -84,6 +84,14 @@ def read_range(task: ReadTask) -> tuple[PulseRange | None, list[Rejection]]:
     return (PulseRange(task, pulses) if len(pulses) else None), rejected
 
 
+def file_metric_settings(planned: dict | None) -> tuple[MetricSettings | None, dict[int, MetricSettings] | None]:
+    """The plan's metric settings (pipeline.plan.file_metric_settings) as the default and each algorithm's."""
+    if not planned:
+        return None, None
+    by_algorithm = {int(a): MetricSettings.from_dict(s) for a, s in planned["algorithms"].items()}
+    return by_algorithm[int(planned["default"])], by_algorithm
+
+
 def warm_up(config: DecompositionConfig, pulse: SystemPulse = nominal_pulse()) -> None:
     """Compile the engine's kernels once per worker (from numba's cache when warm)."""
     warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
@@ -124,8 +132,8 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
-    settings = MetricSettings.from_dict(source.metric_settings) if source.metric_settings else None
-    metrics = batch_metrics(pulses, result, source.system, settings)
+    settings, by_algorithm = file_metric_settings(source.metric_settings)
+    metrics = batch_metrics(pulses, result, source.system, settings, by_algorithm)
     echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
                                  columns, source.crs_wkt, metrics)
     cloud = decomposed_echoes(pulses, result, xyz)

@@ -166,6 +166,7 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         noise_sd = g["noise_stddev_corrected"][lo:hi][keep].astype(np.float64)
         time = geo["delta_time"][lo:hi][keep].astype(np.float64)
         channel = _beam_number(g, beam)
+    algorithm = selected_algorithms(l2a_beside(point_range.path), beam, shot[keep])
     n, steps = int(keep.sum()), np.maximum(count[keep] - 1, 1).astype(np.float64)
     # position = anchor + (L0 - t) direction with the anchor at bin0 and L0 = 0: direction = (bin0 - lastbin) / span
     direction = (bin0[keep] - last[keep]) / (steps * SAMPLE_SPACING_PS)[:, None]
@@ -184,7 +185,7 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         outgoing_spacing_ps=np.full(n, SAMPLE_SPACING_PS),
         rejected=tuple((int(s), str(r)) for s, r in zip(shot[~keep], reasons[~keep])),
         noise_mean=noise, noise_sd=noise_sd, cos_zenith=np.abs(np.sin(elevation)), transmit_shape=shape,
-        stale_return_flag=stale[keep], degrade_flag=degrade)
+        stale_return_flag=stale[keep], degrade_flag=degrade, metric_algorithm=algorithm)
 
 
 def concatenate(batches: list[PulseBatch]) -> PulseBatch:
@@ -238,6 +239,39 @@ def l2a_beside(path: str | Path) -> Path | None:
         return None
     found = sorted(path.parent.glob(f"GEDI02_A_{parts[2]}_{parts[3]}_*.h5"))
     return found[0] if found else None
+
+
+def selected_algorithms(l2a: Path | None, beam: str, shots: np.ndarray) -> np.ndarray | None:
+    """Per shot, the algorithm the L2A granule selected for it (joined by shot number; 0 where L2A has not the
+    shot); None without an L2A granule."""
+    import h5py
+
+    if l2a is None:
+        return None
+    try:
+        with h5py.File(l2a, "r") as f:
+            if beam not in f or "selected_algorithm" not in f[beam]:
+                return np.zeros(shots.size, np.int8)
+            numbers = f[beam]["shot_number"][:].astype(np.int64)
+            selected = f[beam]["selected_algorithm"][:].astype(np.int8)
+    except OSError:
+        return None
+    if not numbers.size:
+        return np.zeros(shots.size, np.int8)
+    order = np.argsort(numbers)
+    at = np.clip(np.searchsorted(numbers[order], shots), 0, numbers.size - 1)
+    return np.where(numbers[order][at] == shots, selected[order][at], 0).astype(np.int8)
+
+
+def l2a_algorithm_settings(path: str | Path) -> tuple[int, dict[int, dict]]:
+    """The algorithm the L2A granule selected most, and every algorithm's settings (l2a_settings)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        count = next((int(f[b]["ancillary/l2a_alg_count"][0]) for b in f if b.startswith("BEAM")
+                      and "ancillary/l2a_alg_count" in f[b]), 6)
+    most, _ = l2a_settings(path)
+    return most, {a: l2a_settings(path, a)[1] for a in range(1, count + 1)}
 
 
 def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:

@@ -82,6 +82,9 @@ class PulseBatch:
     transmit_shape: np.ndarray | None = None  # (n, 4)
     stale_return_flag: np.ndarray | None = None
     degrade_flag: np.ndarray | None = None
+    # per row: the waveform algorithm the mission's product selected for the shot (GEDI L2A's selected_algorithm,
+    # 0: none), whose settings its forest metrics take
+    metric_algorithm: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.pulse_id.size

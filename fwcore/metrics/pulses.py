@@ -48,9 +48,11 @@ def zenith_cosine(pulses: PulseBatch) -> np.ndarray:
 
 
 def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemPulse,
-                  settings: MetricSettings | None = None) -> WaveformMetrics:
+                  settings: MetricSettings | None = None,
+                  by_algorithm: dict[int, MetricSettings] | None = None) -> WaveformMetrics:
     """Every pulse's metrics (`settings`: the file's, e.g. its L2A algorithm's; else GEDI's scaled to its pulse
-    where the file records no transmitted shape)."""
+    where the file records no transmitted shape); where the file names each shot's algorithm
+    (PulseBatch.metric_algorithm) and `by_algorithm` gives their settings, each shot takes its own."""
     spacing = np.maximum(pulses.sample_spacing_ps, 1e-9)
     sigma = pulse.fwhm_ps / spacing / FWHM_PER_SIGMA
     if pulses.transmit_shape is not None:
@@ -62,5 +64,35 @@ def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemP
     noise_mean = pulses.noise_mean if pulses.noise_mean is not None else result.background
     noise_sd = pulses.noise_sd if pulses.noise_sd is not None else result.noise_sigma
     first_z, drop = vertical_axis(pulses)
-    return waveform_metrics(pulses.samples, pulses.sample_offsets, noise_mean, noise_sd, first_z, drop,
-                            zenith_cosine(pulses), shape, settings)
+    columns = (noise_mean, noise_sd, first_z, drop, zenith_cosine(pulses), shape)
+    if not by_algorithm or pulses.metric_algorithm is None:
+        return waveform_metrics(pulses.samples, pulses.sample_offsets, *columns, settings)
+    algorithm = np.where(np.isin(pulses.metric_algorithm, list(by_algorithm)), pulses.metric_algorithm, 0)
+    parts = {}
+    for a in np.unique(algorithm):  # each algorithm's shots in one kernel call
+        rows = np.flatnonzero(algorithm == a)
+        samples, offsets = take_waveforms(pulses.samples, pulses.sample_offsets, rows)
+        parts[int(a)] = (rows, waveform_metrics(samples, offsets, *(c[rows] for c in columns),
+                                                by_algorithm.get(int(a), settings)))
+    return joined_metrics(len(pulses), list(parts.values()))
+
+
+def take_waveforms(samples: np.ndarray, offsets: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Waveforms `rows` of a flat batch as a flat batch of their own."""
+    lengths = offsets[rows + 1] - offsets[rows]
+    index = np.repeat(offsets[rows] - np.r_[0, np.cumsum(lengths)[:-1]], lengths) + np.arange(lengths.sum())
+    return samples[index], np.r_[0, np.cumsum(lengths)].astype(np.int64)
+
+
+def joined_metrics(n: int, parts: list[tuple[np.ndarray, WaveformMetrics]]) -> WaveformMetrics:
+    """Several row subsets' metrics as one record of n rows."""
+    first = parts[0][1]
+    values = {f.name: np.full((n, *getattr(first, f.name).shape[1:]), np.nan)
+              for f in dataclasses.fields(WaveformMetrics) if f.name != "reason"}
+    reason = [""] * n
+    for rows, metrics in parts:
+        for name, array in values.items():
+            array[rows] = getattr(metrics, name)
+        for i, r in zip(rows, metrics.reason):
+            reason[i] = r
+    return WaveformMetrics(**values, reason=reason)

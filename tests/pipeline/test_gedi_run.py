@@ -99,5 +99,7 @@ def test_unusable_shots_are_rejected_and_each_beam_adds_up(tmp_path):
 
 def test_run_json_says_whose_settings_the_metrics_took(gedi_run):
     (entry,) = json.loads((gedi_run / "run.json").read_text())["inputs"]
-    assert entry["metric_settings_source"].endswith("_sub.h5: algorithm 1")
-    assert entry["metric_settings"]["smoothing_width"] == 6.5
+    assert entry["metric_settings_source"].endswith("_sub.h5: each shot's selected algorithm (algorithm 1 for most)")
+    settings = entry["metric_settings"]
+    assert settings["default"] == 1 and settings["algorithms"]["1"]["smoothing_width"] == 6.5
+    assert settings["algorithms"]["2"]["smoothing_width_zcross"] == 3.5 and len(settings["algorithms"]) == 6
