@@ -20,4 +20,4 @@ def test_the_layout_and_the_faults(tmp_path):
         z0, zl = g["geolocation/elevation_bin0"][:], g["geolocation/elevation_lastbin"][:]
         assert np.isnan(z0[3]) and np.isclose(z0[0] - zl[0], 119 * METRES_PER_SAMPLE)
     assert truth.reject.tolist() == ["", "samples", "stale", "geolocation", "", ""] * 2
-    assert (truth.top <= truth.ground).all() and len(set(truth.shot_number.tolist())) == 12
+    assert (truth.top_index <= truth.ground_index).all() and len(set(truth.shot_number.tolist())) == 12
