@@ -83,6 +83,9 @@ def open_gedi(path: str | Path) -> GediGranule:
     try:
         with h5py.File(path, "r") as f:
             beams = sorted(k for k in f if k.startswith("BEAM") and "rxwaveform" in f[k])
+            missing = sorted({name for b in beams for name in REQUIRED if name not in f[b]})
+            if missing:
+                raise WaveformFileError(f"{path}: a GEDI L1B granule without {', '.join(missing)}")
             shots = tuple(int(f[b]["shot_number"].shape[0]) for b in beams)
     except OSError as err:
         raise WaveformFileError(f"{path}: not a readable HDF5 file ({err})") from None
@@ -123,6 +126,50 @@ def _slices(group, field: str, starts: np.ndarray, counts: np.ndarray) -> tuple[
     return (np.concatenate(parts) if parts else np.zeros(0)), np.r_[0, np.cumsum(counts)].astype(np.int64)
 
 
+REQUIRED = ("shot_number", "rx_sample_count", "rx_sample_start_index", "rxwaveform", "geolocation/elevation_bin0",
+            "geolocation/elevation_lastbin", "geolocation/latitude_bin0", "geolocation/latitude_lastbin",
+            "geolocation/longitude_bin0", "geolocation/longitude_lastbin")
+# per shot, read where the granule has them, else these (the beam at nadir, no flags, no time)
+OPTIONAL = {"stale_return_flag": 0, "geolocation/degrade": 0, "geolocation/local_beam_elevation": np.pi / 2,
+            "geolocation/delta_time": 0.0, "noise_mean_corrected": None, "noise_stddev_corrected": None,
+            "tx_sample_count": 0, "tx_sample_start_index": 0, **{k: None for k in TX_SHAPE_FIELDS}}
+NOISE_SAMPLES = 50  # without L1B's noise: the first and last samples of the waveform, above and below any surface
+
+
+def _noise_at_ends(samples: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each waveform's noise mean and sigma from its first and last NOISE_SAMPLES samples, robustly (the median
+    and 1.4826 x the median absolute deviation: a canopy reaching into the first samples barely moves them)."""
+    mean, sd = np.full(offsets.size - 1, np.nan), np.full(offsets.size - 1, np.nan)
+    for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])):
+        ends = np.r_[samples[a:min(a + NOISE_SAMPLES, b)], samples[max(b - NOISE_SAMPLES, a):b]]
+        if ends.size:
+            mean[i] = np.median(ends)
+            sd[i] = 1.4826 * np.median(np.abs(ends - mean[i]))
+    return mean, sd
+
+
+def _shots(group, lo: int, hi: int):
+    """A beam's shots lo..hi-1: numbers, sample counts, bin0 and lastbin positions, each shot's rejection reason
+    ('' kept), and the optional columns (OPTIONAL) of the kept shots by their last name."""
+    geo = group["geolocation"]
+    shot = group["shot_number"][lo:hi].astype(np.int64)
+    count = group["rx_sample_count"][lo:hi].astype(np.int64)
+    values = {name.split("/")[-1]: (group[name][lo:hi].astype(np.float64) if name in group
+                                    else None if default is None else np.full(hi - lo, float(default)))
+              for name, default in OPTIONAL.items()}
+    bin0 = np.stack([geo["longitude_bin0"][lo:hi], geo["latitude_bin0"][lo:hi], geo["elevation_bin0"][lo:hi]], 1)
+    last = np.stack([geo["longitude_lastbin"][lo:hi], geo["latitude_lastbin"][lo:hi],
+                     geo["elevation_lastbin"][lo:hi]], axis=1).astype(np.float64)
+    bin0 = bin0.astype(np.float64)
+    located = np.isfinite(bin0).all(axis=1) & np.isfinite(last).all(axis=1) & (np.abs(bin0[:, 2]) < 1e5)
+    reasons = np.where(count <= 0, NO_SAMPLES, np.where(values["stale_return_flag"] == 1, STALE,
+                                                         np.where(~located, NO_GEOLOCATION, "")))
+    keep = reasons == ""
+    kept = {name: v[keep] for name, v in values.items() if v is not None}
+    kept["rx_sample_start_index"] = group["rx_sample_start_index"][lo:hi][keep]
+    return shot, count, bin0, last, reasons, kept
+
+
 def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None = None) -> PulseBatch:
     """The shots of a range (a whole granule given its path: its first beam's range is not enough, so every
     range is read) as pulses: received samples, the transmitted pulse as the outgoing waveform, each sample
@@ -144,28 +191,21 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
                             for start in [max(int(start), point_range.start)]])
     lo, hi = point_range.start - first, stop - first
     with h5py.File(point_range.path, "r") as f:
-        g = f[beam]
-        geo = g["geolocation"]
-        shot = g["shot_number"][lo:hi].astype(np.int64)
-        count = g["rx_sample_count"][lo:hi].astype(np.int64)
-        stale = g["stale_return_flag"][lo:hi].astype(np.int8) if "stale_return_flag" in g else np.zeros(hi - lo, np.int8)
-        z0, zl = geo["elevation_bin0"][lo:hi], geo["elevation_lastbin"][lo:hi]
-        bin0 = np.stack([geo["longitude_bin0"][lo:hi], geo["latitude_bin0"][lo:hi], z0], axis=1)
-        last = np.stack([geo["longitude_lastbin"][lo:hi], geo["latitude_lastbin"][lo:hi], zl], axis=1)
-        located = np.isfinite(bin0).all(axis=1) & np.isfinite(last).all(axis=1) & (np.abs(bin0[:, 2]) < 1e5)
-        reasons = np.where(count <= 0, NO_SAMPLES, np.where(stale == 1, STALE, np.where(~located, NO_GEOLOCATION, "")))
+        shot, count, bin0, last, reasons, kept = _shots(f[beam], lo, hi)
         keep = reasons == ""
-        rx, offsets = _slices(g, "rxwaveform", g["rx_sample_start_index"][lo:hi][keep].astype(np.int64), count[keep])
-        tx_count = g["tx_sample_count"][lo:hi][keep].astype(np.int64)
-        tx, tx_offsets = _slices(g, "txwaveform", g["tx_sample_start_index"][lo:hi][keep].astype(np.int64), tx_count)
-        elevation = geo["local_beam_elevation"][lo:hi][keep].astype(np.float64)  # radians
-        degrade = geo["degrade"][lo:hi][keep].astype(np.int8) if "degrade" in geo else np.zeros(keep.sum(), np.int8)
-        shape = np.stack([g[k][lo:hi][keep].astype(np.float64) for k in TX_SHAPE_FIELDS], axis=1) \
-            if all(k in g for k in TX_SHAPE_FIELDS) else None
-        noise = g["noise_mean_corrected"][lo:hi][keep].astype(np.float64)
-        noise_sd = g["noise_stddev_corrected"][lo:hi][keep].astype(np.float64)
-        time = geo["delta_time"][lo:hi][keep].astype(np.float64)
-        channel = _beam_number(g, beam)
+        rx, offsets = _slices(f[beam], "rxwaveform", kept["rx_sample_start_index"].astype(np.int64), count[keep])
+        tx, tx_offsets = (_slices(f[beam], "txwaveform", kept["tx_sample_start_index"].astype(np.int64),
+                                  kept["tx_sample_count"].astype(np.int64))
+                          if "txwaveform" in f[beam] else (np.zeros(0), np.zeros(int(keep.sum()) + 1, np.int64)))
+        channel = _beam_number(f[beam], beam)
+    elevation, stale, degrade, time = (kept[k] for k in ("local_beam_elevation", "stale_return_flag", "degrade",
+                                                         "delta_time"))
+    shape = np.stack([kept[k] for k in TX_SHAPE_FIELDS], axis=1) if all(k in kept for k in TX_SHAPE_FIELDS) else None
+    noise, noise_sd = kept.get("noise_mean_corrected"), kept.get("noise_stddev_corrected")
+    if noise is None or noise_sd is None:  # a granule without them: measured on the waveforms' ends
+        mean, sd = _noise_at_ends(rx, offsets)
+        noise = mean if noise is None else noise
+        noise_sd = sd if noise_sd is None else noise_sd
     algorithm = selected_algorithms(l2a_beside(point_range.path), beam, shot[keep])
     n, steps = int(keep.sum()), np.maximum(count[keep] - 1, 1).astype(np.float64)
     # position = anchor + (L0 - t) direction with the anchor at bin0 and L0 = 0: direction = (bin0 - lastbin) / span
@@ -185,7 +225,7 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         outgoing_spacing_ps=np.full(n, SAMPLE_SPACING_PS),
         rejected=tuple((int(s), str(r)) for s, r in zip(shot[~keep], reasons[~keep])),
         noise_mean=noise, noise_sd=noise_sd, cos_zenith=np.abs(np.sin(elevation)), transmit_shape=shape,
-        stale_return_flag=stale[keep], degrade_flag=degrade, metric_algorithm=algorithm)
+        stale_return_flag=stale.astype(np.int8), degrade_flag=degrade.astype(np.int8), metric_algorithm=algorithm)
 
 
 def concatenate(batches: list[PulseBatch]) -> PulseBatch:

@@ -88,3 +88,27 @@ def test_the_l2a_beside_gives_its_selected_algorithms_settings(tmp_path):
                                            "front_threshold_sd": 3.0, "back_threshold_sd": 6.0, "subbins": 4}
     assert l2a_settings(L2A, 2)[1]["smoothing_width_zcross"] == 3.5
     assert l2a_beside(tmp_path / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5") is None
+
+
+def test_a_granule_with_only_the_required_datasets_reads(tmp_path):
+    """Without noise, flags, angles, times or transmitted pulses: the noise from the first samples, the beam at
+    nadir, no flags; without a required dataset the file is refused naming it."""
+    from fwcore.io.gedi import OPTIONAL
+
+    full = tmp_path / "full.h5"
+    write_granule(full, 8, seed=2, beams=("BEAM0011",), samples=800, faults=False)
+    bare = tmp_path / "bare.h5"
+    with h5py.File(full) as src, h5py.File(bare, "w") as dst:
+        for name in ("shot_number", "rx_sample_count", "rx_sample_start_index", "rxwaveform"):
+            src.copy(f"BEAM0011/{name}", dst.require_group("BEAM0011"), name)
+        for name in ("elevation_bin0", "elevation_lastbin", "latitude_bin0", "latitude_lastbin", "longitude_bin0",
+                     "longitude_lastbin"):
+            src.copy(f"BEAM0011/geolocation/{name}", dst.require_group("BEAM0011/geolocation"), name)
+    assert not any(name in h5py.File(bare)["BEAM0011"] for name in OPTIONAL)
+    pulses = read_pulses(bare)
+    assert len(pulses) == 8 and pulses.transmit_shape is None and (pulses.cos_zenith == 1.0).all()
+    assert np.allclose(pulses.noise_mean, 205.0, atol=2.0) and np.allclose(pulses.noise_sd, 3.3, atol=1.0)
+    with h5py.File(bare, "r+") as f:
+        del f["BEAM0011/geolocation/elevation_lastbin"]
+    with pytest.raises(WaveformFileError, match="without geolocation/elevation_lastbin"):
+        open_gedi(bare)
