@@ -3,8 +3,9 @@ height, and what the waveforms' energy above and below the ground says of the ca
 over each cell's echoes, fwcore.metrics.canopy).
 
     dtm.tif    the terrain: the ground echoes triangulated tile by tile with an overlap, at cell centres
-    dsm.tif    the highest kept echo's z
-    chm.tif    the highest vegetation echo's height above the terrain (0: echoes, none of them vegetation)
+    dsm.tif    the highest kept echo's top (as chm.tif's: a hard target's is its z)
+    chm.tif    the highest vegetation echo's top above the terrain (fwcore.terrain.canopy_height: its centre plus
+               half the depth its widening beyond the system pulse implies; 0: echoes, none of them vegetation)
     cover.tif  cos(zenith) (1 - Pgap), Pgap = 1 - rv / (rv + rhov/rhog rg): rv the energy of the vegetation
                echoes, rg of the ground echoes (zenith 0: the echo table does not carry the beam's angle)
     pai.tif    -ln(Pgap) / (rossg omega) (NaN where no ground was seen: saturated)
@@ -25,6 +26,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from fwcore.grid import Grid, HeightProfile
+from fwcore.terrain.canopy_height import echo_tops
 from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
 from fwcore.terrain.profile import cover_and_pai, plant_area_density, relative_heights
@@ -34,6 +36,16 @@ from pipeline.grid import _batches
 SPILL_DIR = ".forest-maps"
 ROWS_AT_ONCE = 100_000
 PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this far above the terrain
+
+
+def run_system_fwhm_ps(run_dir: Path) -> float:
+    """The system pulse's FWHM the run measured (run.json's inputs; their median where several): what an echo's
+    width is compared with; 0 (no correction) where the run records none."""
+    from pipeline.outputs import read_run
+
+    widths = [i.get("system_pulse_fwhm_ps") for i in read_run(run_dir).get("inputs", [])]
+    widths = [float(w) for w in widths if w]
+    return float(np.median(widths)) if widths else 0.0
 
 
 def tiled_dtm(files: list[Path], grid: Grid, run_dir: Path, tile: float = DEFAULT_TILE_M,
@@ -97,16 +109,17 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     energy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # every echo's, for RH
     canopy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # the vegetation's, for PAVD
     energy.sums, canopy.sums = energy.sums.astype(np.float32), canopy.sums.astype(np.float32)  # half the memory
-    for b in _batches(files, ["x", "y", "z", "classification", "height", "energy"]):
+    system_fwhm = run_system_fwhm_ps(run_dir)
+    for b in _batches(files, ["x", "y", "z", "classification", "height", "energy", "fwhm_ps"]):
         cell = grid.index(b["x"], b["y"])
         inside = cell >= 0
         c = cell[inside]
         code, h = b["classification"][inside], b["height"][inside]
         e = np.nan_to_num(b["energy"][inside])
         seen[c] = True
-        np.maximum.at(dsm, c, b["z"][inside])
+        np.maximum.at(dsm, c, echo_tops(b["z"][inside], b["fwhm_ps"][inside], system_fwhm))
         veg = np.isin(code, VEGETATION)
-        np.maximum.at(chm, c[veg], h[veg])
+        np.maximum.at(chm, c[veg], echo_tops(h[veg], b["fwhm_ps"][inside][veg], system_fwhm))
         rv += np.bincount(c[veg], weights=e[veg], minlength=cells)
         ground = code == GROUND
         rg += np.bincount(c[ground], weights=e[ground], minlength=cells)
@@ -130,8 +143,8 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     edges = [(k * bin_height, (k + 1) * bin_height) for k in range(bins - 1)]
     return {
         "dtm.tif": ([r(dtm.ravel())], "float64", np.nan, [f"terrain z [{z_unit}] from the ground echoes"]),
-        "dsm.tif": ([r(dsm)], "float64", np.nan, [f"highest kept echo z [{z_unit}]"]),
-        "chm.tif": ([r(chm)], "float32", np.nan, [f"highest vegetation echo above the terrain [{z_unit}]"]),
+        "dsm.tif": ([r(dsm)], "float64", np.nan, [f"highest kept echo's top z [{z_unit}]"]),
+        "chm.tif": ([r(chm)], "float32", np.nan, [f"highest vegetation echo's top above the terrain [{z_unit}]"]),
         "cover.tif": ([r(cover)], "float32", np.nan, ["canopy cover 1 - Pgap (GEDI L2B) from echo energies"]),
         "pai.tif": ([r(pai)], "float32", np.nan, ["plant area index -ln(Pgap) / (0.5 x 1) [m2/m2]"]),
         "pavd.tif": ([r(pavd[:, k]) for k in range(pavd.shape[1])], "float32", np.nan,
