@@ -63,11 +63,12 @@ def _anchors(geometry: pa.Array) -> tuple[np.ndarray, np.ndarray]:
     n = len(geometry)
     x, y = np.full(n, np.nan), np.full(n, np.nan)
     valid = ~np.asarray(geometry.is_null())
-    if valid.any():
-        blobs = geometry.filter(pa.array(valid)).to_numpy(zero_copy_only=False)
-        raw = np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(-1, 29)
-        x[valid] = raw[:, 5:13].copy().view("<f8").ravel()
-        y[valid] = raw[:, 13:21].copy().view("<f8").ravel()
+    if valid.any():  # read from the array's buffers: each value's x at bytes 5-12, y at 13-20 of its WKB
+        offsets = np.frombuffer(geometry.buffers()[1], np.int32)[geometry.offset:geometry.offset + n + 1]
+        data = np.frombuffer(geometry.buffers()[2], np.uint8)
+        start = offsets[:-1][valid]
+        x[valid] = data[start[:, None] + np.arange(5, 13)].view("<f8").ravel()
+        y[valid] = data[start[:, None] + np.arange(13, 21)].view("<f8").ravel()
     return x, y
 
 

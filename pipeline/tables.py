@@ -310,24 +310,24 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
             **{c: np.asarray(radiometry[c], dtype=object).tolist() for c in ("radiometry", "reflectance_basis")}}
 
 
+def _float_lists(values: np.ndarray, column: str) -> pa.Array:
+    """Per row a list of the row's values (float32), null where the row measured nothing (all NaN). A plain list,
+    not a fixed-size one: Parquet reads a fixed-size list's null rows back as empty lists."""
+    values = values.astype(np.float32)
+    n, width = values.shape
+    measured = np.isfinite(values).any(axis=1)
+    return pa.ListArray.from_arrays(pa.array(np.arange(n + 1) * width, pa.int32()), pa.array(values.ravel()),
+                                    type=COLUMNS[column].type, mask=None if measured.all() else pa.array(~measured))
+
+
 def _forest_columns(metrics, rows: np.ndarray) -> dict:
     """fwcore.metrics.waveform.WaveformMetrics at rows, NaN as null; all null without them."""
     n = rows.size
     if metrics is None:
         return {**{c: pa.nulls(n, COLUMNS[c].type) for c in _FOREST if c != "metrics_reason"},
                 "metrics_reason": _strings("not measured", n)}
-    def listed(values: np.ndarray, column: str) -> pa.Array:
-        """Per row a list of the values (float32), null where the row measured nothing."""
-        values = values[rows].astype(np.float32)
-        measured = np.isfinite(values).any(axis=1) if values.size else np.zeros(n, bool)
-        if measured.all():
-            flat = pa.array(values.ravel(), pa.float32())
-            width = values.shape[1]  # 101 RH values, or the profile's bins (a plain list: Parquet reads a fixed-size
-            # list with null rows back as empty lists)
-            return pa.ListArray.from_arrays(pa.array(np.arange(n + 1) * width, pa.int32()), flat)
-        return pa.array([v.tolist() if m else None for v, m in zip(values, measured)], COLUMNS[column].type)
     return {**{c: _null_where_nan(getattr(metrics, c)[rows]) for c in ("ground_z", "rv", "rg", "cover", "pai")},
-            "rh": listed(metrics.rh, "rh"), "pavd_z": listed(metrics.pavd_z, "pavd_z"),
+            "rh": _float_lists(metrics.rh[rows], "rh"), "pavd_z": _float_lists(metrics.pavd_z[rows], "pavd_z"),
             "metrics_reason": [metrics.reason[i] for i in rows]}
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.io.errors import WaveformFileError
+from fwcore.io.hdf5 import hdf5_file, holds, wgs84_3d_wkt
 from fwcore.io.records import PointRange, PulseBatch
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -31,21 +32,9 @@ STALE = "stale return (stale_return_flag 1): the digitizer held the previous sho
 NO_GEOLOCATION = "no geolocation (elevation_bin0 or elevation_lastbin not finite)"
 
 
-def wgs84_3d_wkt() -> str:
-    import pyproj
-
-    return pyproj.CRS.from_epsg(4979).to_wkt()
-
-
 def is_gedi_l1b(path: str | Path) -> bool:
     """An HDF5 file with a BEAM group holding received waveforms (`rxwaveform`)."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            return any(k.startswith("BEAM") and "rxwaveform" in f[k] for k in f)
-    except (OSError, ValueError):
-        return False
+    return holds(path, lambda f: any(k.startswith("BEAM") and "rxwaveform" in f[k] for k in f))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,20 +64,12 @@ class GediGranule:
 
 def open_gedi(path: str | Path) -> GediGranule:
     """The granule's beams and shot counts; a file that is not a GEDI L1B granule names what is wrong."""
-    import h5py
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such GEDI granule")
-    try:
-        with h5py.File(path, "r") as f:
-            beams = sorted(k for k in f if k.startswith("BEAM") and "rxwaveform" in f[k])
-            missing = sorted({name for b in beams for name in REQUIRED if name not in f[b]})
-            if missing:
-                raise WaveformFileError(f"{path}: a GEDI L1B granule without {', '.join(missing)}")
-            shots = tuple(int(f[b]["shot_number"].shape[0]) for b in beams)
-    except OSError as err:
-        raise WaveformFileError(f"{path}: not a readable HDF5 file ({err})") from None
+    with hdf5_file(path, "GEDI granule") as f:
+        beams = sorted(k for k in f if k.startswith("BEAM") and "rxwaveform" in f[k])
+        missing = sorted({name for b in beams for name in REQUIRED if name not in f[b]})
+        if missing:
+            raise WaveformFileError(f"{path}: a GEDI L1B granule without {', '.join(missing)}")
+        shots = tuple(int(f[b]["shot_number"].shape[0]) for b in beams)
     if not beams:
         raise WaveformFileError(f"{path}: an HDF5 file without GEDI L1B beams (no BEAM group holds rxwaveform); "
                                 f"L2A and L2B granules hold no waveforms: give the L1B (GEDI01_B_*.h5)")

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.io.errors import WaveformFileError
+from fwcore.io.hdf5 import hdf5_file, holds, wgs84_3d_wkt
 from fwcore.io.records import PointRange, PulseBatch
 
 LIGHT_M_PER_PS = 299792458.0e-12
@@ -33,13 +34,7 @@ def _last_index(names) -> int | None:
 
 def is_lvis_l1b(path: str | Path) -> bool:
     """An HDF5 file with RXWAVE and Z0 at its root."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            return "RXWAVE" in f and "Z0" in f
-    except (OSError, ValueError):
-        return False
+    return holds(path, lambda f: "RXWAVE" in f and "Z0" in f)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,25 +48,15 @@ class LvisFile:
 
 def open_lvis(path: str | Path) -> LvisFile:
     """The file's shot count and layout; a file that is not an LVIS L1B names what is missing."""
-    import h5py
-
-    from fwcore.io.gedi import wgs84_3d_wkt
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such LVIS file")
-    try:
-        with h5py.File(path, "r") as f:
-            missing = [k for k in ("RXWAVE", "Z0", "LAT0", "LON0", "SHOTNUMBER") if k not in f]
-            last = _last_index(f.keys())
-            if missing or last is None:
-                raise WaveformFileError(f"{path}: not an LVIS L1B file (missing {', '.join(missing) or 'Z<last>'})")
-            if f["RXWAVE"].ndim != 2 or f["RXWAVE"].shape[1] != last + 1:
-                raise WaveformFileError(f"{path}: RXWAVE has {f['RXWAVE'].shape[1:]} samples a shot where Z{last} "
-                                        f"names {last + 1}")
-            n = int(f["SHOTNUMBER"].shape[0])
-    except OSError as err:
-        raise WaveformFileError(f"{path}: not a readable HDF5 file ({err})") from None
+    with hdf5_file(path, "LVIS file") as f:
+        missing = [k for k in ("RXWAVE", "Z0", "LAT0", "LON0", "SHOTNUMBER") if k not in f]
+        last = _last_index(f.keys())
+        if missing or last is None:
+            raise WaveformFileError(f"{path}: not an LVIS L1B file (missing {', '.join(missing) or 'Z<last>'})")
+        if f["RXWAVE"].ndim != 2 or f["RXWAVE"].shape[1] != last + 1:
+            raise WaveformFileError(f"{path}: RXWAVE has {f['RXWAVE'].shape[1:]} samples a shot where Z{last} "
+                                    f"names {last + 1}")
+        n = int(f["SHOTNUMBER"].shape[0])
     return LvisFile(str(path), n, last, wgs84_3d_wkt())
 
 

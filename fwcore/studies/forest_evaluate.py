@@ -26,13 +26,18 @@ class Raster:
     cell: float
 
 
+def _centres_in(cells: Raster, grid: Raster) -> tuple[np.ndarray, np.ndarray]:
+    """The row (per row of `cells`) and column (per column) of `grid` that each of `cells`' centres falls in."""
+    h, w = cells.values.shape
+    cx = cells.west + (np.arange(w) + 0.5) * cells.cell
+    cy = cells.north - (np.arange(h) + 0.5) * cells.cell
+    return (np.floor((grid.north - cy) / grid.cell).astype(np.int64),
+            np.floor((cx - grid.west) / grid.cell).astype(np.int64))
+
+
 def on_grid(source: Raster, target: Raster) -> np.ndarray:
     """`source` at the centres of `target`'s cells (nearest cell; NaN outside)."""
-    h, w = target.values.shape
-    cx = target.west + (np.arange(w) + 0.5) * target.cell
-    cy = target.north - (np.arange(h) + 0.5) * target.cell
-    col = np.floor((cx - source.west) / source.cell).astype(np.int64)
-    row = np.floor((source.north - cy) / source.cell).astype(np.int64)
+    row, col = _centres_in(target, source)
     sh, sw = source.values.shape
     ok = (row[:, None] >= 0) & (row[:, None] < sh) & (col[None, :] >= 0) & (col[None, :] < sw)
     out = source.values[np.clip(row, 0, sh - 1)[:, None], np.clip(col, 0, sw - 1)[None, :]].astype(float)
@@ -41,11 +46,7 @@ def on_grid(source: Raster, target: Raster) -> np.ndarray:
 
 def block_mean(source: Raster, target: Raster) -> np.ndarray:
     """`source` (finer) averaged over each of `target`'s cells (its cells whose centres fall inside)."""
-    h, w = source.values.shape
-    cx = source.west + (np.arange(w) + 0.5) * source.cell
-    cy = source.north - (np.arange(h) + 0.5) * source.cell
-    col = np.floor((cx - target.west) / target.cell).astype(np.int64)
-    row = np.floor((target.north - cy) / target.cell).astype(np.int64)
+    row, col = _centres_in(source, target)
     th, tw = target.values.shape
     ok = (row[:, None] >= 0) & (row[:, None] < th) & (col[None, :] >= 0) & (col[None, :] < tw) \
         & np.isfinite(source.values)
