@@ -394,7 +394,8 @@ def _grid(args: argparse.Namespace) -> int:
             folder_lock(args.run_dir if args.classify else (args.output or args.run_dir), "fwl grid"):
         summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
-          f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} m; {summary['bins']} height bins "
+          f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} {_horizontal_unit(summary['crs'])}; "
+          f"{summary['bins']} height bins "
           f"of {summary['bin_height_m']:g} m; CRS: {summary['crs_source']}; wrote {', '.join(summary['files'])} to "
           f"{args.output or Path(args.run_dir) / GRID_DIR}")
     return 0
@@ -625,6 +626,16 @@ def _add_grid(sub) -> None:
                    help="classify the run's echoes first (as fwl classify) if they are not yet: the forest's maps "
                         "(dtm, dsm, chm, cover, pai, pavd, rh98, rh50) need the classes")
     g.set_defaults(handler=_grid)
+
+
+def _horizontal_unit(crs_wkt: str | None) -> str:
+    """The unit of a CRS's first axis, for messages (a GEDI run's cells are degrees); metres without a CRS."""
+    import pyproj
+
+    if not crs_wkt:
+        return "m"
+    unit = pyproj.CRS.from_wkt(crs_wkt).axis_info[0].unit_name
+    return {"metre": "m", "degree": "degrees"}.get(unit, unit)
 
 
 def _footprints(args: argparse.Namespace) -> int:

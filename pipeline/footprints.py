@@ -13,6 +13,7 @@ Memory: the echoes within reach of a band of footprints at a time (a band as tal
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from pipeline.outputs import read_run
 
 FOOTPRINTS_FILE = "footprints.parquet"
 RH_COLUMNS = (0, 10, 25, 50, 75, 90, 95, 98, 100)
+LOG = logging.getLogger("fwl")
 INSIDE_SIGMAS = 2.0  # a footprint's centre at least this many of its sigmas inside the echoes' extent
 
 
@@ -91,6 +93,11 @@ def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str 
     else:
         x, y = grid_centres(bounds, spacing, reach)
         shots = {"x": x, "y": y}
+    if not len(shots["x"]):
+        xmin, ymin, xmax, ymax = bounds
+        LOG.warning("%s: no footprint centre lies %.0f m (%g footprint sigmas) inside the echoes' extent of "
+                    "%.0f x %.0f: give a smaller --spacing, or GEDI shots over the run", run_dir, reach,
+                    INSIDE_SIGMAS, xmax - xmin, ymax - ymin)
     rows = _measure(files, shots["x"], shots["y"], sensor)
     output = run_dir / FOOTPRINTS_FILE if output is None else Path(output)
     _write(output, shots, rows, wkt, sensor)
