@@ -15,11 +15,11 @@ import numpy as np
 
 import fwcore
 from fwcore.engine.config import DecompositionConfig, Model, Optimizer
+from pipeline.claims import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
+                             record_command_folder)
 from pipeline.faults import WRITING, machine_fault
 from pipeline.lock import folder_lock
-from pipeline.progress import quiet_imports
-from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
-                              record_command_folder)
+from pipeline.logs import quiet_imports
 
 
 # pipeline.options imports Beam: it is imported where used, after main's quiet_imports
@@ -95,7 +95,7 @@ def _exit_interrupted(message: str) -> NoReturn:
     """Say why on stderr and end now with EXIT_INTERRUPTED: once a KeyboardInterrupt crossed one of Beam's compiled
     frames, even caught, Python ends by SIGINT (-2, not 130) and would wait for Beam's threads; the run removed
     its partial files already."""
-    from pipeline.run import EXIT_INTERRUPTED
+    from pipeline.summary import EXIT_INTERRUPTED
 
     print(message, file=sys.stderr, flush=True)
     sys.stdout.flush()
@@ -111,7 +111,8 @@ def resume_command(argv: list[str]) -> str:
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.options import radiometry_config
-    from pipeline.run import EXIT_MACHINE, RunStopped, run
+    from pipeline.run import RunStopped, run
+    from pipeline.summary import EXIT_MACHINE
 
     config = _config_from_args(args)
     radiometry = radiometry_config(args)
@@ -730,7 +731,7 @@ def main(argv: list[str] | None = None) -> int:
         if fault is None:
             raise
         print(f"fwl: error: {fault.said()}: {fault.remedy()}, then run the command again", file=sys.stderr)
-        return 5  # pipeline.run.EXIT_MACHINE (pipeline.run imports Beam)
+        return 5  # pipeline.summary.EXIT_MACHINE (pipeline.summary imports Beam)
 
 
 if __name__ == "__main__":

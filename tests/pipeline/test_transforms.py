@@ -12,7 +12,7 @@ from apache_beam.testing.util import assert_that, equal_to
 
 from fwcore.engine.config import DecompositionConfig
 from pipeline.faults import MachineFault, clear_faults, noted_faults
-from pipeline.layout import assemble_file, progress_mark, written_parts
+from pipeline.layout import progress_mark
 from pipeline.outputs import InputNames
 from pipeline.plan import InputToPlan, plan_input, plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import RangePart
@@ -127,25 +127,6 @@ def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_pa
     rows = [pq.read_table(f).to_pylist() for f in written]
     assert [[(r["source_file"], r["pulse_id"], r["stage"], r["reason"].split(":")[0]) for r in t] for t in rows] == \
         [[("gone.las", -1, "read", "points 0-600 (500 pulses)")], [("gone.las", -1, "read", "points 600-1125 (424 pulses)")]]
-
-
-def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, leica_dir):
-    """The ranges' job ends at the parts; written_parts lists them from parts/ for the files' job (assemble_file)."""
-    import laspy
-
-    config = DecompositionConfig(generations=3)
-    tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 400)
-    out = str(tmp_path / "out")
-    with TestPipeline() as p:  # the middle range is not written: it must not be looked for
-        p | beam.Create([tasks[2], tasks[0]]) | beam.ParDo(RangeStages(_settings(out, config)))
-    files = written_parts(out, tasks, frozenset({"parquet", "las"}))
-    assert [(stem, [(r.range_start, Path(r.las).name, r.mcap) for r in parts]) for stem, parts in files] == \
-        [("leica_a", [(0, "leica_a-000000000000.las", ""), (800, "leica_a-000000000800.las", "")])]
-    points = [laspy.read(r.las).header.point_count for r in files[0][1]]
-    assert assemble_file(files[0], out, False) == "leica_a"
-    assembled = laspy.read(tmp_path / "out" / "las" / "leica_a.las")
-    assert points[0] > 0 and assembled.header.point_count == sum(points)
-    assert not list((tmp_path / "out" / "parts").glob("*.las"))  # the parts are removed once in the file
 
 
 def test_a_full_disk_at_a_ranges_mark_ends_it_unmarked_noted_and_the_workers_next_ranges_untried(tmp_path, leica_dir,
