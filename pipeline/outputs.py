@@ -343,6 +343,9 @@ def _fingerprinted(folder: Path, how: str) -> dict:
     if manifest.get("settings") is None:
         raise ResumeError(f"{folder}: its run was written by an fwl that did not fingerprint its runs, so it cannot "
                           f"{how}; run without --resume into it (which replaces it), or choose another folder")
+    settings = manifest["settings"]
+    if "pulse" in settings and "overrides" not in settings:  # an earlier fwl's name for the same overrides
+        manifest["settings"] = {("overrides" if k == "pulse" else k): v for k, v in settings.items()}
     return manifest
 
 
@@ -483,6 +486,32 @@ def write_run_json(folder: Path, summary: dict) -> Path:
 
 
 # ---------------------------------------------------------------- reading runs
+
+# what run.json's inputs[] (and the manifest's planned) held of the file's pulse before it was one record
+_FLAT_PULSE = {"system_pulse_fwhm_ps": "fwhm_ps", "system_pulse_fwhm_source": "fwhm_source",
+               "shape_tolerance": "shape_tolerance", "shape_tolerance_source": "shape_source",
+               "range_offset_ps": "range_offset_ps", "range_offset_source": "range_offset_source",
+               "system_response": "response", "model": "model", "model_choice": "model_choice"}
+
+
+def with_system_pulse(planned: dict) -> dict:
+    """An input's planned entry (the manifest's, run.json's inputs[]) with its pulse as one record, `system_pulse`
+    (SystemPulse.to_dict()): a folder written before that held it flattened, and is read or resumed the same."""
+    if "system_pulse" in planned or "system_pulse_fwhm_ps" not in planned:
+        return planned
+    kept = {k: v for k, v in planned.items() if k not in _FLAT_PULSE}
+    pulse = {new: planned.get(old) for old, new in _FLAT_PULSE.items()}
+    return {**kept, "system_pulse": {**pulse, "model": pulse["model"] or "", "model_choice": pulse["model_choice"] or ""}}
+
+
+def recorded_pulse(entry: dict):
+    """The system pulse a run decomposed an input's pulses with, from its run.json entry (SystemPulse.from_dict);
+    None when the entry records none (a file rejected before its pulse was measured)."""
+    from fwcore.instrument.pulse import SystemPulse
+
+    record = with_system_pulse(entry).get("system_pulse")
+    return SystemPulse.from_dict(record) if record else None
+
 
 def is_complete(folder: str | Path) -> bool:
     """Whether `folder` holds a finished fwl run (its run.json is there and reads)."""

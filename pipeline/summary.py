@@ -30,7 +30,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io.crs import crs_name
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.layout import ECHOES, PULSES, REJECTED, file_rejected
-from pipeline.outputs import list_outputs, read_manifest, write_run_json
+from pipeline.outputs import list_outputs, read_manifest, with_system_pulse, write_run_json
 from pipeline.plan import FilePlan, planned_pulses
 from pipeline.rejections import write_empty_rejected
 from pipeline.transforms import NAMESPACE
@@ -151,11 +151,7 @@ def planned_of(plan: FilePlan) -> dict:
         return {}
     # the pulses its plan found (its packet keys): counted apart from what the ranges wrote, which must add up to it
     return {"pulses_planned": sum(planned_pulses(t) for t in plan.tasks),
-            "system_pulse_fwhm_ps": s.system.fwhm_ps, "system_pulse_fwhm_source": s.system.fwhm_source,
-            "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
-            "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
-            "system_response": s.system.response.to_dict() if s.system.response else None,
-            "model": s.system.model or None, "model_choice": s.system.model_choice or None,
+            "system_pulse": s.system.to_dict(),  # the file's pulse, one record: SystemPulse.from_dict reads it back
             "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt},
             "metric_settings": s.metric_settings, "metric_settings_source": s.metric_settings_source or None}
 
@@ -163,7 +159,7 @@ def planned_of(plan: FilePlan) -> dict:
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
               radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
-              crs: str | None = None, pulse: PulseOverrides = PulseOverrides()) -> dict:
+              crs: str | None = None, overrides: PulseOverrides = PulseOverrides()) -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -185,7 +181,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
                     "counts": per_input[e["name"]],
                     **({"rejected_because": reasons[e["name"]]} if e["name"] in reasons else {}),
-                    **e.get("planned", {})} for e in entries],
+                    **with_system_pulse(e.get("planned", {}))} for e in entries],
         "not_inputs": [{"path": match, "reason": why} for match, why in not_taken],
         "output": str(output),
         "formats": sorted(formats),
@@ -196,7 +192,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
-        "pulse": pulse.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
+        "overrides": overrides.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
         "radiometry": {**radiometry.to_dict(), "calibration": calibration,
                        "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},
         "beam_options": options.get_all_options(drop_default=True),

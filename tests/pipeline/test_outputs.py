@@ -1,11 +1,18 @@
 """The run folder: a folder fwl run claimed by its manifest, holding only its outputs; resumed only when its run did
-not finish or failed."""
+not finish or failed, a folder an earlier fwl wrote included; the file's pulse read back from run.json as one
+record."""
 
+import dataclasses
 import json
 
+import pytest
+
+from fwcore.instrument.pulse import SystemPulse
+from fwcore.instrument.response import gaussian_response
 from pipeline.layout import LOCK, MANIFEST
-from pipeline.outputs import (InputNames, earlier_run_files, input_identity, read_manifest, resume_output_folder,
-                              take_output_folder, write_run_json)
+from pipeline.outputs import (InputNames, ResumeError, earlier_run_files, input_identity, read_manifest,
+                              recorded_pulse, resume_output_folder, take_output_folder, with_system_pulse,
+                              write_run_json)
 
 
 def test_resume_calls_complete_only_a_run_that_did_not_fail_and_takes_the_lock_for_no_output(tmp_path, leica_dir):
@@ -22,3 +29,31 @@ def test_resume_calls_complete_only_a_run_that_did_not_fail_and_takes_the_lock_f
     write_run_json(out, {"status": "failed"})  # nothing decomposed (a full disk's pulses, by an earlier fwl)
     assert resume_output_folder(out, [path], {"limit": 1}, identities)[1] == "resumed"
     assert not (out / "run.json").exists() and [e["done"] for e in read_manifest(out)["inputs"]] == [False]
+
+
+def test_a_folder_an_earlier_fwl_fingerprinted_with_pulse_resumes_under_overrides(tmp_path, leica_dir):
+    out, path = tmp_path / "out", str(leica_dir / "leica_a.las")
+    identities = {path: input_identity(path)}
+    given = {"system_pulse_fwhm_ps": None, "shape_tolerance": 0.0, "system_response": None}
+    take_output_folder(out, InputNames.of([path]), [path], {"limit": 1, "pulse": given}, identities)  # as before
+    assert resume_output_folder(out, [path], {"limit": 1, "overrides": given}, identities)[1] == "resumed"
+    other = {**given, "shape_tolerance": 0.05}
+    with pytest.raises(ResumeError, match=r"overrides\.shape_tolerance: 0\.0 -> 0\.05"):
+        resume_output_folder(out, [path], {"limit": 1, "overrides": other}, identities)
+
+
+def test_an_input_s_pulse_is_one_record_and_an_earlier_run_s_flattened_one_reads_the_same():
+    pulse = SystemPulse(4312.5, "single returns (95)", 0.05, "single returns (95)", -1213.25, "single returns (268)",
+                        gaussian_response(4312.5), "system", "system: at held-out samples ...")
+    entry = {"name": "a.las", "pulses_planned": 1125, "system_pulse": pulse.to_dict()}
+    assert with_system_pulse(entry) is entry and recorded_pulse(json.loads(json.dumps(entry))) == pulse
+    flattened = {"name": "a.las", "pulses_planned": 1125, "system_pulse_fwhm_ps": 4312.5,
+                 "system_pulse_fwhm_source": "single returns (95)", "shape_tolerance": 0.05,
+                 "shape_tolerance_source": "single returns (95)", "range_offset_ps": -1213.25,
+                 "range_offset_source": "single returns (268)", "system_response": gaussian_response(4312.5).to_dict(),
+                 "model": "system", "model_choice": "system: at held-out samples ..."}
+    assert with_system_pulse(flattened) == {**entry, "system_pulse": pulse.to_dict()}
+    assert recorded_pulse(json.loads(json.dumps(flattened))) == pulse
+    unmeasured = {**flattened, "model": None, "model_choice": None, "system_response": None}
+    assert recorded_pulse(unmeasured) == dataclasses.replace(pulse, response=None, model="", model_choice="")
+    assert recorded_pulse({"name": "rejected.las"}) is None  # rejected before its pulse was measured
