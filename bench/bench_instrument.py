@@ -60,7 +60,7 @@ MODELS = ("system", "generalized")
 
 
 def config_of(preset: str, model: str) -> DecompositionConfig:
-    return DecompositionConfig(**PRESETS.get(preset, {})).replace(model=model)
+    return (PRESETS[preset].config() if preset in PRESETS else DecompositionConfig()).replace(model=model)
 
 
 def ghost_share(result: BatchDecomposition, spacing_ns: float) -> float:

@@ -343,10 +343,19 @@ def _fingerprinted(folder: Path, how: str) -> dict:
     if manifest.get("settings") is None:
         raise ResumeError(f"{folder}: its run was written by an fwl that did not fingerprint its runs, so it cannot "
                           f"{how}; run without --resume into it (which replaces it), or choose another folder")
-    settings = manifest["settings"]
-    if "pulse" in settings and "overrides" not in settings:  # an earlier fwl's name for the same overrides
-        manifest["settings"] = {("overrides" if k == "pulse" else k): v for k, v in settings.items()}
+    manifest["settings"] = current_fingerprint(manifest["settings"])
     return manifest
+
+
+def current_fingerprint(settings: dict) -> dict:
+    """A fingerprint an earlier fwl wrote, as this one writes the same run's: its `pulse` is `overrides`, and its
+    config names no retired setting at its one value (fwcore.engine.config.RETIRED_SETTINGS)."""
+    from fwcore.engine.config import current_settings
+
+    settings = {("overrides" if k == "pulse" and "overrides" not in settings else k): v for k, v in settings.items()}
+    if isinstance(settings.get("config"), dict):
+        settings["config"] = current_settings(settings["config"])
+    return settings
 
 
 def resume_output_folder(folder: Path, inputs: list[str], settings: dict,

@@ -19,7 +19,7 @@ from fwcore.engine.config import PRESETS, DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch, smoothing_sigma_samples
 from fwcore.engine.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
-from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
 from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.engine.model import sigma_to_time_unit
 from fwcore.engine.preprocess import gaussian_smooth
@@ -122,7 +122,7 @@ def run_pulse(summary: dict, source_file: str, row: dict) -> SystemPulse:
 
 def try_pulse(pulse: SystemPulse, preset: str | None) -> SystemPulse:
     """The file's pulse under another preset: what the preset says of it (the paper's: its model exact)."""
-    return PRESET_OVERRIDES.get(preset or "", PulseOverrides()).applied(pulse)
+    return PulseOverrides.of_preset(preset).applied(pulse)
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
@@ -133,7 +133,7 @@ def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> 
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = DecompositionConfig(**PRESETS[preset]).replace(model=base.model, seed=base.seed)
+        config = PRESETS[preset].config().replace(model=base.model, seed=base.seed)
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")

@@ -7,12 +7,13 @@ import json
 
 import pytest
 
+from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.instrument.response import gaussian_response
 from pipeline.layout import LOCK, MANIFEST
 from pipeline.outputs import (InputNames, ResumeError, earlier_run_files, input_identity, read_manifest,
                               recorded_pulse, resume_output_folder, take_output_folder, with_system_pulse,
-                              write_run_json)
+                              write_manifest, write_run_json)
 
 
 def test_resume_calls_complete_only_a_run_that_did_not_fail_and_takes_the_lock_for_no_output(tmp_path, leica_dir):
@@ -31,15 +32,22 @@ def test_resume_calls_complete_only_a_run_that_did_not_fail_and_takes_the_lock_f
     assert not (out / "run.json").exists() and [e["done"] for e in read_manifest(out)["inputs"]] == [False]
 
 
-def test_a_folder_an_earlier_fwl_fingerprinted_with_pulse_resumes_under_overrides(tmp_path, leica_dir):
+def test_a_folder_an_earlier_fwl_fingerprinted_resumes_under_today_s_names(tmp_path, leica_dir):
     out, path = tmp_path / "out", str(leica_dir / "leica_a.las")
     identities = {path: input_identity(path)}
     given = {"system_pulse_fwhm_ps": None, "shape_tolerance": 0.0, "system_response": None}
-    take_output_folder(out, InputNames.of([path]), [path], {"limit": 1, "pulse": given}, identities)  # as before
-    assert resume_output_folder(out, [path], {"limit": 1, "overrides": given}, identities)[1] == "resumed"
+    config = DecompositionConfig().to_dict()
+    earlier = {"limit": 1, "pulse": given, "config": {**config, "de_scale_factor": 0.5, "init_spread": 0.25}}
+    take_output_folder(out, InputNames.of([path]), [path], earlier, identities)  # as an earlier fwl fingerprinted it
+    assert resume_output_folder(out, [path], {"limit": 1, "overrides": given, "config": config},
+                                identities)[1] == "resumed"
     other = {**given, "shape_tolerance": 0.05}
     with pytest.raises(ResumeError, match=r"overrides\.shape_tolerance: 0\.0 -> 0\.05"):
-        resume_output_folder(out, [path], {"limit": 1, "overrides": other}, identities)
+        resume_output_folder(out, [path], {"limit": 1, "overrides": other, "config": config}, identities)
+    earlier["config"]["init_spread"] = 0.5  # a value no run of this fwl can make: not the same run
+    write_manifest(out, earlier, read_manifest(out)["inputs"])
+    with pytest.raises(ResumeError, match=r"config\.init_spread: 0\.5 -> None"):
+        resume_output_folder(out, [path], {"limit": 1, "overrides": given, "config": config}, identities)
 
 
 def test_an_input_s_pulse_is_one_record_and_an_earlier_run_s_flattened_one_reads_the_same():

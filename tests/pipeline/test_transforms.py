@@ -24,31 +24,6 @@ def plan_inputs(paths, config, points_per_range, limit=None):
     return _plan_inputs(paths, InputNames.of(paths), config, points_per_range, limit)
 
 
-def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
-    tasks, rejected = plan_inputs([str(leica_dir / "leica_a.las")], DecompositionConfig(), 400)
-    assert rejected == []
-    assert [(t.point_range.start, t.point_range.stop, t.point_range.n_pulses) for t in tasks] == \
-        [(0, 400, 342), (400, 800, 310), (800, 1125, 272)]  # 342 + 310 + 272 = 924
-    # --model auto gives the Leica sample echoes of its measured pulse, and the pulse width is that pulse's
-    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10337}
-    assert {t.source.system.model for t in tasks} == {"system"}
-    assert not tasks[0].source.adjusted_standard_gps_time  # the Leica sample stores GPS week time
-
-
-def test_plan_rejects_an_unreadable_file_with_its_reason(tmp_path, leica_dir):
-    bad = tmp_path / "broken.las"
-    bad.write_bytes(b"LASF" + bytes(50))
-    tasks, rejected = plan_inputs([str(bad), str(leica_dir / "leica_a.las")], DecompositionConfig(), 5000)
-    assert len(tasks) == 1 and tasks[0].source.name == "leica_a.las"
-    assert [(r.source_file, r.stage, r.pulse_id) for r in rejected] == [("broken.las", "open", -1)]
-    assert "not a readable" in rejected[0].reason
-
-
-def test_limit_caps_the_pulses_of_a_file(leica_dir):
-    tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], DecompositionConfig(), 400, limit=500)
-    assert [planned_pulses(t) for t in tasks] == [342, 158]
-
-
 def test_read_and_decompose_count_every_pulse(leica_dir):
     config = DecompositionConfig(generations=3)
     tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 600)
