@@ -85,7 +85,7 @@ def test_resume_refuses_other_settings_or_changed_inputs_and_touches_nothing(tmp
     # what is given of the file's pulse instead of measuring it is a setting too
     assert main(["run", str(leica_copy), "--output", str(out), "--resume", "--shape-tolerance", "0.02",
                  *quick]) == EXIT_USAGE
-    assert "pulse.shape_tolerance: None -> 0.02" in capsys.readouterr().err
+    assert "overrides.shape_tolerance: None -> 0.02" in capsys.readouterr().err
 
     packets = leica_copy.with_suffix(".wdp")
     data = bytearray(packets.read_bytes())
