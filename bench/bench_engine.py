@@ -50,7 +50,7 @@ from fwcore.io import read_pulses  # noqa: E402
 from fwcore.io.geolocate import geolocate  # noqa: E402
 from fwcore.io.writer import write_waveform_las  # noqa: E402
 from fwcore.io.neon import read_neon_csv  # noqa: E402
-from fwcore.instrument.pulse import PRESET_OVERRIDES, PulseOverrides, SystemPulse, nominal_pulse  # noqa: E402
+from fwcore.instrument.pulse import PulseOverrides, SystemPulse, nominal_pulse  # noqa: E402
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm  # noqa: E402
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms  # noqa: E402
 from fwcore.engine.records import WaveformBatch  # noqa: E402
@@ -66,12 +66,12 @@ ONE_CM_NS = 2 * 0.01 / 0.299792458  # the two-way time of 1 cm of range
 
 
 def preset(name: str) -> DecompositionConfig:
-    return DecompositionConfig(**PRESETS.get(name, {}))
+    return PRESETS[name].config() if name in PRESETS else DecompositionConfig()
 
 
 def preset_pulse(name: str) -> PulseOverrides:
     """What a preset says of the pulse (the paper's: its model exact), as fwl run --preset has it."""
-    return PRESET_OVERRIDES.get(name, PulseOverrides())
+    return PulseOverrides.of_preset(name if name in PRESETS else None)
 
 
 REPEATS = 3  # timed runs per figure; the fastest counts (as timeit's), so other tenants' load moves ratios less

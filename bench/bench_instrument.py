@@ -60,7 +60,7 @@ MODELS = ("system", "generalized")
 
 
 def config_of(preset: str, model: str) -> DecompositionConfig:
-    return DecompositionConfig(**PRESETS.get(preset, {})).replace(model=model)
+    return (PRESETS[preset].config() if preset in PRESETS else DecompositionConfig()).replace(model=model)
 
 
 def ghost_share(result: BatchDecomposition, spacing_ns: float) -> float:
@@ -95,7 +95,7 @@ def sylva_rate(path: Path) -> tuple[float, float] | None:
 
 
 def write_riegl_like(path: Path, n_pulses: int = 5000) -> Path:
-    """A flight as a RiPROCESS LAS 1.4 export holds it: `fwl simulate --system-response riegl --bits 16
+    """A flight as a RiPROCESS LAS 1.4 export holds it: `fwl simulate --sensor-response riegl --bits 16
     --samples 60`, its packets starting 10 ns before the first surface, over open ground with low
     vegetation (8% cover, 2-5 m, no roofs), so that ~1.07 system returns a pulse fit a 60-sample window."""
     response = named_response("riegl")
@@ -265,7 +265,7 @@ def resolution_rows(n_pulses: int = 2000, seed: int = 20261202) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for response in ("leica", "riegl"):
             flight = Path(tmp) / f"{response}.las"
-            subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--system-response", response,
+            subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--sensor-response", response,
                             "--pulses", str(n_pulses), "--seed", str(seed), "--output", str(flight)], check=True,
                            capture_output=True)
             for line in run_and_evaluate(flight, Path(tmp) / f"{response}-run").splitlines():

@@ -124,7 +124,7 @@ def main() -> None:
     big = repeated(sample, args.copies)
     path = write_waveform_las(work / "flight.las", big, "las13-wdp", 8)
     if args.preset:
-        base, method = DecompositionConfig(**PRESETS[args.preset]), f"preset {args.preset}"
+        base, method = PRESETS[args.preset].config(), f"preset {args.preset}"
     else:
         base, method = DecompositionConfig(generations=args.generations), f"MDE NP 60, G {args.generations}"
     system = file_system_pulse(path, input_summary(path).records, base)  # what fwl run measures on the file

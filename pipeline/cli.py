@@ -15,11 +15,11 @@ import numpy as np
 
 import fwcore
 from fwcore.engine.config import DecompositionConfig, Model, Optimizer
+from pipeline.claims import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
+                             record_command_folder)
 from pipeline.faults import WRITING, machine_fault
 from pipeline.lock import folder_lock
-from pipeline.progress import quiet_imports
-from pipeline.outputs import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
-                              record_command_folder)
+from pipeline.logs import quiet_imports
 
 
 # pipeline.options imports Beam: it is imported where used, after main's quiet_imports
@@ -31,11 +31,21 @@ def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
     return decomposition_config(args)
 
 
-def _pulse_from_args(args: argparse.Namespace):
+def _overrides_from_args(args: argparse.Namespace):
     """What the flags give of every file's pulse (pipeline.options.pulse_overrides)."""
     from pipeline.options import pulse_overrides
 
     return pulse_overrides(args)
+
+
+class _Renamed(argparse.Action):
+    """An option's former spelling: still taken, with a warning naming the new one (fwl simulate's
+    --system-response, now --sensor-response: fwl run's --system-response is an override of a file's pulse)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        new = next(a.option_strings[0] for a in parser._actions if a.dest == self.dest and a is not self)
+        print(f"fwl: warning: {option_string} is deprecated here, give {new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def _add_method_options(parser: argparse.ArgumentParser, compare: bool = False) -> None:
@@ -53,7 +63,7 @@ def _decompose_csv(args: argparse.Namespace) -> int:
 
     config = _config_from_args(args)
     # a file of another kind is named as such first
-    csv = read_csv_input(args.input, config, _pulse_from_args(args), args.outgoing, args.sample_spacing_ps)
+    csv = read_csv_input(args.input, config, _overrides_from_args(args), args.outgoing, args.sample_spacing_ps)
     output = check_suffix("fwl decompose-csv", args.output, (".parquet",), "a Parquet echo table")
     waveform_path = output.with_name(output.stem + ".waveforms.parquet")
     claim_files("fwl decompose-csv", [output, waveform_path], parquet_is_ours, args.overwrite)
@@ -95,7 +105,7 @@ def _exit_interrupted(message: str) -> NoReturn:
     """Say why on stderr and end now with EXIT_INTERRUPTED: once a KeyboardInterrupt crossed one of Beam's compiled
     frames, even caught, Python ends by SIGINT (-2, not 130) and would wait for Beam's threads; the run removed
     its partial files already."""
-    from pipeline.run import EXIT_INTERRUPTED
+    from pipeline.summary import EXIT_INTERRUPTED
 
     print(message, file=sys.stderr, flush=True)
     sys.stdout.flush()
@@ -111,14 +121,15 @@ def resume_command(argv: list[str]) -> str:
 
 def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.options import radiometry_config
-    from pipeline.run import EXIT_MACHINE, RunStopped, run
+    from pipeline.run import RunStopped, run
+    from pipeline.summary import EXIT_MACHINE
 
     config = _config_from_args(args)
     radiometry = radiometry_config(args)
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
-                      pulse=_pulse_from_args(args))
+                      overrides=_overrides_from_args(args))
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -176,8 +187,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     if not args.poll > 0:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
-    pulse = _pulse_from_args(args)
-    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs, pulse)
+    overrides = _overrides_from_args(args)
+    settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
+                            overrides)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -185,7 +197,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          pulse=pulse)
+                          overrides=overrides)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
@@ -226,7 +238,7 @@ def _compare(args: argparse.Namespace) -> int:
     print(f"fwl compare: {args.input}: {', '.join(o.value for o in optimizers)} x "
           f"{', '.join(m.value for m in models)} -> {args.output}")
     summary = run_comparison(args.input, args.output, config, optimizers, models, args.limit, pulses,
-                             args.distance, args.budget, args.threads, args.outgoing, _pulse_from_args(args))
+                             args.distance, args.budget, args.threads, args.outgoing, _overrides_from_args(args))
     for row in summary["rows"]:
         print(f"  {row['optimizer']:13} {row['model']:11} fit error {row['fit_error']:8.1f}  R2 {row['r2']:.4f}  "
               f"{row['waveforms_per_second']:9.1f} waveforms/s")
@@ -252,10 +264,10 @@ def _simulate(args: argparse.Namespace) -> int:
                 + [truth_raster_path(output, name) for name in TRUTH_RASTERS]
                 + ([output.with_suffix(".wdp")] if args.format != "las14-internal" else []),
                 lambda _: parquet_is_ours(truth_path(output)), args.overwrite)
-    response = named_response(args.system_response, args.pulse_fwhm_ps) if args.system_response else None
+    response = named_response(args.sensor_response, args.pulse_fwhm_ps) if args.sensor_response else None
     if response is not None:  # the instrument's own pulse width and, unless given, its digitizer's spacing
         args.pulse_fwhm_ps = response.fwhm_ps
-        args.sample_spacing_ps = args.sample_spacing_ps or SHIPPED_SPACING_PS.get(args.system_response, 1000.0)
+        args.sample_spacing_ps = args.sample_spacing_ps or SHIPPED_SPACING_PS.get(args.sensor_response, 1000.0)
     sensor = SensorConfig(pulse_fwhm_ps=args.pulse_fwhm_ps, sample_spacing_ps=args.sample_spacing_ps or 1000.0,
                           samples_per_packet=args.samples or (FOREST_SAMPLES if args.scene == "forest" else 200), digitizer_gain=args.gain, digitizer_offset=args.offset,
                           background=args.background, noise_sigma=args.noise, shot_noise=args.shot_noise,
@@ -540,11 +552,13 @@ def _add_simulate(sub) -> None:
     sensor = s.add_argument_group("sensor")
     sensor.add_argument("--pulse-fwhm-ps", dest="pulse_fwhm_ps", type=float, default=4000.0)
     sensor.add_argument("--sample-spacing-ps", dest="sample_spacing_ps", type=float,
-                        help="default 1000; with --system-response leica 2000 (its digitizer's)")
-    sensor.add_argument("--system-response", dest="system_response",
+                        help="default 1000; with --sensor-response leica 2000 (its digitizer's)")
+    # the simulated sensor's own response; fwl run's --system-response overrides what a file's pulse is measured as
+    sensor.add_argument("--sensor-response", dest="sensor_response",
                         help="echoes of an instrument's response broadened by their targets: gaussian (of "
                              "--pulse-fwhm-ps), leica, riegl (measured, shipped) or a response file; default: the "
                              "method's generalized Gaussians")
+    sensor.add_argument("--system-response", dest="sensor_response", action=_Renamed, help=argparse.SUPPRESS)
     sensor.add_argument("--samples", type=int, help="samples per packet (default 200; 360 with --scene forest)")
     sensor.add_argument("--gain", type=float, default=0.01, help="digitizer gain, volts per DN")
     sensor.add_argument("--offset", type=float, default=0.0, help="digitizer offset, volts")
@@ -730,7 +744,7 @@ def main(argv: list[str] | None = None) -> int:
         if fault is None:
             raise
         print(f"fwl: error: {fault.said()}: {fault.remedy()}, then run the command again", file=sys.stderr)
-        return 5  # pipeline.run.EXIT_MACHINE (pipeline.run imports Beam)
+        return 5  # pipeline.summary.EXIT_MACHINE (pipeline.summary imports Beam)
 
 
 if __name__ == "__main__":

@@ -41,10 +41,10 @@ PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this 
 def run_system_fwhm_ps(run_dir: Path) -> float:
     """The system pulse's FWHM the run measured (run.json's inputs; their median where several): what an echo's
     width is compared with; 0 (no correction) where the run records none."""
-    from pipeline.outputs import read_run
+    from pipeline.outputs import read_run, recorded_pulse
 
-    widths = [i.get("system_pulse_fwhm_ps") for i in read_run(run_dir).get("inputs", [])]
-    widths = [float(w) for w in widths if w]
+    pulses = [recorded_pulse(i) for i in read_run(run_dir).get("inputs", [])]
+    widths = [float(p.fwhm_ps) for p in pulses if p is not None and p.fwhm_ps]
     return float(np.median(widths)) if widths else 0.0
 
 

@@ -14,24 +14,17 @@ per-file outputs assembled from the parts. Every name written under an output fo
     las/<stem>.las, copc/<stem>.copc.laz, mcap/<stem>.mcap   assembled from the parts
     logs/                            the driver's and each worker's log
 
-<range> is the range's first point, 12 digits. A range's mark is the last thing it writes, and lists its
-files: a resumed run keeps a range whose mark and files are there, and redoes every other from scratch
-(`range_is_complete`, `remove_range_files`).
+<range> is the range's first point, 12 digits. Names only: writing and trusting a range's mark is
+pipeline.marks, assembling a file from its parts pipeline.assemble, writing rejected/ pipeline.rejections,
+the logs pipeline.logs.
 """
 
 from __future__ import annotations
 
-import json
-import logging
-import os
 import re
-import socket
 from pathlib import Path
 
-from pipeline.copc import assemble_copc, has_point_cloud_parts
-from pipeline.records import RangePart, ReadTask, Rejection
-from pipeline.sinks import assemble_las, assemble_mcap, remove_parts, write_json, write_part
-from pipeline.tables import rejected_table
+from pipeline.records import ReadTask
 
 MANIFEST = "fwl-output.json"
 RUN_JSON = "run.json"
@@ -117,94 +110,3 @@ def range_files(output: str | Path, task: ReadTask) -> list[Path]:
     parts = part_paths(output, task)
     rejected = Path(output) / REJECTED / f"{part_name(task.source.stem, task.start)}.parquet"
     return [parts[ECHOES], parts[PULSES], rejected, parts[LAS], parts[MCAP]]
-
-
-def mark_range_done(output: str | Path, task: ReadTask, planned: int, rejected: int) -> Path:
-    """The range's end: its planned pulses, those rejected, and the files it wrote with their sizes (written
-    last, atomically)."""
-    written = {p.relative_to(output).as_posix(): p.stat().st_size for p in range_files(output, task) if p.exists()}
-    return write_json(progress_mark(output, task.source.stem, task.start),
-                      {"pulses": planned, "rejected": rejected, "files": written})
-
-
-def range_is_complete(output: str | Path, task: ReadTask) -> bool:
-    """Whether a range ended (its mark is there) and every file it wrote is still there, at its size."""
-    try:
-        mark = json.loads(progress_mark(output, task.source.stem, task.start).read_text())
-        return all((Path(output) / f).stat().st_size == size for f, size in mark["files"].items())
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return False
-
-
-def remove_range_files(output: str | Path, task: ReadTask) -> None:
-    """A range to be redone loses what an earlier attempt left of it: a part without a mark is never trusted."""
-    mark = progress_mark(output, task.source.stem, task.start)
-    remove_parts(range_files(output, task) + [mark, mark.with_suffix(FAULT_SUFFIX)])
-
-
-# ---------------------------------------------------------------- rejections, logs
-
-def write_rejections(output: str | Path, task: ReadTask, rows: list[Rejection]) -> Path:
-    """A range's Rejections -> rejected/<stem>-<range>.parquet (one file per range, so a bad file stays bounded)."""
-    rows = sorted(rows, key=lambda r: (r.pulse_id, r.stage))
-    return write_part(rejected_table(rows), Path(output) / REJECTED, part_name(task.source.stem, task.start))
-
-
-def write_file_rejection(output: str | Path, rejection: Rejection) -> Path:
-    """A file that could not be planned -> rejected/<stem>.parquet."""
-    return write_part(rejected_table([rejection]), Path(output) / REJECTED, rejection.stem)
-
-
-def log_to_file(output: str | Path) -> None:
-    """A worker's own log lines go to logs/ under the output folder (once per process and folder: a process
-    that runs jobs for several folders, such as the driver's in-process jobs, logs each into its own)."""
-    logger = logging.getLogger("fwl")
-    logs = Path(output) / LOGS
-    for h in [h for h in logger.handlers if getattr(h, "fwl_worker", None)]:
-        if h.fwl_worker == str(logs) and Path(h.baseFilename).exists():  # not a replaced run's
-            return
-        logger.removeHandler(h)
-        h.close()
-    logs.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(logs / f"worker-{socket.gethostname()}-{os.getpid()}.log")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s"))
-    handler.fwl_worker = str(logs)
-    logger.addHandler(handler)
-    logger.setLevel(logging.INFO)
-    logger.propagate = False  # not to the runner's logging, which a terminal may show
-
-
-# ---------------------------------------------------------------- per file
-
-def written_parts(output: str | Path, tasks: list[ReadTask],
-                  formats: frozenset[str]) -> list[tuple[str, list[RangePart]]]:
-    """After the ranges' job, each input's RangeParts as the files under parts/ show them (a range is written
-    whole or not at all, and a range's stale parts are removed before it is redone), in plan order."""
-    files: dict[str, list[RangePart]] = {}
-    for task in tasks:
-        paths = part_paths(output, task)
-        las = str(paths[LAS]) if has_point_cloud_parts(formats) and paths[LAS].exists() else ""
-        mcap = str(paths[MCAP]) if "mcap" in formats and paths[MCAP].exists() else ""
-        if las or mcap:
-            files.setdefault(task.source.stem, []).append(RangePart(
-                task.source.stem, task.source.path, task.start, las, mcap, task.source.adjusted_standard_gps_time))
-    return list(files.items())
-
-
-def assemble_file(item: tuple[str, list[RangePart]], output: str | Path, laz: bool,
-                  formats: frozenset[str] = frozenset(("las", "mcap"))) -> str:
-    """One input's RangeParts -> las/<stem>.las (or .laz), copc/<stem>.copc.laz and mcap/<stem>.mcap, streamed
-    from the parts in range order; the parts are removed once in the files."""
-    stem, ranges = item
-    ranges = sorted(ranges, key=lambda r: r.range_start)
-    las = [Path(r.las) for r in ranges if r.las]
-    mcap = [Path(r.mcap) for r in ranges if r.mcap]
-    paths = file_outputs(output, stem, laz)
-    if las and "las" in formats:
-        assemble_las(las, paths[LAS], laz)
-    if las and "copc" in formats:
-        assemble_copc(las, paths[COPC])
-    if mcap:
-        assemble_mcap(mcap, paths[MCAP], ranges[0].adjusted_standard_gps_time)
-    remove_parts(las + mcap)
-    return stem

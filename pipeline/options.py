@@ -19,7 +19,7 @@ from typing import Any, Iterable, get_type_hints
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 from fwcore.engine.config import OPTIMIZERS, PRESETS, DecompositionConfig
-from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides
 from fwcore.instrument.response import named_response
 
 FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
@@ -27,7 +27,6 @@ DEFAULT_FORMATS = ("parquet", "las", "mcap")
 # The runner when the command line names none: the DirectRunner with a worker process per core of a
 # small machine. Any of these can be given on the command line; deploy/README.md shows the others.
 RUNNER_DEFAULTS = {"runner": "DirectRunner", "direct_num_workers": 2, "direct_running_mode": "multi_processing"}
-DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
 RUNNER_FLAGS = ("runner", "direct_num_workers", "direct_running_mode")
 
 
@@ -113,7 +112,7 @@ def _option_help(field: dataclasses.Field) -> str | None:
 
 def decomposition_config(args: Any) -> DecompositionConfig:
     """Defaults <- preset <- TOML file <- explicit flags; DecompositionConfig validates the result once."""
-    config = DecompositionConfig(**PRESETS[args.preset]) if getattr(args, "preset", None) else DecompositionConfig()
+    config = PRESETS[args.preset].config() if getattr(args, "preset", None) else DecompositionConfig()
     if getattr(args, "config", None):
         config = config.replace(**DecompositionConfig.from_toml(args.config).changes())
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
@@ -124,7 +123,7 @@ def decomposition_config(args: Any) -> DecompositionConfig:
 def pulse_overrides(args: Any) -> PulseOverrides:
     """What the flags say of every file's pulse instead of measuring it: the preset's, then the explicit flags
     (--system-response: a name or a file, read once here)."""
-    given = PRESET_OVERRIDES.get(getattr(args, "preset", None) or "", PulseOverrides())
+    given = PulseOverrides.of_preset(getattr(args, "preset", None))
     fwhm = getattr(args, "system_pulse_fwhm_ps", None)
     if fwhm is not None:
         given = given.replace(fwhm_ps=fwhm)

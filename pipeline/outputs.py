@@ -209,7 +209,7 @@ def _grid_files(folder: Path) -> set[str]:
     return {f"{GRID_DIR}/{n}{tmp}" for n in (GRID_MARK, *names) if "/" not in n for tmp in ("", ".tmp")}
 
 
-def _files_under(folder: Path) -> list[PurePosixPath]:
+def files_under(folder: Path) -> list[PurePosixPath]:
     """The files under `folder`, relative; not its lock (pipeline.lock), which is its writer's, not an output."""
     out = []
     for root, dirs, files in os.walk(folder):
@@ -230,7 +230,7 @@ def earlier_run_files(folder: Path) -> list[PurePosixPath]:
         return []
     if not folder.is_dir():
         raise OutputFolderError(f"{folder}: exists and is not a folder")
-    files = _files_under(folder)
+    files = files_under(folder)
     if not files and not _holds_anything(folder):
         return []
     manifest = folder / MANIFEST
@@ -314,7 +314,7 @@ def write_manifest(folder: Path, settings: dict | None, inputs: list[dict], star
         "settings": settings,
         "inputs": inputs,
     }
-    _write_atomically(folder / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    write_atomically(folder / MANIFEST, json.dumps(manifest, indent=2) + "\n")
 
 
 def mark_inputs_done(folder: Path, paths: list[str], planned: dict[str, dict]) -> None:
@@ -343,7 +343,19 @@ def _fingerprinted(folder: Path, how: str) -> dict:
     if manifest.get("settings") is None:
         raise ResumeError(f"{folder}: its run was written by an fwl that did not fingerprint its runs, so it cannot "
                           f"{how}; run without --resume into it (which replaces it), or choose another folder")
+    manifest["settings"] = current_fingerprint(manifest["settings"])
     return manifest
+
+
+def current_fingerprint(settings: dict) -> dict:
+    """A fingerprint an earlier fwl wrote, as this one writes the same run's: its `pulse` is `overrides`, and its
+    config names no retired setting at its one value (fwcore.engine.config.RETIRED_SETTINGS)."""
+    from fwcore.engine.config import current_settings
+
+    settings = {("overrides" if k == "pulse" and "overrides" not in settings else k): v for k, v in settings.items()}
+    if isinstance(settings.get("config"), dict):
+        settings["config"] = current_settings(settings["config"])
+    return settings
 
 
 def resume_output_folder(folder: Path, inputs: list[str], settings: dict,
@@ -467,10 +479,10 @@ def remove_partial_files(folder: Path) -> list[Path]:
 
 def list_outputs(folder: Path) -> list[str]:
     """Every file a run wrote into its folders, relative, sorted (for run.json)."""
-    return [str(f) for f in _files_under(folder) if f.parts[0] in OUTPUT_DIRS]
+    return [str(f) for f in files_under(folder) if f.parts[0] in OUTPUT_DIRS]
 
 
-def _write_atomically(path: Path, text: str) -> None:
+def write_atomically(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
@@ -478,11 +490,37 @@ def _write_atomically(path: Path, text: str) -> None:
 
 def write_run_json(folder: Path, summary: dict) -> Path:
     """run.json, atomically: the last file a run writes, the mark of a complete run."""
-    _write_atomically(folder / RUN_JSON, json.dumps(summary, indent=2, default=str) + "\n")
+    write_atomically(folder / RUN_JSON, json.dumps(summary, indent=2, default=str) + "\n")
     return folder / RUN_JSON
 
 
 # ---------------------------------------------------------------- reading runs
+
+# what run.json's inputs[] (and the manifest's planned) held of the file's pulse before it was one record
+_FLAT_PULSE = {"system_pulse_fwhm_ps": "fwhm_ps", "system_pulse_fwhm_source": "fwhm_source",
+               "shape_tolerance": "shape_tolerance", "shape_tolerance_source": "shape_source",
+               "range_offset_ps": "range_offset_ps", "range_offset_source": "range_offset_source",
+               "system_response": "response", "model": "model", "model_choice": "model_choice"}
+
+
+def with_system_pulse(planned: dict) -> dict:
+    """An input's planned entry (the manifest's, run.json's inputs[]) with its pulse as one record, `system_pulse`
+    (SystemPulse.to_dict()): a folder written before that held it flattened, and is read or resumed the same."""
+    if "system_pulse" in planned or "system_pulse_fwhm_ps" not in planned:
+        return planned
+    kept = {k: v for k, v in planned.items() if k not in _FLAT_PULSE}
+    pulse = {new: planned.get(old) for old, new in _FLAT_PULSE.items()}
+    return {**kept, "system_pulse": {**pulse, "model": pulse["model"] or "", "model_choice": pulse["model_choice"] or ""}}
+
+
+def recorded_pulse(entry: dict):
+    """The system pulse a run decomposed an input's pulses with, from its run.json entry (SystemPulse.from_dict);
+    None when the entry records none (a file rejected before its pulse was measured)."""
+    from fwcore.instrument.pulse import SystemPulse
+
+    record = with_system_pulse(entry).get("system_pulse")
+    return SystemPulse.from_dict(record) if record else None
+
 
 def is_complete(folder: str | Path) -> bool:
     """Whether `folder` holds a finished fwl run (its run.json is there and reads)."""
@@ -507,93 +545,3 @@ def read_run(folder: str | Path) -> dict:
         return json.loads(path.read_text())
     except ValueError as err:
         raise IncompleteRunError(f"{path}: unreadable ({err})") from None
-
-
-# ---------------------------------------------------------------- every command's outputs
-
-# One rule for every command that writes: it writes over nothing that is not its own earlier output (exit 2,
-# nothing touched), unless the user says --overwrite; and an output named with a suffix is written in the
-# format that suffix names. Ours is what carries fwl's mark: a run's folder its manifest (above), a folder of
-# another command the same manifest naming that command, a Parquet file fwl's metadata, and the files written
-# beside a first one (a simulated flight's) that first one's mark.
-
-OVERWRITE_HINT = "choose another --output, or give --overwrite to replace it"
-
-
-def check_suffix(command: str, path: str | Path, suffixes: tuple[str, ...], what: str) -> Path:
-    """`path` if its suffix is one of `suffixes` (what the command writes there), else OutputFolderError."""
-    path = Path(path)
-    if path.suffix.lower() not in suffixes:
-        raise OutputFolderError(f"{command}: --output {path}: writes {what}, so its name ends "
-                                f"{' or '.join(suffixes)}, not {path.suffix or 'without a suffix'}")
-    return path
-
-
-def parquet_is_ours(path: Path) -> bool:
-    """A Parquet file fwl wrote: its schema metadata carries an fwlidar.* key."""
-    import pyarrow.parquet as pq
-    try:
-        metadata = pq.read_schema(path).metadata or {}
-    except Exception:  # not Parquet, or damaged: not ours to replace
-        return False
-    return any(k.startswith(b"fwlidar.") for k in metadata)
-
-
-def first_line_is(path: Path, first: str) -> bool:
-    """A text file whose first line starts with what fwl writes there."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            return f.readline().startswith(first)
-    except (OSError, UnicodeDecodeError):
-        return False
-
-
-def claim_files(command: str, files: list[Path], ours, overwrite: bool) -> None:
-    """Refuse (OutputFolderError, before anything is written) to write the files `files` if any of them exists and
-    is not `command`'s earlier output (`ours(path)`), unless `overwrite`; a folder in a file's place always."""
-    there = [f for f in files if f.exists() or f.is_symlink()]
-    folders = [f for f in there if f.is_dir()]
-    if folders:
-        raise OutputFolderError(f"{command}: {folders[0]} is a folder, where a file would be written; "
-                                f"choose another --output")
-    foreign = [f for f in there if not overwrite and (f.is_symlink() or not ours(f))]
-    if foreign:
-        raise OutputFolderError(f"{command}: {', '.join(map(str, foreign))}: exists and is not an earlier output "
-                                f"of {command}; {OVERWRITE_HINT}")
-
-
-def claim_command_folder(command: str, folder: Path, overwrite: bool) -> None:
-    """A folder `command` writes several files into: new, empty, or holding only its earlier output (a manifest
-    naming the command, and the files it lists), unless `overwrite` (which replaces same-named files only)."""
-    if not folder.exists():
-        return
-    if not folder.is_dir():
-        raise OutputFolderError(f"{command}: {folder}: exists and is not a folder; choose another --output")
-    files = [str(f) for f in _files_under(folder)]
-    if not files or overwrite:
-        return
-    try:
-        manifest = json.loads((folder / MANIFEST).read_text())
-        listed, by = set(manifest["files"]), manifest["written_by"]
-    except (OSError, ValueError, KeyError, TypeError):
-        listed, by = set(), None
-    foreign = [f for f in files if by != command or (f != MANIFEST and f not in listed)]
-    if foreign:
-        shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
-        raise OutputFolderError(f"{command}: {folder}: holds files that {command} did not write: {shown}; "
-                                f"{OVERWRITE_HINT}")
-
-
-def record_command_folder(command: str, folder: Path, files: list[str]) -> None:
-    """The manifest of a folder `command` wrote: which files are its own (claim_command_folder reads it)."""
-    earlier: list[str] = []
-    if (folder / MANIFEST).is_file():
-        try:
-            manifest = json.loads((folder / MANIFEST).read_text())
-        except ValueError:
-            manifest = {}
-        if manifest.get("written_by", command) != command:  # another command's (--overwrite): its mark stays
-            return
-        earlier = manifest.get("files", [])
-    kept = sorted(f for f in set(earlier) | set(files) if (folder / f).is_file())
-    _write_atomically(folder / MANIFEST, json.dumps({"written_by": command, "files": kept}, indent=2) + "\n")

@@ -36,7 +36,7 @@ class InputToPlan(NamedTuple):
     name: str
     stem: str
     crs: str | None = None  # --crs as WKT (fwcore.io.crs.parse_crs), or None: the file's own
-    pulse: PulseOverrides = PulseOverrides()  # what the user gave of the pulse instead of measuring it
+    overrides: PulseOverrides = PulseOverrides()  # what the user gave of the pulse instead of measuring it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,7 +113,7 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
     """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception
     but a fault of the machine (pipeline.faults: an I/O error, no memory), which is no fault of the file."""
     try:
-        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.pulse)
+        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.overrides)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
         fault = machine_fault(err, READING, item.path, f"planning {item.name}")
         if fault is not None:
@@ -124,8 +124,8 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
 
 
 def inputs_to_plan(paths: list[str], names: InputNames, crs: str | None = None,
-                   pulse: PulseOverrides = PulseOverrides()) -> list[InputToPlan]:
-    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs, pulse) for p in paths]
+                   overrides: PulseOverrides = PulseOverrides()) -> list[InputToPlan]:
+    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs, overrides) for p in paths]
 
 
 def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,

@@ -1,112 +1,14 @@
-"""A run a person can watch: quiet logs, a progress bar on the driver.
-
-Everything Beam, Dask and the workers log goes to logs/ under the output
-folder. The terminal gets our start line, a progress bar and the summary;
-of the rest only our warnings and anyone's errors (with --verbose,
-everything).
-"""
+"""The driver's progress bar: pulses done of the planned total, counted from the marks ranges leave when they
+end (pipeline.marks), drawn in place on a terminal or as a line now and then elsewhere. Where the logs go is
+pipeline.logs."""
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import os
-import sys
 import threading
 import time
 from pathlib import Path
 from typing import Iterable, TextIO
-
-from pipeline.layout import LOGS
-
-# Beam and its dependencies' warnings that say nothing about the run.
-HARMLESS = ("apitools not found", "Discarding unparseable args", "semi_persistent_directory",
-            "The new default partition size", "Make sure that locally built Python SDK docker image",
-            "No iterator is returned by the process method")
-
-
-class _Harmless(logging.Filter):
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        return not any(h in message for h in HARMLESS)
-
-
-OURS = ("pipeline", "fwcore", "fwl")  # the loggers whose warnings are the user's business
-
-
-class _OursOrErrors(logging.Filter):
-    """On the terminal: our warnings and anyone's errors; a library's warnings (laspy's about a damaged file,
-    Beam's about its workers, forwarded in 300-character lines) stay in logs/."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.name.split(".", 1)[0] in OURS:
-            return True
-        # a fault of the machine, as a runner logs it (a traceback): fwl run says it once, with the remedy
-        return record.levelno >= logging.ERROR and "machine fault " not in record.getMessage()
-
-
-def quiet_imports() -> None:
-    """Before Beam is imported: its import-time warnings go nowhere unless a real handler is set later."""
-    root = logging.getLogger()
-    if not root.handlers:
-        handler = logging.StreamHandler()
-        handler.setLevel(logging.WARNING)
-        handler.addFilter(_Harmless())
-        handler.fwl_quiet = True
-        root.addHandler(handler)
-
-
-@contextlib.contextmanager
-def watched_logs(output: Path, verbose: bool):
-    """Logs of the run to output/logs/ (driver.log: the driver's records; workers.log: what worker processes
-    print); yields the terminal's stdout and stderr for the start line and the progress bar. With verbose, the terminal gets everything too."""
-    logs = output / LOGS
-    logs.mkdir(parents=True, exist_ok=True)
-    root = logging.getLogger()
-    saved_level, saved_handlers = root.level, list(root.handlers)
-    for h in saved_handlers:
-        if getattr(h, "fwl_quiet", False):
-            root.removeHandler(h)
-    sys.stdout.flush(), sys.stderr.flush()
-    say = os.fdopen(os.dup(1), "w", buffering=1)
-    terminal = os.fdopen(os.dup(2), "w", buffering=1)
-    redirected = []
-    if not verbose:
-        # worker processes of the DirectRunner print to the driver's stdout and stderr: send those to a file
-        workers = os.open(logs / "workers.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        for fd in (1, 2):
-            redirected.append((fd, os.dup(fd)))
-            os.dup2(workers, fd)
-        os.close(workers)
-    file_handler = logging.FileHandler(logs / "driver.log")
-    file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s"))
-    console = logging.StreamHandler(terminal)
-    console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-    console.setLevel(logging.INFO if verbose else logging.WARNING)
-    if not verbose:
-        console.addFilter(_Harmless())
-        console.addFilter(_OursOrErrors())
-    root.addHandler(file_handler)
-    root.addHandler(console)
-    root.setLevel(logging.INFO)
-    for noisy in ("numba",):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
-    try:
-        yield say, terminal
-    finally:
-        sys.stdout.flush(), sys.stderr.flush()
-        for fd, saved in redirected:
-            os.dup2(saved, fd)
-            os.close(saved)
-        root.removeHandler(file_handler)
-        root.removeHandler(console)
-        file_handler.close()
-        root.setLevel(saved_level)
-        for h in saved_handlers:
-            if h not in root.handlers:
-                root.addHandler(h)
-        terminal.close()
-        say.close()
 
 
 def _duration(seconds: float) -> str:

@@ -1,12 +1,11 @@
-"""Build and run the pipeline; summarise what it wrote in run.json.
+"""Build and run the pipeline's jobs over the inputs into a claimed output folder.
 
-    validate options and inputs -> take the output folder -> run -> count what was written -> run.json
+    validate options and inputs -> take the output folder (pipeline.outputs) -> plan, ranges and files jobs
+    -> run.json (pipeline.summary, which also says the exit codes)
 
-Exit codes of `fwl run` (see the README): 0 every pulse decomposed; 3 some inputs or pulses rejected,
-the rest written; 4 nothing decomposed (every input or pulse rejected); 5 stopped by a fault of the machine
-(a full disk, no permission, an I/O error, a lost mount, no memory: pipeline.faults), nothing rejected for it,
-rerun with --resume once it is fixed; 2 a usage error (bad option, no such input, an output folder that holds
-what is not ours, or that another command is writing), nothing touched; 130 interrupted.
+The three jobs: the plan job plans each input on a worker; the ranges job decomposes each range
+(transforms.DecomposeFlight); the files job assembles each input's point cloud and MCAP from its ranges'
+parts (transforms.AssembleFiles). A small run's jobs run in the driver's process (`Jobs`).
 """
 
 from __future__ import annotations
@@ -14,17 +13,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import platform
 import signal
 import threading
 import time
-from importlib import metadata
 from pathlib import Path
 
 import apache_beam as beam
-import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.parquet as pq
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 import fwcore
@@ -34,129 +28,25 @@ from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_fl
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
 from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
+from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
+from pipeline.logs import watched_logs
+from pipeline.marks import range_is_complete, remove_range_files
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
-from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, ResumeError, add_to_output_folder,
-                              input_identity, is_complete, list_outputs, mark_inputs_done, match_inputs,
-                              read_manifest, read_run, remove_input_outputs, remove_partial_files,
-                              resume_output_folder, take_output_folder, write_run_json)
-from pipeline.layout import (ECHOES, LOGS, PARTS, PULSES, REJECTED, file_rejected, plan_path, progress_mark,
-                             range_is_complete, rejected_files, remove_range_files, write_file_rejection,
-                             written_parts)
+from pipeline.outputs import (InputNames, add_to_output_folder, input_identity, mark_inputs_done, match_inputs,
+                              read_manifest, read_run, remove_input_outputs, remove_partial_files, resume_output_folder,
+                              take_output_folder)
+from pipeline.assemble import written_parts
 from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, planned_pulses, read_plans
-from pipeline.progress import ProgressBar, watched_logs
-from pipeline.sinks import write_part
-from pipeline.tables import empty_rejected_table
-from pipeline.transforms import NAMESPACE, AssembleFiles, DecomposeFlight, PlanFiles
+from pipeline.progress import ProgressBar
+from pipeline.rejections import write_file_rejection
+from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
+from pipeline.transforms import AssembleFiles, DecomposeFlight, PlanFiles
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_MACHINE", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE",
-           "IncompleteRunError", "OutputFolderError", "ResumeError", "RunStopped", "is_complete", "read_run", "run",
-           "run_settings"]
+__all__ = ["Jobs", "RunStopped", "check_run_arguments", "run", "run_jobs", "run_settings"]
 
 LOG = logging.getLogger(__name__)  # the driver's: to driver.log and, for warnings, the terminal
-EXIT_OK, EXIT_USAGE, EXIT_PARTIAL, EXIT_NOTHING_DONE, EXIT_MACHINE, EXIT_INTERRUPTED = 0, 2, 3, 4, 5, 130
 BUNDLED_SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
-COUNTS = ("pulses_read", "pulses_decomposed", "pulses_rejected", "files_rejected", "problems", "echoes_kept",
-          "echoes_spurious")
-
-
-def _counts_by_input(directory: Path, columns: list[str], aggregations: list[tuple], derive=None) -> dict[str, dict]:
-    """Per input file, the counts and sums of `aggregations` over the tables in `directory`, one table (a
-    range's part) at a time: a survey's echo tables, tens of millions of rows, need not fit in memory
-    together (read as one dataset, 10M pulses' counts took 1.5 GB; a dataset keeps every part's metadata)."""
-    totals: dict[str, dict] = {}
-    for path in sorted(directory.glob("*.parquet")):
-        table = pq.read_table(path, columns=columns)
-        if not table.num_rows:
-            continue
-        table = derive(table) if derive else table
-        for row in table.group_by("source_file").aggregate(aggregations).to_pylist():
-            into = totals.setdefault(row.pop("source_file"), {})
-            for key, value in row.items():
-                into[key] = into.get(key, 0) + int(value or 0)
-    return totals
-
-
-def _rejection_kinds(rejected: pa.Table) -> pa.Table:
-    is_file = pc.equal(rejected.column("stage"), "open")
-    is_pulse = pc.and_(pc.invert(is_file), pc.greater_equal(rejected.column("pulse_id"), 0))
-    return rejected.append_column("is_file", is_file).append_column("is_pulse", is_pulse)
-
-
-def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[str, dict[str, int]]]:
-    """Totals and per-input counts read back from what was written, so that they add up by construction.
-
-    A rejected row is a file (stage open), a pulse (pulse_id >= 0), or a problem: a range that failed
-    as a whole, or point records the header promises and the file lacks (pulse_id -1).
-    """
-    per_pulses = _counts_by_input(output / PULSES, ["source_file"], [("source_file", "count")])
-    per_echoes = _counts_by_input(output / ECHOES, ["source_file", "kept"], [("kept", "count"), ("kept", "sum")])
-    per_rejected = _counts_by_input(output / REJECTED, ["source_file", "stage", "pulse_id"],
-                                    [("is_file", "count"), ("is_file", "sum"), ("is_pulse", "sum")], _rejection_kinds)
-    per_input = {}
-    for name in names:
-        decomposed = per_pulses.get(name, {}).get("source_file_count", 0)
-        rows = per_rejected.get(name, {})
-        files_rejected = int(rows.get("is_file_sum") or 0)
-        pulse_rejects = int(rows.get("is_pulse_sum") or 0)
-        problems = rows.get("is_file_count", 0) - files_rejected - pulse_rejects
-        echo_rows = per_echoes.get(name, {})
-        kept = int(echo_rows.get("kept_sum") or 0)
-        per_input[name] = {"pulses_read": decomposed + pulse_rejects, "pulses_decomposed": decomposed,
-                           "pulses_rejected": pulse_rejects, "files_rejected": files_rejected, "problems": problems,
-                           "echoes_kept": kept, "echoes_spurious": echo_rows.get("kept_count", 0) - kept}
-    totals = {k: sum(c[k] for c in per_input.values()) for k in COUNTS}
-    return totals, per_input
-
-
-def write_empty_rejected(output: Path, stems: list[str]) -> None:
-    """rejected/<stem>.parquet without rows for every input of which nothing was rejected."""
-    for stem in stems:
-        if not any(p.exists() for p in rejected_files(output, stem)):
-            write_part(empty_rejected_table(), output / REJECTED, stem)
-
-
-def whole_file_reasons(output: Path, entries: list[dict], per_input: dict[str, dict]) -> dict[str, str]:
-    """Per input rejected whole, the first reason its rejected/ rows give (stage open), for run.json and the
-    terminal."""
-    reasons = {}
-    for e in entries:
-        if per_input[e["name"]]["files_rejected"]:
-            rows = pq.read_table(file_rejected(output, e["stem"]), columns=["stage", "reason"])
-            said = [r for s, r in zip(rows.column("stage").to_pylist(), rows.column("reason").to_pylist())
-                    if s == "open"]
-            if said:
-                reasons[e["name"]] = said[0]
-    return reasons
-
-
-def _metric_counts(result) -> dict[str, int]:
-    """Beam's counters summed over the steps that increment them (several stages reject pulses)."""
-    try:
-        counters = result.metrics().query(beam.metrics.MetricsFilter().with_namespace(NAMESPACE))["counters"]
-    except Exception:  # some runners (Dask) do not report metrics
-        return {}
-    totals: dict[str, int] = {}
-    for c in counters:
-        value = c.committed if c.committed is not None else c.attempted
-        totals[c.key.metric.name] = totals.get(c.key.metric.name, 0) + int(value or 0)
-    return totals
-
-
-def _metrics(result, files_rejected: int) -> dict[str, int]:
-    """Beam's counters, and the files this call's plans rejected (empty where the runner reports none)."""
-    metrics = _metric_counts(result) if result is not None else {}
-    return {**metrics, "files_rejected": files_rejected} if metrics else {}
-
-
-def status_of(counts: dict[str, int]) -> str:
-    """complete: nothing rejected; partial: some inputs or pulses rejected; failed: nothing decomposed."""
-    if not counts["pulses_rejected"] and not counts["files_rejected"] and not counts["problems"]:
-        return "complete"
-    return "partial" if counts["pulses_decomposed"] else "failed"
-
-
-EXIT_CODES = {"complete": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_NOTHING_DONE}
 
 
 INTERRUPTED = threading.Event()  # set on Ctrl-C: a job run in this process fails with Beam's error, not with it
@@ -280,12 +170,12 @@ def _run_job(options, build) -> object:
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-                 pulse: PulseOverrides = PulseOverrides()) -> dict:
+                 overrides: PulseOverrides = PulseOverrides()) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
-    return {**given, "config": config.to_dict(), "pulse": pulse.to_dict(), "formats": sorted(formats), "limit": limit,
+    return {**given, "config": config.to_dict(), "overrides": overrides.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
 
@@ -359,22 +249,6 @@ def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
     return "auto (" + ", ".join(f"{m} {chosen.count(m)} files" for m in sorted(set(chosen))) + ")"
 
 
-def _planned(plan: FilePlan) -> dict:
-    """What a file's plan measured of what the file does not record (fwcore.instrument.measure), for run.json."""
-    s = plan.source
-    if s is None:
-        return {}
-    # the pulses its plan found (its packet keys): counted apart from what the ranges wrote, which must add up to it
-    return {"pulses_planned": sum(planned_pulses(t) for t in plan.tasks),
-            "system_pulse_fwhm_ps": s.system.fwhm_ps, "system_pulse_fwhm_source": s.system.fwhm_source,
-            "shape_tolerance": s.system.shape_tolerance, "shape_tolerance_source": s.system.shape_source,
-            "range_offset_ps": s.system.range_offset_ps, "range_offset_source": s.system.range_offset_source,
-            "system_response": s.system.response.to_dict() if s.system.response else None,
-            "model": s.system.model or None, "model_choice": s.system.model_choice or None,
-            "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt},
-            "metric_settings": s.metric_settings, "metric_settings_source": s.metric_settings_source or None}
-
-
 def claim_folder(output: Path, paths: list[str], settings: dict, resume: bool, add: bool) -> tuple[InputNames, str]:
     """The output folder taken as the call asks (pipeline.outputs): the names of all its inputs, and how it was
     taken: new, resumed, complete (a resumed run that had finished) or added."""
@@ -392,7 +266,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
         add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-        pulse: PulseOverrides = PulseOverrides()) -> dict:
+        overrides: PulseOverrides = PulseOverrides()) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -401,7 +275,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     the folder's interrupted run of the same inputs and settings, keeping every range it finished; `add`
     (fwl watch) adds the inputs to those the folder holds. With `watch`, a start line and a progress bar go
     to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
-    code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `pulse` (--system-pulse-fwhm-ps,
+    code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `overrides` (--system-pulse-fwhm-ps,
     --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
     A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
     rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
@@ -412,12 +286,12 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, pulse)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides)
     check_radiometry(paths, radiometry)
     try:
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                                resume, add, radiometry, crs, pulse, settings, matched.not_taken, beam_args)
+                                resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args)
     except RunStopped:
         raise
     except Exception as err:
@@ -429,7 +303,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
 
 def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, formats: frozenset[str],
                  limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
-                 resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, pulse: PulseOverrides,
+                 resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, overrides: PulseOverrides,
                  settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None) -> dict:
     """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
@@ -441,28 +315,16 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={}, pulses_processed=0)
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), pulse)
+                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, not_taken, crs, pulse)
-
-
-@dataclasses.dataclass(frozen=True)
-class JobsDone:
-    """What a run's jobs did, for run.json: ranges planned and reused, Beam's metrics, each input's plan."""
-
-    ranges: int | None
-    ranges_reused: int | None
-    metrics: dict[str, int]
-    planned: dict[str, dict]  # input path -> what its plan measured (_planned), and its radiometry
-    calibration: dict | None = None  # C_cal found on a reference patch, how many returns, their spread
-    pulses_processed: int | None = None  # the pulses of the ranges this call ran (not those reused): its rate
+                     taken, radiometry, not_taken, crs, overrides)
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
-             small_in_process: bool = False, pulse: PulseOverrides = PulseOverrides()) -> JobsDone:
+             small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides()) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
@@ -470,7 +332,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
-            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range, limit,
+            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides), config, points_per_range, limit,
                                jobs)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
@@ -518,8 +380,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         remove_partial_files(output)
     _write_lost_plans(output, plans)
     # the calibration each input's ranges used, kept in the manifest for a run.json written later
-    return JobsDone(len(tasks), len(reused), _metrics(result, files_rejected),
-                    {path: {**_planned(plan), **ranges_from.get(path, {}), "calibration": calibration}
+    return JobsDone(len(tasks), len(reused), beam_metrics(result, files_rejected),
+                    {path: {**planned_of(plan), **ranges_from.get(path, {}), "calibration": calibration}
                      for path, plan in plans.items()}, calibration, total)
 
 
@@ -592,55 +454,3 @@ def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
             write_file_rejection(output, r)
 
 
-def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
-              config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
-              radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
-              crs: str | None = None, pulse: PulseOverrides = PulseOverrides()) -> dict:
-    """run.json: the counts read back from what was written, over every input of the folder (each said done
-    or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
-    ranges it ran, not those reused or added earlier)."""
-    entries = read_manifest(output)["inputs"]
-    write_empty_rejected(output, [e["stem"] for e in entries])
-    calibration = jobs.calibration or next((c for e in entries if (c := e.get("planned", {}).get("calibration"))),
-                                           None)
-    if calibration and not radiometry.calibrated:  # found on the reference patch: what the ranges used
-        radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
-                                         calibration_source=calibration["source"])
-    counts, per_input = count_outputs(output, [e["name"] for e in entries])
-    processed = counts["pulses_read"] if jobs.pulses_processed is None else jobs.pulses_processed
-    # a match given as an input that holds none makes the run partial; the counts stay the files'
-    status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
-    reasons = whole_file_reasons(output, entries, per_input)
-    summary = {
-        "status": status,
-        "exit_code": EXIT_CODES[status],
-        "inputs": [{"path": e["path"], "name": e["name"], "output_stem": e["stem"], "done": bool(e.get("done")),
-                    "counts": per_input[e["name"]],
-                    **({"rejected_because": reasons[e["name"]]} if e["name"] in reasons else {}),
-                    **e.get("planned", {})} for e in entries],
-        "not_inputs": [{"path": match, "reason": why} for match, why in not_taken],
-        "output": str(output),
-        "formats": sorted(formats),
-        "limit": limit,
-        "points_per_range": points_per_range,
-        "crs": crs,  # --crs as given (each input's CRS, and where it came from, under inputs)
-        "ranges": jobs.ranges,
-        "ranges_reused": jobs.ranges_reused,
-        "taken": taken,
-        "config": config.to_dict(),
-        "pulse": pulse.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
-        "radiometry": {**radiometry.to_dict(), "calibration": calibration,
-                       "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},
-        "beam_options": options.get_all_options(drop_default=True),
-        "versions": {"fwlidar": fwcore.__version__, "python": platform.python_version(),
-                     **{p: metadata.version(p) for p in ("apache-beam", "numba", "numpy", "laspy", "pyarrow")}},
-        "counts": counts,
-        "metrics": jobs.metrics,
-        "seconds": round(seconds, 3),
-        # the pulses this call processed: not a resumed run's reused ranges, nor a watched folder's earlier inputs
-        "pulses_processed": processed,
-        "pulses_per_second": round(processed / seconds, 2) if seconds > 0 else None,
-        "files": list_outputs(output),
-    }
-    write_run_json(output, summary)
-    return summary

@@ -4,7 +4,7 @@
     ranges: ReadTasks -> Spread -> RangeStages: stages.run_range (read -> decompose -> geolocate -> write)
             -> the range's parts, its rejected/<stem>-<range>.parquet, and its mark parts/<stem>-<range>.json,
             written last
-    files:  layout.written_parts -> AssembleFiles: layout.assemble_file -> las/<stem>.las, copc/<stem>.copc.laz,
+    files:  assemble.written_parts -> AssembleFiles: assemble.assemble_file -> las/<stem>.las, copc/<stem>.copc.laz,
             mcap/<stem>.mcap
 
 One dead-letter path: a stage hands on its record and Rejections, and an
@@ -19,8 +19,9 @@ runner a task shuffle whose tasks grow as ranges x log(ranges), kept by the
 scheduler and workers); for the same reason the files are assembled in a job
 of their own.
 
-The output folder's names, marks and the plain functions these transforms
-call for them are in pipeline.layout.
+The output folder's names are pipeline.layout's; the plain functions these
+transforms call for a range's mark, its rejections and a file's assembly are
+pipeline.marks, pipeline.rejections and pipeline.assemble.
 """
 
 from __future__ import annotations
@@ -35,10 +36,13 @@ from apache_beam.metrics import Metrics
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
-from pipeline.layout import (assemble_file, log_to_file, mark_range_done, part_name, plan_path,
-                             write_file_rejection, write_rejections)
+from pipeline.assemble import assemble_file
+from pipeline.layout import part_name, plan_path
+from pipeline.logs import log_to_file
+from pipeline.marks import mark_range_done
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
+from pipeline.rejections import write_file_rejection, write_rejections
 from pipeline.sinks import write_json
 from pipeline.stages import RangeSettings, run_range, warm_up
 
@@ -175,7 +179,7 @@ class AssembleFiles(beam.PTransform):
 
 
 def assemble_file_or_fault(item: tuple, output: str, laz: bool, formats: frozenset[str]) -> str:
-    """layout.assemble_file; a fault of the machine noted for the driver (the parts stay for a resumed run)."""
+    """assemble.assemble_file; a fault of the machine noted for the driver (the parts stay for a resumed run)."""
     try:
         with raised_as_fault(WRITING, output, f"assembling {item[0]}"):
             return assemble_file(item, output, laz, formats)

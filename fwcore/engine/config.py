@@ -115,20 +115,23 @@ class NoiseEstimator(str, enum.Enum):
 
 
 def setting(default: Any, help: str | None = None, *, symbol: str = "", option: bool = False,
-            kernel: bool | Callable[[Any], dict[str, Any]] = False, within: str = "", why: str = "") -> Any:
+            kernel: bool | Callable[[Any], dict[str, Any]] = False, within: str = "", why: str = "",
+            refit: bool | tuple[float, float] = False) -> Any:
     """A DecompositionConfig field and what the rest of the code needs to know of it, in its metadata.
 
     help: the command line's help (default: the symbol); symbol: the paper's name of it (NP, G, CR);
     option: a command-line option --the-name (pipeline.options.add_method_arguments); kernel: True
     when the numba kernels read it as is (a KernelParams field of its name), or a function from its
     value to the KernelParams fields it becomes; within: its interval, "[0, 1]", "(0, inf)", checked
-    with `why` said after the message.
+    with `why` said after the message; refit: the viewer's Try may change it (pipeline.view.params), a
+    number within these bounds (lo, hi), closer than `within` so that one refit takes seconds; True for
+    a choice or a flag.
     """
     if within:
         _interval(within)  # a mistyped interval fails at import, not at the first check
     return dataclasses.field(default=default, metadata={
         "help": help or symbol or None, "symbol": symbol, "option": option, "kernel": kernel, "within": within,
-        "why": why})
+        "why": why, "refit": refit})
 
 
 def _interval(text: str) -> tuple[float, float, bool, bool]:
@@ -157,35 +160,30 @@ def _interval_error(name: str, value: Any, metadata: dict) -> str | None:
 class DecompositionConfig:
     """Every method parameter of a decomposition run."""
 
-    optimizer: Optimizer = setting(Optimizer.LM_MDE, option=True,
+    optimizer: Optimizer = setting(Optimizer.LM_MDE, option=True, refit=True,
                                    kernel=lambda optimizer: OPTIMIZERS[optimizer].kernel_values())
     model: Model = setting(Model.AUTO, "the echoes' shape: system (the instrument's measured response), generalized "
                            "(the method's generalized Gaussian), gaussian; default auto: per file, the one of system "
                            "and generalized that predicts its held-out samples better (run.json says which and why)",
-                           option=True,
+                           option=True, refit=True,
                            # the system model's alpha comes from its table, the Gaussian's is sqrt(2)
                            kernel=lambda model: {"alpha_fixed": model in (Model.SYSTEM, Model.GAUSSIAN)})
     # Evolution: population NP and generations G (the MDE paper: 60 and 80); with tol > 0,
     # G is the most a waveform may take.
     population: int = setting(60, symbol="NP", option=True, kernel=True, within="[5, inf)",
-                              why="MDE draws 4 distinct partners")
-    generations: int = setting(200, symbol="G", option=True, kernel=True, within="[0, inf)")
+                              why="MDE draws 4 distinct partners", refit=(5, 200))
+    generations: int = setting(200, symbol="G", option=True, kernel=True, within="[0, inf)", refit=(0, 1000))
     crossover_rate: float = setting(0.9, symbol="CR", option=True, kernel=True, within="[0, 1]")
     # MDE's chaotic scale factors: t seeds, k logistic-map iterations, range [a, b].
     chaos_seeds: int = setting(1, symbol="t", option=True, kernel=True, within="[1, inf)")
     chaos_iterations: int = setting(5, symbol="k", option=True, kernel=True, within="[1, inf)")
     scale_min: float = setting(0.2, symbol="a", option=True, kernel=True)
     scale_max: float = setting(1.0, symbol="b", option=True, kernel=True)
-    # Plain DE's fixed scale factor (the paper's Eq. 4).
-    de_scale_factor: float = setting(0.5, kernel=True)
     # Write each DE/MDE winner back at once (asynchronous DE) instead of once per generation.
     immediate: bool = setting(False, kernel=True)
-    # Half size of the box around the initial estimate that seeds the population,
-    # as a fraction of each parameter's bound range.
-    init_spread: float = setting(0.25, kernel=True, within="[0, 1]")
     # Denoising: Gaussian filter sigma = smoothing_factor * system pulse sigma,
     # unless smoothing_sigma_ps is given (0 turns smoothing off).
-    smoothing_factor: float = setting(0.25)
+    smoothing_factor: float = setting(0.25, refit=(0.0, 10.0))
     smoothing_sigma_ps: float | None = setting(None, option=True)
     fit_target: FitTarget = setting(FitTarget.DENOISED, option=True,
                                     kernel=lambda target: {"fit_denoised": target is FitTarget.DENOISED})
@@ -197,7 +195,7 @@ class DecompositionConfig:
     raw_polish_gate: float = setting(1.5, "chi^2 per degree of freedom on the raw samples above which the raw polish "
                                      "runs (1.5)", option=True, kernel=True, within="[0, inf)")
     # Initial estimate: an echo must rise noise_threshold x the noise at its sample above background.
-    noise_threshold: float = setting(3.0, kernel=True, within="(0, inf)")
+    noise_threshold: float = setting(3.0, kernel=True, within="(0, inf)", refit=(0.01, 100.0))
     # `fast`: with the selection on, no peak within 0.75 pulse widths of a peeled echo and under this share of its
     # amplitude is proposed: it is mostly the residual of a peeled echo wider than its estimate, which the fit
     # merges back and a refit drops (RIEGL-like flight: 0.12 -> 0.06 dropped a pulse; the simulated flights'
@@ -217,7 +215,7 @@ class DecompositionConfig:
     # (fwcore.instrument.pulse.SystemPulse). A shape tolerance of 0 and signal_dependent_noise=False give
     # the method's constant noise.
     signal_dependent_noise: bool = setting(True, kernel=True)
-    max_echoes: int = setting(12, option=True, kernel=True, within="[1, inf)")
+    max_echoes: int = setting(12, option=True, kernel=True, within="[1, inf)", refit=(1, 24))
     alpha_min: float = setting(1.0, kernel=True)
     alpha_max: float = setting(2.6, kernel=True)
     # Filter of spurious echoes (the method's section 1.2). The paper's values are 0.2, -, 1.0, 1.0, 3.0.
@@ -227,9 +225,10 @@ class DecompositionConfig:
     # (recall 0.88); 3 sigma, the initial estimate's own threshold, keeps them, and drops the 2 DN bumps that put
     # echoes 5-12 m under the Leica sample's ground (2 sigma: 7 such echoes; precision on resolvable echoes of the
     # simulated Leica / RIEGL flights 0.917 / 0.990 -> 0.923 / 0.996 at the same recall).
-    min_amplitude_ratio: float = setting(0.05, kernel=True)
-    min_snr: float = setting(3.0, "echoes below this x sigma_noise are weak", option=True, kernel=True)
-    min_separation_factor: float = setting(1.0, kernel=True)  # x system pulse FWHM
+    min_amplitude_ratio: float = setting(0.05, kernel=True, refit=(0.0, 1.0))
+    min_snr: float = setting(3.0, "echoes below this x sigma_noise are weak", option=True, kernel=True,
+                             refit=(0.0, 1000.0))
+    min_separation_factor: float = setting(1.0, kernel=True, refit=(0.0, 10.0))  # x system pulse FWHM
     min_width_factor: float = setting(0.5, kernel=True)  # x system pulse FWHM
     max_width_factor: float = setting(3.0, kernel=True)  # x system pulse FWHM
     # Of two echoes closer than the separation (one unresolved return), the earlier is kept when it is at
@@ -244,12 +243,14 @@ class DecompositionConfig:
     # samples do not need them, add one where the residual holds an echo, each by the Bayesian
     # information criterion under the noise model, with warm-started LM refits.
     select_echoes: bool = setting(True, "model-order selection: drop and add echoes by the BIC with LM refits "
-                                  "(default on)", option=True, kernel=True)
-    max_added_echoes: int = setting(2, kernel=True, within="[0, inf)")  # echoes the selection may add per waveform
+                                  "(default on)", option=True, kernel=True, refit=True)
+    # echoes the selection may add per waveform
+    max_added_echoes: int = setting(2, kernel=True, within="[0, inf)", refit=(0, 8))
     # The add step tries an echo where the residual's height clears this x sigma_noise: a shoulder's residual is
     # a fraction of the echo the refit then finds, so its floor stays below the filter's min_snr.
     add_min_snr: float = setting(2.0, kernel=True, within="[0, inf)")
-    lm_iterations: int = setting(50, option=True, kernel=True, within="[1, inf)")  # LM's (L-BFGS gets 4x as many)
+    # LM's (L-BFGS gets 4x as many)
+    lm_iterations: int = setting(50, option=True, kernel=True, within="[1, inf)", refit=(1, 1000))
     # LM stops when an accepted step lowers the weighted sum of squares (chi^2) by less than this share of
     # it: 1e-4 of a chi^2 of m samples is a few hundredths, far below what the data tell apart. 1e-6 kept
     # the tabulated model's LM creeping over its table's kinks (RIEGL: 11% of fits ran out of iterations),
@@ -366,6 +367,9 @@ class DecompositionConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "DecompositionConfig":
+        """A config from its to_dict (run.json, a table's metadata) or a TOML table; a retired setting at the value
+        it always held (an earlier run's) is dropped."""
+        values = current_settings(values)
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
@@ -381,6 +385,17 @@ class DecompositionConfig:
             return cls.from_dict(data.get("decomposition", data))
         except (TypeError, ValueError) as err:
             raise ValueError(f"{path}: {err}") from None
+
+
+# Settings an earlier fwl declared, at the one value every run held (now constants of the kernels,
+# fwcore.engine.optimizers.evolution): an earlier run's configuration that names them reads the same.
+RETIRED_SETTINGS: dict[str, Any] = {"de_scale_factor": 0.5, "init_spread": 0.25}
+
+
+def current_settings(values: dict[str, Any]) -> dict[str, Any]:
+    """A configuration's values without the retired settings at their one value (another value stays, and is then
+    refused as unknown: the run it describes cannot be made again)."""
+    return {k: v for k, v in values.items() if not (k in RETIRED_SETTINGS and v == RETIRED_SETTINGS[k])}
 
 
 # What the kernels read that is no method setting: the file's own measurements, given to kernel_params.
@@ -416,21 +431,35 @@ class KernelParams(NamedTuple("_KernelFields", _kernel_fields())):
         return cls(**{name: cast[kinds[name]](values[name]) for name in cls._fields})
 
 
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """A named configuration, one entry: the method's settings, and what it says of every file's pulse instead of
+    what the file's plan measures (`overrides`: PulseOverrides' fields, fwcore.instrument.pulse, which builds them:
+    `PulseOverrides.of_preset`)."""
+
+    settings: dict[str, Any]
+    overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def config(self) -> DecompositionConfig:
+        return DecompositionConfig(**self.settings)
+
+
 # Named configurations (README, "Presets"): the defaults are the best we know.
 # "paper": the MDE method exactly as published: its generalized Gaussian, its noise formula and constant
 # noise, its filter (20% of the largest amplitude, widths from 1x to 3x the pulse), MDE for a fixed G = 80, no
-# polish (neither LM's nor the raw one), no selection; its model taken as exact (a shape tolerance of 0:
-# fwcore.instrument.pulse.PRESET_OVERRIDES). "fast": LM alone from the initial estimate,
-# fewer and looser iterations, with the default's selection.
-PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"optimizer": Optimizer.MDE, "model": Model.GENERALIZED, "generations": 80, "tol": 0.0, "atol": 0.0,
-              "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
-              "signal_dependent_noise": False, "select_echoes": False,
-              "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0, "raw_polish": False},
+# polish (neither LM's nor the raw one), no selection; its model taken as exact (a shape tolerance of 0).
+# "fast": LM alone from the initial estimate, fewer and looser iterations, with the default's selection.
+PRESETS: dict[str, Preset] = {
+    "paper": Preset({"optimizer": Optimizer.MDE, "model": Model.GENERALIZED, "generations": 80, "tol": 0.0,
+                     "atol": 0.0, "noise_estimator": NoiseEstimator.RESIDUAL, "min_noise_sigma": 1.0,
+                     "signal_dependent_noise": False, "select_echoes": False,
+                     "min_amplitude_ratio": 0.2, "min_snr": 0.0, "min_width_factor": 1.0, "raw_polish": False},
+                    overrides={"shape_tolerance": 0.0}),
     # LM alone, stopping at a relative gain of 1e-3 (0.06 of chi^2 on RIEGL's 60 samples) or a gain of 0.3, made or
     # predicted; no weak peak proposed on an echo's flank, no echo added, no shot-noise term: the simulated flights'
     # recall, precision and RMSE and the Leica sample's returns within their noise (docs/decisions.md). The raw
     # polish stays: without it NEON's raw error is 263 DN, not 187.
-    "fast": {"optimizer": Optimizer.LM, "lm_iterations": 20, "lm_tolerance": 1e-3, "lm_chi2_tolerance": 0.3,
-             "lm_predicted_stop": True, "flank_ratio": 0.2, "max_added_echoes": 0, "signal_dependent_noise": False},
+    "fast": Preset({"optimizer": Optimizer.LM, "lm_iterations": 20, "lm_tolerance": 1e-3, "lm_chi2_tolerance": 0.3,
+                    "lm_predicted_stop": True, "flank_ratio": 0.2, "max_added_echoes": 0,
+                    "signal_dependent_noise": False}),
 }

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from fwcore.engine.config import Model
+from fwcore.engine.config import PRESETS, Model
 from fwcore.instrument.response import SystemResponse, gaussian_response
 
 DEFAULT_PULSE_FWHM_PS = 4000.0  # where nothing measures the pulse and no one gives it
@@ -80,6 +80,12 @@ class PulseOverrides:
     def replace(self, **changes: Any) -> "PulseOverrides":
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def of_preset(cls, name: str | None) -> "PulseOverrides":
+        """What a preset (fwcore.engine.config.PRESETS, its `overrides`) says of every file's pulse; nothing for
+        no preset (the paper's constant noise takes its model as exact: a shape tolerance of 0)."""
+        return cls(**PRESETS[name].overrides) if name else cls()
+
     def applied(self, pulse: SystemPulse) -> SystemPulse:
         """A measured pulse with what these say instead (the viewer's refit under another preset)."""
         changes: dict[str, Any] = {}
@@ -96,6 +102,3 @@ class PulseOverrides:
         return {"system_pulse_fwhm_ps": self.fwhm_ps, "shape_tolerance": self.shape_tolerance,
                 "system_response": self.response.to_dict() if self.response else None}
 
-
-# What a preset says of the pulse: the paper's constant noise takes its model as exact.
-PRESET_OVERRIDES: dict[str, PulseOverrides] = {"paper": PulseOverrides(shape_tolerance=0.0)}

@@ -8,11 +8,13 @@ wrong type or an unbounded amount of work.
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import math
 import re
-from typing import Any
+from typing import Any, get_type_hints
 
-from fwcore.engine.config import PRESETS, Model, Optimizer
+from fwcore.engine.config import PRESETS, DecompositionConfig
 
 MAX_ECHOES = 200_000  # the most echoes one request returns, whatever the page asks
 MAX_PULSE_LIST = 1000
@@ -25,22 +27,25 @@ class BadRequest(ValueError):
     """A request's parameter is missing or wrong: the message names it and says why (HTTP 400)."""
 
 
-# the settings Try may change: their kind and bounds (caps keep one refit within seconds)
-TRY_SETTINGS: dict[str, tuple] = {
-    "optimizer": ("choice", [o.value for o in Optimizer]),
-    "model": ("choice", [m.value for m in Model]),
-    "noise_threshold": ("float", 0.01, 100.0),
-    "min_snr": ("float", 0.0, 1000.0),
-    "min_amplitude_ratio": ("float", 0.0, 1.0),
-    "max_echoes": ("int", 1, 24),
-    "generations": ("int", 0, 1000),
-    "population": ("int", 5, 200),
-    "lm_iterations": ("int", 1, 1000),
-    "max_added_echoes": ("int", 0, 8),
-    "select_echoes": ("bool",),
-    "smoothing_factor": ("float", 0.0, 10.0),
-    "min_separation_factor": ("float", 0.0, 10.0),
-}
+def _try_settings() -> dict[str, tuple]:
+    """The settings Try may change, from their declaration (fwcore.engine.config.setting's `refit`): a choice of
+    the enum's values, a flag, or an int or float within the bounds that keep one refit within seconds."""
+    kinds = get_type_hints(DecompositionConfig)
+    found: dict[str, tuple] = {}
+    for field in dataclasses.fields(DecompositionConfig):
+        refit, kind = field.metadata.get("refit"), kinds[field.name]
+        if not refit:
+            continue
+        if isinstance(kind, type) and issubclass(kind, enum.Enum):
+            found[field.name] = ("choice", [m.value for m in kind])
+        elif kind is bool:
+            found[field.name] = ("bool",)
+        else:
+            found[field.name] = (kind.__name__, *refit)
+    return found
+
+
+TRY_SETTINGS: dict[str, tuple] = _try_settings()  # name -> ("choice", values) | ("bool",) | ("int"/"float", lo, hi)
 
 
 def _number(name: str, value: Any, kind: str, lo: float, hi: float) -> int | float:

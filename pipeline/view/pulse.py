@@ -19,14 +19,14 @@ from fwcore.engine.config import PRESETS, DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch, smoothing_sigma_samples
 from fwcore.engine.records import WaveformBatch
 from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
-from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse
-from fwcore.instrument.response import SystemResponse
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
 from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.engine.model import sigma_to_time_unit
 from fwcore.engine.preprocess import gaussian_smooth
 from fwcore.metrics.pulses import vertical_axis
 from fwcore.pulses import pulse_waveforms
 from pipeline.layout import range_start
+from pipeline.outputs import recorded_pulse
 from pipeline.view import queries
 from pipeline.view.catalog import run_inputs, run_summary
 
@@ -108,23 +108,21 @@ def load_pulse(run: Path, source_file: str,
 
 
 def run_pulse(summary: dict, source_file: str, row: dict) -> SystemPulse:
-    """The system pulse a run decomposed a file's pulses with: the width and shape tolerance of the pulse's row,
-    the rest as run.json's inputs[] says (the response it measured, where its values came from)."""
+    """The system pulse a run decomposed a file's pulses with: the record run.json's inputs[] holds of it
+    (SystemPulse.from_dict, pipeline.outputs.recorded_pulse); where it holds none, the width and shape tolerance
+    of the pulse's row."""
     entry = next((e for e in summary.get("inputs", []) if isinstance(e, dict) and e.get("name") == source_file), {})
-    response = entry.get("system_response")
-    fwhm = row.get("system_pulse_fwhm_ps")
-    tolerance = row.get("shape_tolerance")
-    return SystemPulse(float(fwhm) if fwhm is not None else DEFAULT_PULSE_FWHM_PS,
-                       entry.get("system_pulse_fwhm_source") or "the run's", float(tolerance or 0.0),
-                       entry.get("shape_tolerance_source") or "the run's",
-                       float(entry.get("range_offset_ps") or 0.0), entry.get("range_offset_source") or "none measured",
-                       SystemResponse.from_dict(response) if response else None, entry.get("model") or "",
-                       entry.get("model_choice") or "")
+    recorded = recorded_pulse(entry)
+    if recorded is not None:
+        return recorded
+    fwhm, tolerance = row.get("system_pulse_fwhm_ps"), row.get("shape_tolerance")
+    return SystemPulse(float(fwhm) if fwhm is not None else DEFAULT_PULSE_FWHM_PS, "the run's",
+                       float(tolerance or 0.0), "the run's")
 
 
 def try_pulse(pulse: SystemPulse, preset: str | None) -> SystemPulse:
     """The file's pulse under another preset: what the preset says of it (the paper's: its model exact)."""
-    return PRESET_OVERRIDES.get(preset or "", PulseOverrides()).applied(pulse)
+    return PulseOverrides.of_preset(preset).applied(pulse)
 
 
 def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> DecompositionConfig:
@@ -135,7 +133,7 @@ def try_config(base: DecompositionConfig, preset: str | None, changes: dict) -> 
     if preset:
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(sorted(PRESETS))}, not {preset!r}")
-        config = DecompositionConfig(**PRESETS[preset]).replace(model=base.model, seed=base.seed)
+        config = PRESETS[preset].config().replace(model=base.model, seed=base.seed)
     unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(DecompositionConfig)})
     if unknown:
         raise ValueError(f"unknown decomposition settings {unknown}")

@@ -106,6 +106,20 @@ def test_simulate_writes_a_flight_of_several_chunks_and_says_what_it_wrote(tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.las", "sim.trajectory.csv", "sim.truth.parquet"]  # no scratch
 
 
+def test_simulate_s_sensor_response_and_its_former_spelling_draw_the_same_flight(tmp_path, capsys):
+    """fwl simulate's --sensor-response is the simulated sensor's (fwl run's --system-response overrides a file's
+    pulse); --system-response, its former spelling there, still draws the same flight, with a warning."""
+    flights = {}
+    for option in ("--sensor-response", "--system-response"):
+        las = tmp_path / option.strip("-") / "sim.las"
+        assert main(["simulate", "--pulses", "30", "--seed", "2", option, "leica", "--output", str(las)]) == 0
+        flights[option] = (pq.read_table(las.with_name("sim.truth.parquet")), capsys.readouterr().err)
+    (new, said_new), (old, said_old) = flights.values()
+    assert new.num_rows > 30 and new.to_pandas().equals(old.to_pandas())  # NaN where the other has NaN
+    assert np.isnan(new.column("alpha").to_numpy()).all()  # echoes of the response: no generalized shape
+    assert said_new == "" and "--system-response is deprecated here, give --sensor-response" in said_old
+
+
 @pytest.mark.parametrize("command, given, said", [
     (["decompose-csv", "{leica}", "--output", "{out}"], "leica_a.las",
      "is a LAS/LAZ file, not a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...) (fwl run reads it)"),
@@ -212,6 +226,7 @@ def test_info_measures_the_system_response_and_its_json_is_a_response_file(tmp_p
 
 
 def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewaves_dir):
+    from fwcore.instrument.pulse import SystemPulse
     from fwcore.instrument.response import named_response
 
     out = tmp_path / "run"
@@ -221,8 +236,9 @@ def test_run_takes_a_given_response_instead_of_measuring_one(tmp_path, pulsewave
     summary = json.loads((out / "run.json").read_text())
     (entry,) = summary["inputs"]
     shipped = named_response("riegl")
-    assert entry["system_response"]["source"] == shipped.source == summary["pulse"]["system_response"]["source"]
-    assert entry["system_pulse_fwhm_ps"] == pytest.approx(shipped.fwhm_ps)
+    pulse = SystemPulse.from_dict(entry["system_pulse"])  # the file's pulse, one record
+    assert pulse.response.source == shipped.source == summary["overrides"]["system_response"]["source"]
+    assert pulse.fwhm_ps == pytest.approx(shipped.fwhm_ps) and pulse.response == shipped
     echoes = ds.dataset(str(out / "echoes"), format="parquet").to_table()
     # a tabulated echo has no generalized Gaussian's shape: null, and no NaN in any column
     assert echoes.num_rows > 40 and echoes.column("alpha").null_count == echoes.num_rows

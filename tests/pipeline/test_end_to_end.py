@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
+from fwcore.instrument.pulse import SystemPulse
 from fwcore.io import read_pulses
 from fwcore.pulses import pulse_waveforms
 from pipeline.cli import main
@@ -98,11 +99,11 @@ def test_point_cloud_opens_and_matches_the_system_returns(leica_run, leica_dir):
     assert extra < 0.37
     # echoes placed with the file's range offset (README, "The range offset"): 0.156 m without it
     assert np.median(d_system[d_system <= 0.5]) < 0.05
-    summary = json.loads((leica_run / "run.json").read_text())["inputs"][0]
-    assert summary["model"] == "system" and summary["model_choice"].startswith("system: at held-out samples")
+    pulse = SystemPulse.from_dict(json.loads((leica_run / "run.json").read_text())["inputs"][0]["system_pulse"])
+    assert pulse.model == "system" and pulse.model_choice.startswith("system: at held-out samples")
     # the system reports a return 1.21 ns before the centre of the response's lobe
-    assert summary["range_offset_ps"] == pytest.approx(-1213.3, abs=1.0)
-    assert summary["range_offset_source"] == "single returns (268)"
+    assert pulse.range_offset_ps == pytest.approx(-1213.3, abs=1.0)
+    assert pulse.range_offset_source == "single returns (268)"
 
 
 def test_mcap_holds_point_clouds_and_waveforms(leica_run):

@@ -18,7 +18,7 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.outputs import read_run
-from pipeline.run import EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL
+from pipeline.summary import EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL
 from tests.damaged import NOT_INPUTS, SAMPLE_PULSES, write_variants
 
 METHOD = ["--optimizer", "none", "--points-per-range", "400"]

@@ -15,7 +15,7 @@ from pipeline.cli import main
 from pipeline.layout import MANIFEST
 from pipeline.outputs import (IncompleteRunError, InputNames, OutputFolderError, expand_inputs, is_complete, read_run,
                               take_output_folder)
-from pipeline.run import EXIT_INTERRUPTED, EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
+from pipeline.summary import EXIT_INTERRUPTED, EXIT_NOTHING_DONE, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
 
 QUICK = ["--preset", "fast", "--limit", "20", "--points-per-range", "300", "--direct_num_workers=1",
          "--direct_running_mode=in_memory"]

@@ -17,7 +17,7 @@ from pipeline.cli import main
 from pipeline.layout import LOCK
 from pipeline.lock import read_holder
 from pipeline.outputs import is_complete, read_run
-from pipeline.run import EXIT_MACHINE, EXIT_OK, EXIT_USAGE
+from pipeline.summary import EXIT_MACHINE, EXIT_OK, EXIT_USAGE
 
 # 4 ranges of the Leica sample, decomposed in this process (a small run under the default runner)
 ARGS = ["--preset", "fast", "--points-per-range", "300"]

@@ -14,7 +14,7 @@ from pipeline.cli import main
 from pipeline.layout import MANIFEST, plan_path
 from pipeline.outputs import differences, input_identity, is_complete, read_run
 from pipeline.plan import FilePlan
-from pipeline.run import EXIT_OK, EXIT_USAGE
+from pipeline.summary import EXIT_OK, EXIT_USAGE
 
 # 19 ranges of the Leica sample's 1125 points: a kill lands among them
 ARGS = ["--preset", "fast", "--points-per-range", "60", "--formats", "parquet,las"]
@@ -85,7 +85,7 @@ def test_resume_refuses_other_settings_or_changed_inputs_and_touches_nothing(tmp
     # what is given of the file's pulse instead of measuring it is a setting too
     assert main(["run", str(leica_copy), "--output", str(out), "--resume", "--shape-tolerance", "0.02",
                  *quick]) == EXIT_USAGE
-    assert "pulse.shape_tolerance: None -> 0.02" in capsys.readouterr().err
+    assert "overrides.shape_tolerance: None -> 0.02" in capsys.readouterr().err
 
     packets = leica_copy.with_suffix(".wdp")
     data = bytearray(packets.read_bytes())
@@ -135,28 +135,3 @@ def test_an_inputs_identity_is_its_bytes_not_its_times(leica_copy):
     assert now["leica_a.las"]["sha256"] != first["leica_a.las"]["sha256"]
     assert differences(first, now) == \
         [f"leica_a.las.sha256: {first['leica_a.las']['sha256']!r} -> {now['leica_a.las']['sha256']!r}"]
-
-
-def test_a_range_is_finished_only_with_its_mark_and_every_file_it_lists_at_its_size(tmp_path, leica_dir):
-    from fwcore.engine.config import DecompositionConfig
-    from pipeline.layout import mark_range_done, progress_mark, range_files, range_is_complete, remove_range_files
-    from pipeline.plan import InputToPlan, plan_input, planned_pulses
-
-    task = plan_input(InputToPlan(str(leica_dir / "leica_a.las"), "leica_a.las", "leica_a"),
-                      DecompositionConfig(), 400).tasks[1]
-    echoes, _, _, las, _ = files = range_files(tmp_path, task)
-    for f, data in ((echoes, b"PAR1 rows"), (las, b"LASF points")):
-        f.parent.mkdir(parents=True, exist_ok=True)
-        f.write_bytes(data)
-    assert not range_is_complete(tmp_path, task)  # parts without their mark: never trusted
-    mark_range_done(tmp_path, task, planned_pulses(task), 0)
-    mark = json.loads(progress_mark(tmp_path, "leica_a", 400).read_text())
-    assert mark == {"pulses": 310, "rejected": 0, "files": {"echoes/leica_a-000000000400.parquet": 9,
-                                                             "parts/leica_a-000000000400.las": 11}}
-    assert range_is_complete(tmp_path, task)
-    las.write_bytes(b"LASF")  # rewritten since, cut short
-    assert not range_is_complete(tmp_path, task)
-    las.unlink()
-    assert not range_is_complete(tmp_path, task)
-    remove_range_files(tmp_path, task)
-    assert not any(p.exists() for p in files + [progress_mark(tmp_path, "leica_a", 400)])

@@ -120,22 +120,6 @@ def test_the_default_output_of_a_run_is_a_handful_of_lines(tmp_path):
     assert "Prism" not in driver  # the DirectRunner did not try to download another engine
 
 
-def test_the_progress_bar_counts_the_marks_ranges_leave(tmp_path):
-    import io
-    from pipeline.progress import ProgressBar
-    from pipeline.sinks import write_json
-    stream = io.StringIO()
-    bar = ProgressBar(tmp_path, 1000, stream, interactive=True)
-    write_json(tmp_path / "a-000000000000.json", {"pulses": 300, "rejected": 2})
-    write_json(tmp_path / "a-000000000400.json", {"pulses": 200, "rejected": 0})
-    (tmp_path / "a-000000000800.json.tmp").write_text("{")  # being written: not counted
-    bar.poll()
-    bar.poll()  # each mark counts once
-    assert (bar.done, bar.rejected) == (500, 2)
-    line = bar.line()
-    assert "500/1,000 pulses  50%" in line and "rejected 2" in line and "ETA" in line
-
-
 def test_a_file_whose_parts_hold_no_point_is_assembled_with_no_min_or_max(tmp_path, leica_dir):
     """Every pulse of a file rejected: its parts are point clouds without points, and each Extra Bytes column,
     float or integer, has no value to bound (an integer one cannot say NaN: its min/max are marked irrelevant)."""

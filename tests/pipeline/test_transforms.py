@@ -12,7 +12,7 @@ from apache_beam.testing.util import assert_that, equal_to
 
 from fwcore.engine.config import DecompositionConfig
 from pipeline.faults import MachineFault, clear_faults, noted_faults
-from pipeline.layout import assemble_file, progress_mark, written_parts
+from pipeline.layout import progress_mark
 from pipeline.outputs import InputNames
 from pipeline.plan import InputToPlan, plan_input, plan_inputs as _plan_inputs, planned_pulses
 from pipeline.records import RangePart
@@ -22,31 +22,6 @@ from pipeline.transforms import RangeStages
 
 def plan_inputs(paths, config, points_per_range, limit=None):
     return _plan_inputs(paths, InputNames.of(paths), config, points_per_range, limit)
-
-
-def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
-    tasks, rejected = plan_inputs([str(leica_dir / "leica_a.las")], DecompositionConfig(), 400)
-    assert rejected == []
-    assert [(t.point_range.start, t.point_range.stop, t.point_range.n_pulses) for t in tasks] == \
-        [(0, 400, 342), (400, 800, 310), (800, 1125, 272)]  # 342 + 310 + 272 = 924
-    # --model auto gives the Leica sample echoes of its measured pulse, and the pulse width is that pulse's
-    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10337}
-    assert {t.source.system.model for t in tasks} == {"system"}
-    assert not tasks[0].source.adjusted_standard_gps_time  # the Leica sample stores GPS week time
-
-
-def test_plan_rejects_an_unreadable_file_with_its_reason(tmp_path, leica_dir):
-    bad = tmp_path / "broken.las"
-    bad.write_bytes(b"LASF" + bytes(50))
-    tasks, rejected = plan_inputs([str(bad), str(leica_dir / "leica_a.las")], DecompositionConfig(), 5000)
-    assert len(tasks) == 1 and tasks[0].source.name == "leica_a.las"
-    assert [(r.source_file, r.stage, r.pulse_id) for r in rejected] == [("broken.las", "open", -1)]
-    assert "not a readable" in rejected[0].reason
-
-
-def test_limit_caps_the_pulses_of_a_file(leica_dir):
-    tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], DecompositionConfig(), 400, limit=500)
-    assert [planned_pulses(t) for t in tasks] == [342, 158]
 
 
 def test_read_and_decompose_count_every_pulse(leica_dir):
@@ -127,25 +102,6 @@ def test_range_stages_write_a_failed_ranges_rejections_one_file_per_range(tmp_pa
     rows = [pq.read_table(f).to_pylist() for f in written]
     assert [[(r["source_file"], r["pulse_id"], r["stage"], r["reason"].split(":")[0]) for r in t] for t in rows] == \
         [[("gone.las", -1, "read", "points 0-600 (500 pulses)")], [("gone.las", -1, "read", "points 600-1125 (424 pulses)")]]
-
-
-def test_the_files_second_job_finds_the_written_ranges_parts_in_order(tmp_path, leica_dir):
-    """The ranges' job ends at the parts; written_parts lists them from parts/ for the files' job (assemble_file)."""
-    import laspy
-
-    config = DecompositionConfig(generations=3)
-    tasks, _ = plan_inputs([str(leica_dir / "leica_a.las")], config, 400)
-    out = str(tmp_path / "out")
-    with TestPipeline() as p:  # the middle range is not written: it must not be looked for
-        p | beam.Create([tasks[2], tasks[0]]) | beam.ParDo(RangeStages(_settings(out, config)))
-    files = written_parts(out, tasks, frozenset({"parquet", "las"}))
-    assert [(stem, [(r.range_start, Path(r.las).name, r.mcap) for r in parts]) for stem, parts in files] == \
-        [("leica_a", [(0, "leica_a-000000000000.las", ""), (800, "leica_a-000000000800.las", "")])]
-    points = [laspy.read(r.las).header.point_count for r in files[0][1]]
-    assert assemble_file(files[0], out, False) == "leica_a"
-    assembled = laspy.read(tmp_path / "out" / "las" / "leica_a.las")
-    assert points[0] > 0 and assembled.header.point_count == sum(points)
-    assert not list((tmp_path / "out" / "parts").glob("*.las"))  # the parts are removed once in the file
 
 
 def test_a_full_disk_at_a_ranges_mark_ends_it_unmarked_noted_and_the_workers_next_ranges_untried(tmp_path, leica_dir,

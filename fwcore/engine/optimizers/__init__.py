@@ -19,7 +19,7 @@ from fwcore._jit import JIT
 from fwcore.engine.config import (LOCAL_LBFGS, LOCAL_NONE, MSG_CONVERGED, MSG_MAX_GENERATIONS, MSG_MAX_ITERATIONS,
                            MSG_NO_ECHOES, MSG_NOT_OPTIMIZED, OPT_DE, OPT_GA, OPT_GOLD, OPT_MDE, OPT_PSO)
 from fwcore.engine.optimizers.deconvolution import deconvolution_echoes, fit_amplitudes
-from fwcore.engine.optimizers.evolution import evolve, init_population
+from fwcore.engine.optimizers.evolution import INIT_SPREAD, evolve, init_population
 from fwcore.engine.optimizers.ga import evolve_ga
 from fwcore.engine.optimizers.ga_iterative import ga_iterative
 from fwcore.engine.optimizers.local import lbfgs, levenberg_marquardt, squared_error
@@ -46,7 +46,7 @@ def _population_search(p, shape, method, start, lower, upper, n_echoes, fit_samp
     weight[:n] = valid
     model = np.empty(n_pad, dtype=np.float32)
     pop = np.empty((p.population, start.size))
-    init_population(start, lower, upper, p.init_spread, state, pop)
+    init_population(start, lower, upper, INIT_SPREAD, state, pop)
     fitness = np.empty(p.population)
     for i in range(p.population):
         fitness[i] = fit_error(pop[i], n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)

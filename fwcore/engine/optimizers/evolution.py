@@ -16,6 +16,10 @@ from fwcore._jit import JIT, JIT_INLINE
 from fwcore.engine.optimizers.objective import fit_error
 from fwcore.rng import randint, uniform
 
+# Plain DE's fixed scale factor F (the method's Eq. 4), and the half size of the box around the initial estimate
+# that seeds a population, as a fraction of each parameter's bound range: constants, as no one changed them.
+DE_SCALE_FACTOR = 0.5
+INIT_SPREAD = 0.25
 _LOGISTIC_MU = 4.0
 
 @njit(**JIT)
@@ -172,7 +176,7 @@ def evolve(pop, fitness, lower, upper, p, chaotic, fitness_atol, state, n_echoes
                         mutant[:] = candidate
             else:
                 _distinct_partners(state, np_, i, 3, partners)
-                mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], p.de_scale_factor, lower, upper, mutant)
+                mutate_de(pop[partners[0]], pop[partners[1]], pop[partners[2]], DE_SCALE_FACTOR, lower, upper, mutant)
             binomial_crossover(pop[i], mutant, p.crossover_rate, state, trial)
             err = fit_error(trial, n_echoes, tpos, target, weight, p.alpha_fixed, shape, eps, model)
             nfev += 1

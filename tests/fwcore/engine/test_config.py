@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from fwcore.engine.config import (LOCAL_NONE, MEASURED_KERNEL_VALUES, OPTIMIZERS, DecompositionConfig, KernelParams, Model,
-                           Optimizer)
+from fwcore.engine.config import (LOCAL_NONE, MEASURED_KERNEL_VALUES, OPTIMIZERS, PRESETS, DecompositionConfig,
+                                  KernelParams, Model, Optimizer)
 
 DEFAULT = DecompositionConfig()
 FIELDS = dataclasses.fields(DecompositionConfig)
@@ -125,3 +125,25 @@ def test_the_file_decides_the_model_under_auto():
     assert auto.kernel_params(Model.SYSTEM, 0.0).alpha_fixed and not auto.kernel_params(Model.AUTO, 0.0).alpha_fixed
     with pytest.raises(TypeError):
         auto.kernel_params(Model.AUTO, shape_tolerence=0.1)
+
+
+def test_a_preset_is_one_entry_its_method_and_what_it_says_of_the_pulse():
+    paper, fast = PRESETS["paper"], PRESETS["fast"]
+    assert set(PRESETS) == {"paper", "fast"}
+    published = paper.config()
+    assert (published.optimizer, published.model, published.generations, published.tol, published.atol) == (
+        Optimizer.MDE, Model.GENERALIZED, 80, 0.0, 0.0)
+    assert not published.select_echoes and not published.raw_polish and published.min_amplitude_ratio == 0.2
+    assert paper.overrides == {"shape_tolerance": 0.0}  # the paper's constant noise: its model taken as exact
+    assert fast.config().optimizer is Optimizer.LM and fast.config().lm_iterations == 20 and fast.overrides == {}
+    # what a preset changes is what it names (the paper's atol 0 is the default's too: named, as G is fixed)
+    for preset in PRESETS.values():
+        assert preset.config().changes().items() <= preset.settings.items()
+    assert set(paper.settings) - set(published.changes()) == {"atol"}
+
+
+def test_an_earlier_run_s_retired_settings_read_at_their_one_value_and_no_other():
+    earlier = {**DEFAULT.to_dict(), "de_scale_factor": 0.5, "init_spread": 0.25}
+    assert DecompositionConfig.from_dict(earlier) == DEFAULT
+    with pytest.raises(ValueError, match="unknown decomposition settings \\['init_spread'\\]"):
+        DecompositionConfig.from_dict({**earlier, "init_spread": 0.5})

@@ -5,8 +5,7 @@ import json
 import pytest
 
 from fwcore.engine.config import Model
-from fwcore.instrument.pulse import (DEFAULT_PULSE_FWHM_PS, PRESET_OVERRIDES, PulseOverrides, SystemPulse,
-                                     nominal_pulse)
+from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse, nominal_pulse
 from fwcore.instrument.response import gaussian_response
 
 
@@ -46,5 +45,5 @@ def test_overrides_are_checked_and_replace_what_was_measured():
 
 
 def test_the_paper_preset_takes_its_model_as_exact():
-    assert PRESET_OVERRIDES["paper"] == PulseOverrides(shape_tolerance=0.0)
-    assert set(PRESET_OVERRIDES) == {"paper"}
+    assert PulseOverrides.of_preset("paper") == PulseOverrides(shape_tolerance=0.0)
+    assert PulseOverrides.of_preset("fast") == PulseOverrides() == PulseOverrides.of_preset(None)

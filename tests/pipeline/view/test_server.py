@@ -1,4 +1,4 @@
-"""The JSON endpoints the page calls, against the run's own Parquet tables, without a browser."""
+"""fwl view's server: the JSON endpoints the page calls, against the run's own Parquet tables, without a browser."""
 
 import http.client
 import json
@@ -124,8 +124,8 @@ def test_try_refits_with_another_method_side_by_side(viewed):
     paper = viewed.post("/api/try", {**body, "changes": {}})
     # the run was `fast` (LM, 20 iterations): paper is MDE at G 80 with the method's noise, filter and no selection;
     # the model stays the run's (a preset changes the method only)
-    from fwcore.engine.config import PRESETS, DecompositionConfig
-    fast, published = DecompositionConfig(**PRESETS["fast"]).to_dict(), DecompositionConfig(**PRESETS["paper"]).to_dict()
+    from fwcore.engine.config import PRESETS
+    fast, published = PRESETS["fast"].config().to_dict(), PRESETS["paper"].config().to_dict()
     expected = {k: v for k, v in published.items() if fast[k] != v and k not in ("shape_tolerance", "model")}
     assert {k: v for k, v in paper["changed"].items() if k != "shape_tolerance"} == expected
     assert expected["optimizer"] == "mde" and expected["generations"] == 80 and not expected["select_echoes"]
