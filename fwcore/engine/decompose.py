@@ -25,9 +25,9 @@ from fwcore.engine.bounds import parameter_bounds
 from fwcore.engine.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
 from fwcore.engine.filter import mark_spurious
 from fwcore.instrument.pulse import SystemPulse
-from fwcore.instrument.shape import EchoShape, analytic_shape, echo_shape
-from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, echo_positions_of, fwhm,
-                                 individual_model, tabulated_areas)
+from fwcore.instrument.shape import echo_shape
+from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, EchoShape, analytic_shape, echo_energy, echo_positions_of,
+                                 fwhm, individual_model, tabulated_areas)
 from fwcore.engine.optimizers import find_own_echoes, run_optimizer
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.engine.preprocess import initial_estimate

@@ -16,8 +16,7 @@ from numba import njit
 from fwcore._jit import JIT, JIT_INLINE
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
-from fwcore.instrument.shape import analytic_shape
-from fwcore.engine.model import add_table_echo, table_peak_offset
+from fwcore.engine.model import add_table_echo, analytic_shape, table_peak_offset
 
 _SQRT_2LN2 = math.sqrt(2.0 * math.log(2.0))
 MIN_SIGMA = 0.5  # samples: narrower than this is below what a sampled echo can show
@@ -652,7 +651,7 @@ def initial_echoes(samples, smoothing_sigma: float, fallback_sigma: float, valid
     """The progressive estimate the engine starts from: smooth, measure noise, then peel echoes off
     one by one while the largest remaining peak rises more than noise_threshold x its sample's noise
     above the background (the smoothed minimum), each peeled off in `shape`'s form
-    (fwcore.instrument.shape.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig
+    (fwcore.engine.model.EchoShape; None: a Gaussian). The settings are checked as DecompositionConfig
     checks them."""
     samples, valid = as_waveform(samples, valid)
     smoothed = np.empty_like(samples)

@@ -9,7 +9,8 @@ import pytest
 from fwcore.engine.model import tabulated_model, waveform_model
 from fwcore.engine.preprocess import estimate_noise, gaussian_smooth, initial_echoes
 from fwcore.instrument.response import named_response
-from fwcore.instrument.shape import analytic_shape, echo_shape
+from fwcore.engine.model import analytic_shape
+from fwcore.instrument.shape import echo_shape
 from tests.fwcore import naive
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
