@@ -7,8 +7,8 @@ any lengths, under the method's settings (`config`) and their file's system
 pulse (fwcore.instrument.pulse.SystemPulse), in chunks on a pool of threads (the
 kernels release the GIL), each waveform with its own random stream, so a
 waveform's result does not depend on its batch or the thread count.
-`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.engine.preprocess, .bounds, .optimizers,
-.selection, .filter); this module only wires them.
+`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module
+(fwcore.engine.estimate over .smoothing, .bounds, .optimizers, .selection, .filter); this module only wires them.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, EchoShape, analytic
                                  fwhm, individual_model, tabulated_areas)
 from fwcore.engine.optimizers import find_own_echoes, run_optimizer
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.engine.preprocess import initial_estimate
+from fwcore.engine.estimate import initial_estimate
 from fwcore.engine.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
 from fwcore.engine.noise_model import add_shot_noise, noise_variance

@@ -26,7 +26,7 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
-from fwcore.engine.preprocess import noise_and_background
+from fwcore.engine.smoothing import noise_and_background
 from fwcore.instrument.peak import half_height_width, isolated_lobe, local_maxima, parabola_height, parabola_vertex
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
 from fwcore.instrument.response import SystemResponse
