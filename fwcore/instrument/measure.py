@@ -33,7 +33,7 @@ from fwcore.instrument.response import SystemResponse
 from fwcore.instrument.width import csv_pulse_fwhm_ps, estimate_pulse_fwhm, recorded_pulse_fwhm_ps
 from fwcore.io import PointRange, input_summary, read_pulses
 from fwcore.io.formats import NEON_CSV, format_of
-from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, CsvWaveforms, read_neon_csv
+from fwcore.io.neon import NEON_SAMPLE_SPACING_PS, CsvWaveforms
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import pulse_waveforms
 from fwcore.engine.records import WaveformBatch
@@ -267,7 +267,7 @@ def measure_input_response(path: str | Path) -> SystemResponse | None:
     """The response `fwl run --model system` measures on an input (LAS/LAZ, PulseWaves: its first records'
     single returns, else isolated echoes) or on a NEON-layout CSV's isolated echoes; None where too few qualify."""
     if format_of(path) is NEON_CSV:
-        waveforms = read_neon_csv(path)
+        waveforms = NEON_CSV.open(path)
         return csv_response(waveforms.samples, waveforms.valid, NEON_SAMPLE_SPACING_PS)
     count = input_summary(path).records
     return file_response(read_pulses(PointRange(str(path), 0, min(count, HEAD_PULSES)))) if count else None
@@ -421,9 +421,9 @@ def read_csv_input(path: str | Path, config: DecompositionConfig, overrides: Pul
                    limit: int | None = None) -> CsvInput:
     """The one NEON CSV path of `fwl decompose-csv` and `fwl compare`: the waveforms read, their pulse measured on
     all of them (csv_system_pulse, with `outgoing`'s pulses), the first `limit` seeded by their ids."""
-    waveforms = read_neon_csv(path)  # a file of another kind is named as such first
+    waveforms = NEON_CSV.open(path)  # a file of another kind is named as such first
     pulse = csv_system_pulse(waveforms.samples, waveforms.valid, spacing_ps, config, overrides,
-                             read_neon_csv(outgoing) if outgoing else None)
+                             NEON_CSV.open(outgoing) if outgoing else None)
     n = len(waveforms.waveform_id) if limit is None else min(limit, len(waveforms.waveform_id))
     batch = WaveformBatch.from_waveforms(waveforms.samples[:n], spacing_ps,
                                          [pulse_seed(config.seed, int(i)) for i in waveforms.waveform_id[:n]],
