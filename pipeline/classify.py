@@ -31,7 +31,7 @@ from fwcore.terrain.classes import asprs_classes
 from fwcore.terrain.ground import GroundConfig
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, Tile, tile_terrain, tiles_over
 from pipeline.classes_las import classify_point_clouds
-from pipeline.grid import BATCH_ROWS, _bounds, echo_files
+from pipeline.echo_table import BATCH_ROWS, echo_bounds, echo_files
 from pipeline.outputs import read_run
 from pipeline.tables import COLUMNS
 
@@ -108,7 +108,7 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
     run_dir = Path(run_dir)
     read_run(run_dir)  # a folder that is not a finished run is refused here
     files = echo_files(run_dir)
-    bounds = _bounds(files)
+    bounds = echo_bounds(files)
     if bounds is None:
         raise ValueError(f"{run_dir}: the run kept no echo with coordinates: nothing to classify")
     grid = Grid.covering(*bounds, DEFAULT_CELL_M)

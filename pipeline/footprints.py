@@ -22,7 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
-from pipeline.grid import _batches, _bounds, echo_files, run_crs_wkt
+from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.outputs import read_run
 
 FOOTPRINTS_FILE = "footprints.parquet"
@@ -75,7 +75,7 @@ def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str 
     run_dir = Path(run_dir)
     read_run(run_dir)
     files = echo_files(run_dir)
-    bounds = _bounds(files)
+    bounds = echo_bounds(files)
     if bounds is None:
         raise ValueError(f"{run_dir}: the run kept no echo with coordinates")
     wkt = pyproj.CRS.from_user_input(crs).to_wkt() if crs else run_crs_wkt(files)
@@ -119,7 +119,7 @@ def _measure(files: list[Path], cx: np.ndarray, cy: np.ndarray, sensor: Footprin
             continue
         tree = cKDTree(np.column_stack([cx[members], cy[members]]))
         parts: list[list[np.ndarray]] = [[] for _ in members]
-        for b in _batches(files, ["x", "y", "z", "energy"]):
+        for b in kept_batches(files, ["x", "y", "z", "energy"]):
             near = (b["y"] >= low - reach) & (b["y"] < low + band + reach)
             if not near.any():
                 continue

@@ -31,7 +31,7 @@ from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
 from fwcore.terrain.profile import cover_and_pai, plant_area_density, relative_heights
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tiles_over
-from pipeline.grid import _batches
+from pipeline.echo_table import kept_batches
 
 SPILL_DIR = ".forest-maps"
 ROWS_AT_ONCE = 100_000
@@ -62,7 +62,7 @@ def tiled_dtm(files: list[Path], grid: Grid, run_dir: Path, tile: float = DEFAUL
     dtm = np.full((grid.height, grid.width), np.nan)
     writers: dict[int, pq.ParquetWriter] = {}
     try:
-        for b in _batches(files, ["x", "y", "z", "classification"]):
+        for b in kept_batches(files, ["x", "y", "z", "classification"]):
             g = b["classification"] == GROUND
             x, y, z = b["x"][g], b["y"][g], b["z"][g]
             if not x.size:
@@ -102,7 +102,7 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     dsm, chm = np.full(cells, -np.inf), np.full(cells, -np.inf)
     seen = np.zeros(cells, bool)
     rv, rg = np.zeros(cells), np.zeros(cells)
-    tallest = max((float(np.nanmax(b["height"])) for b in _batches(files, ["x", "y", "height"])
+    tallest = max((float(np.nanmax(b["height"])) for b in kept_batches(files, ["x", "y", "height"])
                    if np.isfinite(b["height"]).any()), default=0.0)
     bins = int(math.ceil(min(max(tallest, 0.0), PROFILE_TOP_M) / bin_height)) + 2  # the tallest echo's, and the ground's
     bottom = -bin_height  # one bin below the terrain: the ground's own energy
@@ -110,7 +110,7 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     canopy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # the vegetation's, for PAVD
     energy.sums, canopy.sums = energy.sums.astype(np.float32), canopy.sums.astype(np.float32)  # half the memory
     system_fwhm = run_system_fwhm_ps(run_dir)
-    for b in _batches(files, ["x", "y", "z", "classification", "height", "energy", "fwhm_ps"]):
+    for b in kept_batches(files, ["x", "y", "z", "classification", "height", "energy", "fwhm_ps"]):
         cell = grid.index(b["x"], b["y"])
         inside = cell >= 0
         c = cell[inside]

@@ -23,82 +23,20 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
-import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
-from pipeline.layout import COPC, ECHOES, GRID_DIR, GRID_MARK, LOCK
+from pipeline.layout import COPC, GRID_DIR, GRID_MARK, LOCK
+from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.outputs import OutputFolderError, read_run
 from pipeline.pulse_maps import large_footprint_run, shot_metric_maps
-from pipeline.tables import COLUMNS, GEO_METADATA_KEY
+from pipeline.tables import COLUMNS
 
 MARK = GRID_MARK
-BATCH_ROWS = 1_000_000
 DEFAULT_BIN_HEIGHT_M = 1.0
 BLOCK = 256  # COG tiles, pixels a side
 VPC_FILE = "survey.vpc"
-
-
-def echo_files(run_dir: Path) -> list[Path]:
-    """The run's echo table: its Parquet files under echoes/ (parts or tiles)."""
-    files = sorted((run_dir / ECHOES).rglob("*.parquet"))
-    if not files:
-        raise ValueError(f"{run_dir}: the run has no echo table (echoes/*.parquet): run it with --formats parquet")
-    return files
-
-
-def run_crs_wkt(files: list[Path]) -> str | None:
-    """The run's CRS as WKT, from its echo table's GeoParquet metadata (pipeline.tables.file_crs_projjson,
-    written from each input's CRS); None where no input names one. Inputs in different CRSs cannot share a map."""
-    import pyproj
-
-    found = set()
-    for f in files:
-        geo = (pq.read_schema(f).metadata or {}).get(GEO_METADATA_KEY)
-        crs = json.loads(geo)["columns"]["geometry"].get("crs") if geo else None
-        if crs:
-            found.add(pyproj.CRS.from_json_dict(crs).to_wkt())
-    if len(found) > 1:
-        raise ValueError(f"{files[0].parent.parent}: its inputs are in {len(found)} different CRSs; grid one at a time")
-    return found.pop() if found else None
-
-
-def _bounds(files: list[Path]) -> tuple[float, float, float, float] | None:
-    """The echoes' x, y bounds from the row groups' statistics (no rows read); None without echoes."""
-    low, high = [math.inf, math.inf], [-math.inf, -math.inf]
-    for f in files:
-        meta = pq.ParquetFile(f).metadata
-        names = [meta.schema.column(i).name for i in range(meta.num_columns)]
-        for g in range(meta.num_row_groups):
-            for axis, name in enumerate(("x", "y")):
-                stats = meta.row_group(g).column(names.index(name)).statistics
-                if stats is None or not stats.has_min_max:
-                    return _bounds_read(files)
-                low[axis], high[axis] = min(low[axis], stats.min), max(high[axis], stats.max)
-    return None if not math.isfinite(low[0]) else (low[0], low[1], high[0], high[1])
-
-
-def _bounds_read(files: list[Path]) -> tuple[float, float, float, float] | None:
-    low, high = [math.inf, math.inf], [-math.inf, -math.inf]
-    for batch in _batches(files, ["x", "y"]):
-        for axis, name in enumerate(("x", "y")):
-            low[axis] = min(low[axis], float(np.min(batch[name])))
-            high[axis] = max(high[axis], float(np.max(batch[name])))
-    return None if not math.isfinite(low[0]) else (low[0], low[1], high[0], high[1])
-
-
-def _batches(files: list[Path], columns: list[str]) -> Iterator[dict[str, np.ndarray]]:
-    """The kept echoes' columns with coordinates, a record batch at a time (nulls as NaN)."""
-    for f in files:
-        for batch in pq.ParquetFile(f).iter_batches(batch_size=BATCH_ROWS, columns=[*columns, "kept"]):
-            placed = pc.and_(pc.is_finite(batch.column("x")), pc.is_finite(batch.column("y")))
-            keep = pc.and_(batch.column("kept"), placed)
-            kept = batch.filter(pc.fill_null(keep, False))  # null coordinates: not placed, not mapped
-            if kept.num_rows:
-                yield {c: kept.column(c).to_numpy(zero_copy_only=False) for c in columns}
 
 
 def claim_output(output: Path) -> None:
@@ -142,7 +80,7 @@ def _write_cog(path: Path, bands: list[np.ndarray], grid: Grid, crs: str | None,
 
 def _statistics(files: list[Path], grid: Grid) -> CellStatistics:
     stats = CellStatistics(grid, ("reflectance", "amplitude"))
-    for b in _batches(files, ["x", "y", "z", "amplitude", "reflectance"]):
+    for b in kept_batches(files, ["x", "y", "z", "amplitude", "reflectance"]):
         stats.add(b["x"], b["y"], b["z"], amplitude=b["amplitude"], reflectance=b["reflectance"])
     return stats
 
@@ -150,7 +88,7 @@ def _statistics(files: list[Path], grid: Grid) -> CellStatistics:
 def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: float) -> HeightProfile:
     highest, lowest = stats.heights()
     profile = HeightProfile(grid, lowest, bin_height, HeightProfile.bins_for(highest, lowest, bin_height))
-    for b in _batches(files, ["x", "y", "z", "energy"]):
+    for b in kept_batches(files, ["x", "y", "z", "energy"]):
         profile.add(b["x"], b["y"], b["z"], b["energy"])
     return profile
 
@@ -168,7 +106,7 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
     read_run(run_dir)  # a folder that is not a finished run is refused here
     files = echo_files(run_dir)
     wkt = pyproj.CRS.from_user_input(crs).to_wkt() if crs else run_crs_wkt(files)
-    bounds = _bounds(files)
+    bounds = echo_bounds(files)
     if bounds is None:
         raise ValueError(f"{run_dir}: the run kept no echo with coordinates: nothing to map")
     grid = Grid.covering(*bounds, cell)

@@ -22,7 +22,7 @@ from fwcore.engine.config import DecompositionConfig
 from fwcore.instrument.measure import file_system_pulse
 from fwcore.instrument.pulse import PulseOverrides
 from fwcore.io import input_summary, open_input, plan_point_ranges
-from fwcore.io.crs import input_crs
+from fwcore.io.formats import input_crs
 from fwcore.io.records import PointRange
 from pipeline.faults import READING, machine_fault
 from pipeline.layout import plan_path

@@ -30,7 +30,7 @@ class InputFile:
     stem: str  # unique among the run's inputs: names its part files and per-file outputs
     system: SystemPulse  # what the plan measured of the file's system pulse (fwcore.instrument.measure)
     adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
-    crs_wkt: str | None = None  # the CRS every output writes (fwcore.io.crs.input_crs: --crs, else the file's)
+    crs_wkt: str | None = None  # the CRS every output writes (fwcore.io.formats.input_crs: --crs, else the file's)
     crs_source: str = ""  # where it came from
     crs_named: bool = False  # an EPSG code, a WKT record or --crs; not only a unit, nor nothing
     # the forest metrics' settings (fwcore.metrics.waveform.MetricSettings fields) where the file's products give

@@ -340,7 +340,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
                  crs_wkt: str | None = None, metrics=None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
     `ok`, with their forest metrics (fwcore.metrics) where given; the geometry's CRS is `crs_wkt` (the run's,
-    fwcore.io.crs.input_crs), else the input file's."""
+    fwcore.io.formats.input_crs), else the input file's."""
     from fwcore.engine.model import sigma_to_time_unit
 
     owner = result.echo_waveform

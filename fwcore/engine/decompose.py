@@ -7,8 +7,8 @@ any lengths, under the method's settings (`config`) and their file's system
 pulse (fwcore.instrument.pulse.SystemPulse), in chunks on a pool of threads (the
 kernels release the GIL), each waveform with its own random stream, so a
 waveform's result does not depend on its batch or the thread count.
-`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module (fwcore.engine.preprocess, .bounds, .optimizers,
-.selection, .filter); this module only wires them.
+`decompose_waveform` is the same for one waveform. Each step is a kernel of its own module
+(fwcore.engine.estimate over .smoothing, .bounds, .optimizers, .selection, .filter); this module only wires them.
 """
 
 from __future__ import annotations
@@ -22,15 +22,15 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.engine.bounds import parameter_bounds
-from fwcore.engine.config import OPT_NONE, OPTIMIZERS, DecompositionConfig, Model, Optimizer
+from fwcore.engine.config import LOCAL_NONE, OPT_NONE, DecompositionConfig, Model, Optimizer
 from fwcore.engine.filter import mark_spurious
 from fwcore.instrument.pulse import SystemPulse
-from fwcore.instrument.shape import EchoShape, analytic_shape, echo_shape
-from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_energy, echo_positions_of, fwhm,
-                                 individual_model, tabulated_areas)
+from fwcore.instrument.shape import echo_shape
+from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, EchoShape, analytic_shape, echo_energy, echo_positions_of,
+                                 fwhm, individual_model, tabulated_areas)
 from fwcore.engine.optimizers import find_own_echoes, run_optimizer
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.engine.preprocess import initial_estimate
+from fwcore.engine.estimate import initial_estimate
 from fwcore.engine.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
 from fwcore.engine.noise_model import add_shot_noise, noise_variance
@@ -151,7 +151,7 @@ def _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, 
 
 
 @njit(**JIT)
-def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, shape, local, out, echoes):
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, shape, out, echoes):
     """One waveform end to end into its result record `out` and echo records `echoes`."""
     n = samples.size
     first, last = _valid_span(valid)
@@ -194,7 +194,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
     dropped = 0
     added = 0
     if p.select_echoes and p.method != OPT_NONE and not p.own_echoes:
-        if not local:  # a population's best is not at the least-squares optimum the refits compare with
+        if p.local == LOCAL_NONE:  # a population's best is not at the least-squares optimum the refits compare with
             _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
                                              p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
                                              p.lm_predicted_stop)
@@ -228,14 +228,14 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
 
 @njit(**JIT)
 def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, noise_floor, seeds, p, shape,
-                     local, out, echoes, first, stop):
+                     out, echoes, first, stop):
     """Waveforms first..stop-1 of the batch (those of status 0), each into its own records."""
     for w in range(first, stop):
         if status[w] != 0:
             continue
         lo, hi = offsets[w], offsets[w + 1]
         _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], noise_floor[w], seeds[w], p,
-                       shape, local, out[w], echoes[w])
+                       shape, out[w], echoes[w])
 
 
 # ---------------------------------------------------------------- Python API
@@ -306,7 +306,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
                        smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
                        pulse_sigma_samples(pulse, batch.sample_spacing_ps), noise_floor, batch.seeds, params,
-                       shape, OPTIMIZERS[config.optimizer].local, out, echoes)
+                       shape, out, echoes)
         _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]
     echo_offsets = np.zeros(n + 1, dtype=np.int64)

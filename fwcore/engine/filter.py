@@ -1,4 +1,4 @@
-"""The filter of spurious echoes (the method's section 1.2).
+"""The filter of spurious echoes (the method's section 1.2), applied after the fit.
 
 Spurious echoes stay in the results with their reason: fit accuracy is
 computed with every echo, point clouds use the kept ones.
@@ -13,6 +13,7 @@ from fwcore._jit import JIT
 from fwcore.engine.config import DecompositionConfig
 
 KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE = range(6)
+_ENGINE = DecompositionConfig()  # filter_echoes's defaults are the engine's own settings
 REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide")
 
 
@@ -61,11 +62,14 @@ def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise_sig
 
 
 def filter_echoes(amplitude, position, width, first: float, last: float, pulse_fwhm: float,
-                  noise_sigma: float = 0.0, min_snr: float = 0.0, min_amplitude_ratio: float = 0.2,
-                  min_separation_factor: float = 1.0, min_width_factor: float = 1.0,
-                  max_width_factor: float = 3.0, first_echo_ratio: float = 1.0) -> np.ndarray:
-    """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position; the settings are checked as
-    DecompositionConfig checks them."""
+                  noise_sigma: float = 0.0, min_snr: float = _ENGINE.min_snr,
+                  min_amplitude_ratio: float = _ENGINE.min_amplitude_ratio,
+                  min_separation_factor: float = _ENGINE.min_separation_factor,
+                  min_width_factor: float = _ENGINE.min_width_factor,
+                  max_width_factor: float = _ENGINE.max_width_factor,
+                  first_echo_ratio: float = _ENGINE.first_echo_ratio) -> np.ndarray:
+    """Reason codes (0 = kept, see REJECT_REASONS) for echoes sorted by position, with the engine's filter (its
+    defaults are DecompositionConfig's); the settings are checked as DecompositionConfig checks them."""
     amplitude = np.ascontiguousarray(amplitude, dtype=np.float64)
     position = np.ascontiguousarray(position, dtype=np.float64)
     if np.any(np.diff(position) < 0):

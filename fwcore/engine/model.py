@@ -14,11 +14,16 @@ Inside the optimizer an echo's width is carried as `s`, the sigma of the
 ordinary Gaussian with the same FWHM: s and alpha then vary independently,
 whereas Chauve's sigma spans orders of magnitude as alpha moves at a fixed
 width. The functions below convert between the two.
+
+Under the `system` model an echo is instead a row of an `EchoShape`: the
+instrument's response broadened to the echo's width, tabulated
+(fwcore.instrument.shape builds it); the kernels evaluate either form here.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -30,6 +35,31 @@ LN2 = math.log(2.0)
 SQRT_2LN2 = math.sqrt(2.0 * LN2)  # half width at half maximum of a unit-sigma Gaussian
 # The layout of an individual: [b, (A, u, s, alpha) per echo], s the equal-FWHM Gaussian sigma.
 PARAMS_PER_ECHO = 4
+
+
+class EchoShape(NamedTuple):
+    """An echo model as the kernels see it. tabulated False: the generalized Gaussian (its parameters
+    alone define it; the arrays are empty). True: rows[w] is the response broadened to the w-th width,
+    peak 1, at times (j - origin) * step samples; slopes its time derivative per sample."""
+
+    tabulated: bool
+    rows: np.ndarray  # (widths, grid) float64
+    slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
+    areas: np.ndarray  # (widths,) integral of each row, samples
+    support: np.ndarray  # (widths, 2) int64: grid indices [first, last] above fwcore.instrument.shape.SUPPORT_LEVEL
+    peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
+    half_widths: np.ndarray  # (2,) row 0 from its peak to half height before and after it, samples
+    step: float  # samples per grid point
+    origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
+    s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
+    s_step: float  # between rows
+
+
+def analytic_shape() -> EchoShape:
+    """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
+    empty = np.zeros((1, 2))
+    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
+                     0.0, 0.0, 1.0)
 
 
 @njit(**JIT_INLINE)
@@ -69,7 +99,7 @@ def bilinear(table, w, a, j, b):
 
 @njit(**JIT_INLINE)
 def table_value(shape, amplitude, position, s, t):
-    """One echo of the system response's shape (fwcore.instrument.shape.EchoShape) at time t: A row(s)(t - u)."""
+    """One echo of the system response's shape (EchoShape) at time t: A row(s)(t - u)."""
     w, a = table_row(shape, s)
     j, b = grid_column(t - position, shape.step, shape.origin, shape.rows.shape[1])
     if j < 0:
@@ -198,7 +228,7 @@ def tabulated_row(shape, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def tabulated_model(t, background, amplitude, position, s, shape) -> np.ndarray:
-    """The NumPy twin of individual_model for echoes of a tabulated response (fwcore.instrument.shape.EchoShape):
+    """The NumPy twin of individual_model for echoes of a tabulated response (EchoShape):
     background plus A row(s)(t - u), interpolated between rows and grid points."""
     t = np.asarray(t, dtype=float)
     y = np.full(t.shape, float(background))

@@ -1,6 +1,6 @@
 """The noise model of a sample: sigma**2 + g s + (shape_tolerance s)**2 for signal s above background.
 
-sigma is the white noise of the digitizer (fwcore.engine.preprocess), the shape tolerance
+sigma is the white noise of the digitizer (fwcore.engine.smoothing), the shape tolerance
 how far the system's pulse departs from the model (fwcore.instrument.measure), and g the
 Poisson-like shot noise, fitted per waveform to the residual of a fit. The
 optimizers' gate, the LM weights and the selection's BIC all read it.

@@ -11,8 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from fwcore.engine.filter import REJECT_REASONS
-from fwcore.instrument.shape import EchoShape
-from fwcore.engine.model import generalized_gaussian, tabulated_model, waveform_model
+from fwcore.engine.model import EchoShape, generalized_gaussian, tabulated_model, waveform_model
 
 STATUS_OK, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE = 0, 1, 2
 STATUS_REASONS = ("", "no_valid_samples", "non_finite_samples")

@@ -24,7 +24,7 @@ from fwcore.engine.filter import KEPT, mark_spurious
 from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model,
                                  table_peak_offset)
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
-from fwcore.engine.preprocess import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
+from fwcore.engine.smoothing import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
 
 
 

@@ -1,17 +1,13 @@
-"""The instrument's response: what one return from a point target looks like in its digitizer, measured once per
-source.
+"""The instrument's response: what one return from a point target looks like in its digitizer, as data.
 
 A `SystemResponse` is the emitted pulse through the receiver, with whatever
 the receiver adds (Leica's slow rise, tail and undershoot; RIEGL's afterpulse
-10 ns behind the peak). It is measured from
-
-- the system's single returns (a LAS file's points with one return) or, where
-  a file records none, its strongest isolated echoes: aligned at sub-sample
-  precision on their peak, binned finely (the waveforms' random sub-sample
-  phases sample the pulse between the digitizer's samples) and averaged by
-  median;
-- a recorded impulse response or outgoing pulse (NEON's `system_impulse.csv`);
-- nothing: the Gaussian of a given FWHM, said so.
+10 ns behind the peak), and where it came from. This module holds it, saves
+and loads it (`to_dict` / `from_dict`, JSON, a recorded impulse response's
+CSV such as NEON's `system_impulse.csv`), names the shipped ones and makes
+the Gaussian of a given FWHM (where nothing measured the instrument).
+Measuring it on a file's strong single returns runs the engine's noise
+estimate and lives a floor above, in fwcore.instrument.measure.
 
 Its time 0 is its peak. fwcore.instrument.shape turns it into the kernels' echo table.
 """
@@ -22,20 +18,14 @@ import csv
 import dataclasses
 import json
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from fwcore.instrument.peak import half_height_width, isolated_lobe, local_maxima, parabola_height, parabola_vertex
 from fwcore.engine.model import SQRT_2LN2
-from fwcore.engine.preprocess import noise_and_background
+from fwcore.instrument.peak import half_height_width, parabola_height, parabola_vertex
 
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
-BINS_PER_SAMPLE = 4  # the measured response's resolution: a quarter of the digitizer's sample
-MIN_SNR = 30.0  # a return this far above the noise shows the response's tail and afterpulse
-OUTSIDE_FRACTION = 0.15  # of the peak: a sample outside the return's lobe above this is another return
-MIN_PULSES = 20  # fewer strong single returns than this measure nothing
-RESPONSE_PULSES = 3000  # candidates for the response: a few hundred strong single returns among them
 CSV_SPACING_PS = 1000.0  # a response CSV's samples: 1 ns apart, as in NEON's system_impulse.csv
 
 
@@ -168,128 +158,3 @@ def load_response(path: str | Path, spacing_ps: float = CSV_SPACING_PS) -> Syste
         return response_from_samples(y, spacing_ps, path.name)
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
-
-
-# ---------------------------------------------------------------- measured on returns
-
-@dataclasses.dataclass(frozen=True)
-class _Return:
-    signal: np.ndarray  # samples minus background
-    peak_time: float  # samples, sub-sample
-    height: float
-    fwhm: float  # samples
-
-
-def _strong_single_return(samples: np.ndarray, noise: float, background: float) -> _Return | None:
-    """The waveform as one strong return, or None: SNR >= MIN_SNR, not clipped, one local maximum in its main
-    lobe (lightly smoothed), nothing above OUTSIDE_FRACTION of the peak outside it, and its lobe clear of the
-    edges (fwcore.instrument.peak.isolated_lobe)."""
-    v = samples - background
-    peak = int(np.argmax(v))
-    if peak < 2 or peak > v.size - 3:
-        return None
-    if v[peak - 1] == v[peak] or v[peak + 1] == v[peak]:
-        return None  # a flat top: the digitizer clipped it
-    lobe = isolated_lobe(v, peak, MIN_SNR * noise, OUTSIDE_FRACTION)
-    if lobe is None:
-        return None
-    lo, hi = lobe
-    if local_maxima(np.convolve(v[lo:hi + 1], [0.25, 0.5, 0.25], mode="same")) > 1:
-        return None  # a shoulder: two returns in one lobe
-    shift = parabola_vertex(v, peak)
-    h = parabola_height(v, peak, shift)
-    return _Return(v, peak + shift, h, half_height_width(np.arange(v.size, dtype=float), v))
-
-
-def measure_response(waveforms: Sequence[np.ndarray], spacing_ps: float, source: str,
-                     noise: Sequence[float], background: Sequence[float],
-                     min_pulses: int = MIN_PULSES) -> SystemResponse:
-    """The response from returns a target did not shape much: the strong single returns among `waveforms`
-    (with each one's noise sigma and background), the narrower half of them by FWHM (a target only ever
-    widens a return), aligned on their sub-sample peaks and normalised to it, binned at a quarter sample
-    and averaged by median per bin. Raises when fewer than `min_pulses` qualify."""
-    returns = [r for y, s, b in zip(waveforms, noise, background)
-               if len(y) >= 12 for r in [_strong_single_return(np.asarray(y, float), s, b)] if r is not None]
-    if len(returns) < min_pulses:
-        raise ValueError(f"only {len(returns)} strong single returns (need {min_pulses}) to measure the "
-                         "system response")
-    widths = np.array([r.fwhm for r in returns])
-    narrow = [r for r in returns if r.fwhm <= np.median(widths)]
-    width = float(np.median([r.fwhm for r in narrow]))
-    before, after = 2.5 * width, 6.0 * width  # the tail, undershoot and afterpulse lie behind the peak
-    edges = np.arange(-before, after + 1e-9, 1.0 / BINS_PER_SAMPLE)
-    offsets, values = [], []
-    for r in narrow:
-        d = np.arange(r.signal.size) - r.peak_time
-        keep = (d >= edges[0]) & (d < edges[-1])
-        offsets.append(d[keep])
-        values.append(r.signal[keep] / r.height)
-    d, v = np.concatenate(offsets), np.concatenate(values)
-    bins = np.digitize(d, edges) - 1
-    counts = np.bincount(bins, minlength=edges.size)
-    centres = edges + 0.5 / BINS_PER_SAMPLE
-    order = np.argsort(bins, kind="stable")
-    groups = np.split(v[order], np.cumsum(counts)[:-1])
-    filled = counts >= 3
-    median = np.array([np.median(g) if ok else np.nan for g, ok in zip(groups, filled)])
-    # a bin's median is noisy where few returns fall in it: one light pass of [1, 2, 1] / 4
-    known = np.interp(centres, centres[filled], median[filled])
-    smooth = np.convolve(np.pad(known, 1, mode="edge"), [0.25, 0.5, 0.25], mode="valid")
-    first, last = np.flatnonzero(filled)[[0, -1]]
-    t, y = centres[first:last + 1], smooth[first:last + 1]
-    peak = int(np.argmax(y))
-    shift = parabola_vertex(y, peak)
-    height = parabola_height(y, peak, shift)
-    t = (t - t[peak] - shift / BINS_PER_SAMPLE) * spacing_ps
-    y = y / height
-    y[[0, -1]] = 0.0  # the response ends at its grid's edges
-    return SystemResponse(tuple(t), tuple(y), f"{source} ({len(narrow)} of {len(returns)} strong single returns)",
-                          len(narrow))
-
-
-def response_of_waveforms(waveforms, spacing_ps: float, source: str) -> SystemResponse | None:
-    """The system response from waveforms (float arrays of valid samples): their strong single returns
-    aligned and averaged (measure_response), or None where too few are strong and single."""
-    waveforms = [w for w in (np.asarray(w, dtype=float) for w in waveforms[:RESPONSE_PULSES]) if np.isfinite(w).all()]
-    noise_background = [noise_and_background(w) if w.size >= 12 else (np.inf, 0.0) for w in waveforms]
-    try:
-        return measure_response(waveforms, spacing_ps, source, [n for n, _ in noise_background],
-                                [b for _, b in noise_background])
-    except ValueError:
-        return None
-
-
-def pulses_response(pulses, rows: np.ndarray, source: str) -> SystemResponse | None:
-    """The system response from pulses[rows] (response_of_waveforms)."""
-    rows = rows[:RESPONSE_PULSES]
-    return response_of_waveforms([pulses.pulse_samples(i) for i in rows],
-                                 float(np.median(pulses.sample_spacing_ps[rows])), source)
-
-
-def file_response(pulses) -> SystemResponse | None:
-    """The response of a file's first pulses: on its transmitted waveforms where it records them with their
-    shape (GEDI), else on the system's single returns where the file has them, otherwise on its strongest
-    isolated echoes; None where too few qualify."""
-    if pulses.outgoing is not None and pulses.outgoing.size and pulses.transmit_shape is not None:
-        # GEDI records each shot's transmitted pulse, which its returns are made of (PulseWaves' outgoing
-        # waveforms are the system's own monitor channel, not measured here as the response)
-        spacing = float(np.median(pulses.outgoing_spacing_ps))
-        response = response_of_waveforms([pulses.outgoing_samples(i) for i in range(len(pulses))], spacing,
-                                         "transmitted waveforms")
-        if response is not None:
-            return response
-    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
-    response = pulses_response(pulses, single, "single returns") if single.size else None
-    return response or pulses_response(pulses, np.arange(len(pulses)), "isolated echoes")
-
-
-def csv_response(samples, valid, spacing_ps: float, outgoing=None) -> SystemResponse | None:
-    """A NEON-layout CSV's response: on its outgoing pulses (fwcore.io.neon.CsvWaveforms) where given and
-    enough qualify, else on the returns' strong single echoes; None where too few qualify."""
-    response = None
-    if outgoing is not None:
-        response = response_of_waveforms([y[v] for y, v in zip(outgoing.samples, outgoing.valid)], spacing_ps,
-                                         "outgoing pulses")
-    if response is None:
-        response = response_of_waveforms([y[v] for y, v in zip(samples, valid)], spacing_ps, "isolated echoes")
-    return response

@@ -1,6 +1,6 @@
 """The system response as the kernels see it: a table of echoes, the response broadened by Gaussians.
 
-`echo_shape` turns a SystemResponse into the kernels' table: the response
+`echo_shape` turns a SystemResponse into the kernels' table (fwcore.engine.model.EchoShape): the response
 broadened by Gaussians (a target's depth spreads its return), one row per echo
 width, each row's peak 1, so an echo is A * row(s)(t - u) with A its peak
 amplitude, u the time of the centroid of the response's main lobe (above 5% of
@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from fwcore.engine.model import SQRT_2LN2, EchoShape
 from fwcore.instrument.peak import half_height_crossings, half_height_width, main_lobe
-from fwcore.engine.model import SQRT_2LN2
-
-if TYPE_CHECKING:  # the response's module measures with the engine's preprocessing, which needs this one
-    from fwcore.instrument.response import SystemResponse
+from fwcore.instrument.response import SystemResponse
 
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
 TABLE_STEPS_PER_SAMPLE = 16  # the echo table's time step: linear interpolation then errs < 1e-4 of the peak
@@ -32,31 +29,6 @@ ROW_STEP = 2.0 / 47.0
 # step at full scale, so the kernels need not visit the samples a narrow echo cannot reach.
 SUPPORT_LEVEL = 1e-3
 CENTROID_FRACTION = 0.05  # an echo's position: the centroid of its response's lobe above this share of the peak
-
-
-class EchoShape(NamedTuple):
-    """An echo model as the kernels see it. tabulated False: the generalized Gaussian (its parameters
-    alone define it; the arrays are empty). True: rows[w] is the response broadened to the w-th width,
-    peak 1, at times (j - origin) * step samples; slopes its time derivative per sample."""
-
-    tabulated: bool
-    rows: np.ndarray  # (widths, grid) float64
-    slopes: np.ndarray  # (widths, grid) float64, d row / dt per sample
-    areas: np.ndarray  # (widths,) integral of each row, samples
-    support: np.ndarray  # (widths, 2) int64: the grid indices [first, last] where each row exceeds SUPPORT_LEVEL
-    peak_offsets: np.ndarray  # (widths,) where each row peaks, samples after the echo's position (its lobe's centroid)
-    half_widths: np.ndarray  # (2,) row 0 from its peak to half height before and after it, samples
-    step: float  # samples per grid point
-    origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
-    s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
-    s_step: float  # between rows
-
-
-def analytic_shape() -> EchoShape:
-    """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
-    empty = np.zeros((1, 2))
-    return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
-                     0.0, 0.0, 1.0)
 
 
 def lobe_centroid_ps(response: SystemResponse) -> float:

@@ -15,7 +15,7 @@ from fwcore.instrument.peak import isolated_lobe, local_maxima, width_above_mini
 from fwcore.io.neon import NEON_SAMPLE_SPACING_PS
 from fwcore.io.records import PulseBatch
 from fwcore.engine.model import SQRT_2LN2
-from fwcore.engine.preprocess import smoothed_noise_baseline
+from fwcore.engine.smoothing import smoothed_noise_baseline
 
 
 def median_pulse_fwhm(waveforms, min_samples: int = 5) -> float:

@@ -8,15 +8,15 @@ cannot read raises one of `errors.py`'s errors, which name the file and the prob
 """
 
 from fwcore.io.descriptors import WaveformDescriptor
-from fwcore.io.formats import (FORMATS, Format, InputSummary, crs_wkt, describe_file, format_of,
-                               input_summary, is_pulsewaves, needs_packet_file, open_input, packet_file,
+from fwcore.io.formats import (FORMATS, Format, InputCrs, InputSummary, crs_wkt, describe_file, format_of,
+                               input_crs, input_summary, kind_of, needs_packet_file, open_input, packet_file,
                                plan_point_ranges, read_pulses)
 from fwcore.io.geolocate import geolocate
 from fwcore.io.errors import WaveformFileError
 from fwcore.io.las import WaveformFile, open_waveform_file
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
 
-__all__ = ["FORMATS", "Format", "InputSummary", "PointRange", "PulseBatch", "WaveformDescriptor", "WaveformFile",
-           "WaveformFileError", "crs_wkt", "describe_file", "format_of", "geolocate", "input_summary",
-           "is_pulsewaves", "kind_of", "needs_packet_file", "open_input", "open_waveform_file", "packet_file",
+__all__ = ["FORMATS", "Format", "InputCrs", "InputSummary", "PointRange", "PulseBatch", "WaveformDescriptor",
+           "WaveformFile", "WaveformFileError", "crs_wkt", "describe_file", "format_of", "geolocate", "input_crs",
+           "input_summary", "kind_of", "needs_packet_file", "open_input", "open_waveform_file", "packet_file",
            "plan_point_ranges", "pulse_identity", "read_pulses"]

@@ -1,12 +1,11 @@
-"""Coordinate reference systems: GeoTIFF keys (LAS, PulseWaves) -> OGC WKT, with pyproj; and the one answer to
-"the CRS of this input, given --crs" (input_crs) that every output (LAS, GeoParquet, MCAP, COPC) writes."""
+"""Coordinate reference systems as OGC WKT, with pyproj: from GeoTIFF keys (LAS, PulseWaves) or a LAS header's WKT
+record, from what the user gives (--crs), and back to a name or PROJJSON. Which CRS an input has is its format's
+answer (fwcore.io.formats.input_crs)."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
-from pathlib import Path
 
 import numpy as np
 
@@ -125,48 +124,6 @@ def parse_crs(text: str) -> str:
         raise ValueError(f"--crs {shown!r} is not a coordinate reference system pyproj reads (an EPSG code such as "
                          f"EPSG:25832, WKT or PROJJSON): {err}") from None
     return crs.to_wkt(pyproj.enums.WktVersion.WKT1_GDAL) or crs.to_wkt()
-
-
-@dataclasses.dataclass(frozen=True)
-class InputCrs:
-    """An input's CRS as the outputs write it: OGC WKT (None: unknown), where it came from, and whether it names a
-    CRS (an EPSG code, a WKT record, --crs) rather than only a unit (an unnamed CRS) or nothing."""
-
-    wkt: str | None
-    source: str
-    named: bool
-
-    @property
-    def name(self) -> str | None:
-        return crs_name(self.wkt)
-
-
-def input_crs(path: str | Path, given: str | None = None) -> InputCrs:
-    """The one answer to "the CRS of this input": `given` (--crs, as parse_crs reads it) overrides what the file
-    says, as PDAL's override_srs; else the file's (fwcore.io.crs_wkt: a WKT record, GeoTIFF keys with a code or
-    only a unit, PulseWaves' Earth-centred coordinates)."""
-    if given:
-        return InputCrs(parse_crs(given), GIVEN, True)
-    from fwcore.io.formats import LAS, format_of
-
-    try:
-        fmt = format_of(path)
-        if fmt is LAS:
-            import laspy
-
-            with laspy.open(path) as reader:
-                wkt, source = las_crs_wkt(reader.header)
-        else:
-            opened = fmt.open(path)
-            wkt, source = opened.crs_wkt, opened.crs_source
-    except Exception as err:  # noqa: BLE001  damaged CRS records: the CRS is unknown, not invented; the file may run
-        return InputCrs(None, f"unreadable ({type(err).__name__}: {err})", False)
-    return InputCrs(wkt, source, bool(wkt) and "unnamed CRS" not in source)
-
-
-def input_crs_wkt(path: str | Path, given: str | None = None) -> str | None:
-    """The WKT of this input's CRS, given --crs (input_crs): what a sink writes."""
-    return input_crs(path, given).wkt
 
 
 @functools.lru_cache(maxsize=64)

@@ -3,6 +3,8 @@ the file and the problem; a missing file stays a FileNotFoundError."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 class InputFileError(ValueError):
     """An input fwcore.io cannot read as it was asked to; the message names the file and the problem."""
@@ -15,6 +17,24 @@ class WaveformFileError(InputFileError):
 
 class WaveformCsvError(InputFileError):
     """A file that cannot be read as a NEON-layout waveform CSV; the message names the file (and line)."""
+
+
+class ForeignFileError(InputFileError):
+    """A file that is not of its reader's format at all. The reader knows what it wanted, not what the file is:
+    fwcore.io.formats, which knows every kind of file, raises it again saying what the file is and which command
+    reads it (`detail`: the reader's own reason, such as laspy's error)."""
+
+    def __init__(self, message: str, path: str | Path, wanted: str, detail: str = ""):
+        super().__init__(message)
+        self.path, self.wanted, self.detail = Path(path), wanted, detail
+
+
+class ForeignWaveformFileError(ForeignFileError, WaveformFileError):
+    """A file given as LAS/LAZ that is no LAS/LAZ file (its first bytes are not LAS's)."""
+
+
+class ForeignCsvError(ForeignFileError, WaveformCsvError):
+    """A file given as a NEON-layout waveform CSV that is no such CSV (its first line is not NEON's header)."""
 
 
 class PacketError(InputFileError):

@@ -1,13 +1,16 @@
 """The formats read, as a table: one entry per format (LAS/LAZ, PulseWaves, GEDI L1B, LVIS L1B, NEON CSV) with what
-it can do,
-and the entry points that look a file's format up in it instead of branching on it.
+it can do, and the entry points that look a file's format up in it instead of branching on it.
 
     format_of(path)          -> Format         by the file's first bytes (and name)
     kind_of(path)            -> Kind           what any file is (its Format, if one reads it), for messages
     plan_point_ranges(path)  -> [PointRange]   every pulse in exactly one range
     read_pulses(range)       -> PulseBatch     the same record whatever the format
     input_summary(path)      -> InputSummary   what a run needs before reading
+    input_crs(path, given)   -> InputCrs       the CRS every output writes: --crs, else the format's (Format.crs)
     describe_file(path)      -> dict           `fwl info`: headers and indexes only
+
+The readers (las.py, neon.py, ...) do not import this table: given a file of another kind, they raise a
+ForeignFileError (fwcore.io.errors), which the table's entries raise again saying what the file is instead.
 """
 
 from __future__ import annotations
@@ -17,13 +20,10 @@ import importlib
 from pathlib import Path
 from typing import Any, Callable
 
-from fwcore.io.errors import WaveformFileError
+from fwcore.io.crs import GIVEN, crs_name, las_crs_wkt, parse_crs
+from fwcore.io.errors import ForeignFileError, WaveformFileError
 from fwcore.io.records import PointRange, PulseBatch
-
-LAS_SIGNATURE = b"LASF"
-PULSE_SIGNATURE, WAVES_SIGNATURE = b"PulseWavesPulse\0", b"PulseWavesWaves\0"  # a .pls's and a .wvs's first bytes
-NEON_CSV_HEADER = b"waveform_id,n_samples"
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"  # GEDI and LVIS granules: told apart by their groups (Format.sniff)
+from fwcore.io.signatures import HDF5_SIGNATURE, LAS_SIGNATURE, NEON_CSV_HEADER, PULSE_SIGNATURE, WAVES_SIGNATURE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,7 +137,8 @@ class Format:
 
     open(path) -> the opened header; plan(path, points_per_range, opened) -> [PointRange];
     read(range_or_path, opened) -> PulseBatch; summary(path, opened) -> InputSummary;
-    crs(path, opened) -> WKT or None; describe(path) -> dict; samples_beside(path) -> the file holding its samples.
+    crs(path, opened) -> (WKT or None, where it came from); describe(path) -> dict; samples_beside(path) -> the
+    file holding its samples.
     """
 
     name: str
@@ -150,7 +151,7 @@ class Format:
     plan: Callable[..., list[PointRange]] | None = None
     read: Callable[..., PulseBatch] | None = None
     summary: Callable[..., InputSummary] | None = None
-    crs: Callable[..., str | None] | None = None
+    crs: Callable[..., tuple[str | None, str]] | None = None
     samples_beside: Callable[[Path], Path | None] | None = None
     sniff: Callable[[Path], bool] | None = None  # for a signature several formats share (HDF5): is it this one?
 
@@ -160,6 +161,28 @@ def _lazy(module: str, name: str) -> Callable:
     def call(*args, **kwargs):
         return getattr(importlib.import_module(module), name)(*args, **kwargs)
     return call
+
+
+def _named(call: Callable, message: Callable[[ForeignFileError, Kind], str]) -> Callable:
+    """A reader's entry point whose ForeignFileError (a file of another kind) is raised again with `message`:
+    what the file is instead, from its first bytes (kind_of)."""
+    def named(*args, **kwargs):
+        try:
+            return call(*args, **kwargs)
+        except ForeignFileError as err:
+            raise type(err)(message(err, kind_of(err.path)), err.path, err.wanted, err.detail) from None
+    return named
+
+
+def _not_las(err: ForeignFileError, kind: Kind) -> str:
+    if kind is FOREIGN_BINARY:  # random bytes, or a LAS whose signature is damaged
+        return f"{err.path}: not a readable LAS/LAZ file: {kind.words} ({err.detail})"
+    return wrong_kind(err.path, err.wanted)  # a known other kind (text, CSV, packets): say which
+
+
+def _not_neon_csv(err: ForeignFileError, kind: Kind) -> str:
+    # a text file of another layout, or NEON's with a damaged header: the reader's own message says it
+    return str(err) if kind.text or kind.format is NEON_CSV else wrong_kind(err.path, err.wanted)
 
 
 def _las_plan(path, points_per_range, opened=None):
@@ -174,9 +197,8 @@ def _las_summary(path, opened=None):
 def _las_crs(path, opened=None):
     import laspy
 
-    from fwcore.io.crs import las_crs_wkt
     with laspy.open(path) as reader:  # the header alone: a file that is not a full-waveform file has one too
-        return las_crs_wkt(reader.header)[0]
+        return las_crs_wkt(reader.header)
 
 
 def _pw_summary(path, opened=None):
@@ -184,7 +206,12 @@ def _pw_summary(path, opened=None):
 
 
 def _pw_crs(path, opened=None):
-    return (opened or PULSEWAVES.open(path)).crs_wkt
+    return _opened_crs(opened or PULSEWAVES.open(path))
+
+
+def _opened_crs(opened) -> tuple[str | None, str]:
+    """(WKT, where it came from) of an opened file that read its CRS with its header (PulseWaves, GEDI, LVIS)."""
+    return opened.crs_wkt, opened.crs_source
 
 
 def _neon_describe(path):
@@ -195,8 +222,9 @@ def _neon_describe(path):
 
 
 LAS = Format(name="LAS/LAZ", kind="a LAS/LAZ file", signature=LAS_SIGNATURE, reads_with="fwl run",
-             open=_lazy("fwcore.io.las", "open_waveform_file"), describe=_lazy("fwcore.io.info", "describe_las"),
-             plan=_las_plan, read=_lazy("fwcore.io.las", "read_las_pulses"), summary=_las_summary, crs=_las_crs,
+             open=_named(_lazy("fwcore.io.las", "open_waveform_file"), _not_las),
+             describe=_named(_lazy("fwcore.io.info", "describe_las"), _not_las), plan=_named(_las_plan, _not_las),
+             read=_named(_lazy("fwcore.io.las", "read_las_pulses"), _not_las), summary=_las_summary, crs=_las_crs,
              samples_beside=lambda path: _lazy("fwcore.io.packets", "external_packet_file")(Path(path)))
 PULSEWAVES = Format(name="PulseWaves", kind="a PulseWaves pulse file (.pls)", signature=PULSE_SIGNATURE,
                     reads_with="fwl run", open=_lazy("fwcore.io.pulsewaves", "open_pulsewaves"),
@@ -205,20 +233,20 @@ PULSEWAVES = Format(name="PulseWaves", kind="a PulseWaves pulse file (.pls)", si
                     read=_lazy("fwcore.io.pulsewaves", "read_pulsewaves"), summary=_pw_summary, crs=_pw_crs,
                     samples_beside=lambda path: _lazy("fwcore.io.pulsewaves", "waves_file")(Path(path)))
 NEON_CSV = Format(name="NEON waveform CSV", kind="a NEON-layout waveform CSV", signature=NEON_CSV_HEADER,
-                  reads_with="fwl decompose-csv", open=_lazy("fwcore.io.neon", "read_neon_csv"),
+                  reads_with="fwl decompose-csv", open=_named(_lazy("fwcore.io.neon", "read_neon_csv"), _not_neon_csv),
                   describe=_neon_describe)
 GEDI_L1B = Format(name="GEDI L1B", kind="a GEDI L1B granule (HDF5)", signature=HDF5_SIGNATURE, reads_with="fwl run",
                   open=_lazy("fwcore.io.gedi", "open_gedi"), describe=_lazy("fwcore.io.gedi", "describe_gedi"),
                   plan=_lazy("fwcore.io.gedi", "plan_gedi_ranges"), read=_lazy("fwcore.io.gedi", "read_gedi"),
                   summary=lambda path, opened=None: InputSummary((opened or GEDI_L1B.open(path)).point_count, False),
-                  crs=lambda path, opened=None: (opened or GEDI_L1B.open(path)).crs_wkt,
+                  crs=lambda path, opened=None: _opened_crs(opened or GEDI_L1B.open(path)),
                   sniff=_lazy("fwcore.io.gedi", "is_gedi_l1b"))
 LVIS_L1B = Format(name="LVIS L1B", kind="an LVIS L1B waveform file (HDF5)", signature=HDF5_SIGNATURE,
                   reads_with="fwl run", open=_lazy("fwcore.io.lvis", "open_lvis"),
                   describe=_lazy("fwcore.io.lvis", "describe_lvis"), plan=_lazy("fwcore.io.lvis", "plan_lvis_ranges"),
                   read=_lazy("fwcore.io.lvis", "read_lvis"),
                   summary=lambda path, opened=None: InputSummary((opened or LVIS_L1B.open(path)).point_count, False),
-                  crs=lambda path, opened=None: (opened or LVIS_L1B.open(path)).crs_wkt,
+                  crs=lambda path, opened=None: _opened_crs(opened or LVIS_L1B.open(path)),
                   sniff=_lazy("fwcore.io.lvis", "is_lvis_l1b"))
 FORMATS = (LAS, PULSEWAVES, GEDI_L1B, LVIS_L1B, NEON_CSV)
 
@@ -228,11 +256,6 @@ def format_of(path: str | Path) -> Format:
     file is."""
     by_name = [fmt for fmt in FORMATS if Path(path).suffix.lower() in fmt.suffixes]
     return by_name[0] if by_name else kind_of(path).format or LAS
-
-
-def is_pulsewaves(path: str | Path) -> bool:
-    """A .pls file, or any file that starts with the PulseWaves signature."""
-    return format_of(path) is PULSEWAVES
 
 
 def _able(fmt: Format, path, what: str):
@@ -260,7 +283,36 @@ def crs_wkt(path: str | Path, opened=None) -> str | None:
     """The file's coordinate reference system as OGC WKT (LAS: WKT record or GeoTIFF keys; PulseWaves: keys,
     or Earth-centred by magnitude), None when it names none."""
     fmt = format_of(path)
-    return _able(fmt, path, "crs")(path, opened)
+    return _able(fmt, path, "crs")(path, opened)[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class InputCrs:
+    """An input's CRS as the outputs write it: OGC WKT (None: unknown), where it came from, and whether it names a
+    CRS (an EPSG code, a WKT record, --crs) rather than only a unit (an unnamed CRS) or nothing."""
+
+    wkt: str | None
+    source: str
+    named: bool
+
+    @property
+    def name(self) -> str | None:
+        return crs_name(self.wkt)
+
+
+def input_crs(path: str | Path, given: str | None = None) -> InputCrs:
+    """The one answer to "the CRS of this input" that every output (LAS, GeoParquet, MCAP, COPC) writes: `given`
+    (--crs, as fwcore.io.crs.parse_crs reads it) overrides what the file says, as PDAL's override_srs; else its
+    format's (Format.crs: a WKT record, GeoTIFF keys with a code or only a unit, PulseWaves' Earth-centred
+    coordinates)."""
+    if given:
+        return InputCrs(parse_crs(given), GIVEN, True)
+    try:
+        fmt = format_of(path)
+        wkt, source = _able(fmt, path, "crs")(path)
+    except Exception as err:  # noqa: BLE001  damaged CRS records: the CRS is unknown, not invented; the file may run
+        return InputCrs(None, f"unreadable ({type(err).__name__}: {err})", False)
+    return InputCrs(wkt, source, bool(wkt) and "unnamed CRS" not in source)
 
 
 def plan_point_ranges(path: str | Path, points_per_range: int = 10_000, opened=None) -> list[PointRange]:

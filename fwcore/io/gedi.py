@@ -23,7 +23,6 @@ from fwcore.io.errors import WaveformFileError
 from fwcore.io.hdf5 import hdf5_file, holds, wgs84_3d_wkt
 from fwcore.io.records import PointRange, PulseBatch
 
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 SAMPLE_SPACING_PS = 1000.0
 EPSG_4979_SOURCE = "GEDI: WGS84 longitude, latitude and ellipsoid height (EPSG:4979)"
 TX_SHAPE_FIELDS = ("tx_egsigma", "tx_egsigma_error", "tx_eggamma", "tx_eggamma_error")

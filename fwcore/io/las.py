@@ -23,10 +23,11 @@ import laspy
 import numpy as np
 
 from fwcore.io.descriptors import WaveformDescriptor, read_descriptors, warn_unusable
-from fwcore.io.errors import WaveformFileError
+from fwcore.io.errors import ForeignWaveformFileError, WaveformFileError
 from fwcore.io.ownership import BUCKET_POINTS, KEY_SHIFT, pulse_ownership
 from fwcore.io.packets import PacketStore, external_packet_file, lastools_compression
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
+from fwcore.io.signatures import LAS_SIGNATURE
 
 LOG = logging.getLogger("fwl")
 MAX_BEAM_REACH_M = 20_000.0  # farther than any airborne range from a pulse's own return
@@ -94,12 +95,16 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
         with laspy.open(path) as reader:
             header = reader.header
     except Exception as err:  # laspy raises several types for a damaged header
-        from fwcore.io.formats import FOREIGN_BINARY, LAS, kind_of, wrong_kind
-        kind = kind_of(path)
-        if kind.format is not LAS and kind is not FOREIGN_BINARY:  # a known other kind (text, CSV, packets): say which
-            raise WaveformFileError(wrong_kind(path, "a LAS/LAZ or PulseWaves file")) from None
-        said = f": {kind.words}" if kind is FOREIGN_BINARY else ""  # random bytes, or a LAS whose signature is damaged
-        raise WaveformFileError(f"{path}: not a readable LAS/LAZ file{said} ({err})") from None
+        message = f"{path}: not a readable LAS/LAZ file ({err})"
+        try:
+            with open(path, "rb") as f:
+                head = f.read(len(LAS_SIGNATURE))
+        except OSError:
+            head = b""
+        if head == LAS_SIGNATURE:  # a LAS file, damaged
+            raise WaveformFileError(message) from None
+        # another kind of file: the table of formats says which (fwcore.io.formats)
+        raise ForeignWaveformFileError(message, path, "a LAS/LAZ or PulseWaves file", str(err)) from None
     fmt = header.point_format.id
     if fmt not in WAVEFORM_POINT_FORMATS:
         raise WaveformFileError(f"{path}: point format {fmt} has no waveform packets "

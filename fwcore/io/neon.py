@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fwcore.io.errors import WaveformCsvError
-from fwcore.io.formats import NEON_CSV, kind_of, wrong_kind
+from fwcore.io.errors import ForeignCsvError, WaveformCsvError
 
 NEON_SAMPLE_SPACING_PS = 1000.0
+WANTED = "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"  # what the reader reads, in words
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,14 +32,18 @@ def read_neon_csv(path: str | Path) -> CsvWaveforms:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such waveform CSV")
     ids, samples, valid = [], [], []
-    kind = kind_of(path)
-    if kind.format is not NEON_CSV and not kind.text:
-        raise WaveformCsvError(wrong_kind(path, "a NEON-layout waveform CSV (waveform_id, n_samples, s0, ...)"))
+    with open(path, "rb") as f:
+        binary = b"\0" in f.read(64)  # no text holds a NUL: not even a first line to read
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(f)
-        header = next(reader, None)
+        try:
+            header = None if binary else next(reader, None)
+        except (UnicodeDecodeError, csv.Error):
+            header = None
         if not header or header[:3] != ["waveform_id", "n_samples", "s0"]:
-            raise WaveformCsvError(f"{path}: not a NEON waveform CSV (expected header waveform_id, n_samples, s0, ...)")
+            # another kind of file (a text file of another layout stays this message: fwcore.io.formats)
+            raise ForeignCsvError(f"{path}: not a NEON waveform CSV (expected header waveform_id, n_samples, s0, ...)",
+                                  path, WANTED)
         for line, row in enumerate(reader, start=2):
             if not row:
                 continue

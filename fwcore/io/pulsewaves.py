@@ -35,8 +35,8 @@ from fwcore._jit import JIT
 from fwcore.io.crs import geokeys_from_bytes, looks_earth_centred, wkt_from_epsg, wkt_from_geokeys
 from fwcore.io.descriptors import warn_unusable
 from fwcore.io.errors import WaveformFileError
-from fwcore.io.formats import PULSE_SIGNATURE, WAVES_SIGNATURE
 from fwcore.io.records import PointRange, PulseBatch, pulse_identity
+from fwcore.io.signatures import PULSE_SIGNATURE, WAVES_SIGNATURE
 
 WAVES_HEADER_BYTES = 60
 VLR_HEADER_BYTES = 96

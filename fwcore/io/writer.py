@@ -48,7 +48,7 @@ def point_cloud_template(template: str | Path) -> dict:
     fmt = format_of(template)
     if fmt in (GEDI_L1B, LVIS_L1B):  # degrees to 1e-7 (1 cm), heights to the millimetre
         return {"scales": np.array([1e-7, 1e-7, 1e-3]), "offsets": np.zeros(3),
-                "wkt": fmt.crs(template), "system_identifier": fmt.name.split()[0], "geokeys": []}
+                "wkt": fmt.crs(template)[0], "system_identifier": fmt.name.split()[0], "geokeys": []}
     if template.suffix.lower() == ".pls":
         from fwcore.io.pulsewaves import open_pulsewaves
 
@@ -71,7 +71,7 @@ def write_point_cloud(path: str | Path, template: str | Path, echoes: dict[str, 
     Scale, offset, the system identifier and the coordinate reference system come from `template` (the
     input file); the CRS is written as OGC WKT with the global encoding's WKT bit, as formats 6-10 require
     (converted from GeoTIFF keys where the input has those), or `crs_wkt` where given (the run's CRS,
-    fwcore.io.crs.input_crs). Columns: fwcore.pulses.decomposed_echoes, and the
+    fwcore.io.formats.input_crs). Columns: fwcore.pulses.decomposed_echoes, and the
     radiometry's (fwcore.radiometry.equations.echo_radiometry) as Extra Bytes, described as calibrated or relative.
     """
     path = Path(path)

@@ -21,10 +21,11 @@ from fwcore.io import PointRange, crs_wkt, read_pulses
 from fwcore.io.formats import GEDI_L1B, LVIS_L1B, PULSEWAVES, format_of
 from fwcore.io.records import PulseBatch
 from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
-from fwcore.radiometry.equations import (Calibration, EchoGeometry, RadiometryConfig, RadiometryError, Trajectory,
-                               cached_trajectory, calibration_from_samples, calibration_samples, check_trajectory,
-                               echo_radiometry, echo_ranges, file_stamp, load_trajectory, metric_beam,
-                               time_system_of)
+from fwcore.radiometry.equations import (Calibration, EchoGeometry, RadiometryConfig, calibration_from_samples,
+                                         calibration_samples, echo_radiometry, echo_ranges, metric_beam)
+from fwcore.radiometry.errors import RadiometryError
+from fwcore.radiometry.trajectory import (Trajectory, cached_trajectory, check_trajectory, file_stamp, load_trajectory,
+                                          time_system_of)
 from fwcore.engine.records import BatchDecomposition
 
 LOG = logging.getLogger("fwl")

@@ -22,7 +22,7 @@ from fwcore.io import PointRange, PulseBatch, plan_point_ranges, read_pulses
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides, SystemPulse
 from fwcore.instrument.shape import lobe_centroid_ps
 from fwcore.engine.model import sigma_to_time_unit
-from fwcore.engine.preprocess import gaussian_smooth
+from fwcore.engine.smoothing import gaussian_smooth
 from fwcore.metrics.pulses import vertical_axis
 from fwcore.pulses import pulse_waveforms
 from pipeline.layout import range_start

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fwcore.instrument.response import SystemResponse, pulses_response
+from fwcore.instrument.measure import pulses_response
+from fwcore.instrument.response import SystemResponse
 from fwcore.io import PointRange, read_pulses
 
 DATA = Path(__file__).resolve().parents[2] / "examples" / "data"

@@ -47,7 +47,7 @@ def test_ground_echoes_against_the_truth(classified, forest_flight):
 
 
 def test_a_run_before_fwl_classify_is_not_classified(tmp_path):
-    from pipeline.grid import echo_files
+    from pipeline.echo_table import echo_files
 
     run = tmp_path / "run"
     (run / "echoes").mkdir(parents=True)

@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.engine.preprocess import (MIN_SIGMA, as_waveform, gaussian_smooth, half_height_sigma, inflection_distance,
-                                      residual_noise_sigma, valid_min)
+from fwcore.engine.estimate import MIN_SIGMA, half_height_sigma, inflection_distance
+from fwcore.engine.smoothing import as_waveform, gaussian_smooth, residual_noise_sigma, valid_min
 from fwcore.rng import randint, uniform
 
 PEAK_WINDOW = 5  # bins either side

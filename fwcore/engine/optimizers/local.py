@@ -26,8 +26,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE, searchsorted
-from fwcore.instrument.shape import analytic_shape
-from fwcore.engine.model import PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, echo_value, table_reach
+from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, analytic_shape,
+                                 echo_value, table_reach)
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
@@ -38,7 +38,7 @@ _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplit
 def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
     windows[k] = [lo, hi): the samples where echo k's columns may be non-zero. A tabulated shape
-    (fwcore.instrument.shape.EchoShape) differentiates its table: d/du = -A slope, d/ds across its rows."""
+    (fwcore.engine.model.EchoShape) differentiates its table: d/du = -A slope, d/ds across its rows."""
     m = times.size
     for i in range(m):
         model[i] = x[0]
@@ -480,7 +480,7 @@ def lbfgs(x, n_echoes, times, shape, target, weights, lower, upper, max_iteratio
 def fit_levenberg_marquardt(x0, n_echoes: int, times, target, lower, upper, max_iterations: int = 50,
                             tolerance: float = 1e-8, shape=None) -> tuple[np.ndarray, float, int]:
     """LM from x0 inside the bounds: (best individual, sum of squares, Jacobians evaluated); echoes of
-    `shape` (fwcore.instrument.shape.EchoShape; None: the generalized Gaussian)."""
+    `shape` (fwcore.engine.model.EchoShape; None: the generalized Gaussian)."""
     x = np.array(x0, dtype=np.float64)
     lower = np.ascontiguousarray(lower, dtype=np.float64)
     upper = np.ascontiguousarray(upper, dtype=np.float64)

@@ -5,7 +5,8 @@ import pytest
 
 from fwcore.engine.bounds import parameter_bounds
 from fwcore.instrument.response import named_response
-from fwcore.instrument.shape import analytic_shape, echo_shape
+from fwcore.engine.model import analytic_shape
+from fwcore.instrument.shape import echo_shape
 from tests.fwcore import naive
 
 ECHOES = dict(amplitude=np.array([120.0, 35.0, 8.0]), position=np.array([1.2, 30.4, 58.7]),

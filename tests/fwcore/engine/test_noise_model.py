@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fwcore.engine.noise_model import add_shot_noise, noise_variance
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from tests.fwcore import naive
 
 

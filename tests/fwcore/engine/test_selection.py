@@ -5,11 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape, model_of_individual, waveform_model
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
-from fwcore.engine.model import model_of_individual, waveform_model
 from fwcore.engine.records import WaveformBatch
 from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes
 from tests.fwcore import naive

@@ -1,4 +1,4 @@
-"""The CRS of an input as every output writes it (fwcore.io.crs.input_crs): --crs, else what the file says."""
+"""The CRS of an input as every output writes it (fwcore.io.formats.input_crs): --crs, else what the file says."""
 
 import struct
 
@@ -7,7 +7,8 @@ import numpy as np
 import pyproj
 import pytest
 
-from fwcore.io.crs import GIVEN, crs_projjson, input_crs, parse_crs, unnamed_wkt_from_geokeys
+from fwcore.io.crs import GIVEN, crs_projjson, parse_crs, unnamed_wkt_from_geokeys
+from fwcore.io.formats import input_crs
 
 
 def _las(path, keys: tuple[int, ...] | None = None, crs: pyproj.CRS | None = None):

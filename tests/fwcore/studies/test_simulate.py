@@ -131,7 +131,8 @@ def test_a_flight_that_fails_after_chunks_were_written_leaves_no_partial_files(t
 
 @pytest.mark.parametrize("name", ["riegl", "leica"])
 def test_a_flight_of_a_measured_response_renders_its_echoes_in_that_shape(name):
-    from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response, pulses_response
+    from fwcore.instrument.measure import pulses_response
+    from fwcore.instrument.response import SHIPPED_SPACING_PS, named_response
 
     response = named_response(name)
     sensor = SensorConfig(pulse_fwhm_ps=response.fwhm_ps, sample_spacing_ps=SHIPPED_SPACING_PS[name],

@@ -113,7 +113,7 @@ def test_mde_gate_must_not_be_negative():
 
 @pytest.mark.parametrize("optimizer, weighted", [("lm", True), ("lbfgs", False)])
 def test_the_local_fit_weighs_the_samples_by_the_noise_where_the_catalogue_says(optimizer, weighted):
-    from fwcore.instrument.shape import analytic_shape
+    from fwcore.engine.model import analytic_shape
     from fwcore.engine.optimizers import run_optimizer
     from tests.fwcore.naive import model_of_individual
 

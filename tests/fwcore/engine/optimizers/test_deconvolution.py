@@ -8,11 +8,11 @@ import pytest
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_waveform
-from fwcore.engine.model import tabulated_model
+from fwcore.engine.model import analytic_shape, tabulated_model
 from fwcore.engine.optimizers.deconvolution import gold, response_kernel, richardson_lucy
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.instrument.response import named_response
-from fwcore.instrument.shape import analytic_shape, echo_shape
+from fwcore.instrument.shape import echo_shape
 from tests.fwcore import naive
 
 

@@ -12,7 +12,7 @@ from fwcore.engine.optimizers.evolution import (binomial_crossover, chaotic_scal
                                                 mutate_de, mutate_mde)
 from fwcore.engine.optimizers.objective import fit_error, padded_length
 from fwcore.instrument.pulse import nominal_pulse
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from fwcore.io import PointRange, read_pulses
 from fwcore.pulses import pulse_waveforms
 from fwcore.rng import SplitMix64

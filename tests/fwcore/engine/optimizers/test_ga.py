@@ -5,7 +5,7 @@ import pytest
 
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.optimizers.ga import evolve_ga
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from fwcore.rng import SplitMix64
 from tests.fwcore import naive
 from tests.fwcore.engine.optimizers.test_evolution import _problem

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.engine.model import tabulated_model
+from fwcore.engine.model import analytic_shape, tabulated_model
 from fwcore.engine.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
-from fwcore.instrument.shape import analytic_shape, echo_shape
+from fwcore.instrument.shape import echo_shape
 from tests.fwcore.naive import model_of_individual
 
 T = np.arange(100.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fwcore.engine.optimizers.objective import fill_model, padded_length
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from tests.fwcore.naive import model_of_individual
 
 

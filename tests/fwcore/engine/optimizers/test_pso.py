@@ -4,7 +4,7 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.optimizers.pso import swarm
-from fwcore.instrument.shape import analytic_shape
+from fwcore.engine.model import analytic_shape
 from fwcore.rng import SplitMix64
 from tests.fwcore import naive
 from tests.fwcore.engine.optimizers.test_evolution import _problem
