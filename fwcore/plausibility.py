@@ -1,16 +1,17 @@
-"""A plausibility rule after geolocation: no kept echo far under the lowest surface of its pulse and its neighbours.
+"""A plausibility rule after geolocation: no kept echo far under the ground its neighbours see.
 
-Nothing below the ground returns light, so an echo more than UNDER_GROUND_M under the lowest return is a noise
-bump or an afterpulse in the long record after the ground (the Leica sample's, 5-40 m under it). The lowest
-return is the lower of two: the pulse's own lowest system return where the file records them (LAS points of
-the waveform), and the local lowest surface, the lowest of the LOW_QUANTILE quantiles of the range's surfaces
-(its system returns; in a file without them, its kept echoes of at least FLOOR_SNR x sigma_noise) in the
-3 x 3 cells of CELL_M around the echo (fwcore.terrain.ground.low_noise's rule): a true
-weak ground echo under canopy lies at its neighbours' ground, however far under its own pulse's canopy
-returns, and a file without system returns (PulseWaves, GEDI, LVIS) is judged by its neighbours alone.
-An echo under both stays only on strong evidence: at least STRONG_SNR x sigma_noise and STRONG_SHARE of its
-pulse's strongest echo (a surface its neighbours do not see: a pit, a well). The others are filtered with the
-reason `under_ground`, counted with the spurious echoes.
+Nothing below the ground returns light, so a kept echo more than UNDER_GROUND_M under the local floor is a noise
+bump or an afterpulse in the long record after the ground (the Leica sample's lie 5-40 m under it). Each pulse
+offers one surface, its lowest: its lowest system return where the file records them (LAS points of the
+waveform), else its lowest strong echo (PulseWaves, GEDI, LVIS): kept, at least STRONG_SNR x sigma_noise and
+STRONG_SHARE of its pulse's strongest echo, so that an afterpulse or a noise bump is no surface. An echo's
+floor is the LOW_QUANTILE quantile of the lowest surfaces of the *other* pulses in the 3 x 3 cells of CELL_M
+around it: a true weak ground echo under canopy lies at its neighbours' ground however far under its own pulse's
+canopy returns, a few noise returns under the ground do not set the floor, and a pulse's own lowest return
+(perhaps the noise itself) never vouches for its echoes. An echo with no other pulse near (a range's edge, the
+sparse footprints of GEDI) is judged against the range's floor, the lowest of its pulses' floors. An echo under
+its floor stays only if it is strong (a surface its neighbours do not see: a pit, a well). The others are
+filtered with the reason `under_ground`, counted with the spurious echoes.
 """
 
 from __future__ import annotations
@@ -22,78 +23,93 @@ from fwcore.engine.records import BatchDecomposition
 from fwcore.io.records import PulseBatch
 
 UNDER_GROUND_M = 5.0
-CELL_M = 2.0  # 3 x 3 cells span 6 m: a 25% slope lowers the floor by 1.5 m
+CELL_M = 2.0  # 3 x 3 cells span 4-6 m: a 25% slope lowers the floor by at most 1.5 m
 LOW_QUANTILE = 0.1
-FLOOR_SNR = 10.0
 STRONG_SNR = 20.0
 STRONG_SHARE = 0.5
 
 
-def local_floor(x: np.ndarray, y: np.ndarray, z: np.ndarray, at_x: np.ndarray, at_y: np.ndarray,
-                cell: float = CELL_M) -> np.ndarray:
-    """At each (at_x, at_y): the lowest of the LOW_QUANTILE quantiles of z in the 3 x 3 cells around it (inf
-    where none holds a point)."""
-    x, y, z, at_x, at_y = (np.asarray(a, float) for a in (x, y, z, at_x, at_y))
-    if x.size == 0:
-        return np.full(at_x.size, np.inf)
-    x0, y0 = min(x.min(), at_x.min(initial=np.inf)), min(y.min(), at_y.min(initial=np.inf))
-    width = int((max(x.max(), at_x.max(initial=-np.inf)) - x0) / cell) + 4
-    height = int((max(y.max(), at_y.max(initial=-np.inf)) - y0) / cell) + 4
-
-    def key(px, py):
-        return (np.floor((py - y0) / cell).astype(np.int64) + 1) * width + np.floor((px - x0) / cell).astype(
-            np.int64) + 1
-
-    k = key(x, y)
-    order = np.lexsort((z, k))
-    sorted_key = k[order]
-    starts = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
-    counts = np.diff(np.r_[starts, sorted_key.size])
-    low = np.full(width * height, np.inf)
-    low[sorted_key[starts]] = z[order][starts + np.floor(LOW_QUANTILE * (counts - 1)).astype(np.int64)]
-    grid = low.reshape(height, width)
-    floor = np.full_like(grid, np.inf)
-    for dr in (-1, 0, 1):  # the lowest of the neighbourhood's quantiles: a hollow's floor is not noise
-        for dc in (-1, 0, 1):
-            floor[1:-1, 1:-1] = np.minimum(floor[1:-1, 1:-1], grid[1 + dr:height - 1 + dr, 1 + dc:width - 1 + dc])
-    return floor.ravel()[key(at_x, at_y)]
+def strong_echoes(result: BatchDecomposition) -> np.ndarray:
+    """Per echo: kept, at least STRONG_SNR x sigma_noise and STRONG_SHARE of its pulse's strongest kept echo."""
+    kept = result.reject == 0
+    owner = result.echo_waveform
+    strongest = np.zeros(result.echo_offsets.size - 1)
+    np.maximum.at(strongest, owner[kept], result.amplitude[kept])
+    noise = np.asarray(result.noise_sigma, float)[owner]
+    return kept & (result.amplitude >= STRONG_SNR * noise) & (result.amplitude >= STRONG_SHARE * strongest[owner])
 
 
-def lowest_system_return(pulses: PulseBatch) -> np.ndarray:
-    """Per pulse, the height of its lowest system return (NaN where the file records none for it)."""
-    counts = np.diff(pulses.return_offsets)
-    out = np.full(len(pulses), np.nan)
-    has = counts > 0
-    if has.any():
-        z = pulses.return_xyz[:, 2]
-        out[has] = np.minimum.reduceat(z, pulses.return_offsets[:-1][has])
+def lowest_surfaces(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray) -> np.ndarray:
+    """Per pulse, the (x, y, z) of its lowest surface (the module says which; NaN where it has none)."""
+    out = np.full((len(pulses), 3), np.nan)
+    strong = strong_echoes(result)
+    for owner, points in ((result.echo_waveform[strong], xyz[strong]),
+                          (pulses.return_pulse(), pulses.return_xyz)):  # system returns win: written second
+        order = np.lexsort((-points[:, 2], owner))  # per pulse, its lowest last
+        out[owner[order]] = points[order]
     return out
 
 
-def under_ground(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray) -> np.ndarray:
-    """Per echo of `result` (positions `xyz`), True for a kept echo more than UNDER_GROUND_M under the lowest
-    return (the module says which) without strong evidence."""
+def local_floor(surfaces: np.ndarray, at_x: np.ndarray, at_y: np.ndarray, at_pulse: np.ndarray,
+                cell: float = CELL_M) -> np.ndarray:
+    """At each (at_x, at_y): the LOW_QUANTILE quantile of the heights of surfaces (one row per pulse, NaN rows
+    ignored) in the 3 x 3 cells around it, leaving out the surface of pulse at_pulse (NaN where none is left)."""
+    floor = np.full(np.size(at_x), np.nan)
+    placed = np.flatnonzero(np.isfinite(at_x) & np.isfinite(at_y))  # an echo without a position has no floor
+    at_x, at_y, at_pulse = np.asarray(at_x, float)[placed], np.asarray(at_y, float)[placed], np.asarray(at_pulse)[placed]
+    pulse = np.flatnonzero(np.isfinite(surfaces).all(axis=1))
+    if pulse.size == 0 or at_x.size == 0:
+        return floor
+    x, y, z = surfaces[pulse].T
+    x0, y0 = min(x.min(), at_x.min()) - cell, min(y.min(), at_y.min()) - cell
+    width = int((max(x.max(), at_x.max()) - x0) / cell) + 3
+    cells = lambda px, py: np.floor((py - y0) / cell).astype(np.int64) * width + np.floor(  # noqa: E731
+        (px - x0) / cell).astype(np.int64)
+    # each surface in the nine windows it belongs to, a window named by its centre cell
+    shifts = np.array([dr * width + dc for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
+    window = (cells(x, y)[:, None] + shifts[None, :]).ravel()
+    member, height = np.repeat(pulse, 9), np.repeat(z, 9)
+    order = np.lexsort((height, window))
+    window, member, height = window[order], member[order], height[order]
+    starts = np.flatnonzero(np.r_[True, window[1:] != window[:-1]])
+    counts = np.diff(np.r_[starts, window.size])
+    key = cells(at_x, at_y)
+    g = np.searchsorted(window[starts], key)
+    found = (g < starts.size) & (window[starts[np.minimum(g, starts.size - 1)]] == key)
+    g, k = g[found], np.flatnonzero(found)
+    n = counts[g]
+    # where the own pulse's surface is in the window: its rank, to step over it
+    pair = np.lexsort((member, window))
+    pos = np.searchsorted(window[pair] * (member.max() + 1) + member[pair],
+                          key[k] * (member.max() + 1) + at_pulse[k])
+    pos = np.minimum(pos, pair.size - 1)
+    own = (window[pair[pos]] == key[k]) & (member[pair[pos]] == at_pulse[k])
+    others = n - own
+    rank = np.floor(LOW_QUANTILE * np.maximum(others - 1, 0)).astype(np.int64)
+    rank += own & (pair[pos] - starts[g] <= rank)  # the own surface at or below the rank: one further
+    has = others > 0
+    floor[placed[k[has]]] = height[starts[g[has]] + rank[has]]
+    return floor
+
+
+def under_ground(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray,
+                 cell: float = CELL_M) -> np.ndarray:
+    """Per echo of `result` (positions `xyz`), True for a kept echo more than UNDER_GROUND_M under its floor
+    (the module says which) without strong evidence; `cell` in the unit of x and y (CELL_M in metres)."""
     kept = result.reject == 0
     owner = result.echo_waveform
-    own = lowest_system_return(pulses)[owner]
-    noise = np.asarray(result.noise_sigma, float)[owner]
-    # the surfaces: the system's returns where the file records them (its detector's, not our fits), else the
-    # strong kept echoes
-    surface = pulses.return_xyz if pulses.return_xyz.shape[0] else xyz[kept & (result.amplitude >= FLOOR_SNR * noise)]
-    x, y, z = surface[:, 0], surface[:, 1], surface[:, 2]
-    floor = local_floor(x, y, z, xyz[:, 0], xyz[:, 1])
-    lowest = np.fmin(own, floor)  # NaN own: the neighbours' alone
-    deep = kept & (xyz[:, 2] < lowest - UNDER_GROUND_M)
-    if not deep.any():
-        return deep
-    strongest = np.zeros(len(pulses))
-    np.maximum.at(strongest, owner[kept], result.amplitude[kept])
-    strong = (result.amplitude >= STRONG_SNR * noise) & (result.amplitude >= STRONG_SHARE * strongest[owner])
-    return deep & ~strong
+    surfaces = lowest_surfaces(pulses, result, xyz)
+    floor = local_floor(surfaces, xyz[:, 0], xyz[:, 1], owner, cell)
+    # no other pulse near: the range's floor, the lowest of its pulses' floors (each window's own surface counted)
+    pulse_floors = local_floor(surfaces, surfaces[:, 0], surfaces[:, 1], np.full(len(surfaces), -1), cell)
+    if np.isfinite(pulse_floors).any():
+        floor = np.where(np.isnan(floor), np.nanmin(pulse_floors), floor)
+    return kept & (xyz[:, 2] < floor - UNDER_GROUND_M) & ~strong_echoes(result)
 
 
-def filter_under_ground(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray) -> int:
+def filter_under_ground(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray,
+                        cell: float = CELL_M) -> int:
     """Mark the echoes under_ground finds with its reason in result.reject (in place); how many."""
-    mark = under_ground(pulses, result, xyz)
+    mark = under_ground(pulses, result, xyz, cell)
     result.reject[mark] = UNDER_GROUND
     return int(mark.sum())
