@@ -47,20 +47,19 @@ def under_counts(pulses, result, xyz, kept) -> tuple[int, int, int]:
     return line, int((z < local - UNDER_GROUND_M).sum()), int(own_under.sum())
 
 
-def leica_rows() -> None:
+def leica_rows(config: DecompositionConfig = DecompositionConfig(), label: str = "default preset") -> None:
     pulses = read_pulses(LEICA)
-    config = DecompositionConfig()
     system = file_system_pulse(LEICA, pulses.return_xyz.shape[0], config)
     result = decompose_batch(pulse_waveforms(pulses, 0), config, system, threads=1)
     xyz = echo_positions(pulses, result, system.range_offset_ps)
     times = echo_times_ps(pulses, result, system.range_offset_ps)
     mark = under_ground(pulses, result, xyz)
-    print(f"Leica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns), default preset")
+    print(f"Leica sample ({len(pulses)} pulses, {pulses.return_xyz.shape[0]} system returns), {label}")
     print(f"{'':7} {'kept':>6} {'> 5 m under line':>16} {'under local':>11} {'under own':>9} {'recall':>7}")
-    for label, kept in (("before", result.reject == 0), ("after", (result.reject == 0) & ~mark)):
+    for when, kept in (("before", result.reject == 0), ("after", (result.reject == 0) & ~mark)):
         line, local, own = under_counts(pulses, result, xyz, kept)
         points = compare_to_system(pulses, xyz[kept], times[kept], result.echo_waveform[kept])
-        print(f"{label:7} {kept.sum():6d} {line:16d} {local:11d} {own:9d} "
+        print(f"{when:7} {kept.sum():6d} {line:16d} {local:11d} {own:9d} "
               f"{points.matched_system / pulses.return_xyz.shape[0]:7.4f}")
     print(f"filtered under_ground: {mark.sum()}")
 
@@ -89,4 +88,5 @@ def forest_rows(n_pulses: int = 10_000) -> None:
 
 if __name__ == "__main__":
     leica_rows()
+    leica_rows(DecompositionConfig(min_snr=2.0), "the filter's floor at 2 sigma (the default before 2026-12-05)")
     forest_rows()

@@ -5,10 +5,11 @@ bump or an afterpulse in the long record after the ground (the Leica sample's li
 offers one surface, its lowest: its lowest system return where the file records them (LAS points of the
 waveform), else its lowest strong echo (PulseWaves, GEDI, LVIS): kept, at least STRONG_SNR x sigma_noise and
 STRONG_SHARE of its pulse's strongest echo, so that an afterpulse or a noise bump is no surface. An echo's
-floor is the LOW_QUANTILE quantile of the lowest surfaces of the *other* pulses in the 3 x 3 cells of CELL_M
-around it: a true weak ground echo under canopy lies at its neighbours' ground however far under its own pulse's
-canopy returns, a few noise returns under the ground do not set the floor, and a pulse's own lowest return
-(perhaps the noise itself) never vouches for its echoes. An echo with no other pulse near (a range's edge, the
+floor is the lowest of the lowest surfaces of the *other* pulses in the 3 x 3 cells of CELL_M around it: a true
+weak ground echo under canopy lies at its neighbours' ground however far under its own pulse's canopy returns, and
+one of them reaching the ground is enough however dense the canopy (a 10% quantile was not: under the forest
+scene's crowns fewer than 1 in 10 pulses reach it); a pulse's own lowest return (perhaps the noise itself) never vouches for its echoes. So no kept echo lies more than UNDER_GROUND_M under
+the lowest return near it, nor under the flight line's lowest. An echo with no other pulse near (a range's edge, the
 sparse footprints of GEDI) is judged against the range's floor, the lowest of its pulses' floors. An echo under
 its floor stays only if it is strong (a surface its neighbours do not see: a pit, a well). The others are
 filtered with the reason `under_ground`, counted with the spurious echoes.
@@ -24,7 +25,6 @@ from fwcore.io.records import PulseBatch
 
 UNDER_GROUND_M = 5.0
 CELL_M = 2.0  # 3 x 3 cells span 4-6 m: a 25% slope lowers the floor by at most 1.5 m
-LOW_QUANTILE = 0.1
 STRONG_SNR = 20.0
 STRONG_SHARE = 0.5
 
@@ -45,15 +45,17 @@ def lowest_surfaces(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndar
     strong = strong_echoes(result)
     for owner, points in ((result.echo_waveform[strong], xyz[strong]),
                           (pulses.return_pulse(), pulses.return_xyz)):  # system returns win: written second
-        order = np.lexsort((-points[:, 2], owner))  # per pulse, its lowest last
-        out[owner[order]] = points[order]
+        if owner.size:
+            order = np.lexsort((points[:, 2], owner))
+            lowest = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]  # per pulse, its lowest
+            out[owner[lowest]] = points[lowest]
     return out
 
 
 def local_floor(surfaces: np.ndarray, at_x: np.ndarray, at_y: np.ndarray, at_pulse: np.ndarray,
                 cell: float = CELL_M) -> np.ndarray:
-    """At each (at_x, at_y): the LOW_QUANTILE quantile of the heights of surfaces (one row per pulse, NaN rows
-    ignored) in the 3 x 3 cells around it, leaving out the surface of pulse at_pulse (NaN where none is left)."""
+    """At each (at_x, at_y): the lowest of the heights of surfaces (one row per pulse, NaN rows ignored) in the
+    3 x 3 cells around it, leaving out the surface of pulse at_pulse (NaN where none is left)."""
     floor = np.full(np.size(at_x), np.nan)
     placed = np.flatnonzero(np.isfinite(at_x) & np.isfinite(at_y))  # an echo without a position has no floor
     at_x, at_y, at_pulse = np.asarray(at_x, float)[placed], np.asarray(at_y, float)[placed], np.asarray(at_pulse)[placed]
@@ -85,8 +87,7 @@ def local_floor(surfaces: np.ndarray, at_x: np.ndarray, at_y: np.ndarray, at_pul
     pos = np.minimum(pos, pair.size - 1)
     own = (window[pair[pos]] == key[k]) & (member[pair[pos]] == at_pulse[k])
     others = n - own
-    rank = np.floor(LOW_QUANTILE * np.maximum(others - 1, 0)).astype(np.int64)
-    rank += own & (pair[pos] - starts[g] <= rank)  # the own surface at or below the rank: one further
+    rank = (own & (pair[pos] == starts[g])).astype(np.int64)  # the own surface the lowest: the next
     has = others > 0
     floor[placed[k[has]]] = height[starts[g[has]] + rank[has]]
     return floor
