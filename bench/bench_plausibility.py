@@ -7,6 +7,7 @@ under_ground rule (fwcore.plausibility), on the Leica sample and the simulated f
   line's lowest return (the lowest system return of the file), under the lowest system return within 5 m
   horizontally, and under their own pulse's lowest return; the share of the system's returns with a kept echo
   within 0.5 m (recall); the echoes the rule filters.
+- The default simulated flight (`fwl simulate --seed 7`): the true echoes the rule filters.
 - The simulated forest scenes (fwcore.studies.forest, `fwl simulate --scene forest`): the true ground echoes the
   engine keeps, and how many of them the rule filters (it must be none), with the echoes it filters.
 """
@@ -28,7 +29,7 @@ from fwcore.pulses import echo_positions, echo_times_ps, pulse_waveforms
 from fwcore.studies.evaluate import match_echoes
 from fwcore.studies.forest import FOREST_SAMPLES, ForestConfig, forest_flight_scene, simulate_forest_chunks, terrain
 from fwcore.studies.methods import compare_to_system
-from fwcore.studies.simulate import SensorConfig, _concatenate
+from fwcore.studies.simulate import SensorConfig, _concatenate, simulate_flight
 
 LEICA = Path(__file__).resolve().parents[1] / "examples" / "data" / "leica_als" / "leica_a.las"
 
@@ -86,7 +87,24 @@ def forest_rows(n_pulses: int = 10_000) -> None:
               f"{(kept & under).sum()} / {(kept & under & ~mark).sum()} under the terrain; {mark.sum()} filtered")
 
 
+def flight_rows(n_pulses: int = 10_000, seed: int = 7) -> None:
+    """The default simulated flight (`fwl simulate --seed 7`): true echoes the rule filters, echoes it filters."""
+    sensor = SensorConfig()
+    flight = simulate_flight(n_pulses, sensor, seed=seed)
+    pulses, truth = flight.pulses, flight.truth
+    result = decompose_batch(pulse_waveforms(pulses, 0), DecompositionConfig(), nominal_pulse(sensor.pulse_fwhm_ps),
+                             threads=1)
+    mark = under_ground(pulses, result, echo_positions(pulses, result, 0.0))
+    times = result.position * pulses.sample_spacing_ps[result.echo_waveform]
+    t_idx, f_idx = match_echoes(truth["pulse_id"], truth["time_ps"], pulses.pulse_id[result.echo_waveform],
+                                times, 1000.0)
+    true_kept = f_idx[result.reject[f_idx] == 0]
+    print(f"Simulated flight ({n_pulses} pulses, seed {seed}): {true_kept.size} true echoes kept, "
+          f"{mark[true_kept].sum()} of them filtered; {mark.sum()} echoes filtered")
+
+
 if __name__ == "__main__":
     leica_rows()
     leica_rows(DecompositionConfig(min_snr=2.0), "the filter's floor at 2 sigma (the default before 2026-12-05)")
     forest_rows()
+    flight_rows()
