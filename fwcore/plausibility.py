@@ -2,17 +2,17 @@
 
 Nothing below the ground returns light, so a kept echo more than UNDER_GROUND_M under the local floor is a noise
 bump or an afterpulse in the long record after the ground (the Leica sample's lie 5-40 m under it). Each pulse
-offers one surface, its lowest: its lowest system return where the file records them (LAS points of the
-waveform), else its lowest strong echo (PulseWaves, GEDI, LVIS): kept, at least STRONG_SNR x sigma_noise and
-STRONG_SHARE of its pulse's strongest echo, so that an afterpulse or a noise bump is no surface. An echo's
-floor is the lowest of the lowest surfaces of the *other* pulses in the 3 x 3 cells of CELL_M around it: a true
-weak ground echo under canopy lies at its neighbours' ground however far under its own pulse's canopy returns, and
-one of them reaching the ground is enough however dense the canopy (a 10% quantile was not: under the forest
-scene's crowns fewer than 1 in 10 pulses reach it); a pulse's own lowest return (perhaps the noise itself) never vouches for its echoes. So no kept echo lies more than UNDER_GROUND_M under
-the lowest return near it, nor under the flight line's lowest. An echo with no other pulse near (a range's edge, the
-sparse footprints of GEDI) is judged against the range's floor, the lowest of its pulses' floors. An echo under
-its floor stays only if it is strong (a surface its neighbours do not see: a pit, a well). The others are
-filtered with the reason `under_ground`, counted with the spurious echoes.
+offers one surface, its lowest: its lowest system return where the file records them (LAS points of the waveform),
+else its lowest strong echo (PulseWaves, GEDI, LVIS): kept, at least STRONG_SNR x sigma_noise and STRONG_SHARE of
+its pulse's strongest echo, so that an afterpulse or a noise bump is no surface. An echo's floor is the lowest of
+the lowest surfaces of the *other* pulses in the 3 x 3 cells of CELL_M around it: a true weak ground echo under
+canopy lies at its neighbours' ground however far under its own pulse's canopy returns, and one neighbour reaching
+the ground is enough however dense the canopy (a 10% quantile was not: under the forest scene's crowns fewer than 1
+pulse in 10 reaches it); a pulse's own lowest return (perhaps the noise itself) never vouches for its echoes. An
+echo with no other pulse near (a range's edge, the sparse footprints of GEDI) is judged against the range's lowest
+surface. An echo under its floor stays only if it is strong (a surface its neighbours do not see: a pit, a well);
+the others are filtered with the reason `under_ground`, counted with the spurious echoes. So no kept echo but a
+strong one lies more than UNDER_GROUND_M under the lowest return near it, nor under its flight line's lowest.
 """
 
 from __future__ import annotations
@@ -58,7 +58,8 @@ def local_floor(surfaces: np.ndarray, at_x: np.ndarray, at_y: np.ndarray, at_pul
     3 x 3 cells around it, leaving out the surface of pulse at_pulse (NaN where none is left)."""
     floor = np.full(np.size(at_x), np.nan)
     placed = np.flatnonzero(np.isfinite(at_x) & np.isfinite(at_y))  # an echo without a position has no floor
-    at_x, at_y, at_pulse = np.asarray(at_x, float)[placed], np.asarray(at_y, float)[placed], np.asarray(at_pulse)[placed]
+    at_x, at_y = np.asarray(at_x, float)[placed], np.asarray(at_y, float)[placed]
+    at_pulse = np.asarray(at_pulse)[placed]
     pulse = np.flatnonzero(np.isfinite(surfaces).all(axis=1))
     if pulse.size == 0 or at_x.size == 0:
         return floor
@@ -101,10 +102,8 @@ def under_ground(pulses: PulseBatch, result: BatchDecomposition, xyz: np.ndarray
     owner = result.echo_waveform
     surfaces = lowest_surfaces(pulses, result, xyz)
     floor = local_floor(surfaces, xyz[:, 0], xyz[:, 1], owner, cell)
-    # no other pulse near: the range's floor, the lowest of its pulses' floors (each window's own surface counted)
-    pulse_floors = local_floor(surfaces, surfaces[:, 0], surfaces[:, 1], np.full(len(surfaces), -1), cell)
-    if np.isfinite(pulse_floors).any():
-        floor = np.where(np.isnan(floor), np.nanmin(pulse_floors), floor)
+    if np.isfinite(surfaces[:, 2]).any():  # no other pulse near: the range's lowest surface
+        floor = np.where(np.isnan(floor), np.nanmin(surfaces[:, 2]), floor)
     return kept & (xyz[:, 2] < floor - UNDER_GROUND_M) & ~strong_echoes(result)
 
 
