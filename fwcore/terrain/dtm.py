@@ -28,6 +28,7 @@ def interpolate(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, x: np.ndarray, y
     """The ground's surface at (x, y): linear on the Delaunay triangulation of the ground echoes (thinned to one
     a `thin_cell`, None: all), the nearest one's z outside their hull; NaN without ground."""
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+    from threadpoolctl import threadpool_limits
 
     gx, gy, gz = (np.asarray(a, float) for a in (gx, gy, gz))
     if thin_cell:
@@ -42,14 +43,26 @@ def interpolate(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, x: np.ndarray, y
         return NearestNDInterpolator(ground, gz)(query).reshape(x.shape)
     z = np.full(query.shape[0], np.nan)
     try:
-        inside = _in_hull(ground, query)  # scipy searches every triangle for a point outside the hull: not those
-        z[inside] = LinearNDInterpolator(ground, gz)(query[inside])
+        inside = np.flatnonzero(_in_hull(ground, query))  # scipy searches every triangle for a point outside
+        inside = inside[_snake_order(query[inside], thin_cell or THIN_CELL_M)]  # the hull: not those
+        # one BLAS thread: the triangles' barycentric transforms are thousands of 2 x 2 LAPACK solves, which
+        # OpenBLAS's threads made 2-20 s a tile on a loaded machine (0.1 s on one)
+        with threadpool_limits(limits=1, user_api="blas"):
+            z[inside] = LinearNDInterpolator(ground, gz)(query[inside])
     except Exception:  # noqa: BLE001  collinear ground (a single line of echoes): no triangle to be linear on
         pass
     outside = ~np.isfinite(z)
     if outside.any():
         z[outside] = NearestNDInterpolator(ground, gz)(query[outside])
     return z.reshape(x.shape)
+
+
+def _snake_order(points: np.ndarray, band: float) -> np.ndarray:
+    """An order of the points along bands of `band` metres, east then west in turn: scipy walks to each query's
+    triangle from the last one's, so that neighbours in a row make it a few steps (in the table's order the walks
+    took 15 times longer: 0.5 s for a tile's 37,000 echoes)."""
+    row = np.floor((points[:, 1] - points[:, 1].min(initial=0.0)) / band).astype(np.int64)
+    return np.lexsort((np.where(row % 2 == 0, points[:, 0], -points[:, 0]), row))
 
 
 def _in_hull(points: np.ndarray, query: np.ndarray) -> np.ndarray:
