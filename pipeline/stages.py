@@ -3,7 +3,8 @@
 
     read_range(task)              -> PulseRange (or None: nothing readable) + Rejections of unreadable pulses
     decompose_range(item, ...)    -> DecomposedRange + Rejections of pulses not decomposed
-    geolocate_range(item, ...)    -> GeolocatedRange: positions, radiometry, the range's tables
+    geolocate_range(item, ...)    -> GeolocatedRange: positions, echoes under the ground filtered, radiometry,
+                                     the range's tables
     write_range(item, ...)        -> RangePart: the Parquet parts, and the LAS and MCAP parts under parts/
     run_range(task, settings)     -> RangeOutcome: all four in turn; a stage that fails rejects the range
                                      (every pulse it still holds) with the stage and the reason, unless the
@@ -25,7 +26,9 @@ from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
+from fwcore.io.crs import horizontal_metres
 from fwcore.io.writer import write_point_cloud
+from fwcore.plausibility import CELL_M, filter_under_ground
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry.equations import RadiometryConfig
 from fwcore.engine.records import STATUS_REASONS, WaveformBatch, model_samples
@@ -126,10 +129,13 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
 
 
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
-    """Every echo placed along its beam, its range and radiometry computed, every pulse's forest metrics
+    """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
+    and radiometry computed, every pulse's forest metrics
     (fwcore.metrics), the range's tables built."""
     pulses, result, source = item.pulses, item.result, item.task.source
     xyz = echo_positions(pulses, result, source.system.range_offset_ps)
+    # no kept echo far under the ground its neighbours see: filtered as under_ground, before anything counts it
+    filter_under_ground(pulses, result, xyz, CELL_M / horizontal_metres(source.crs_wkt))
     file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
     columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
     settings, by_algorithm = file_metric_settings(source.metric_settings)

@@ -147,7 +147,8 @@ COLUMNS = {c.name: c for c in (
     Column("classification", pa.uint8(), "", "ASPRS class: 2 ground, 6 building, 3/4/5 low/medium/high vegetation, "
                                             "7 low noise, 1 unclassified (fwl classify; null before it)"),
     Column("height", F64, "m", "the echo's height above the terrain (fwl classify's; null before it)"),
-    Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept)"),
+    Column("reject_reason", STR, "", "why a spurious echo was set aside ('' when kept): weak, too_close, out_of_range, "
+           "too_narrow, too_wide (the filter), under_ground (fwcore.plausibility)"),
     Column("status", STR, "", "'' when decomposed, else why not"),
     Column("n_samples", I32, "", "samples in the waveform"),
     Column("sample_spacing_ps", F64, "ps", "time between two samples"),

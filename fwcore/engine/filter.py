@@ -12,9 +12,10 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.engine.config import DecompositionConfig
 
-KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE = range(6)
+# UNDER_GROUND is set after geolocation (fwcore.plausibility), never by the kernel here
+KEPT, WEAK, TOO_CLOSE, OUT_OF_RANGE, TOO_NARROW, TOO_WIDE, UNDER_GROUND = range(7)
 _ENGINE = DecompositionConfig()  # filter_echoes's defaults are the engine's own settings
-REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide")
+REJECT_REASONS = ("", "weak", "too_close", "out_of_range", "too_narrow", "too_wide", "under_ground")
 
 
 @njit(**JIT)

@@ -151,3 +151,20 @@ def crs_name(wkt: str | None) -> str | None:
         return "(unparsed WKT)"
     code = crs.to_epsg(min_confidence=90)
     return f"EPSG:{code} ({crs.name})" if code else crs.name
+
+
+@functools.lru_cache(maxsize=64)
+def horizontal_metres(wkt: str | None) -> float:
+    """Metres per unit of a CRS's first horizontal axis (a degree of latitude for a geographic CRS); 1 for no
+    CRS or one pyproj cannot read: distances in metres turned into the coordinates' unit."""
+    if not wkt:
+        return 1.0
+    import pyproj
+
+    try:
+        axis = pyproj.CRS.from_wkt(wkt).axis_info[0]
+    except (pyproj.exceptions.CRSError, IndexError):
+        return 1.0
+    if axis.unit_name == "degree":
+        return EARTH_RADIUS_M * np.pi / 180.0
+    return float(axis.unit_conversion_factor or 1.0)

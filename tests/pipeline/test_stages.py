@@ -1,4 +1,5 @@
-"""A range's stages: a fault of the machine at any sink fails the range without rejecting a pulse."""
+"""A range's stages: a fault of the machine at any sink fails the range without rejecting a pulse; echoes under
+the ground leave the geolocate stage as spurious, with their reason."""
 
 import errno
 import logging
@@ -70,3 +71,20 @@ def test_a_data_fault_still_rejects_the_ranges_pulses_in_one_log_line(tmp_path, 
         {("decompose", "points 0-300: ValueError: non-finite samples")}
     said = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
     assert said == ["leica_a.las points 0-300: decompose failed: ValueError: non-finite samples"]
+
+
+def test_echoes_under_the_ground_go_to_the_spurious_echoes_with_their_reason(tmp_path):
+    import pyarrow.parquet as pq
+
+    from tests.fwcore.test_plausibility import _bumped_flight
+
+    path, _, _, bumped = _bumped_flight(tmp_path)
+    paths = [str(path)]
+    task = plan_inputs(paths, InputNames.of(paths), DecompositionConfig(), 100_000)[0][0]
+    outcome = run_range(task, RangeSettings(str(tmp_path / "out"), DecompositionConfig(), frozenset({"parquet"})))
+    echoes = pq.read_table(next((tmp_path / "out" / "echoes").glob("*.parquet"))).to_pandas()
+    under = echoes[echoes.reject_reason == "under_ground"]
+    assert 0.5 * bumped.size <= len(under) and not under.kept.any()
+    assert outcome.echoes_kept + outcome.echoes_spurious == len(echoes)
+    assert outcome.echoes_spurious == int((~echoes.kept).sum()) >= len(under)
+    assert ((echoes.reject_reason == "") == echoes.kept).all()

@@ -70,3 +70,12 @@ def test_crs_overrides_what_the_file_says_in_every_form_pyproj_reads(tmp_path, g
 def test_a_crs_pyproj_cannot_read_is_refused_naming_the_option(given):
     with pytest.raises(ValueError, match="--crs .* is not a coordinate reference system"):
         parse_crs(given)
+
+
+def test_horizontal_metres_turns_a_metre_into_the_axis_unit():
+    from fwcore.io.crs import horizontal_metres
+
+    assert horizontal_metres(None) == 1.0
+    assert horizontal_metres(pyproj.CRS.from_epsg(32633).to_wkt()) == 1.0
+    assert horizontal_metres(pyproj.CRS.from_epsg(4979).to_wkt()) == pytest.approx(111_195.0, rel=1e-4)
+    assert horizontal_metres(pyproj.CRS.from_epsg(2249).to_wkt()) == pytest.approx(0.3048006, rel=1e-6)  # US ft
