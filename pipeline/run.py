@@ -47,6 +47,7 @@ from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, planned_pulses,
 from pipeline.progress import ProgressBar, watched_logs
 from pipeline.sinks import write_part
 from pipeline.tables import empty_rejected_table
+from pipeline.timing import Laps, log_timing
 from pipeline.transforms import NAMESPACE, AssembleFiles, DecomposeFlight, PlanFiles
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_MACHINE", "EXIT_NOTHING_DONE", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE",
@@ -470,8 +471,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
-            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range, limit,
-                               jobs)
+            laps = Laps()
+            with laps("plan job"):
+                plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, pulse), config, points_per_range,
+                                   limit, jobs)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
@@ -500,17 +503,21 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
                                  line_every=60.0 if watch else float("inf"), already=reused):
-                    result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
-                                                            | "DecomposeFlight" >> DecomposeFlight(
-                                                                config, str(output), formats, spread=not jobs.dask,
-                                                                radiometry=radiometry)), small)
+                    laps.seconds["ranges job began"] = time.time()
+                    with laps("ranges job"):
+                        result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
+                                                                | "DecomposeFlight" >> DecomposeFlight(
+                                                                    config, str(output), formats, spread=not jobs.dask,
+                                                                    radiometry=radiometry)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
-                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
-                         small)
+                with laps("files job"):
+                    jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files)
+                             | AssembleFiles(str(output), laz, formats), small)
+            log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
