@@ -128,6 +128,7 @@ def main() -> None:
     parser.add_argument("--riegl", default=None, help="a RIEGL-like LAS 1.4 flight line (default: simulated)")
     parser.add_argument("--pulses", type=int, default=95_000)
     parser.add_argument("--skip-dask", action="store_true")
+    parser.add_argument("--cases", default="defaults,fast,parquet,las,mcap", help="which runs, comma-separated")
     parser.add_argument("--workdir", default=None)
     args = parser.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-stages-"))
@@ -139,6 +140,7 @@ def main() -> None:
     fwl_run(LEICA, work / "warm", [])  # numba's cache and the OS's file cache warm for every run below
     cases = {"defaults": [], "fast": ["--preset", "fast"], "parquet": ["--formats", "parquet"],
              "las": ["--formats", "las"], "mcap": ["--formats", "mcap"]}
+    cases = {name: extra for name, extra in cases.items() if name in args.cases.split(",")}
     for name, path in (("RIEGL-like", riegl), ("Leica", LEICA)):
         reference = sylva(path, work)
         runs = {name_: fwl_run(path, work / f"{path.stem}-{name_}", extra) for name_, extra in cases.items()}
