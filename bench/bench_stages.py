@@ -137,7 +137,7 @@ def main() -> None:
         subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--pulses", str(args.pulses), "--output",
                         str(riegl), "--format", "las14-internal", "--system-response", "riegl", "--seed", "3"],
                        cwd=ROOT, check=True, capture_output=True)
-    fwl_run(LEICA, work / "warm", [])  # numba's cache and the OS's file cache warm for every run below
+XX
     cases = {"defaults": [], "fast": ["--preset", "fast"], "parquet": ["--formats", "parquet"],
              "las": ["--formats", "las"], "mcap": ["--formats", "mcap"]}
     cases = {name: extra for name, extra in cases.items() if name in args.cases.split(",")}
