@@ -137,7 +137,9 @@ def main() -> None:
         subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--pulses", str(args.pulses), "--output",
                         str(riegl), "--format", "las14-internal", "--system-response", "riegl", "--seed", "3"],
                        cwd=ROOT, check=True, capture_output=True)
-XX
+    # numba's cache (a checkout compiles its own) and the OS's file cache warm for every run below
+    fwl_run(LEICA, work / "warm", [])
+    fwl_run(riegl, work / "warm-riegl", ["--limit", "3000", "--formats", "parquet,las,mcap"])
     cases = {"defaults": [], "fast": ["--preset", "fast"], "parquet": ["--formats", "parquet"],
              "las": ["--formats", "las"], "mcap": ["--formats", "mcap"]}
     cases = {name: extra for name, extra in cases.items() if name in args.cases.split(",")}
