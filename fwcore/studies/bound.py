@@ -9,7 +9,8 @@ echoes, that is the recall no unbiased engine beats on average (a biased estimat
 bound), and the RMS error of the echoes that land is the range RMSE it would report: `fwl evaluate`'s
 resolvable rows beside the instrument's own limit. The single-echo CRLB column of `fwl evaluate` leaves the
 neighbours out; two echoes a pulse width apart share their samples, and their times trade against each
-other's amplitude and width.
+other's amplitude and width. With `widths_known` the widths are given, not estimated: the Fisher information
+without the width parameters, the limit an engine told each echo's width (issue 38's "widths known") reaches.
 """
 
 from __future__ import annotations
@@ -49,9 +50,11 @@ def _pulse_model(sensor: SensorConfig, shape, amplitude, time_ps, sigma_ps, alph
 
 
 def echo_time_bounds_ps(pulse_id: np.ndarray, time_ps: np.ndarray, amplitude: np.ndarray, sigma_ps: np.ndarray,
-                        alpha: np.ndarray, sensor: SensorConfig, wanted: np.ndarray | None = None) -> np.ndarray:
+                        alpha: np.ndarray, sensor: SensorConfig, wanted: np.ndarray | None = None,
+                        widths_known: bool = False) -> np.ndarray:
     """Per true echo, the joint Cramer-Rao bound (ps, one sigma) of its time, with every echo of its pulse's
-    amplitude, time and width and the background unknown; NaN for pulses with no `wanted` echo (all by default)."""
+    amplitude, time and width (given, with `widths_known`) and the background unknown; NaN for pulses with no
+    `wanted` echo (all by default)."""
     pulse_id, time_ps, amplitude, sigma_ps, alpha = (np.asarray(a) for a in (pulse_id, time_ps, amplitude, sigma_ps,
                                                                               alpha))
     wanted = np.ones(pulse_id.size, bool) if wanted is None else np.asarray(wanted, bool)
@@ -80,13 +83,18 @@ def echo_time_bounds_ps(pulse_id: np.ndarray, time_ps: np.ndarray, amplitude: np
             jacobian[:, j] = (model(up) - model(down)) / (2.0 * step)
         signal = np.maximum(model(params), 0.0)
         variance = sensor.noise_sigma ** 2 + sensor.shot_noise * signal + _QUANTISATION_VARIANCE
-        information = jacobian.T @ (jacobian / variance[:, None])
+        unknown = np.ones(params.size, bool)
+        if widths_known:  # a known width is no parameter: its rows and columns leave the information
+            unknown[2:-1:3] = False
+        information = jacobian[:, unknown].T @ (jacobian[:, unknown] / variance[:, None])
         try:
             covariance = np.linalg.inv(information)
         except np.linalg.LinAlgError:  # an echo the samples do not constrain at all (outside the packet)
             out[echoes] = np.inf
             continue
-        out[echoes] = np.sqrt(np.maximum(np.diag(covariance)[1:-1:3], 0.0))
+        times = np.zeros(params.size, bool)
+        times[1:-1:3] = True
+        out[echoes] = np.sqrt(np.maximum(np.diag(covariance)[times[unknown]], 0.0))
     return out
 
 

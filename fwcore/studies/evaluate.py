@@ -14,7 +14,7 @@ echo is right when it is matched to a true echo (within 1 ns), or lies within
 0.5 W of the amplitude-weighted centre of a group of true echoes closer than W
 to each other (which no instrument splits) none of which is matched; recall
 is also given by separation, in pulse widths, each split beside the recall and
-RMSE of an ideal engine at the joint Cramer-Rao bound (fwcore.studies.bound).
+RMSE of an ideal engine at the joint Cramer-Rao bound (fwcore.studies.bound), and of one told the widths.
 """
 
 from __future__ import annotations
@@ -323,27 +323,33 @@ def evaluate_run(results_dir: str | Path, truth_file: str | Path, match_ps: floa
 def _resolution_rows(label: str, truth: dict, found: dict, pairs, crlb: np.ndarray, sensor: SensorConfig,
                      match_ps: float) -> list[dict]:
     """score_resolution as rows: resolvable echoes (precision: kept echoes that are right) and recall by separation,
-    each resolvable split followed by what an ideal engine would reach there (fwcore.studies.bound)."""
+    each resolvable split followed by what an ideal engine would reach there (fwcore.studies.bound), with the widths
+    unknown (the joint CRLB) and known (the limit physical width priors approach)."""
     scored = score_resolution(truth, found, match_ps, pairs=pairs)
     _, apart, strong = resolvability(truth)
     resolvable = strong & (apart >= 1.0)
-    bound = echo_time_bounds_ps(truth["pulse_id"], truth["time_ps"], truth["amplitude"], truth["sigma_ps"],
-                                truth["alpha"], sensor, wanted=strong & (apart >= BOUND_FROM_W))
+    wanted = strong & (apart >= BOUND_FROM_W)
+    bounds = {known: echo_time_bounds_ps(truth["pulse_id"], truth["time_ps"], truth["amplitude"], truth["sigma_ps"],
+                                         truth["alpha"], sensor, wanted=wanted, widths_known=known)
+              for known in (False, True)}
 
-    def at_bound(split: str, within: np.ndarray) -> dict:
-        ideal = expected_match(bound[within], match_ps, _CM_PER_PS)
-        row = {c: float("nan") for c, _, _ in EVALUATION_COLUMNS}
-        return {**row, "run": label, "split": f"{split}, at the joint CRLB (an ideal engine)",
-                "true_echoes": ideal.true_echoes, "matched": round(ideal.expected_matched), "recall": ideal.recall,
-                "range_rmse_cm": ideal.range_rmse_cm}
+    def at_bound(split: str, within: np.ndarray) -> list[dict]:
+        rows = []
+        for known, name in ((False, "at the joint CRLB (an ideal engine)"), (True, "widths known (the limit)")):
+            ideal = expected_match(bounds[known][within], match_ps, _CM_PER_PS)
+            row = {c: float("nan") for c, _, _ in EVALUATION_COLUMNS}
+            rows.append({**row, "run": label, "split": f"{split}, {name}", "true_echoes": ideal.true_echoes,
+                         "matched": round(ideal.expected_matched), "recall": ideal.recall,
+                         "range_rmse_cm": ideal.range_rmse_cm})
+        return rows
 
     row = _stats(label, "resolvable: >= 1 W apart, SNR >= 5", resolvable, None, pairs, truth, found, crlb)
-    rows = [{**row, "precision": scored.precision}, at_bound("resolvable", resolvable)]
+    rows = [{**row, "precision": scored.precision}, *at_bound("resolvable", resolvable)]
     for b in scored.by_separation:
         within = strong & (apart >= b.lo_w) & (apart < b.hi_w)
         rows.append(_stats(label, f"{b.label} apart, SNR >= 5", within, None, pairs, truth, found, crlb))
         if b.lo_w >= BOUND_FROM_W:
-            rows.append(at_bound(b.label, within))
+            rows.extend(at_bound(b.label, within))
     return rows
 
 

@@ -96,6 +96,7 @@ def cloth_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, config: GroundConf
     csf.params.interations = config.iterations
     csf.setPointCloud(xyz - origin)
     ground, other = CSF.VecInt(), CSF.VecInt()
+    _one_openmp_thread(CSF)
     with _quiet_stdout():  # the C++ prints its progress to the process's stdout
         csf.do_filtering(ground, other, False)
     mask = np.zeros(n, bool)
@@ -123,6 +124,22 @@ def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, last: np.ndarra
         dz = z[candidates] - surface
         ground[candidates] = (dz <= config.refine_above) & (dz >= -config.refine_below)
     return ground
+
+
+def _one_openmp_thread(csf_module) -> None:
+    """The cloth's OpenMP loop moves particles that share constraints from several threads at once: a race, so
+    that the same tile gave another ground on some runs. One thread (set for the calling thread, where the cloth
+    runs) makes it deterministic; the OpenMP library is the one the wheel bundles beside the module, or the
+    system's."""
+    import ctypes
+    import ctypes.util
+    from pathlib import Path
+
+    libs = Path(csf_module.__file__).parent
+    bundled = sorted(libs.glob("cloth_simulation_filter.libs/libgomp*")) + sorted(libs.glob("*.libs/libgomp*"))
+    name = str(bundled[0]) if bundled else ctypes.util.find_library("gomp")
+    if name is not None:  # none: a build without OpenMP, one thread already
+        ctypes.CDLL(name).omp_set_num_threads(1)
 
 
 class _quiet_stdout:

@@ -195,6 +195,27 @@ def test_the_joint_bound_grows_as_two_echoes_close_in_and_gives_the_recall_an_id
                                                       + 0.682689492 * 1000.0 ** 2 * 0.29113) / 1.637189228, rel=1e-3)
 
 
+def test_the_widths_known_bound_is_the_information_without_the_widths_computed_by_hand():
+    """Two Gaussian echoes 1.2 W apart: with their widths given, the bound of each time is the inverse of the Fisher
+    information of (A1, t1, A2, t2, background) from the closed-form derivatives, and below the joint bound."""
+    from fwcore.studies.bound import echo_time_bounds_ps
+
+    sensor = SensorConfig(noise_sigma=1.5, shot_noise=0.0, samples_per_packet=120)
+    sigma, amplitude = 1_700.0, np.array([20.0, 12.0])
+    times = np.array([40_000.0, 40_000.0 + 1.2 * 2.3548 * sigma])
+    known = echo_time_bounds_ps([1, 1], times, amplitude, [sigma] * 2, [np.sqrt(2.0)] * 2, sensor, widths_known=True)
+    joint = echo_time_bounds_ps([1, 1], times, amplitude, [sigma] * 2, [np.sqrt(2.0)] * 2, sensor)
+    t = np.arange(120) * 1000.0
+    columns = []
+    for a, u in zip(amplitude, times):
+        g = np.exp(-(t - u) ** 2 / (2 * sigma ** 2))
+        columns += [g, a * g * (t - u) / sigma ** 2]
+    jacobian = np.column_stack(columns + [np.ones(t.size)])
+    covariance = np.linalg.inv(jacobian.T @ jacobian / (1.5 ** 2 + 1.0 / 12.0))
+    assert known == pytest.approx(np.sqrt(np.diag(covariance)[[1, 3]]), rel=1e-3)
+    assert np.all(known < 0.9 * joint)
+
+
 def test_evaluate_puts_the_ideal_engine_beside_each_resolvable_split(high_snr_run):
     rows = evaluate_run(high_snr_run / "run", high_snr_run / "sim.truth.parquet")
     splits = [r["split"] for r in rows]
@@ -204,3 +225,6 @@ def test_evaluate_puts_the_ideal_engine_beside_each_resolvable_split(high_snr_ru
     assert ideal["true_echoes"] == rows[resolvable]["true_echoes"] and 0.9 < ideal["recall"] <= 1.0
     assert [s for s in splits if s.endswith("(an ideal engine)")][1:] == [
         f"{w}, at the joint CRLB (an ideal engine)" for w in ("0.75-1 W", "1-1.5 W", "1.5-2 W", ">= 2 W")]
+    limit = rows[resolvable + 2]  # told the widths, an engine does at least as well
+    assert limit["split"] == "resolvable, widths known (the limit)"
+    assert ideal["recall"] <= limit["recall"] <= 1.0 and limit["range_rmse_cm"] <= ideal["range_rmse_cm"]
