@@ -7,6 +7,7 @@ result, and compare the last line:
 
     python bench/output_hash.py            # prints a hash per case and the hash of them all
     python bench/output_hash.py --quick    # fewer pulses (a check while working, not the proof)
+    python bench/output_hash.py --las      # fwl run's cases also write LAS, and its points' values are hashed
 """
 
 from __future__ import annotations
@@ -65,11 +66,27 @@ def table_digest(paths: list[Path]) -> str:
     return digest.hexdigest()[:16]
 
 
-def run_case(arguments: list[str], folder: Path) -> str:
+def las_digest(paths: list[Path]) -> str:
+    """A hash of LAS files' point values, every dimension (standard and Extra Bytes), and their headers' counts,
+    scales and offsets; not their bytes, which carry the writer's version."""
+    if not paths:
+        return "no las"
+    import laspy
+    digest = hashlib.sha256()
+    for path in sorted(paths):
+        las = laspy.read(path)
+        digest.update(repr((las.header.point_count, list(las.header.scales), list(las.header.offsets))).encode())
+        for name in las.point_format.dimension_names:
+            digest.update(name.encode())
+            digest.update(las[name].tobytes() if hasattr(las[name], "tobytes") else bytes(las[name]))
+    return digest.hexdigest()[:16]
+
+
+def run_case(arguments: list[str], folder: Path, las: bool = False) -> str:
     out = folder / "out"
     command = [sys.executable, "-m", "pipeline.cli", *arguments, "--seed", "7"]
     if arguments[0] == "run":
-        command += ["--output", str(out), "--formats", "parquet", "--direct_num_workers=1",
+        command += ["--output", str(out), "--formats", "parquet,las" if las else "parquet", "--direct_num_workers=1",
                     "--direct_running_mode=in_memory"]
     else:
         command += ["--output", str(out / "echoes.parquet"), "--threads", "1"]
@@ -80,20 +97,22 @@ def run_case(arguments: list[str], folder: Path) -> str:
               else sorted(out.glob("echoes*.parquet")),
               "pulses": sorted((out / "pulses").glob("*.parquet")),
               "rejected": sorted((out / "rejected").glob("*.parquet"))}
-    return " ".join(f"{name}={table_digest(paths)}" for name, paths in tables.items())
+    said = " ".join(f"{name}={table_digest(paths)}" for name, paths in tables.items())
+    return f"{said} las={las_digest(sorted((out / 'las').glob('*.las')))}" if las and arguments[0] == "run" else said
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="100 pulses an input instead of 400")
     parser.add_argument("--only", default="", help="run only the cases whose name contains this")
+    parser.add_argument("--las", action="store_true", help="fwl run's cases write LAS too, its values hashed")
     args = parser.parse_args(argv)
     every = hashlib.sha256()
     for name, arguments in cases(100 if args.quick else 400):
         if args.only not in name:
             continue
         with tempfile.TemporaryDirectory() as folder:
-            line = f"{name}: {run_case(arguments, Path(folder))}"
+            line = f"{name}: {run_case(arguments, Path(folder), args.las)}"
         print(line, flush=True)
         every.update(line.encode())
     print(f"all: {every.hexdigest()[:16]}")

@@ -41,6 +41,7 @@ from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, planned_pulses,
 from pipeline.progress import ProgressBar
 from pipeline.rejections import write_file_rejection
 from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
+from pipeline.timing import Laps, log_timing
 from pipeline.transforms import AssembleFiles, DecomposeFlight, PlanFiles
 
 __all__ = ["Jobs", "RunStopped", "check_run_arguments", "run", "run_jobs", "run_settings"]
@@ -332,8 +333,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
-            plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides), config, points_per_range, limit,
-                               jobs)
+            laps = Laps()
+            with laps("plan job"):
+                plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides), config, points_per_range,
+                                   limit, jobs)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
@@ -362,17 +365,21 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             if todo:
                 with ProgressBar(output / PARTS, total, terminal, interactive=None if watch else False,
                                  line_every=60.0 if watch else float("inf"), already=reused):
-                    result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
-                                                            | "DecomposeFlight" >> DecomposeFlight(
-                                                                config, str(output), formats, spread=not jobs.dask,
-                                                                radiometry=radiometry)), small)
+                    laps.seconds["ranges job began"] = time.time()
+                    with laps("ranges job"):
+                        result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
+                                                                | "DecomposeFlight" >> DecomposeFlight(
+                                                                    config, str(output), formats, spread=not jobs.dask,
+                                                                    radiometry=radiometry)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
-                jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
-                         small)
+                with laps("files job"):
+                    jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files)
+                             | AssembleFiles(str(output), laz, formats), small)
+            log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))

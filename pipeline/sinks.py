@@ -149,38 +149,81 @@ def _point_cloud_message(cloud: dict[str, np.ndarray], rows: np.ndarray, ns: int
         data=values.astype("<f4").tobytes())
 
 
-_NUMBERS = {"type": "array", "items": {"type": "number"}}
-WAVEFORM_SCHEMA = {
-    "type": "object",
-    "properties": {
-        "pulse_id": {"type": "integer", "description": "the pulse's identity, as in the tables"},
-        "gps_time": {"type": "number", "description": "the point records' gps_time, as in the file"},
-        "time_ps": {**_NUMBERS, "description": "each sample's time after the first, ps"},
-        "raw": {**_NUMBERS, "description": "the digitized samples"},
-        "model": {**_NUMBERS, "description": "the fitted model at each sample"},
-        "echoes": {"type": "array", "items": {
-            "type": "object",
-            "properties": {"time_ps": {"type": "number"}, "amplitude": {"type": "number"},
-                           "fwhm_ps": {"type": "number"}, "kept": {"type": "boolean"},
-                           "reject_reason": {"type": "string"}}}},
-    },
-}
+# /waveform: one protobuf message per batch of consecutive pulses (as /echoes), every array a packed repeated
+# field of fixed width, so that a batch is its arrays' bytes; any protobuf reader decodes it with the schema
+# the file holds (a FileDescriptorSet). Offsets are into the message's own arrays, from 0.
+WAVEFORMS_MESSAGE = "fwlidar.Waveforms"
+WAVEFORM_FIELDS = (  # (name, protobuf type, numpy dtype, what it holds)
+    ("pulse_id", "sfixed64", "<i8", "each pulse's identity, as in the tables"),
+    ("gps_time", "double", "<f8", "each pulse's gps_time, as in the file"),
+    ("sample_spacing_ps", "double", "<f8", "each pulse's time between two samples, ps"),
+    ("sample_offsets", "fixed32", "<u4", "pulse i's samples are raw[sample_offsets[i]:sample_offsets[i + 1]]"),
+    ("raw", "float", "<f4", "the digitized samples"),
+    ("model", "float", "<f4", "the fitted model at each sample (0 where the pulse was not decomposed)"),
+    ("echo_offsets", "fixed32", "<u4", "pulse i's echoes are echo_*[echo_offsets[i]:echo_offsets[i + 1]]"),
+    ("echo_time_ps", "double", "<f8", "each echo's centre after the pulse's first sample, ps"),
+    ("echo_amplitude", "double", "<f8", "each echo's amplitude, DN"),
+    ("echo_fwhm_ps", "double", "<f8", "each echo's FWHM, ps"),
+    ("echo_reject", "fixed32", "<u4", "0 kept; else the code of why it was set aside, into reject_reasons"),
+)
+REJECT_REASONS_FIELD = len(WAVEFORM_FIELDS) + 1  # repeated string: the reasons, by code
 
 
-def _waveform_message(v: dict[str, np.ndarray], i: int) -> bytes:
+def waveforms_schema() -> bytes:
+    """The /waveform schema: fwlidar.Waveforms as a serialized FileDescriptorSet."""
+    from google.protobuf import descriptor_pb2
+
+    field = descriptor_pb2.FieldDescriptorProto
+    message = descriptor_pb2.DescriptorProto(name="Waveforms")
+    for number, (name, kind, _, _) in enumerate(WAVEFORM_FIELDS, start=1):
+        message.field.add(name=name, number=number, label=field.LABEL_REPEATED,
+                          type=getattr(field, f"TYPE_{kind.upper()}"))
+    message.field.add(name="reject_reasons", number=REJECT_REASONS_FIELD, label=field.LABEL_REPEATED,
+                      type=field.TYPE_STRING)
+    proto = descriptor_pb2.FileDescriptorProto(name="fwlidar/Waveforms.proto", package="fwlidar", syntax="proto3",
+                                               message_type=[message])
+    return descriptor_pb2.FileDescriptorSet(file=[proto]).SerializeToString()
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _length_delimited(number: int, payload: bytes) -> bytes:
+    return _varint(number << 3 | 2) + _varint(len(payload)) + payload
+
+
+def _waveforms_message(v: dict[str, np.ndarray], lo: int, hi: int) -> bytes:
+    """Pulses lo..hi-1 of a range's views as one fwlidar.Waveforms message."""
     from fwcore.engine.filter import REJECT_REASONS
 
-    lo, hi = v["sample_offsets"][i], v["sample_offsets"][i + 1]
-    e_lo, e_hi = v["echo_offsets"][i], v["echo_offsets"][i + 1]
-    return json.dumps({
-        "pulse_id": int(v["pulse_id"][i]), "gps_time": float(v["gps_time"][i]),
-        "time_ps": (np.arange(hi - lo) * float(v["sample_spacing_ps"][i])).tolist(),
-        "raw": v["raw"][lo:hi].tolist(), "model": np.round(v["model"][lo:hi], 3).tolist(),
-        "echoes": [{"time_ps": float(t), "amplitude": float(a), "fwhm_ps": float(f), "kept": not r,
-                    "reject_reason": REJECT_REASONS[r]}
-                   for t, a, f, r in zip(v["echo_time_ps"][e_lo:e_hi], v["echo_amplitude"][e_lo:e_hi],
-                                         v["echo_fwhm_ps"][e_lo:e_hi], v["echo_reject"][e_lo:e_hi])],
-    }).encode()
+    s_lo, s_hi, e_lo, e_hi = v["sample_offsets"][lo], v["sample_offsets"][hi], v["echo_offsets"][lo], v["echo_offsets"][hi]
+    arrays = {"pulse_id": v["pulse_id"][lo:hi], "gps_time": v["gps_time"][lo:hi],
+              "sample_spacing_ps": v["sample_spacing_ps"][lo:hi],
+              "sample_offsets": v["sample_offsets"][lo:hi + 1] - s_lo, "raw": v["raw"][s_lo:s_hi],
+              "model": v["model"][s_lo:s_hi], "echo_offsets": v["echo_offsets"][lo:hi + 1] - e_lo,
+              **{f"echo_{k}": v[f"echo_{k}"][e_lo:e_hi] for k in ("time_ps", "amplitude", "fwhm_ps", "reject")}}
+    parts = [_length_delimited(number, np.ascontiguousarray(arrays[name], dtype=dtype).tobytes())
+             for number, (name, _, dtype, _) in enumerate(WAVEFORM_FIELDS, start=1) if arrays[name].size]
+    parts += [_length_delimited(REJECT_REASONS_FIELD, reason.encode()) for reason in REJECT_REASONS]
+    return b"".join(parts)
+
+
+def decode_waveforms(data: bytes) -> dict[str, np.ndarray | list[str]]:
+    """A /waveform message's arrays by name (and reject_reasons), read with protobuf from the schema."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    for proto in descriptor_pb2.FileDescriptorSet.FromString(waveforms_schema()).file:
+        pool.Add(proto)
+    message = message_factory.GetMessageClass(pool.FindMessageTypeByName(WAVEFORMS_MESSAGE)).FromString(data)
+    found = {name: np.array(getattr(message, name), dtype=dtype) for name, _, dtype, _ in WAVEFORM_FIELDS}
+    return {**found, "reject_reasons": list(message.reject_reasons)}
 
 
 CRS_METADATA = "crs"  # the MCAP metadata record (and /echoes channel metadata key) of the points' CRS
@@ -205,8 +248,7 @@ class _McapFile:
             "/echoes": self.writer.register_channel("/echoes", "protobuf", register_schema(self.writer, PointCloud),
                                                     metadata={**meta, **crs}),
             "/waveform": self.writer.register_channel(
-                "/waveform", "json",
-                self.writer.register_schema("fwlidar.Waveform", "jsonschema", json.dumps(WAVEFORM_SCHEMA).encode()),
+                "/waveform", "protobuf", self.writer.register_schema(WAVEFORMS_MESSAGE, "protobuf", waveforms_schema()),
                 metadata=meta),
         }
 
@@ -214,25 +256,30 @@ class _McapFile:
         self.writer.add_message(self.channels[topic], log_time=ns, data=data, publish_time=ns)
 
 
+def _batches(starts: np.ndarray, total: int, size: int = POINTS_PER_CLOUD_MESSAGE):
+    """(lo, hi) of each run of `size` consecutive groups whose first rows are `starts`, the last ending at total."""
+    for chunk in range(0, starts.size, size):
+        yield starts[chunk], starts[chunk + size] if chunk + size < starts.size else total
+
+
 def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.ndarray],
                adjusted_standard: bool, crs_wkt: str | None = None) -> Path:
-    """One range's kept echoes as foxglove.PointCloud messages on /echoes (chunks of consecutive pulses)
-    and each pulse's raw waveform, fitted model and echoes as JSON on /waveform, in pulse order; their CRS
-    as _McapFile says."""
+    """One range's kept echoes as foxglove.PointCloud messages on /echoes and its pulses' raw waveforms, fitted
+    models and echoes as fwlidar.Waveforms messages on /waveform, each message a batch of consecutive pulses,
+    in pulse order; their CRS as _McapFile says."""
     tmp = temporary_path(path)
     with open(tmp, "wb") as f:
         out = _McapFile(f, adjusted_standard, crs_wkt)
         pulse_of_echo = cloud["pulse_id"]
         if pulse_of_echo.size:
             starts = np.flatnonzero(np.r_[True, pulse_of_echo[1:] != pulse_of_echo[:-1]])
-            for chunk in range(0, starts.size, POINTS_PER_CLOUD_MESSAGE):
-                lo = starts[chunk]
-                hi = starts[chunk + POINTS_PER_CLOUD_MESSAGE] if chunk + POINTS_PER_CLOUD_MESSAGE < starts.size \
-                    else pulse_of_echo.size
+            for lo, hi in _batches(starts, pulse_of_echo.size):
                 ns = stamp_ns(float(cloud["gps_time"][lo]), adjusted_standard)
                 out.add("/echoes", ns, _point_cloud_message(cloud, np.arange(lo, hi), ns).SerializeToString())
-        for i in range(views["pulse_id"].size):
-            out.add("/waveform", stamp_ns(float(views["gps_time"][i]), adjusted_standard), _waveform_message(views, i))
+        n = views["pulse_id"].size
+        for lo, hi in _batches(np.arange(n), n):
+            out.add("/waveform", stamp_ns(float(views["gps_time"][lo]), adjusted_standard),
+                    _waveforms_message(views, lo, hi))
         out.writer.finish()
     tmp.replace(path)
     return path

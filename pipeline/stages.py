@@ -40,6 +40,7 @@ from pipeline.plan import planned_pulses
 from pipeline.records import DecomposedRange, GeolocatedRange, PulseRange, RangePart, ReadTask, Rejection
 from pipeline.sinks import remove_parts, write_mcap, write_part
 from pipeline.tables import pulse_tables
+from pipeline.timing import Laps, log_timing
 
 LOG = logging.getLogger("fwl")
 @dataclasses.dataclass(frozen=True)
@@ -128,42 +129,57 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
             "echo_reject": result.reject}
 
 
-def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool) -> GeolocatedRange:
+def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
+                    laps: Laps | None = None) -> GeolocatedRange:
     """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
-    and radiometry computed, every pulse's forest metrics
-    (fwcore.metrics), the range's tables built."""
+    and radiometry computed, every pulse's forest metrics (fwcore.metrics), the range's tables built; each step's
+    time into `laps`."""
+    laps = laps or Laps()
     pulses, result, source = item.pulses, item.result, item.task.source
-    xyz = echo_positions(pulses, result, source.system.range_offset_ps)
-    # no kept echo far under the ground its neighbours see: filtered as under_ground, before anything counts it
-    filter_under_ground(pulses, result, xyz, CELL_M / horizontal_metres(source.crs_wkt))
-    file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
-    columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
-    settings, by_algorithm = file_metric_settings(source.metric_settings)
-    metrics = batch_metrics(pulses, result, source.system, settings, by_algorithm)
-    echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz, result.status == 0,
-                                 columns, source.crs_wkt, metrics)
-    cloud = decomposed_echoes(pulses, result, xyz)
-    kept = result.reject == 0
-    cloud.update({name: values[kept] for name, values in columns.items()})
-    return GeolocatedRange(item.task, echoes, table, cloud, waveform_views(pulses, result) if with_views else None)
+    with laps("geolocate"):
+        xyz = echo_positions(pulses, result, source.system.range_offset_ps)
+        # no kept echo far under the ground its neighbours see: filtered as under_ground, before anything counts it
+        filter_under_ground(pulses, result, xyz, CELL_M / horizontal_metres(source.crs_wkt))
+    with laps("radiometry"):
+        file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
+        columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
+    with laps("metrics"):
+        settings, by_algorithm = file_metric_settings(source.metric_settings)
+        metrics = batch_metrics(pulses, result, source.system, settings, by_algorithm)
+    with laps("tables"):
+        echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz,
+                                     result.status == 0, columns, source.crs_wkt, metrics)
+    with laps("cloud"):
+        cloud = decomposed_echoes(pulses, result, xyz)
+        kept = result.reject == 0
+        cloud.update({name: values[kept] for name, values in columns.items()})
+    with laps("mcap views"):
+        views = waveform_views(pulses, result) if with_views else None
+    return GeolocatedRange(item.task, echoes, table, cloud, views)
 
 
-def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], calibrated: bool) -> RangePart:
-    """The range's Parquet parts, and its LAS and MCAP parts under parts/: all of them or none."""
-    task, paths = item.task, part_paths(output, item.task)
+def write_range(item: GeolocatedRange, output: str, formats: frozenset[str], calibrated: bool,
+                laps: Laps | None = None) -> RangePart:
+    """The range's Parquet parts, and its LAS and MCAP parts under parts/: all of them or none; each sink's
+    time into `laps`."""
+    task, paths, laps = item.task, part_paths(output, item.task), laps or Laps()
     writing = paths[ECHOES]  # the part being written, named by a fault of the machine
     try:
         if "parquet" in formats:
-            write_echo_part(item.echoes, paths[ECHOES].parent, paths[ECHOES].stem)
+            with laps("write echoes"):
+                write_echo_part(item.echoes, paths[ECHOES].parent, paths[ECHOES].stem)
             writing = paths[PULSES]
-            write_part(item.pulses, paths[PULSES].parent, paths[PULSES].stem)
+            with laps("write pulses"):
+                write_part(item.pulses, paths[PULSES].parent, paths[PULSES].stem)
         if has_point_cloud_parts(formats):
             writing = paths[LAS]
-            write_point_cloud(paths[LAS], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
+            with laps("write las"):
+                write_point_cloud(paths[LAS], task.source.path, item.cloud, calibrated, task.source.crs_wkt)
         if "mcap" in formats:
             writing = paths[MCAP]
-            write_mcap(paths[MCAP], item.cloud, item.views, task.source.adjusted_standard_gps_time,
-                       task.source.crs_wkt)
+            with laps("write mcap"):
+                write_mcap(paths[MCAP], item.cloud, item.views, task.source.adjusted_standard_gps_time,
+                           task.source.crs_wkt)
     except Exception as err:
         remove_parts(list(paths.values()))  # a range is written whole or not at all
         fault = machine_fault(err, WRITING, writing, task.label)
@@ -196,20 +212,22 @@ def reject_range(task: ReadTask, held, stage: str, reason: str) -> list[Rejectio
 def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
     """One range through read, decompose, geolocate and write; an exception in a stage rejects what the range
     still holds, with the stage and the reason, and the other ranges go on."""
-    outcome, held, stage = RangeOutcome(), task, "read"
+    outcome, held, stage, laps = RangeOutcome(), task, "read", Laps()
     try:
-        held, rejected = read_range(task)
+        with laps("read"):
+            held, rejected = read_range(task)
         outcome.rejected += rejected
         outcome.pulses_read = (len(held.pulses) if held else 0) + sum(1 for r in rejected if r.pulse_id >= 0)
         if held is None:  # nothing left to decompose: the range ends here
             return outcome
         stage = "decompose"
-        held, rejected = decompose_range(held, settings.config)
+        with laps("decompose"):
+            held, rejected = decompose_range(held, settings.config)
         outcome.rejected += rejected
         stage = "geolocate"
-        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats)
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps)
         stage = "write"
-        outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated)
+        outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated, laps)
     except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected
         LOG.error("%s: %s stopped: %s", task.label, stage, fault.said())
         raise
@@ -226,4 +244,5 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
     kept = int(np.count_nonzero(held.echoes.column("kept").to_numpy(zero_copy_only=False)))
     outcome.pulses_decomposed, outcome.echoes_kept = held.pulses.num_rows, kept
     outcome.echoes_spurious = held.echoes.num_rows - kept
+    log_timing("range", task.label, laps, pulses=outcome.pulses_decomposed)
     return outcome

@@ -45,6 +45,7 @@ from pipeline.records import ReadTask
 from pipeline.rejections import write_file_rejection, write_rejections
 from pipeline.sinks import write_json
 from pipeline.stages import RangeSettings, run_range, warm_up
+from pipeline.timing import Laps, log_timing
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
@@ -69,7 +70,10 @@ class RangeStages(beam.DoFn):
 
     def setup(self):
         log_to_file(self.settings.output)
-        warm_up(self.settings.config)
+        laps = Laps()
+        with laps("warm up"):
+            warm_up(self.settings.config)
+        log_timing("setup", "ranges", laps)
 
     def process(self, task: ReadTask):
         if self.stopped is not None:  # this worker's output takes nothing: the range is not tried, nor marked
@@ -120,7 +124,10 @@ class PlanFile(beam.DoFn):
     def process(self, item: InputToPlan):
         began = time.perf_counter()
         try:
-            plan = plan_input(item, self.config, self.points_per_range, self.limit)
+            laps = Laps()
+            with laps("plan"):
+                plan = plan_input(item, self.config, self.points_per_range, self.limit)
+            log_timing("plan", item.name, laps)
             with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
                 if plan.rejection:
                     write_file_rejection(self.output, plan.rejection)
@@ -181,8 +188,11 @@ class AssembleFiles(beam.PTransform):
 def assemble_file_or_fault(item: tuple, output: str, laz: bool, formats: frozenset[str]) -> str:
     """assemble.assemble_file; a fault of the machine noted for the driver (the parts stay for a resumed run)."""
     try:
-        with raised_as_fault(WRITING, output, f"assembling {item[0]}"):
-            return assemble_file(item, output, laz, formats)
+        laps = Laps()
+        with raised_as_fault(WRITING, output, f"assembling {item[0]}"), laps("assemble"):
+            stem = assemble_file(item, output, laz, formats)
+        log_timing("assemble", item[0], laps, ranges=len(item[1]))
+        return stem
     except MachineFault as fault:
         LOG.error("%s: stopped: %s", item[0], fault.said())
         note_fault(output, item[0], fault)

@@ -191,6 +191,25 @@ def individual_model(x, n_echoes, times, shape, out):
             out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
 
 
+@njit(**JIT)
+def batch_model(rows, sample_offsets, echo_offsets, background, amplitude, position, sigma, alpha, shape, out):
+    """The fitted model of each waveform `rows` at its sample times 0, 1, ... into out (flat like the samples):
+    the background plus Chauve's generalized Gaussians (sigma, alpha), or, for a tabulated shape, the system
+    response's echoes (sigma the equal-FWHM Gaussian sigma), in each waveform's echo order."""
+    for i in rows:
+        lo, hi = sample_offsets[i], sample_offsets[i + 1]
+        times = np.arange(hi - lo).astype(np.float64)
+        model = out[lo:hi]
+        model[:] = background[i]
+        for e in range(echo_offsets[i], echo_offsets[i + 1]):
+            if shape.tabulated:
+                add_table_echo(shape, amplitude[e], position[e], sigma[e], times, 0, times.size, model)
+                continue
+            power, scale = alpha[e] * alpha[e], 2.0 * sigma[e] * sigma[e]
+            for k in range(times.size):
+                model[k] += amplitude[e] * math.exp(-abs(times[k] - position[e]) ** power / scale)
+
+
 def model_of_individual(x, t) -> np.ndarray:
     """The NumPy twin of individual_model: [b, (A, u, s, alpha)...] -> model at t, through Chauve's sigma."""
     x = np.asarray(x, dtype=float)

@@ -115,8 +115,14 @@ def test_mcap_holds_point_clouds_and_waveforms(leica_run):
             topics.setdefault(channel.topic, []).append((schema.name, message))
     assert {"/echoes", "/waveform"} <= set(topics)
     assert topics["/echoes"][0][0] == "foxglove.PointCloud"
-    waveforms = [json.loads(m.data) for _, m in topics["/waveform"]]
-    assert len(waveforms) == 924 and len(waveforms[0]["raw"]) == 256 == len(waveforms[0]["model"])
+    from pipeline.sinks import decode_waveforms
+    assert topics["/waveform"][0][0] == "fwlidar.Waveforms"
+    batches = [decode_waveforms(m.data) for _, m in topics["/waveform"]]
+    assert sum(b["pulse_id"].size for b in batches) == 924
+    first = batches[0]
+    assert np.diff(first["sample_offsets"])[0] == 256 and first["raw"].size == first["model"].size
+    # the model a pulse's echoes give at its samples: its background where no echo reaches, near its samples
+    assert np.median(np.abs(first["model"] - first["raw"])) < 3.0
     from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
     clouds = [PointCloud.FromString(m.data) for _, m in topics["/echoes"]]
     assert sum(len(c.data) // c.point_stride for c in clouds) == len(table(leica_run, "echoes").query("kept"))

@@ -12,7 +12,7 @@ import pytest
 from fwcore.engine.config import DecompositionConfig
 from pipeline.cli import main
 from pipeline.run import run
-from pipeline.sinks import WAVEFORM_SCHEMA, stamp_ns
+from pipeline.sinks import WAVEFORM_FIELDS, decode_waveforms, stamp_ns, waveforms_schema
 
 FAST = DecompositionConfig(optimizer="lm", lm_iterations=5)
 
@@ -74,7 +74,8 @@ def test_mcap_of_many_ranges_has_every_pulse_once_in_order(two_range_sizes):
         with open(two_range_sizes / name / "mcap" / "leica_a.mcap", "rb") as f:
             reader = make_reader(f)
             channels = reader.get_summary().channels
-            ids[name] = [json.loads(m.data)["pulse_id"] for _, c, m in reader.iter_messages(topics=["/waveform"])]
+            ids[name] = [int(p) for _, c, m in reader.iter_messages(topics=["/waveform"])
+                         for p in decode_waveforms(m.data)["pulse_id"]]
         assert "week" in next(c for c in channels.values() if c.topic == "/waveform").metadata["log_time"]
     assert len(ids["one"]) == 924 and ids["one"] == ids["many"]
 
@@ -87,11 +88,35 @@ def test_gps_time_stamps():
     assert stamp_ns(345_600.25, adjusted_standard=False) == 345_600_250_000_000
 
 
-def test_waveform_schema_arrays_say_what_they_hold():
-    props = WAVEFORM_SCHEMA["properties"]
-    for name in ("time_ps", "raw", "model"):
-        assert props[name]["items"] == {"type": "number"}
-    assert props["echoes"]["items"]["properties"]["kept"] == {"type": "boolean"}
+def test_waveform_schema_is_a_protobuf_any_reader_decodes():
+    from google.protobuf import descriptor_pb2
+
+    files = descriptor_pb2.FileDescriptorSet.FromString(waveforms_schema()).file
+    fields = {f.name: f for f in files[0].message_type[0].field}
+    assert files[0].package == "fwlidar" and files[0].message_type[0].name == "Waveforms"
+    assert [f.number for f in fields.values()] == list(range(1, len(WAVEFORM_FIELDS) + 2))
+    assert fields["raw"].type == descriptor_pb2.FieldDescriptorProto.TYPE_FLOAT
+    assert fields["reject_reasons"].type == descriptor_pb2.FieldDescriptorProto.TYPE_STRING
+
+
+def test_waveform_messages_round_trip_the_ranges_arrays():
+    from fwcore.engine.filter import REJECT_REASONS
+    from pipeline.sinks import _waveforms_message
+
+    views = {"pulse_id": np.array([5, -7, 9]), "gps_time": np.array([1.5, 2.25, 3.0]),
+             "sample_spacing_ps": np.array([1000.0, 1000.0, 500.0]), "sample_offsets": np.array([0, 3, 5, 9]),
+             "raw": np.arange(9, dtype=np.float32), "model": np.linspace(0, 1, 9).astype(np.float32),
+             "echo_offsets": np.array([0, 2, 2, 3]), "echo_time_ps": np.array([100.0, 2000.5, 7.0]),
+             "echo_amplitude": np.array([3.0, 4.0, 5.0]), "echo_fwhm_ps": np.array([4000.0, 4100.0, 4200.0]),
+             "echo_reject": np.array([0, 2, 0], dtype=np.int8)}
+    got = decode_waveforms(_waveforms_message(views, 1, 3))  # the last two pulses: offsets from 0 again
+    np.testing.assert_array_equal(got["pulse_id"], [-7, 9])
+    np.testing.assert_array_equal(got["sample_offsets"], [0, 2, 6])
+    np.testing.assert_array_equal(got["raw"], [3, 4, 5, 6, 7, 8])
+    np.testing.assert_array_equal(got["echo_offsets"], [0, 0, 1])
+    np.testing.assert_array_equal(got["echo_time_ps"], [7.0])
+    np.testing.assert_array_equal(got["echo_reject"], [0])
+    assert got["reject_reasons"] == list(REJECT_REASONS)
 
 
 def test_a_mistyped_option_fails_with_its_name(tmp_path, capsys):
