@@ -83,3 +83,11 @@ def test_every_module_has_its_test_file():
     assert len(set(names)) == len(names)  # no `x.py` beside a `_x.py`: each test file is one module's
     missing = [str(path.relative_to(ROOT)) for path in modules() if not matching_test_file(path).is_file()]
     assert missing == []
+
+
+def test_the_naive_references_import_nothing_they_check():
+    # tests/fwcore/naive.py re-derives the kernels from their equations: of fwcore only the shared random stream
+    tree = ast.parse((ROOT / "tests" / "fwcore" / "naive.py").read_text())
+    imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    imported |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    assert {name for name in imported if name.split(".")[0] in PACKAGES + ("tests",)} == {"fwcore.rng"}
