@@ -135,7 +135,7 @@ def main() -> None:
     riegl = Path(args.riegl) if args.riegl else work / "riegl_line.las"
     if not riegl.exists():
         subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--pulses", str(args.pulses), "--output",
-                        str(riegl), "--format", "las14-internal", "--system-response", "riegl", "--seed", "3"],
+                        str(riegl), "--format", "las14-internal", "--sensor-response", "riegl", "--seed", "3"],
                        cwd=ROOT, check=True, capture_output=True)
     # numba's cache (a checkout compiles its own) and the OS's file cache warm for every run below
     fwl_run(LEICA, work / "warm", [])

@@ -124,6 +124,10 @@ COLUMNS = {c.name: c for c in (
     Column("alpha", F64, "1", "the generalized Gaussian's shape: sqrt(2) a Gaussian, more a flatter top; null under "
                               "--model system"),
     Column("fwhm_ps", F64, "ps", "the echo's full width at half maximum"),
+    Column("pulse_width_ps", F64, "ps", "the echo's full width at half maximum measured on the waveform (the samples "
+                                        "less the background and the other echoes), as RIEGL's 'Pulse width': "
+                                        "unlike fwhm_ps, never held at the system response's width; null where "
+                                        "the echo has no half-maximum crossing in its record"),
     Column("fwhm", F64, "sample", "the echo's full width at half maximum"),
     Column("energy", F64, "DN ps", "the area under the echo"),
     Column("background", F64, "DN", "the waveform's background level"),
@@ -200,7 +204,8 @@ _FOREST = ("ground_z", "rh", "rv", "rg", "cover", "pai", "pavd_z", "metrics_reas
 # Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
 TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
-               "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "energy", "background",
+               "amplitude", "amplitude_volts", "sigma_chauve", "alpha", "fwhm_ps", "pulse_width_ps", "energy",
+               "background",
                "range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient", "reflectance",
                "radiometry", "reflectance_basis", "x", "y", "z", GEOMETRY_COLUMN, BBOX_COLUMN, "kept", "reject_reason", *_FIT, *_METHOD,
                "classification", "height"),
@@ -343,6 +348,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
     `ok`, with their forest metrics (fwcore.metrics) where given; the geometry's CRS is `crs_wkt` (the run's,
     fwcore.io.formats.input_crs), else the input file's."""
     from fwcore.engine.model import sigma_to_time_unit
+    from fwcore.engine.waveform_width import waveform_widths
 
     owner = result.echo_waveform
     spacing = pulses.sample_spacing_ps[owner]
@@ -354,8 +360,9 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "amplitude": result.amplitude, "amplitude_volts": result.amplitude * pulses.digitizer_gain[owner],
         "sigma_chauve": _null_where_nan(sigma_to_time_unit(result.sigma, result.alpha, spacing)),
         "alpha": _null_where_nan(result.alpha),
-        "fwhm_ps": result.fwhm * spacing, "energy": result.energy * spacing,
-        **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
+        "fwhm_ps": result.fwhm * spacing,
+        "pulse_width_ps": _null_where_nan(waveform_widths(pulses.samples, pulses.sample_offsets, result) * spacing),
+        "energy": result.energy * spacing, **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         **_kept(result), **_method(config, pulse, owner.size),

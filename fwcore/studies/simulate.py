@@ -68,6 +68,13 @@ class SensorConfig:
     # The instrument's response (fwcore.instrument): echoes are it broadened by their targets, FWHM
     # pulse_fwhm_ps x the target's width factor. None: the generalized Gaussians of the method's model.
     response: SystemResponse | None = None
+    # DN per unit of the scene's amplitudes: a 16-bit digitizer spreads the same echoes over more counts than its
+    # noise (a RiPROCESS export's strong returns stand hundreds of sigma above it); weak layers stay in noise units
+    amplitude_scale: float = 1.0
+    # The response is not the same from pulse to pulse: each pulse's afterpulse (a response's bump behind its
+    # peak) is drawn from 1 +/- this share of its mean height, so the fit's one table leaves a residual behind
+    # a strong echo (a RIEGL export: weak echoes the fit needs and the filter drops). 0: every pulse the same.
+    afterpulse_jitter: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.response, dict):  # read back from a truth table's metadata
@@ -189,7 +196,7 @@ def _tree_echoes(rng: np.random.Generator, scene: SceneConfig, sensor: SensorCon
         on = tree & (layers > k)
         depth = height * (1.0 - (k + rng.uniform(0.1, 0.9, n)) / (MAX_ECHOES - 1))  # metres above ground, top first
         depth = np.maximum(depth, 1.0)
-        layer_amplitude = rng.uniform(15, 110, n) * transmitted
+        layer_amplitude = rng.uniform(15, 110, n) * sensor.amplitude_scale * transmitted
         weak = rng.random(n) < scene.weak_echo_fraction
         layer_amplitude = np.where(weak, rng.uniform(3.0, 6.0, n) * sensor.noise_sigma, layer_amplitude)
         rng_range[on, k] = ground_range[on] - depth[on] / np.cos(angle[on])
@@ -227,7 +234,7 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
         open_ground = (hit[:, 1] >= scene.patch_y_m[0]) & (hit[:, 1] <= scene.patch_y_m[1])
         roof, tree = roof & ~open_ground, tree & ~open_ground
     # ground: the last echo; under canopy it keeps what the layers let through
-    ground_amplitude = rng.uniform(40, 200, n)
+    ground_amplitude = rng.uniform(40, 200, n) * sensor.amplitude_scale
     rng_range[:, 0] = ground_range
     width[:, 0] = 1.0 + 0.8 * np.sin(angle) ** 2 + rng.uniform(0, 0.15, n)
     alpha[:, 0] = rng.uniform(1.3, 2.0, n)
@@ -239,7 +246,7 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     kind[roof, 0] = 2
     alpha[roof, 0] = rng.uniform(1.6, 2.2, roof.sum())
     rng_range[edge, 1] = ground_range[edge]
-    amplitude[edge, 1] = rng.uniform(20, 120, edge.sum())
+    amplitude[edge, 1] = rng.uniform(20, 120, edge.sum()) * sensor.amplitude_scale
     width[edge, 1] = 1.0 + rng.uniform(0, 0.2, edge.sum())
     alpha[edge, 1] = rng.uniform(1.3, 2.0, edge.sum())
     kind[edge, 1] = 0
@@ -247,7 +254,7 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     layers = _tree_echoes(rng, scene, sensor, tree, ground_range, ground_amplitude, angle,
                           (rng_range, amplitude, width, alpha, kind, count))
     amplitude[~tree & ~edge, 0] = ground_amplitude[~tree & ~edge]
-    amplitude[edge, 0] = rng.uniform(40, 200, edge.sum())
+    amplitude[edge, 0] = rng.uniform(40, 200, edge.sum()) * sensor.amplitude_scale
     reflectance = np.full((n, MAX_ECHOES), np.nan)
     incidence = np.full((n, MAX_ECHOES), np.nan)
     if scene.radiometry:
@@ -405,7 +412,7 @@ def chunk_of_echoes(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
     energy = amplitude * echo_area(fwhm_ps, np.where(has, alpha, np.sqrt(2.0)))
     if sensor.response is not None:
         # echoes of the response: rendered here, the analytic ones given no amplitude
-        energy = _response_echoes(sensor, has, amplitude, time_ps, fwhm_ps, shaped)
+        energy = _response_echoes(sensor, has, amplitude, time_ps, fwhm_ps, shaped, rng)
         alpha = np.full(alpha.shape, np.nan)
         sigma_ps = fwhm_ps / _FWHM_PER_SIGMA
     _render(time_ps, np.where(has & (sensor.response is None), amplitude, 0.0), sigma_ps,
@@ -445,7 +452,7 @@ def chunk_of_echoes(first: int, n_pulses: int, sensor: SensorConfig, scene: Scen
 
 
 def _response_echoes(sensor: SensorConfig, has: np.ndarray, amplitude: np.ndarray, time_ps: np.ndarray,
-                     fwhm_ps: np.ndarray, shaped: np.ndarray) -> np.ndarray:
+                     fwhm_ps: np.ndarray, shaped: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The echoes of the sensor's response added to `shaped` (pulse after pulse, samples_per_packet each);
     returns their energies (0 where a pulse has no such echo)."""
     n_samples = sensor.samples_per_packet
@@ -456,7 +463,26 @@ def _response_echoes(sensor: SensorConfig, has: np.ndarray, amplitude: np.ndarra
         shaped[p_ * n_samples:(p_ + 1) * n_samples] += tabulated_model(
             t, 0.0, amplitude[p_, k], time_ps[p_, k] / sensor.sample_spacing_ps, s[p_, k], shape)
     area = tabulated_areas(shape, s) * sensor.sample_spacing_ps
+    if sensor.afterpulse_jitter > 0.0:
+        _jitter_afterpulses(sensor, has, amplitude, time_ps, rng, shaped)
     return np.where(has, amplitude * area, 0.0)
+
+
+def _jitter_afterpulses(sensor: SensorConfig, has: np.ndarray, amplitude: np.ndarray, time_ps: np.ndarray,
+                        rng: np.random.Generator, shaped: np.ndarray) -> None:
+    """Each pulse's afterpulse a random share (1 +/- sensor.afterpulse_jitter) of the response's mean one: the
+    difference added to `shaped` behind every echo, a bump of the pulse's width at the afterpulse's delay."""
+    delay_ps, height = sensor.response.afterpulse()
+    if height <= 0.0:
+        return
+    n_samples = sensor.samples_per_packet
+    share = rng.uniform(-sensor.afterpulse_jitter, sensor.afterpulse_jitter, has.shape[0])  # one draw a pulse
+    t = np.arange(n_samples) * sensor.sample_spacing_ps
+    sigma = sensor.pulse_fwhm_ps / _FWHM_PER_SIGMA
+    for p_, k in zip(*np.nonzero(has)):
+        bump = share[p_] * height * amplitude[p_, k]
+        shaped[p_ * n_samples:(p_ + 1) * n_samples] += bump * np.exp(
+            -0.5 * ((t - time_ps[p_, k] - delay_ps) / sigma) ** 2)
 
 
 def _flight_pulses(first: int, sensor: SensorConfig, scene: SceneConfig, source_file: str, gps: np.ndarray,

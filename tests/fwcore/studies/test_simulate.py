@@ -98,3 +98,26 @@ def test_a_flight_of_a_measured_response_renders_its_echoes_in_that_shape(name):
     assert 0.98 * response.fwhm_ps <= measured.fwhm_ps <= 1.15 * response.fwhm_ps
     if name == "riegl":
         assert measured.afterpulse()[0] == pytest.approx(response.afterpulse()[0], abs=1000)
+
+
+def test_a_riegl_export_like_sensor_scales_its_echoes_and_varies_each_pulses_afterpulse():
+    from fwcore.instrument.response import named_response
+
+    response = named_response("riegl")
+    base = SensorConfig(pulse_fwhm_ps=response.fwhm_ps, samples_per_packet=62, bits=16, pre_trigger_ps=10000.0,
+                        noise_sigma=0.0, shot_noise=0.0, response=response)
+    scene = SceneConfig(canopy_cover=0.0, roof_fraction=0.0)
+    plain = simulate_flight(200, base, scene, seed=5)
+    scaled = simulate_flight(200, dataclasses.replace(base, amplitude_scale=20.0), scene, seed=5)
+    np.testing.assert_allclose(scaled.truth["amplitude"], 20.0 * plain.truth["amplitude"])
+    jittered = simulate_flight(200, dataclasses.replace(base, amplitude_scale=20.0, afterpulse_jitter=1.0), scene,
+                               seed=5)
+    # the truth (the echo) is the same; the samples differ behind each echo by up to the mean afterpulse's height
+    np.testing.assert_array_equal(jittered.truth["amplitude"], scaled.truth["amplitude"])
+    delay, height = response.afterpulse()
+    diff = (jittered.pulses.samples - scaled.pulses.samples).reshape(200, -1)
+    at = np.rint((scaled.truth["time_ps"] + delay) / 1000.0).astype(int)
+    behind = np.abs(diff[np.arange(200), at]) / (height * scaled.truth["amplitude"])
+    assert behind.max() <= 1.0 + 0.01 and behind.max() > 0.8 and np.median(behind) > 0.2
+    # elsewhere (well before each echo) the samples agree to the quantisation
+    assert np.abs(diff[:, :5]).max() <= 1.0
