@@ -28,7 +28,7 @@ class InputFile:
     path: str
     name: str  # the input's file name, as the tables' source_file
     stem: str  # unique among the run's inputs: names its part files and per-file outputs
-    system: SystemPulse  # what the plan measured of the file's system pulse (fwcore.instrument.measure)
+    pulse: SystemPulse  # what the plan measured of the file's system pulse (fwcore.instrument.measure)
     adjusted_standard_gps_time: bool  # LAS global encoding bit 0: gps_time is GPS seconds - 1e9, else week seconds
     crs_wkt: str | None = None  # the CRS every output writes (fwcore.io.formats.input_crs: --crs, else the file's)
     crs_source: str = ""  # where it came from
@@ -39,11 +39,13 @@ class InputFile:
     metric_settings_source: str = ""
 
     def to_dict(self) -> dict:
-        return {**dataclasses.asdict(self), "system": self.system.to_dict()}
+        return {**dataclasses.asdict(self), "pulse": self.pulse.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "InputFile":
-        return cls(**{**d, "system": SystemPulse.from_dict(d["system"])})
+        d = dict(d)
+        pulse = d.pop("pulse") if "pulse" in d else d.pop("system")  # "system": a plan an earlier version wrote
+        return cls(**d, pulse=SystemPulse.from_dict(pulse))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,7 +91,7 @@ class DecomposedRange:
 
     task: ReadTask
     pulses: PulseBatch
-    config: DecompositionConfig  # the run's method (the file's pulse: task.source.system)
+    config: DecompositionConfig  # the run's method (the file's pulse: task.source.pulse)
     result: BatchDecomposition
 
 

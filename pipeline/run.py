@@ -1,11 +1,13 @@
 """Build and run the pipeline's jobs over the inputs into a claimed output folder.
 
-    validate options and inputs -> take the output folder (pipeline.outputs) -> plan, ranges and files jobs
+    validate options and inputs (with radiometry: each trajectory checked, C_cal found on a reference patch)
+    -> take the output folder (pipeline.outputs) -> plan, ranges and files jobs
     -> run.json (pipeline.summary, which also says the exit codes)
 
 The three jobs: the plan job plans each input on a worker; the ranges job decomposes each range
 (transforms.DecomposeFlight); the files job assembles each input's point cloud and MCAP from its ranges'
-parts (transforms.AssembleFiles). A small run's jobs run in the driver's process (`Jobs`).
+parts (transforms.AssembleFiles). A small run's jobs run in the driver's process (`Jobs`). A fault of the
+machine noted by a worker stops the run (RunStopped) for a resume once it is fixed.
 """
 
 from __future__ import annotations
@@ -210,7 +212,7 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
     the radiometry the ranges then use, and the calibration for run.json."""
     if radiometry.calibration_reference is None:
         return radiometry, None
-    files = [PatchFile(s.path, plan.ranges, config, s.system, s.adjusted_standard_gps_time)
+    files = [PatchFile(s.path, plan.ranges, config, s.pulse, s.adjusted_standard_gps_time)
              for plan in plans.values() if (s := plan.source) is not None]
     found = calibrate_on_reference(files, radiometry)
     say.write(f"fwl run: calibration constant {found.constant:.6g} from {found.n} single returns of the reference "
@@ -242,7 +244,7 @@ def _size(path: str) -> int:
 
 def _models(config: DecompositionConfig, plans: dict[str, FilePlan]) -> str:
     """The run's echo model; under --model auto, what its files got (run.json says why, per file)."""
-    chosen = [p.source.system.model for p in plans.values() if p.source is not None and p.source.system.model]
+    chosen = [p.source.pulse.model for p in plans.values() if p.source is not None and p.source.pulse.model]
     if config.model is not Model.AUTO or not chosen:
         return config.model.value
     if len(chosen) == 1:
@@ -448,9 +450,9 @@ def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
     workers that planned them said so in their own logs only)."""
     for plan in plans.values():
         s = plan.source
-        if s is not None and s.system.fwhm_source.startswith(("estimated", "default")):
+        if s is not None and s.pulse.fwhm_source.startswith(("estimated", "default")):
             LOG.warning("%s: system pulse FWHM %.0f ps %s (no single-return pulse measured it; set "
-                        "--system-pulse-fwhm-ps to give it)", s.name, s.system.fwhm_ps, s.system.fwhm_source)
+                        "--system-pulse-fwhm-ps to give it)", s.name, s.pulse.fwhm_ps, s.pulse.fwhm_source)
 
 
 def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:

@@ -108,7 +108,7 @@ def decompose_range(item: PulseRange, config: DecompositionConfig) -> tuple[Deco
     source = item.task.source
     began = time.perf_counter()
     # one thread per worker: the workers are the parallelism; results do not depend on it
-    result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, source.system, threads=1)
+    result = decompose_batch(pulse_waveforms(item.pulses, config.seed), config, source.pulse, threads=1)
     ok = result.status == 0
     rejected = [Rejection(source.name, source.stem, item.task.start, int(item.pulses.pulse_id[i]), "decompose",
                           STATUS_REASONS[result.status[i]]) for i in np.flatnonzero(~ok)]
@@ -137,17 +137,17 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     laps = laps or Laps()
     pulses, result, source = item.pulses, item.result, item.task.source
     with laps("geolocate"):
-        xyz = echo_positions(pulses, result, source.system.range_offset_ps)
+        xyz = echo_positions(pulses, result, source.pulse.range_offset_ps)
         # no kept echo far under the ground its neighbours see: filtered as under_ground, before anything counts it
         filter_under_ground(pulses, result, xyz, CELL_M / horizontal_metres(source.crs_wkt))
     with laps("radiometry"):
         file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
-        columns = range_radiometry(pulses, result, xyz, source.system.range_offset_ps, file, radiometry)
+        columns = range_radiometry(pulses, result, xyz, source.pulse.range_offset_ps, file, radiometry)
     with laps("metrics"):
         settings, by_algorithm = file_metric_settings(source.metric_settings)
-        metrics = batch_metrics(pulses, result, source.system, settings, by_algorithm)
+        metrics = batch_metrics(pulses, result, source.pulse, settings, by_algorithm)
     with laps("tables"):
-        echoes, table = pulse_tables(source.name, pulses, result, item.config, source.system, xyz,
+        echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
                                      result.status == 0, columns, source.crs_wkt, metrics)
     with laps("cloud"):
         cloud = decomposed_echoes(pulses, result, xyz)

@@ -151,7 +151,7 @@ def planned_of(plan: FilePlan) -> dict:
         return {}
     # the pulses its plan found (its packet keys): counted apart from what the ranges wrote, which must add up to it
     return {"pulses_planned": sum(planned_pulses(t) for t in plan.tasks),
-            "system_pulse": s.system.to_dict(),  # the file's pulse, one record: SystemPulse.from_dict reads it back
+            "system_pulse": s.pulse.to_dict(),  # the file's pulse, one record: SystemPulse.from_dict reads it back
             "crs": {"name": crs_name(s.crs_wkt), "source": s.crs_source or None, "wkt": s.crs_wkt},
             "metric_settings": s.metric_settings, "metric_settings_source": s.metric_settings_source or None}
 

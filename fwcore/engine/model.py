@@ -1,4 +1,5 @@
-"""The echo model: generalized Gaussians on a constant background.
+"""The echo model the kernels evaluate: generalized Gaussians, or a tabulated system response, on a constant
+background; their Python references, widths and energies.
 
     y(t) = b + sum_k A_k * exp(-|t - u_k|**(alpha_k**2) / (2 * sigma_k**2))
 

@@ -99,6 +99,30 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
 
 
 @njit(**JIT)
+def _residual_peak(standard, residual, valid, w, first, last, score, floor):
+    """Where in [first, last] the standardized residual, smoothed with the pulse weights `w`, rises highest
+    above `score` with an echo height of at least `floor`: (its sample, the echo's height), (-1, 0) if nowhere."""
+    n = standard.size
+    peak = -1
+    amplitude = 0.0
+    evidence = np.empty(n)  # the standardized residual smoothed with the pulse: its sums, then / norms
+    norms = np.empty(n)
+    weighted_sums(standard, valid, w, evidence, norms)
+    for i in range(first, last + 1):
+        if not valid[i]:
+            continue
+        smoothed = smoothed_value(evidence[i], norms[i], standard[i])
+        if smoothed > score:
+            # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
+            echo = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
+            if echo >= floor:
+                score = smoothed
+                peak = i
+                amplitude = echo
+    return peak, amplitude
+
+
+@njit(**JIT)
 def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times, target, raw, weights, first, last,
                        pulse_sigma, noise):
     """Where the residual, matched-filtered with the system pulse, rises above the noise threshold and its
@@ -139,22 +163,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         floor = max(p.min_amplitude_ratio * largest, p.add_min_snr * noise)
         if (highest + 1e-9 * spread) * math.sqrt(2.0) < floor:
             break  # nor can the residual's smoothing rise above its largest sample (within its rounding)
-        peak = -1
-        amplitude = 0.0
-        evidence = np.empty(n)  # the standardized residual smoothed with the pulse: its sums, then / norms
-        norms = np.empty(n)
-        weighted_sums(standard, valid, w, evidence, norms)
-        for i in range(first, last + 1):
-            if not valid[i]:
-                continue
-            smoothed = smoothed_value(evidence[i], norms[i], standard[i])
-            if smoothed > score:
-                # a pulse-wide echo smoothed by the pulse's own width keeps 1/sqrt(2) of its height
-                echo = smoothed_sample(residual, valid, w, i) * math.sqrt(2.0)
-                if echo >= floor:
-                    score = smoothed
-                    peak = i
-                    amplitude = echo
+        peak, amplitude = _residual_peak(standard, residual, valid, w, first, last, score, floor)
         if peak < 0:
             break
         d = best.size

@@ -1,6 +1,6 @@
 """A file's system pulse, passed to the engine beside the method's settings, and what a user says of it instead.
 
-    decompose_batch(batch, config, pulse)
+    fwcore.engine.decompose.decompose_batch(batch, config, pulse)
 
 `DecompositionConfig` holds the method; a `SystemPulse` holds what a file does
 not record about its system's pulse and a run measured on its waveforms

@@ -1,18 +1,27 @@
-"""Slow, obviously-correct references for the numba kernels (the stumpy habit)."""
+"""Slow, obviously-correct references for the numba kernels (the stumpy habit), in plain NumPy and SciPy.
+
+None imports the code it checks: the model, the optimizers and the filters are written again from their
+equations. `fwcore.rng.SplitMix64` is the one import of fwcore: the population references draw from the same
+random stream as the kernels so that one generation can be compared value for value.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from fwcore.engine.model import SQRT_2LN2, sigma_from_equivalent, waveform_model
 from fwcore.rng import SplitMix64
+
+SQRT_2LN2 = np.sqrt(2.0 * np.log(2.0))
 
 
 def model_of_individual(x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """[b, (A, u, s, alpha)...] -> model, through Chauve's sigma, in float64."""
-    echoes = x[1:].reshape(-1, 4)
-    return waveform_model(t, x[0], echoes[:, 0], echoes[:, 1],
-                          sigma_from_equivalent(echoes[:, 2], echoes[:, 3]), echoes[:, 3])
+    """[b, (A, u, s, alpha)...] -> b + sum A exp(-ln2 (|t - u| / h)**(alpha**2)), h = s sqrt(2 ln 2) the
+    half width at half maximum of the equal-FWHM Gaussian sigma s, in float64."""
+    t = np.asarray(t, dtype=float)
+    y = np.full(t.shape, float(x[0]))
+    for a, u, s, alpha in np.asarray(x[1:], dtype=float).reshape(-1, 4):
+        y += a * np.exp(-np.log(2.0) * (np.abs(t - u) / (s * SQRT_2LN2)) ** (alpha * alpha))
+    return y
 
 
 def gaussian_smooth(samples: np.ndarray, sigma: float) -> np.ndarray:
@@ -199,7 +208,8 @@ def parameter_bounds(background, noise, amplitude, position, sigma, signal, firs
 
 __all__ = ["SQRT_2LN2", "model_of_individual", "gaussian_smooth", "mde_generation", "pso_swarm", "ga_generation",
            "richardson_lucy", "gold", "gaussian_response_kernel", "noise_variance", "shot_noise", "parameter_bounds",
-           "mark_spurious", "progressive_echoes", "chi2_without_echo"]
+           "mark_spurious", "progressive_echoes", "chi2_without_echo", "model_jacobian", "least_squares_fit",
+           "lbfgs_fit", "patent_peaks", "gaussian_individual"]
 
 
 def mark_spurious(amplitude, position, width, first, last, pulse_fwhm, noise, min_snr, min_ratio,
@@ -339,3 +349,84 @@ def response_echo(times_ps: np.ndarray, values: np.ndarray, spacing_ps: float, a
             lo, hi = (mid, hi) if width(broadened(mid)) < target else (lo, mid)
     y = broadened(0.5 * (lo + hi) if width(base) < target else 0.0)
     return amplitude * np.interp(np.asarray(t, float) - position, grid, y / y.max(), left=0.0, right=0.0)
+
+
+def model_jacobian(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """d model_of_individual / dx (len(t) x len(x)) from the derivatives of b + A exp(-ln2 z**p),
+    z = |t - u| / h, h = s sqrt(2 ln 2), p = alpha**2."""
+    t = np.asarray(t, dtype=float)
+    jac = np.zeros((t.size, len(x)))
+    jac[:, 0] = 1.0
+    ln2 = np.log(2.0)
+    for k, (a, u, s, alpha) in enumerate(np.asarray(x[1:], dtype=float).reshape(-1, 4)):
+        h, p = s * SQRT_2LN2, alpha * alpha
+        z = np.abs(t - u) / h
+        e = np.exp(-ln2 * z ** p)
+        log_z = np.log(np.where(z > 0, z, 1.0))  # z**p ln z -> 0 at z = 0
+        jac[:, 1 + 4 * k] = e
+        jac[:, 2 + 4 * k] = a * e * ln2 * p * z ** (p - 1) * np.sign(t - u) / h
+        jac[:, 3 + 4 * k] = a * e * ln2 * p * z ** p / s
+        jac[:, 4 + 4 * k] = -2.0 * alpha * a * e * ln2 * z ** p * log_z
+    return jac
+
+
+def least_squares_fit(x0, t, y, lower, upper, method: str = "lm") -> tuple[np.ndarray, float]:
+    """SciPy's least squares on sum (model_of_individual(x, t) - y)**2 from x0, the parameters with lower ==
+    upper held: (x, sum of squares). `lm` (MINPACK) ignores the bounds: use it where the optimum is inside them."""
+    from scipy.optimize import least_squares
+
+    x0, lower, upper = (np.asarray(v, dtype=float) for v in (x0, lower, upper))
+    free = lower < upper
+
+    def full(v):
+        x = x0.copy()
+        x[free] = v
+        return x
+
+    bounds = (-np.inf, np.inf) if method == "lm" else (lower[free], upper[free])
+    sol = least_squares(lambda v: model_of_individual(full(v), t) - y, np.clip(x0, lower, upper)[free],
+                        jac=lambda v: model_jacobian(full(v), t)[:, free], method=method, bounds=bounds,
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=10000)
+    return full(sol.x), float(np.sum(sol.fun ** 2))
+
+
+def lbfgs_fit(x0, t, y, lower, upper) -> tuple[np.ndarray, float]:
+    """SciPy's L-BFGS-B on sum (model_of_individual(x, t) - y)**2 inside [lower, upper] from x0, its gradient
+    2 J^T r: (x, sum of squares)."""
+    from scipy.optimize import minimize
+
+    def cost(x):
+        r = model_of_individual(x, t) - y
+        return float(r @ r), 2.0 * model_jacobian(x, t).T @ r
+
+    x0, lower, upper = (np.asarray(v, dtype=float) for v in (x0, lower, upper))
+    sol = minimize(cost, np.clip(x0, lower, upper), jac=True, method="L-BFGS-B", bounds=list(zip(lower, upper)),
+                   options=dict(ftol=1e-15, gtol=1e-12, maxiter=10000, maxcor=20))
+    return sol.x, float(sol.fun)
+
+
+def patent_peaks(smoothed, background, threshold, first, last, window: int = 5):
+    """The patent's peak search on all-valid samples: a sample above threshold that is the largest within
+    +-window (the first of a flat top), with its ranges [(peak, A_hi, u_lo, u_hi, s_hi)]: A up to the peak's
+    height, u within +-window, sigma up to 3 (p2 - p1) / 2 between the inflection points (3 |p - peak| with one;
+    the kernel's half-height fallback is left out: tests avoid it)."""
+    residual = np.asarray(smoothed, dtype=float) - background
+    found = []
+    for i in np.flatnonzero(residual > threshold):
+        around = residual[max(0, i - window):i + window + 1]
+        before = residual[max(0, i - window):i]
+        if around.max() > residual[i] or (before == residual[i]).any():
+            continue
+        left, right = _inflection_distance(residual, i, -1), _inflection_distance(residual, i, 1)
+        if left > 0 and right > 0:
+            s_hi = 3.0 * (left + right) / 2.0
+        else:
+            s_hi = 3.0 * max(left, right)
+        found.append((int(i), residual[i], max(first, i - window), min(last, i + window), s_hi))
+    return found
+
+
+def gaussian_individual(x: np.ndarray) -> np.ndarray:
+    """[b, (A, u, sigma) per Gaussian echo] -> [b, (A, u, s, sqrt 2) per echo] (a Gaussian's s is its sigma)."""
+    echoes = np.asarray(x[1:], dtype=float).reshape(-1, 3)
+    return np.concatenate([[x[0]], np.column_stack([echoes, np.full(len(echoes), np.sqrt(2.0))]).ravel()])

@@ -20,8 +20,8 @@ def test_plan_covers_every_pulse_once_and_measures_the_pulse_width(leica_dir):
     assert [(t.point_range.start, t.point_range.stop, t.point_range.n_pulses) for t in tasks] == \
         [(0, 400, 342), (400, 800, 310), (800, 1125, 272)]  # 342 + 310 + 272 = 924
     # --model auto gives the Leica sample echoes of its measured pulse, and the pulse width is that pulse's
-    assert {round(t.source.system.fwhm_ps) for t in tasks} == {10337}
-    assert {t.source.system.model for t in tasks} == {"system"}
+    assert {round(t.source.pulse.fwhm_ps) for t in tasks} == {10337}
+    assert {t.source.pulse.model for t in tasks} == {"system"}
     assert not tasks[0].source.adjusted_standard_gps_time  # the Leica sample stores GPS week time
 
 
@@ -47,7 +47,7 @@ def test_the_inputs_to_plan_carry_their_names_and_what_the_user_gave_of_the_puls
                                                                ("b/leica_a.las", "b__leica_a", given)]
     plan = plan_input(InputToPlan(str(leica_dir / "leica_a.las"), "leica_a.las", "leica_a", None, given),
                       DecompositionConfig(), 400)
-    assert {(t.source.system.fwhm_ps, t.source.system.fwhm_source) for t in plan.tasks} == {(9000.0, "configured")}
+    assert {(t.source.pulse.fwhm_ps, t.source.pulse.fwhm_source) for t in plan.tasks} == {(9000.0, "configured")}
     assert plan_path(tmp_path, "leica_a") == tmp_path / "parts" / "plans" / "leica_a.json"
     again = FilePlan.from_json(json.loads(json.dumps(plan.to_json())))  # as a resumed run reads it back
     assert again.tasks == plan.tasks and sum(planned_pulses(t) for t in again.tasks) == 924

@@ -17,7 +17,7 @@ def test_an_input_and_its_pulse_go_through_json_unchanged():
     source = InputFile("/data/a.las", "a.las", "a", PULSE, False, "WKT", "the file's", True, {"ground_sigma": 2.0},
                        "L2A beside it")
     again = InputFile.from_dict(json.loads(json.dumps(source.to_dict())))
-    assert again == source and again.system.response == gaussian_response(4312.5)
+    assert again == source and again.pulse.response == gaussian_response(4312.5)
 
 
 def test_a_range_is_named_by_its_input_and_points():
@@ -31,3 +31,10 @@ def test_a_rejection_holds_the_rejected_table_s_columns():
     assert set(REJECTED_SCHEMA.names) <= set(r._fields)
     assert {k: getattr(r, k) for k in REJECTED_SCHEMA.names} == {
         "source_file": "a.las", "pulse_id": 412, "stage": "decompose", "reason": "no echo above the noise"}
+
+
+def test_a_plan_written_before_the_pulse_was_named_so_reads_back():
+    source = InputFile("/data/a.las", "a.las", "a", PULSE, False)
+    written = source.to_dict()
+    written["system"] = written.pop("pulse")  # the key of plans an earlier version wrote
+    assert InputFile.from_dict(json.loads(json.dumps(written))) == source

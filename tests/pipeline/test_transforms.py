@@ -33,8 +33,8 @@ def test_read_and_decompose_count_every_pulse(leica_dir):
         result, not_decomposed = decompose_range(pulses, config)
         assert rejected == not_decomposed == []
         decomposed += int((result.result.status == 0).sum())
-        assert result.config == config  # the method; the file's pulse is its own (task.source.system)
-        assert result.result.sample_spacing_ps.size and task.source.system.fwhm_ps > 0
+        assert result.config == config  # the method; the file's pulse is its own (task.source.pulse)
+        assert result.result.sample_spacing_ps.size and task.source.pulse.fwhm_ps > 0
     assert decomposed == 924
 
 

@@ -253,6 +253,25 @@ _UNDAMPED = 1e-3  # LM's first damping, and the most at which its step is taken 
 
 
 @njit(**JIT)
+def _lm_scratch(m, d):
+    """LM's float work arrays for m samples and d parameters: (model, trial_model, residual (m each), jac,
+    trial_jac (m x d), jtj, factor (d x d, factor the damped system's Cholesky factor), grad, step, trial (d))."""
+    # the float scratch is views of one allocation: LM runs a few times a pulse, and on RIEGL's short
+    # waveforms a dozen allocations a call cost a sizeable share of its arithmetic
+    scratch = np.empty(3 * m + 2 * m * d + 2 * d * d + 3 * d)
+    model, trial_model, residual = scratch[:m], scratch[m:2 * m], scratch[2 * m:3 * m]
+    o = 3 * m
+    jac = scratch[o:o + m * d].reshape((m, d))
+    trial_jac = scratch[o + m * d:o + 2 * m * d].reshape((m, d))
+    o += 2 * m * d
+    jtj = scratch[o:o + d * d].reshape((d, d))
+    factor = scratch[o + d * d:o + 2 * d * d].reshape((d, d))
+    o += 2 * d * d
+    grad, step, trial = scratch[o:o + d], scratch[o + d:o + 2 * d], scratch[o + 2 * d:o + 3 * d]
+    return model, trial_model, residual, jac, trial_jac, jtj, factor, grad, step, trial
+
+
+@njit(**JIT)
 def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, max_iterations, tolerance,
                         chi2_tolerance=0.0, predict=False):
     """Minimise sum (weights (model(x, times) - target))**2 inside [lower, upper], x updated in place
@@ -266,18 +285,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     m = times.size
     d = x.size
     free = lower < upper
-    # the float scratch is views of one allocation: LM runs a few times a pulse, and on RIEGL's short
-    # waveforms a dozen allocations a call cost a sizeable share of its arithmetic
-    scratch = np.empty(3 * m + 2 * m * d + 2 * d * d + 3 * d)
-    model, trial_model, residual = scratch[:m], scratch[m:2 * m], scratch[2 * m:3 * m]
-    o = 3 * m
-    jac = scratch[o:o + m * d].reshape((m, d))
-    trial_jac = scratch[o + m * d:o + 2 * m * d].reshape((m, d))
-    o += 2 * m * d
-    jtj = scratch[o:o + d * d].reshape((d, d))
-    factor = scratch[o + d * d:o + 2 * d * d].reshape((d, d))  # the damped system's Cholesky factor
-    o += 2 * d * d
-    grad, step, trial = scratch[o:o + d], scratch[o + d:o + 2 * d], scratch[o + 2 * d:o + 3 * d]
+    model, trial_model, residual, jac, trial_jac, jtj, factor, grad, step, trial = _lm_scratch(m, d)
     both_windows = np.zeros((2, n_echoes, 2), dtype=np.int64)
     windows, trial_windows = both_windows[0], both_windows[1]
     model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)

@@ -6,11 +6,8 @@ import numpy as np
 import pytest
 
 from fwcore.engine.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
-                                 sigma_from_equivalent, sigma_to_time_unit, table_peak_offset, table_reach, table_value,
-                                 tabulated_area, tabulated_model, waveform_model)
-from fwcore.instrument.peak import main_lobe
+                                 sigma_from_equivalent, sigma_to_time_unit, table_reach, table_value, waveform_model)
 from fwcore.instrument.shape import echo_shape
-from tests.fwcore import naive
 
 
 def test_alpha_sqrt2_is_an_ordinary_gaussian():
@@ -59,17 +56,6 @@ def test_waveform_model_sums_echoes():
     np.testing.assert_allclose(y, expected)
 
 
-@pytest.mark.parametrize("s", [1.75, 2.4, 3.9])
-def test_tabulated_echo_matches_the_naive_reference(riegl_response, s):
-    shape = echo_shape(riegl_response, 1000.0)
-    t = np.linspace(10.0, 50.0, 401)
-    expected = naive.response_echo(riegl_response.times, riegl_response.response, 1000.0, 80.0, 21.3, s, t)
-    got = tabulated_model(t, 0.0, 80.0, 21.3, s, shape)
-    np.testing.assert_allclose(got, expected, atol=80.0 * 1e-2)  # rows interpolated in width: within 1% of the peak
-    # the area is the echo's integral
-    assert tabulated_area(shape, s) == pytest.approx(np.trapezoid(got / 80.0, t), rel=2e-3)
-
-
 @pytest.mark.parametrize("factor", [1.01, 1.37, 2.2, 3.9])  # between rows: both rows weigh
 def test_a_tabulated_echo_is_zero_outside_its_reach_and_not_just_inside(leica_response, factor):
     shape = echo_shape(leica_response, 2000.0, 4.0)
@@ -80,14 +66,3 @@ def test_a_tabulated_echo_is_zero_outside_its_reach_and_not_just_inside(leica_re
     assert not values[(t < -before) | (t > after)].any()
     inside = (t > -before + 2 * shape.step) & (t < after - 2 * shape.step)
     assert values[inside][:8].any() and values[inside][-8:].any()
-
-
-def test_an_echo_sits_at_its_response_lobes_centroid(leica_response):
-    shape = echo_shape(leica_response, 2000.0)
-    t = np.arange(-20.0, 30.0, 1.0 / 64.0)
-    echo = tabulated_model(t, 0.0, 1.0, 0.0, shape.s_min, shape)
-    lobe = main_lobe(echo, int(np.argmax(echo)), 0.05)
-    inside = slice(lobe[0], lobe[1] + 1)
-    assert np.sum(t[inside] * echo[inside]) / np.sum(echo[inside]) == pytest.approx(0.0, abs=0.02)
-    # and the shape says where the echo peaks
-    assert t[np.argmax(echo)] == pytest.approx(table_peak_offset(shape, shape.s_min), abs=2 * shape.step)

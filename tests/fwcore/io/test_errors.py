@@ -1,13 +1,12 @@
-"""The io errors in one module, the file kinds read once from a file's first bytes, and messages that name the
-file, the problem and the command that reads it."""
+"""The io errors in one module, and messages that name the file, the problem and the command that reads it (what
+a file is, from its first bytes: tests/fwcore/io/test_formats.py)."""
 
 import pytest
 
 from fwcore.io import formats, neon, pulsewaves
 from fwcore.io.errors import (ForeignCsvError, ForeignFileError, ForeignWaveformFileError, InputFileError, PacketError,
                               WaveformCsvError, WaveformFileError, WdzError)
-from fwcore.io.formats import (FOREIGN_BINARY, LAS, NEON_CSV, PULSEWAVES, WAVES_FILE, WDP_FILE, format_of, kind_of,
-                               plan_point_ranges)
+from fwcore.io.formats import LAS, NEON_CSV, plan_point_ranges
 from fwcore.io.las import open_waveform_file
 
 
@@ -21,35 +20,6 @@ def test_every_io_error_is_a_value_error_of_one_family():
 def test_the_pulsewaves_signatures_are_the_reader_s_own():
     assert pulsewaves.PULSE_SIGNATURE is formats.PULSE_SIGNATURE == b"PulseWavesPulse\0"
     assert pulsewaves.WAVES_SIGNATURE is formats.WAVES_SIGNATURE == b"PulseWavesWaves\0"
-
-
-def test_the_shared_files_are_known_by_their_first_bytes(leica_dir, neon_dir, pulsewaves_dir):
-    pls = pulsewaves_dir / "geolas_example1.pls"
-    assert (kind_of(leica_dir / "leica_a.las").format, kind_of(pls).format,
-            kind_of(neon_dir / "return_waveforms.csv").format) == (LAS, PULSEWAVES, NEON_CSV)
-    assert kind_of(neon_dir / "return_waveforms.csv").words == "a NEON-layout waveform CSV"
-    assert kind_of(pls.with_suffix(".wvs")) is WAVES_FILE and WAVES_FILE.beside
-    assert kind_of(leica_dir / "leica_a.wdp") is WDP_FILE
-    assert kind_of(neon_dir / "geolocation.csv").words == "a text file (CSV)"
-
-
-def test_a_format_is_found_with_one_read_of_the_file(neon_dir, monkeypatch):
-    opened = []
-
-    def counting_open(path, *args, **kwargs):
-        opened.append(path)
-        return open(path, *args, **kwargs)
-
-    monkeypatch.setattr(formats, "open", counting_open, raising=False)
-    assert format_of(neon_dir / "return_waveforms.csv") is NEON_CSV
-    assert len(opened) == 1
-
-
-def test_a_pls_is_pulsewaves_by_its_name_and_random_bytes_are_foreign(tmp_path):
-    (tmp_path / "empty.pls").write_bytes(b"")
-    (tmp_path / "noise.bin").write_bytes(bytes(range(256)))
-    assert format_of(tmp_path / "empty.pls") is PULSEWAVES
-    assert kind_of(tmp_path / "noise.bin") is FOREIGN_BINARY and format_of(tmp_path / "noise.bin") is LAS
 
 
 def test_a_file_of_another_format_is_named_with_the_command_that_reads_it(leica_dir, neon_dir):

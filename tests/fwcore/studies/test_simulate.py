@@ -1,19 +1,15 @@
-"""Simulated flights: the truth renders to the stored samples, the file reads back as written, chunk by chunk."""
+"""Simulated flights: the truth renders to the stored samples, the file reads back as written (the flight written
+chunk by chunk with its truth: tests/fwcore/studies/test_truth.py)."""
 
 import dataclasses
-import json
 
-import laspy
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
 
-from fwcore.studies import simulate
 from fwcore.io import read_pulses
 from fwcore.io.geolocate import geolocate
 from fwcore.io.writer import write_waveform_las
 from fwcore.studies.simulate import MAX_ECHOES, SceneConfig, SensorConfig, render_truth, simulate_flight
-from fwcore.studies.truth import TRUTH_METADATA_KEY, write_flight
 
 NOISELESS = SensorConfig(noise_sigma=0.0, shot_noise=0.0)
 
@@ -78,55 +74,6 @@ def test_same_seed_same_flight_and_bad_settings_are_refused():
         SensorConfig(bits=12)
     with pytest.raises(ValueError, match="packet is too short"):
         simulate_flight(200, SensorConfig(samples_per_packet=40))
-
-
-@pytest.mark.parametrize("layout", ["las13-wdp", "las14-internal"])
-def test_a_flight_of_several_chunks_is_written_chunk_by_chunk_and_reads_back(tmp_path, monkeypatch, layout):
-    one_chunk = simulate_flight(300, seed=4, source_file="sim.las")  # before chunks: one stream for the flight
-    monkeypatch.setattr(simulate, "CHUNK_PULSES", 300)  # 750 pulses: 2.5 chunks, not aligned with scan lines
-    written = write_flight(tmp_path / "sim.las", 750, SensorConfig(), SceneConfig(), seed=4, layout=layout)
-    flight = simulate_flight(750, seed=4, source_file="sim.las")
-    # the file streamed chunk by chunk is the flight in memory written in one go
-    whole = write_waveform_las(tmp_path / "whole" / "sim.las", flight.pulses, layout)
-    assert whole.read_bytes() == written.las.read_bytes()
-    if layout == "las13-wdp":
-        assert (tmp_path / "whole" / "sim.wdp").read_bytes() == (tmp_path / "sim.wdp").read_bytes()
-
-    back = read_pulses(written.las)
-    assert len(back) == written.n_pulses == 750
-    np.testing.assert_array_equal(back.pulse_id, flight.pulses.pulse_id)
-    np.testing.assert_array_equal(back.packet_offset, flight.pulses.packet_offset)
-    np.testing.assert_array_equal(back.samples, flight.pulses.samples)
-    assert np.all(np.diff(back.gps_time) > 0)  # the line flies on across chunks
-    # chunk 0 is the one-chunk flight of the same seed; chunk 1 draws from a stream of its own
-    np.testing.assert_array_equal(back.samples[:300 * 200], one_chunk.pulses.samples)
-    np.testing.assert_array_equal(back.pulse_id[:300], one_chunk.pulses.pulse_id)
-    assert not np.array_equal(back.samples[300 * 200:600 * 200], one_chunk.pulses.samples)
-
-    las = laspy.read(written.las)
-    assert las.header.point_count == len(las.points) == written.n_returns == flight.pulses.return_xyz.shape[0]
-    np.testing.assert_array_equal(las.header.mins, [las.x.min(), las.y.min(), las.z.min()])
-    np.testing.assert_array_equal(las.header.maxs, [las.x.max(), las.y.max(), las.z.max()])
-    by_return = np.bincount(las.return_number, minlength=16)[1:]
-    kept = len(las.header.number_of_points_by_return)  # 5 in LAS 1.3, 15 in 1.4
-    np.testing.assert_array_equal(las.header.number_of_points_by_return, by_return[:kept])
-
-    table = pq.read_table(written.truth)
-    assert table.num_rows == written.n_echoes == flight.truth["time_ps"].size
-    assert pq.ParquetFile(written.truth).num_row_groups == 3  # one a chunk
-    np.testing.assert_array_equal(table["pulse_id"].to_numpy(), flight.truth["pulse_id"])
-    np.testing.assert_array_equal(table["z"].to_numpy(), flight.truth["z"])
-    assert set(table["pulse_id"].to_numpy()) == set(back.pulse_id)
-    assert json.loads(table.schema.metadata[TRUTH_METADATA_KEY])["seed"] == 4
-
-
-def test_a_flight_that_fails_after_chunks_were_written_leaves_no_partial_files(tmp_path, monkeypatch):
-    monkeypatch.setattr(simulate, "CHUNK_PULSES", 100)
-    short = SensorConfig(samples_per_packet=170)  # enough for the first three chunks' trees, not the fourth's
-    assert len(list(write_flight(tmp_path / "ok.las", 300, short, SceneConfig(), seed=1).las.parent.iterdir())) == 4
-    with pytest.raises(ValueError, match="packet is too short"):
-        write_flight(tmp_path / "sim.las", 400, short, SceneConfig(), seed=1)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.las", "ok.trajectory.csv", "ok.truth.parquet", "ok.wdp"]
 
 
 @pytest.mark.parametrize("name", ["riegl", "leica"])

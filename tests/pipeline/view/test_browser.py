@@ -347,7 +347,7 @@ def test_an_earth_centred_runs_grid_is_offered_with_why_it_cannot_be_drawn(riegl
     from urllib.parse import quote
 
     from pipeline.cli import main
-    from tests.pipeline.view.test_endpoints import _status
+    from tests.pipeline.view.test_server import _status
 
     assert main(["grid", str(riegl.run), "--cell", "5"]) == 0
     (grid,) = riegl.get(f"/api/grids?run={quote(riegl.run_id, safe='')}")["grids"]

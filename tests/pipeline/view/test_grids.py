@@ -11,7 +11,7 @@ import rasterio
 
 from pipeline.view import grids
 from tests.pipeline.view.conftest import GRID_CELL
-from tests.pipeline.view.test_endpoints import _status
+from tests.pipeline.view.test_server import _status
 
 
 def _layer(viewed, grid_id, name, band=1):

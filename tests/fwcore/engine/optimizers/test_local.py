@@ -10,6 +10,7 @@ import pytest
 from fwcore.engine.model import analytic_shape, tabulated_model
 from fwcore.engine.optimizers.local import fit_lbfgs, fit_levenberg_marquardt, model_and_jacobian
 from fwcore.instrument.shape import echo_shape
+from tests.fwcore import naive
 from tests.fwcore.naive import model_of_individual
 
 T = np.arange(100.0)
@@ -118,3 +119,75 @@ def test_a_step_promising_less_than_the_chi2_tolerance_is_not_taken():
     assert promised == made - 1  # the Jacobian at the last step, which made its gain under 0.05, is never computed
     assert 0.0 <= ssr_promised - ssr_made <= 0.05  # and that step would have gained under 0.05
     np.testing.assert_allclose(x_promised[[2, 6]], x_made[[2, 6]], atol=0.02)
+
+
+# ---------------------------------------------------------------- against SciPy's optimizers (tests/fwcore/naive)
+
+NOISY_T = np.arange(120.0)
+NOISY_TRUTH = {  # b, (A, u, s, alpha) per echo: 1 to 3 echoes, the third overlapping the second
+    1: [8.0, 120.0, 50.0, 3.0, 1.5],
+    2: [8.0, 120.0, 40.0, 3.0, 1.6, 60.0, 52.0, 4.0, 1.2],
+    3: [8.0, 120.0, 30.0, 2.5, 1.414, 80.0, 50.0, 3.5, 1.8, 40.0, 75.0, 3.0, 1.3],
+}
+
+
+def noisy_case(n: int, gaussian: bool = False):
+    """A waveform of n known echoes with white noise of sigma 2, a start within 8% of the truth, and bounds
+    around it (alpha held at sqrt 2 when `gaussian`)."""
+    truth = np.array(NOISY_TRUTH[n])
+    rng = np.random.default_rng(n + 10 * gaussian)
+    if gaussian:
+        truth[4::4] = np.sqrt(2)
+    y = model_of_individual(truth, NOISY_T) + rng.normal(0, 2.0, NOISY_T.size)
+    start = truth * (1 + rng.uniform(-0.08, 0.08, truth.size))
+    lower = np.r_[0.0, np.tile([0.0, 0.0, 0.5, np.sqrt(2) if gaussian else 1.0], n)]
+    upper = np.r_[30.0, np.tile([300.0, 120.0, 10.0, np.sqrt(2) if gaussian else 2.6], n)]
+    start[4::4] = np.sqrt(2) if gaussian else start[4::4]
+    return y, start, lower, upper
+
+
+def standard_errors(x, cost, lower, upper):
+    """Each parameter's standard error at the optimum x (sigma^2 (J^T J)^-1, sigma^2 = cost / (m - free)); 1
+    for a held one."""
+    free = lower < upper
+    jac = naive.model_jacobian(x, NOISY_T)[:, free]
+    errors = np.ones(x.size)
+    errors[free] = np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)) * cost / (NOISY_T.size - free.sum()))
+    return errors
+
+
+def assert_same_optimum(x, cost, reference, reference_cost, lower, upper):
+    """Our optimum is SciPy's: the cost within 1e-8 of it (LM stops once a step gains under 1e-8 of the
+    sum, L-BFGS under 1e-9: what is left is below that), each parameter within 1e-3 of its standard error
+    (a difference no fit's uncertainty could show; 3e-4 is the largest seen, L-BFGS on three echoes)."""
+    assert abs(cost - reference_cost) <= 1e-8 * reference_cost
+    assert np.all(np.abs(x - reference) <= 1e-3 * standard_errors(reference, reference_cost, lower, upper))
+    assert np.all((lower <= x) & (x <= upper))
+
+
+@pytest.mark.parametrize("n, gaussian", [(1, False), (2, False), (3, False), (2, True)])
+def test_lm_reaches_scipys_least_squares_optimum(n, gaussian):
+    y, start, lower, upper = noisy_case(n, gaussian)
+    reference, reference_cost = naive.least_squares_fit(start, NOISY_T, y, lower, upper, method="lm")
+    x, cost, _ = fit_levenberg_marquardt(start, n, NOISY_T, y, lower, upper)
+    assert_same_optimum(x, cost, reference, reference_cost, lower, upper)
+    assert np.abs(x[2::4] - NOISY_TRUTH[n][2::4]).max() < 0.5  # and the optimum is the truth's, positions
+
+
+@pytest.mark.parametrize("n, gaussian", [(1, False), (2, False), (3, False), (2, True)])
+def test_lbfgs_reaches_scipys_lbfgsb_optimum(n, gaussian):
+    y, start, lower, upper = noisy_case(n, gaussian)
+    reference, reference_cost = naive.lbfgs_fit(start, NOISY_T, y, lower, upper)
+    x, cost, _ = fit_lbfgs(start, n, NOISY_T, y, lower, upper)
+    assert_same_optimum(x, cost, reference, reference_cost, lower, upper)
+
+
+@pytest.mark.parametrize("fit", [fit_levenberg_marquardt, fit_lbfgs])
+def test_an_optimum_on_a_bound_is_scipys_bounded_one(fit):
+    # the first echo's amplitude capped at 100 (truth 120): the optimum sits on the bound
+    y, start, lower, upper = noisy_case(2)
+    upper[1] = 100.0
+    reference, reference_cost = naive.least_squares_fit(start, NOISY_T, y, lower, upper, method="trf")
+    x, cost, _ = fit(start, 2, NOISY_T, y, lower, upper)
+    assert x[1] == 100.0 and reference[1] == pytest.approx(100.0, abs=1e-9)
+    assert_same_optimum(x, cost, reference, reference_cost, lower, upper)
