@@ -151,13 +151,14 @@ def test_no_non_finite_value_reaches_an_output(damaged):
         assert np.isfinite(alpha).all() or np.isnan(alpha).all(), path.name
     from mcap.reader import make_reader
 
-    def refuse(constant):
-        raise AssertionError(f"{constant} in an MCAP message")
+    from pipeline.sinks import decode_waveforms
 
     for path in sorted((out / "mcap").iterdir()):
         with open(path, "rb") as f:
             for _, channel, message in make_reader(f).iter_messages(topics=["/waveform"]):
-                json.loads(message.data, parse_constant=refuse)
+                for name, values in decode_waveforms(message.data).items():
+                    if name != "reject_reasons":
+                        assert np.isfinite(np.asarray(values, dtype=float)).all(), (path.name, name)
     assert not list(out.rglob("*.tmp")) and not (out / "parts").exists()
 
 
