@@ -38,7 +38,7 @@ import sylva
 path, out = sys.argv[1], sys.argv[2]
 waveforms = sylva.waveform.read(path)
 echoes = sylva.waveform.decompose(waveforms)
-sylva.write(echoes.to_pointcloud(waveforms), out)
+sylva.write(echoes.to_pointcloud(), out)
 print(len(waveforms), time.perf_counter() - began)
 """
 DASK = """
