@@ -11,6 +11,7 @@ first: last echoes within `refine_below` under and `refine_above` over the terra
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 
 import numpy as np
@@ -129,17 +130,23 @@ def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, last: np.ndarra
 def _one_openmp_thread(csf_module) -> None:
     """The cloth's OpenMP loop moves particles that share constraints from several threads at once: a race, so
     that the same tile gave another ground on some runs. One thread (set for the calling thread, where the cloth
-    runs) makes it deterministic; the OpenMP library is the one the wheel bundles beside the module, or the
-    system's."""
+    runs) makes it deterministic."""
+    library = _openmp_library(csf_module.__file__)
+    if library is not None:  # none: a build without OpenMP, one thread already
+        library.omp_set_num_threads(1)
+
+
+@functools.lru_cache(maxsize=None)
+def _openmp_library(module_file: str):
+    """The OpenMP library the wheel bundles beside the module, or the system's; None without one (found once)."""
     import ctypes
     import ctypes.util
     from pathlib import Path
 
-    libs = Path(csf_module.__file__).parent
-    bundled = sorted(libs.glob("cloth_simulation_filter.libs/libgomp*")) + sorted(libs.glob("*.libs/libgomp*"))
+    libs = Path(module_file).parent
+    bundled = sorted(libs.glob("*.libs/libgomp*"))
     name = str(bundled[0]) if bundled else ctypes.util.find_library("gomp")
-    if name is not None:  # none: a build without OpenMP, one thread already
-        ctypes.CDLL(name).omp_set_num_threads(1)
+    return ctypes.CDLL(name) if name is not None else None
 
 
 class _quiet_stdout:

@@ -2,8 +2,6 @@
 
 from pathlib import Path
 
-import pytest
-
 from fwcore.io import formats
 from fwcore.io.formats import (EMPTY, FOREIGN_BINARY, FOREIGN_HDF5, GEDI_L1B, LAS, NEON_CSV, PULSEWAVES, TEXT,
                                WAVES_FILE, WDP_FILE, WDZ_FILE, format_of, kind_of, needs_packet_file, packet_file)
