@@ -13,9 +13,10 @@ import pytest
 import rasterio
 
 from fwcore.grid import Grid
-from fwcore.metrics.biomass import NO_STRATUM, predict_agbd
+from fwcore.metrics.biomass import NO_STRATUM, NOT_LARGE, predict_agbd
 from pipeline.cli import main
 from pipeline.pulse_maps import _anchors
+from tests.fwcore.io.lvis_files import write_lvis
 
 GEDI = Path(__file__).resolve().parents[2] / "examples" / "data" / "gedi"
 L1B = GEDI / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
@@ -115,3 +116,19 @@ def test_footprints_of_an_airborne_run_have_agbd_and_a_map(forest_run, tmp_path)
     for c in np.unique(cell):
         assert values.ravel()[c] == pytest.approx(measured.agbd[cell == c].mean(), rel=1e-6)
     assert not (tmp_path / "grid" / "agbd.tif").exists()  # small-footprint pulses: no agbd of their own
+    pulses = _pulses(run).to_pandas()
+    assert pulses.agbd.isna().all() and set(pulses.agbd_reason) == {NOT_LARGE}
+
+
+def test_lvis_shots_take_the_stratum_given(tmp_path):
+    path = tmp_path / "LVIS1B_forest.h5"
+    write_lvis(path, 12, seed=4)
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--output", str(out), "--formats", "parquet", "--optimizer", "lm",
+                 "--stratum", "DBT_NAm"]) == 0
+    pulses = _pulses(out).to_pandas()
+    assert (pulses.metrics_reason == "").all() and set(pulses.agbd_stratum) == {"DBT_NAm"}
+    rh = np.stack(pulses.rh.to_numpy()).astype(np.float64)
+    np.testing.assert_allclose(pulses.agbd, predict_agbd(rh, np.full(len(rh), "DBT_NAm", dtype=object)).agbd,
+                               rtol=1e-6)
+    assert (pulses.agbd > 0).all()
