@@ -175,6 +175,7 @@ def _say_what_was_not_done(summary: dict, output: str) -> None:
 
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
+    from fwcore.metrics.biomass import check_stratum
     from pipeline.options import check_beam_args, radiometry_config
     from pipeline.run import check_run_arguments, run, run_settings
     from pipeline.watch import watch
@@ -189,8 +190,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
     overrides = _overrides_from_args(args)
+    stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides)
+                            overrides, stratum)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -198,7 +200,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides)
+                          overrides=overrides, stratum=stratum)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
