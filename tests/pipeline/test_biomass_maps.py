@@ -132,3 +132,27 @@ def test_lvis_shots_take_the_stratum_given(tmp_path):
     np.testing.assert_allclose(pulses.agbd, predict_agbd(rh, np.full(len(rh), "DBT_NAm", dtype=object)).agbd,
                                rtol=1e-6)
     assert (pulses.agbd > 0).all()
+
+
+def test_footprints_at_a_granule_s_shots_take_its_land_cover(forest_run, tmp_path):
+    """A version 002 L2A granule written here: two shots over the run, one deciduous broadleaf in North America
+    (pft 4, region 7), one water (pft 0); --stratum does not override the land cover."""
+    import pyproj
+
+    to_wgs = pyproj.Transformer.from_crs(pyproj.CRS.from_epsg(32632), "EPSG:4326", always_xy=True)
+    lon, lat = to_wgs.transform(np.array([12.0, 12.0]), np.array([-20.0, 20.0]))
+    granule = tmp_path / "GEDI02_A_test.h5"
+    with h5py.File(granule, "w") as f:
+        g = f.create_group("BEAM0101")
+        g["shot_number"] = np.array([21, 22], np.int64)
+        g["lat_lowestmode"], g["lon_lowestmode"] = lat, lon
+        g["land_cover_data/pft_class"] = np.array([4, 0], np.uint8)
+        g["land_cover_data/region_class"] = np.array([7, 0], np.uint8)
+    out = tmp_path / "shots.parquet"
+    assert main(["footprints", str(forest_run), "--gedi", str(granule), "--crs", "EPSG:32632", "--stratum",
+                 "ENT_NAm", "--output", str(out)]) == 0
+    fp = pq.read_table(out).to_pandas()
+    assert list(fp.shot_number) == [21, 22] and list(fp.agbd_stratum) == ["DBT_NAm", ""]
+    assert fp.agbd[0] == pytest.approx(predict_agbd(np.stack(fp.rh.to_numpy())[:1], np.array(["DBT_NAm"],
+                                                                                            dtype=object)).agbd[0])
+    assert np.isnan(fp.agbd[1]) and "pft_class 0" in fp.agbd_reason[1]
