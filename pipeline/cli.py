@@ -663,8 +663,11 @@ def _footprints(args: argparse.Namespace) -> int:
                           stratum=check_stratum(args.stratum) if args.stratum else None)
     import pyarrow.parquet as pq
 
-    rows = pq.read_table(path, columns=["reason"]).column("reason").to_pylist()
-    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured -> {path}")
+    table = pq.read_table(path, columns=["reason", "agbd_reason"])
+    rows, biomass = table.column("reason").to_pylist(), table.column("agbd_reason").to_pylist()
+    why = next((r for r in biomass if r), "")  # the first reason a footprint has no agbd
+    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured, "
+          f"{sum(r == '' for r in biomass):,} with agbd{f' (else: {why})' if why else ''} -> {path}")
     return 0
 
 
