@@ -18,6 +18,7 @@ from fwcore.engine.config import DecompositionConfig, Model, Optimizer
 from pipeline.claims import (check_suffix, claim_command_folder, claim_files, first_line_is, parquet_is_ours,
                              record_command_folder)
 from pipeline.faults import WRITING, machine_fault
+from fwcore.metrics.biomass import STRATUM_HELP
 from pipeline.lock import folder_lock
 from pipeline.logs import quiet_imports
 
@@ -129,7 +130,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
-                      overrides=_overrides_from_args(args))
+                      overrides=_overrides_from_args(args), stratum=args.stratum)
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -174,6 +175,7 @@ def _say_what_was_not_done(summary: dict, output: str) -> None:
 
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
+    from fwcore.metrics.biomass import check_stratum
     from pipeline.options import check_beam_args, radiometry_config
     from pipeline.run import check_run_arguments, run, run_settings
     from pipeline.watch import watch
@@ -188,8 +190,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
     overrides = _overrides_from_args(args)
+    stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides)
+                            overrides, stratum)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -197,7 +200,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides)
+                          overrides=overrides, stratum=stratum)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
@@ -653,13 +656,18 @@ def _horizontal_unit(crs_wkt: str | None) -> str:
 
 
 def _footprints(args: argparse.Namespace) -> int:
+    from fwcore.metrics.biomass import check_stratum
     from pipeline.footprints import footprints_run
 
-    path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs)
+    path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs,
+                          stratum=check_stratum(args.stratum) if args.stratum else None)
     import pyarrow.parquet as pq
 
-    rows = pq.read_table(path, columns=["reason"]).column("reason").to_pylist()
-    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured -> {path}")
+    table = pq.read_table(path, columns=["reason", "agbd_reason"])
+    rows, biomass = table.column("reason").to_pylist(), table.column("agbd_reason").to_pylist()
+    why = next((r for r in biomass if r), "")  # the first reason a footprint has no agbd
+    print(f"fwl footprints: {len(rows):,} footprints, {sum(r == '' for r in rows):,} measured, "
+          f"{sum(r == '' for r in biomass):,} with agbd{f' (else: {why})' if why else ''} -> {path}")
     return 0
 
 
@@ -672,6 +680,7 @@ def _add_footprints(sub) -> None:
     where.add_argument("--spacing", type=float, help="footprints on a square grid of this spacing, metres")
     f.add_argument("--output", help="the GeoParquet file (default RUN_DIR/footprints.parquet)")
     f.add_argument("--crs", help="the run's CRS where its inputs name none (to place GEDI's shots)")
+    f.add_argument("--stratum", help=STRATUM_HELP)
     f.set_defaults(handler=_footprints)
 
 

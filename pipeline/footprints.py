@@ -1,11 +1,12 @@
-"""`fwl footprints RUN_DIR (--gedi L2A.h5 | --spacing METRES) [--output FILE]`: what GEDI would record over a run,
+"""`fwl footprints RUN_DIR (--gedi L2A.h5 | --spacing METRES) [--stratum ENT_NAm] [--output FILE]`: what GEDI would record over a run,
 as GeoParquet (default RUN_DIR/footprints.parquet).
 
 Each footprint's waveform is built from the run's kept echoes around it (fwcore.metrics.footprint: their energy
 on a common vertical axis, weighted by GEDI's Gaussian footprint, through GEDI's pulse) and measured as GEDI's
 L2A and L2B measure theirs (fwcore.metrics). Footprints are centred on a granule's shots (their lowest mode's
 latitude and longitude, in the run's CRS) or on a square grid of `spacing` over the run; a footprint centred
-less than two sigmas (11 m) inside the echoes' extent is left out.
+less than two sigmas (11 m) inside the echoes' extent is left out. Each footprint's biomass (agbd, agbd_se) is
+GEDI L4A's prediction from its RH (fwcore.metrics.biomass), by --stratum or the L2A granule's land cover.
 
 Memory: the echoes within reach of a band of footprints at a time (a band as tall as the footprint's reach).
 """
@@ -21,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from fwcore.metrics.biomass import footprint_biomass
 from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
 from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.outputs import read_run
@@ -48,7 +50,7 @@ def gedi_shots(path: str | Path, crs_wkt: str) -> dict[str, np.ndarray]:
     import h5py
     import pyproj
 
-    numbers, beams, lon, lat = [], [], [], []
+    numbers, beams, lon, lat, cover = [], [], [], [], []
     with h5py.File(path, "r") as f:
         for beam in sorted(k for k in f if k.startswith("BEAM")):
             g = f[beam]
@@ -58,18 +60,25 @@ def gedi_shots(path: str | Path, crs_wkt: str) -> dict[str, np.ndarray]:
             beams.append(np.full(numbers[-1].size, beam))
             lat.append(np.asarray(g["lat_lowestmode"][:], float))
             lon.append(np.asarray(g["lon_lowestmode"][:], float))
+            land = g.get("land_cover_data")  # version 002: each shot's biomass stratum (fwcore.metrics.biomass)
+            cover.append(np.stack([land["pft_class"][:], land["region_class"][:]], axis=1).astype(np.uint8)
+                         if land is not None and "pft_class" in land and "region_class" in land else None)
     if not numbers:
         raise ValueError(f"{path}: no BEAM group with lat_lowestmode: not a GEDI L2A granule")
     to_run = pyproj.Transformer.from_crs("EPSG:4326", pyproj.CRS.from_wkt(crs_wkt), always_xy=True)
     x, y = to_run.transform(np.concatenate(lon), np.concatenate(lat))
+    classes = ({"pft_class": np.concatenate(cover)[:, 0], "region_class": np.concatenate(cover)[:, 1]}
+               if all(c is not None for c in cover) else {})
     return {"shot_number": np.concatenate(numbers), "beam": np.concatenate(beams), "x": np.asarray(x),
-            "y": np.asarray(y)}
+            "y": np.asarray(y), **classes}
 
 
 def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str | Path | None = None,
                    output: str | Path | None = None, crs: str | None = None,
-                   sensor: FootprintSensor = FootprintSensor()) -> Path:
-    """The footprints of a finished run (see the module) into `output`; its path."""
+                   sensor: FootprintSensor = FootprintSensor(), stratum: str | None = None) -> Path:
+    """The footprints of a finished run (see the module) into `output`; its path. Each footprint's biomass by
+    GEDI L4A's model of `stratum` (e.g. ENT_NAm), or of the stratum a version 002 L2A granule (`gedi`) names
+    for its shot; none without either (agbd_reason)."""
     import pyproj
 
     run_dir = Path(run_dir)
@@ -100,7 +109,7 @@ def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str 
                     INSIDE_SIGMAS, xmax - xmin, ymax - ymin)
     rows = _measure(files, shots["x"], shots["y"], sensor)
     output = run_dir / FOOTPRINTS_FILE if output is None else Path(output)
-    _write(output, shots, rows, wkt, sensor)
+    _write(output, shots, rows, wkt, sensor, stratum)
     return output
 
 
@@ -142,14 +151,21 @@ def _measure(files: list[Path], cx: np.ndarray, cy: np.ndarray, sensor: Footprin
     return out
 
 
-def _write(output: Path, shots: dict, rows: list[dict], wkt: str | None, sensor: FootprintSensor) -> None:
+def biomass_columns(rh: np.ndarray, shots: dict, stratum: str | None) -> dict[str, np.ndarray]:
+    """Each footprint's agbd, agbd_se, agbd_stratum and agbd_reason (fwcore.metrics.biomass) from its RH."""
+    found = footprint_biomass(rh, True, stratum, shots.get("pft_class"), shots.get("region_class"))
+    return {"agbd": found.agbd, "agbd_se": found.agbd_se, "agbd_stratum": found.stratum, "agbd_reason": found.reason}
+
+
+def _write(output: Path, shots: dict, rows: list[dict], wkt: str | None, sensor: FootprintSensor,
+           stratum: str | None = None) -> None:
     from pipeline.tables import geo_metadata, wkb_points
     from fwcore.io.crs import crs_projjson
 
     n = len(rows)
     ground = np.array([r.get("ground_z", np.nan) for r in rows], float)
     rh = np.array([r["rh"] if "rh" in r else np.full(101, np.nan) for r in rows], float).reshape(n, 101)
-    columns = {k: v for k, v in shots.items() if k not in ("x", "y")}
+    columns = {k: v for k, v in shots.items() if k not in ("x", "y", "pft_class", "region_class")}
     columns.update({"x": shots["x"], "y": shots["y"], "ground_z": ground})
     for k in RH_COLUMNS:
         columns[f"rh{k}"] = rh[:, k]
@@ -157,6 +173,7 @@ def _write(output: Path, shots: dict, rows: list[dict], wkt: str | None, sensor:
         columns[name] = np.array([r.get(name, np.nan) for r in rows], float)
     columns["n_echoes"] = np.array([r.get("n_echoes", 0) for r in rows], np.int64)
     columns["reason"] = np.array([r.get("reason", "") for r in rows], object)
+    columns.update(biomass_columns(rh, shots, stratum))
     table = pa.table({k: (pa.array(list(v), pa.string()) if np.asarray(v).dtype == object else v)
                       for k, v in columns.items()})
     table = table.append_column("rh", pa.array(list(rh), pa.list_(pa.float64())))

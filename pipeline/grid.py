@@ -10,6 +10,8 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
                      (pipeline.pulse_maps)
     dtm, dsm, chm, cover, pai, pavd, rh98, rh50 .tif   the forest's (pipeline.forest_maps), where the echoes
                      are classified (`fwl classify RUN`, or `fwl grid --classify`: pipeline.classify)
+    agbd.tif, footprints_agbd.tif   the mean biomass (GEDI L4A's models) of the shots, of the footprints
+                     fwl footprints --stratum simulated (pipeline.biomass_maps), where predicted
     survey.vpc       a QGIS virtual point cloud over the run's copc/ files (where it has them): the survey as one layer
     fwl-grid.json    what was gridded, how, and the files: the mark of the folder as fwl grid's
 
@@ -27,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
+from pipeline.biomass_maps import biomass_maps
 from pipeline.layout import COPC, GRID_DIR, GRID_MARK, LOCK
 from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.outputs import OutputFolderError, read_run
@@ -124,6 +127,7 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
         forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit)
     elif large_footprint_run(run_dir):  # GEDI, LVIS: each shot is a footprint's sample of the forest
         forest = shot_metric_maps(run_dir, grid)
+    forest = {**forest, **biomass_maps(run_dir, grid)}  # agbd.tif, footprints_agbd.tif where predicted
     stats = _statistics(files, grid)
     profile = _profile(files, grid, stats, bin_height)
     return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs), forest)

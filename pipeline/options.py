@@ -19,6 +19,7 @@ from typing import Any, Iterable, get_type_hints
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, SetupOptions, StandardOptions
 
 from fwcore.engine.config import OPTIMIZERS, PRESETS, DecompositionConfig
+from fwcore.metrics.biomass import STRATUM_HELP
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides
 from fwcore.instrument.response import named_response
 
@@ -152,6 +153,7 @@ class FwlOptions(PipelineOptions):
         g.add_argument("--crs", help="the inputs' coordinate reference system, for inputs that name none or name it "
                                      "wrongly: an EPSG code (EPSG:25832), WKT or PROJJSON; every output carries it "
                                      "instead of what the inputs say")
+        g.add_argument("--stratum", help=STRATUM_HELP)
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
         add_method_arguments(parser)

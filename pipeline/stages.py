@@ -21,11 +21,13 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
+from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, footprint_biomass
 from fwcore.metrics.pulses import batch_metrics
 from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
+from fwcore.io.formats import format_of
 from fwcore.io.crs import horizontal_metres
 from fwcore.io.writer import write_point_cloud
 from fwcore.plausibility import CELL_M, filter_under_ground
@@ -51,6 +53,7 @@ class RangeSettings:
     config: DecompositionConfig
     formats: frozenset[str]
     radiometry: RadiometryConfig = RadiometryConfig()
+    stratum: str | None = None  # --stratum: the L4A biomass model of shots whose land cover no L2A names
 
 
 @dataclasses.dataclass
@@ -130,10 +133,11 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
 
 
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
-                    laps: Laps | None = None) -> GeolocatedRange:
+                    laps: Laps | None = None, stratum: str | None = None) -> GeolocatedRange:
     """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
-    and radiometry computed, every pulse's forest metrics (fwcore.metrics), the range's tables built; each step's
-    time into `laps`."""
+    and radiometry computed, every pulse's forest metrics (fwcore.metrics) and, for large footprints, biomass
+    (fwcore.metrics.biomass: the L2A land cover's stratum, else `stratum`), the range's tables built; each
+    step's time into `laps`."""
     laps = laps or Laps()
     pulses, result, source = item.pulses, item.result, item.task.source
     with laps("geolocate"):
@@ -146,9 +150,12 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     with laps("metrics"):
         settings, by_algorithm = file_metric_settings(source.metric_settings)
         metrics = batch_metrics(pulses, result, source.pulse, settings, by_algorithm)
+    with laps("biomass"):
+        biomass = footprint_biomass(metrics.rh, format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
+                                    pulses.pft_class, pulses.region_class)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
-                                     result.status == 0, columns, source.crs_wkt, metrics)
+                                     result.status == 0, columns, source.crs_wkt, metrics, biomass)
     with laps("cloud"):
         cloud = decomposed_echoes(pulses, result, xyz)
         kept = result.reject == 0
@@ -225,7 +232,7 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
             held, rejected = decompose_range(held, settings.config)
         outcome.rejected += rejected
         stage = "geolocate"
-        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps)
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.stratum)
         stage = "write"
         outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated, laps)
     except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected

@@ -186,6 +186,13 @@ COLUMNS = {c.name: c for c in (
     Column("pavd_z", pa.list_(pa.float32()), "m2/m3", "plant area volume density in 5 m bins from the ground up "
                                                       "(0-5, 5-10, ... m; GEDI L2B)"),
     Column("metrics_reason", STR, "", "'' when the forest metrics were measured, else why they are null"),
+    Column("agbd", F64, "Mg/ha", "aboveground biomass density: GEDI L4A's model of the shot's stratum on its RH "
+                                 "(fwcore.metrics.biomass; null: see agbd_reason)"),
+    Column("agbd_se", F64, "Mg/ha", "agbd's standard error as L4A gives it (the model's coefficient covariance and "
+                                    "residual error)"),
+    Column("agbd_stratum", STR, "", "the L4A prediction stratum (plant functional type _ region, e.g. ENT_NAm) whose "
+                                    "model gave agbd: from the L2A granule's land cover, else --stratum"),
+    Column("agbd_reason", STR, "", "'' when agbd was predicted, else why it is null"),
     Column("stale_return_flag", pa.int8(), "", "GEDI L1B's stale return flag (null: not recorded)"),
     Column("degrade_flag", pa.int8(), "", "GEDI L1B's degraded pointing or positioning flag (null: not recorded)"),
     Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
@@ -201,6 +208,7 @@ _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes",
            "nit", "message")
 _METHOD = ("optimizer", "model")
 _FOREST = ("ground_z", "rh", "rv", "rg", "cover", "pai", "pavd_z", "metrics_reason")
+_BIOMASS = ("agbd", "agbd_se", "agbd_stratum", "agbd_reason")
 # Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
 TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
@@ -211,7 +219,7 @@ TABLES = {
                "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
-               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, "stale_return_flag",
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_BIOMASS, "stale_return_flag",
                "degrade_flag"),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
     "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", CSV_ENERGY,
@@ -337,16 +345,25 @@ def _forest_columns(metrics, rows: np.ndarray) -> dict:
             "metrics_reason": [metrics.reason[i] for i in rows]}
 
 
+def _biomass_columns(biomass, rows: np.ndarray) -> dict:
+    """fwcore.metrics.biomass.ShotBiomass at rows, NaN as null; all null (with the reason) without it."""
+    if biomass is None:
+        return {"agbd": pa.nulls(rows.size, F64), "agbd_se": pa.nulls(rows.size, F64),
+                "agbd_stratum": _strings("", rows.size), "agbd_reason": _strings("not predicted", rows.size)}
+    return {"agbd": _null_where_nan(biomass.agbd[rows]), "agbd_se": _null_where_nan(biomass.agbd_se[rows]),
+            "agbd_stratum": biomass.stratum[rows].tolist(), "agbd_reason": biomass.reason[rows].tolist()}
+
+
 def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
     return pa.nulls(rows.size, pa.int8()) if values is None else pa.array(values[rows], pa.int8())
 
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
                  pulse: SystemPulse, xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
-                 crs_wkt: str | None = None, metrics=None) -> tuple[pa.Table, pa.Table]:
+                 crs_wkt: str | None = None, metrics=None, biomass=None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
-    `ok`, with their forest metrics (fwcore.metrics) where given; the geometry's CRS is `crs_wkt` (the run's,
-    fwcore.io.formats.input_crs), else the input file's."""
+    `ok`, with their forest metrics (fwcore.metrics) and biomass (fwcore.metrics.biomass) where given; the
+    geometry's CRS is `crs_wkt` (the run's, fwcore.io.formats.input_crs), else the input file's."""
     from fwcore.engine.model import sigma_to_time_unit
     from fwcore.engine.waveform_width import waveform_widths
 
@@ -379,7 +396,7 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, pulse.fwhm_ps),
         "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size),
-        **_forest_columns(metrics, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
+        **_forest_columns(metrics, sel), **_biomass_columns(biomass, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
         "degrade_flag": _flag(pulses.degrade_flag, sel)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)

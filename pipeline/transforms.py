@@ -165,11 +165,12 @@ class DecomposeFlight(beam.PTransform):
     formats: frozenset[str]
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
     radiometry: RadiometryConfig = RadiometryConfig()
+    stratum: str | None = None  # --stratum (fwcore.metrics.biomass)
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry)
+        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.stratum)
         return tasks | "RangeStages" >> beam.ParDo(RangeStages(settings))
 
 

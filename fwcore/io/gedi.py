@@ -186,7 +186,9 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         mean, sd = _noise_at_ends(rx, offsets)
         noise = mean if noise is None else noise
         noise_sd = sd if noise_sd is None else noise_sd
-    algorithm = selected_algorithms(l2a_beside(point_range.path), beam, shot[keep])
+    l2a = l2a_beside(point_range.path)
+    algorithm = selected_algorithms(l2a, beam, shot[keep])
+    pft, region = land_cover_classes(l2a, beam, shot[keep])
     n, steps = int(keep.sum()), np.maximum(count[keep] - 1, 1).astype(np.float64)
     # position = anchor + (L0 - t) direction with the anchor at bin0 and L0 = 0: direction = (bin0 - lastbin) / span
     direction = (bin0[keep] - last[keep]) / (steps * SAMPLE_SPACING_PS)[:, None]
@@ -205,7 +207,8 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         outgoing_spacing_ps=np.full(n, SAMPLE_SPACING_PS),
         rejected=tuple((int(s), str(r)) for s, r in zip(shot[~keep], reasons[~keep])),
         noise_mean=noise, noise_sd=noise_sd, cos_zenith=np.abs(np.sin(elevation)), transmit_shape=shape,
-        stale_return_flag=stale.astype(np.int8), degrade_flag=degrade.astype(np.int8), metric_algorithm=algorithm)
+        stale_return_flag=stale.astype(np.int8), degrade_flag=degrade.astype(np.int8), metric_algorithm=algorithm,
+        pft_class=pft, region_class=region)
 
 
 def concatenate(batches: list[PulseBatch]) -> PulseBatch:
@@ -281,6 +284,32 @@ def selected_algorithms(l2a: Path | None, beam: str, shots: np.ndarray) -> np.nd
     order = np.argsort(numbers)
     at = np.clip(np.searchsorted(numbers[order], shots), 0, numbers.size - 1)
     return np.where(numbers[order][at] == shots, selected[order][at], 0).astype(np.int8)
+
+
+def land_cover_classes(l2a: Path | None, beam: str, shots: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Per shot, its plant functional type and world region in the L2A granule (land_cover_data/pft_class and
+    region_class, joined by shot number; 255 where L2A has not the shot); None without them (no L2A granule, or
+    a version 001 one: its land_cover_data has no classes)."""
+    import h5py
+
+    if l2a is None:
+        return None, None
+    try:
+        with h5py.File(l2a, "r") as f:
+            cover = f[beam].get("land_cover_data") if beam in f else None
+            if cover is None or "pft_class" not in cover or "region_class" not in cover:
+                return None, None
+            numbers = f[beam]["shot_number"][:].astype(np.int64)
+            classes = np.stack([cover["pft_class"][:], cover["region_class"][:]], axis=1).astype(np.uint8)
+    except OSError:
+        return None, None
+    found = np.full((shots.size, 2), 255, np.uint8)
+    if numbers.size:
+        order = np.argsort(numbers)
+        at = np.clip(np.searchsorted(numbers[order], shots), 0, numbers.size - 1)
+        hit = numbers[order][at] == shots
+        found[hit] = classes[order][at][hit]
+    return found[:, 0], found[:, 1]
 
 
 def l2a_algorithm_settings(path: str | Path) -> tuple[int, dict[int, dict]]:

@@ -85,6 +85,10 @@ class PulseBatch:
     # per row: the waveform algorithm the mission's product selected for the shot (GEDI L2A's selected_algorithm,
     # 0: none), whose settings its forest metrics take
     metric_algorithm: np.ndarray | None = None
+    # per row: the shot's land cover in the L2A granule beside (land_cover_data/pft_class, region_class; 255: L2A
+    # has not the shot), which names its biomass model's stratum (fwcore.metrics.biomass); None: not recorded
+    pft_class: np.ndarray | None = None
+    region_class: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.pulse_id.size

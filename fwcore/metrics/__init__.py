@@ -9,4 +9,5 @@ energies (GEDI L2B).
     waveform.py  the settings and the batch: every pulse's metrics in one call (kernel.py: its numba kernel)
     pulses.py    a PulseBatch's metrics, whatever the sensor
     footprint.py a large footprint's waveform built from small ones (GEDI from the air)
+    biomass.py   aboveground biomass density from RH by GEDI L4A's models (their table: data/l4a_models.json)
 """

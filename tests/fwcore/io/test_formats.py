@@ -13,6 +13,7 @@ BUNDLED = {  # every sample bundled under examples/data, and what it is
     "gedi/GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5": "a GEDI L1B granule (HDF5)",
     "gedi/GEDI02_A_2019108080338_O01964_T05337_02_001_01_sub.h5": FOREIGN_HDF5.words,
     "gedi/GEDI02_B_2019108080338_O01964_T05337_02_001_01_sub.h5": FOREIGN_HDF5.words,
+    "gedi/GEDI04_A_2021150031254_O13948_03_T06447_02_002_01_V002.h5": FOREIGN_HDF5.words,  # biomass: no waveforms
     "neon_harvard/return_waveforms.csv": "a NEON-layout waveform CSV",
     "neon_harvard/outgoing_pulses.csv": "a NEON-layout waveform CSV",
     "neon_harvard/geolocation.csv": "a text file (CSV)", "neon_harvard/system_impulse.csv": "a text file (CSV)",
