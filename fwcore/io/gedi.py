@@ -294,14 +294,20 @@ def l2a_algorithm_settings(path: str | Path) -> tuple[int, dict[int, dict]]:
     return most, {a: l2a_settings(path, a)[1] for a in range(1, count + 1)}
 
 
+# fwcore.metrics.waveform.MetricSettings's fields by the names of L2A's rx_processing_aN/ancillary
+L2A_SETTINGS = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
+                "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
+                "subbins": "rx_subbin_resolution", "select_mode": "enable_select_mode",
+                "pulse_sep_thresh": "pulse_sep_thresh", "cumulative_energy_minimum": "cumulative_energy_minimum",
+                "cumulative_energy_thresh": "cumulative_energy_thresh", "energy_thresh": "energy_thresh",
+                "amp_thresh": "amp_thresh", "max_modes": "rx_max_mode_count"}
+
+
 def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:
     """The L2A granule's waveform settings of `algorithm` (default: the one it selected most often), as the
     fields of fwcore.metrics.waveform.MetricSettings, and that algorithm's number."""
     import h5py
 
-    names = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
-             "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
-             "subbins": "rx_subbin_resolution"}
     with h5py.File(path, "r") as f:
         beams = [k for k in f if k.startswith("BEAM") and "selected_algorithm" in f[k]]
         if not beams:
@@ -311,6 +317,10 @@ def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, d
             selected = selected[selected > 0]
             algorithm = int(np.bincount(selected).argmax()) if selected.size else 1
         ancillary = f[beams[0]][f"rx_processing_a{algorithm}/ancillary"]
-        settings = {field: float(ancillary[name][0]) for field, name in names.items()}
-    settings["subbins"] = int(settings["subbins"])
+        settings = {field: float(ancillary[name][0]) for field, name in L2A_SETTINGS.items() if name in ancillary}
+    for field in ("subbins", "max_modes"):
+        if field in settings:
+            settings[field] = int(settings[field])
+    if "select_mode" in settings:
+        settings["select_mode"] = bool(settings["select_mode"])
     return algorithm, settings
