@@ -16,7 +16,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from fwcore.metrics.waveform import GEDI_ALGORITHM_1, MetricSettings
+import numpy as np
+
+from fwcore.engine.records import BatchDecomposition
+from fwcore.instrument.pulse import SystemPulse
+from fwcore.io.records import PulseBatch
+from fwcore.metrics.pulses import batch_metrics
+from fwcore.metrics.waveform import GEDI_ALGORITHM_1, MetricSettings, WaveformMetrics
 
 _ZCROSS_3_5 = dataclasses.replace(GEDI_ALGORITHM_1, smoothing_width_zcross=3.5)
 L2A_ALGORITHMS: dict[int, MetricSettings] = {
@@ -35,3 +41,42 @@ def l2a_algorithm(number: int) -> MetricSettings:
     if number not in L2A_ALGORITHMS:
         raise ValueError(f"GEDI L2A has algorithms {min(L2A_ALGORITHMS)}..{max(L2A_ALGORITHMS)}, not {number}")
     return L2A_ALGORITHMS[number]
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgorithmPlan:
+    """Which algorithm's settings each GEDI shot's metrics take (a file's plan: pipeline.plan.file_metric_settings):
+    `default` for shots L2A selected none for (or every shot, without `each_shot`), and whether every algorithm's
+    ground and RH are measured too (`every`)."""
+
+    default: int
+    algorithms: dict[int, MetricSettings]
+    each_shot: bool = True
+    every: bool = False
+
+    @classmethod
+    def from_dict(cls, planned: dict) -> "AlgorithmPlan":
+        return cls(int(planned["default"]), {int(a): MetricSettings.from_dict(s)
+                                             for a, s in planned["algorithms"].items()},
+                   bool(planned.get("each_shot", True)), bool(planned.get("every", False)))
+
+    @property
+    def settings(self) -> MetricSettings:
+        return self.algorithms.get(self.default, l2a_algorithm(self.default))
+
+    def shot_algorithms(self, metric_algorithm: np.ndarray | None, n: int) -> np.ndarray:
+        """Per shot the algorithm whose ground and RH are its ground_z and rh (int8)."""
+        chosen = np.full(n, self.default, np.int8)
+        if self.each_shot and metric_algorithm is not None:
+            known = np.isin(metric_algorithm, list(self.algorithms))
+            chosen[known] = metric_algorithm[known]
+        return chosen
+
+    def metrics(self, pulses: PulseBatch, result: BatchDecomposition, pulse: SystemPulse
+                ) -> tuple[WaveformMetrics, np.ndarray, dict[int, WaveformMetrics] | None]:
+        """The shots' metrics by their algorithms, those algorithms, and every algorithm's where asked (`every`)."""
+        metrics = batch_metrics(pulses, result, pulse, self.settings, self.algorithms if self.each_shot else None)
+        chosen = self.shot_algorithms(pulses.metric_algorithm, len(pulses))
+        every = ({a: batch_metrics(pulses, result, pulse, s) for a, s in sorted(self.algorithms.items())}
+                 if self.every else None)
+        return metrics, chosen, every
