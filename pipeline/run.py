@@ -461,6 +461,9 @@ def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
         if s is not None and s.pulse.fwhm_source.startswith(("estimated", "default")):
             LOG.warning("%s: system pulse FWHM %.0f ps %s (no single-return pulse measured it; set "
                         "--system-pulse-fwhm-ps to give it)", s.name, s.pulse.fwhm_ps, s.pulse.fwhm_source)
+        noise = (s.metric_settings or {}).get("noise", "") if s is not None else ""
+        if noise.startswith("estimated"):  # GEDI without L1B's noise fields (fwcore.io.gedi.NOISE_ESTIMATED)
+            LOG.warning("%s: GEDI noise %s", s.name, noise)
 
 
 def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:
