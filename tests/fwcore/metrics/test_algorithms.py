@@ -106,3 +106,17 @@ def test_a_tall_forest_shot_algorithm_2_passes_over_a_weak_mode_near_the_end():
     grid, values = subbin_grid(smoothed, 4)
     share = 100 * cumulative_energy_at(grid, values - 205.0, a2.toploc[0], a2.botloc[0], np.array([800.5]))[0]
     assert 1.0 < share < 1.5
+
+
+def test_each_shot_takes_l2as_algorithm_unless_one_is_named():
+    from fwcore.metrics.algorithms import AlgorithmPlan
+
+    l2a = np.array([2, 0, 1, 9, 5], np.int8)  # 0: L2A has not the shot; 9: no such algorithm
+    plan = AlgorithmPlan(1, dict(L2A_ALGORITHMS))
+    assert plan.shot_algorithms(l2a, 5).tolist() == [2, 1, 1, 1, 5]
+    assert plan.shot_algorithms(None, 2).tolist() == [1, 1]  # no L2A beside: the default
+    named = AlgorithmPlan.from_dict({"default": 2, "algorithms": {str(a): s.to_dict() for a, s in
+                                                                  L2A_ALGORITHMS.items()}, "each_shot": False})
+    assert named.shot_algorithms(l2a, 5).tolist() == [2] * 5 and named.settings == l2a_algorithm(2)
+    with pytest.raises(ValueError, match="algorithms 1..6, not 7"):
+        l2a_algorithm(7)
