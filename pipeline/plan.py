@@ -113,7 +113,8 @@ def file_metric_settings(path: str, l2a_algorithms: str = "selected") -> tuple[d
     except (OSError, ValueError, KeyError) as err:
         return ({**plan, "default": named or 1, "algorithms": table},
                 f"GEDI L2A algorithm {named or 1}'s ({l2a.name} unreadable: {err})")
-    plan.update(algorithms={str(a): s for a, s in settings.items()})
+    # the granule's settings over the table's: a granule that omits some keeps L2A's documented values
+    plan.update(algorithms={**table, **{str(a): {**table.get(str(a), {}), **s} for a, s in settings.items()}})
     if named:
         return {**plan, "default": named}, f"{l2a.name}: algorithm {named} for every shot (--l2a-algorithms)"
     return ({**plan, "default": algorithm},

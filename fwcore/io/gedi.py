@@ -324,7 +324,8 @@ L2A_SETTINGS = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_z
 
 def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:
     """The L2A granule's waveform settings of `algorithm` (default: the one it selected most often), as the
-    fields of fwcore.metrics.waveform.MetricSettings, and that algorithm's number."""
+    fields of fwcore.metrics.waveform.MetricSettings (those its rx_processing_aN/ancillary holds), and that
+    algorithm's number."""
     import h5py
 
     with h5py.File(path, "r") as f:
@@ -335,7 +336,8 @@ def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, d
             selected = np.concatenate([f[b]["selected_algorithm"][:] for b in beams])
             selected = selected[selected > 0]
             algorithm = int(np.bincount(selected).argmax()) if selected.size else 1
-        ancillary = f[beams[0]][f"rx_processing_a{algorithm}/ancillary"]
+        # a granule without the group (some subsets drop it) gives none: the caller's table fills in
+        ancillary = f[beams[0]].get(f"rx_processing_a{algorithm}/ancillary", {})
         settings = {field: float(ancillary[name][0]) for field, name in L2A_SETTINGS.items() if name in ancillary}
     for field in ("subbins", "max_modes"):
         if field in settings:
