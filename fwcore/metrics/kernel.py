@@ -13,7 +13,6 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.metrics.canopy import TAIL_SAMPLES, _extended_gaussian_at, _fit_extended_gaussian
-from fwcore.metrics.signal import KERNEL_HALF_WIDTH_SIGMAS, SIGMA_PER_WIDTH
 
 # why a pulse's metrics are null: the index into waveform.REASONS
 MEASURED, NO_NOISE, NOT_FINITE, NO_AXIS, NO_SIGNAL, NO_GROUND = range(6)
@@ -21,14 +20,13 @@ RH_COUNT = 101
 
 
 @njit(**JIT)
-def _smooth(samples, width, out):
-    """gaussian_smooth: a unit-area Gaussian of sigma width * SIGMA_PER_WIDTH, the edge samples repeated."""
+def _smooth(samples, sigma, half, out):
+    """gaussian_smooth: a unit-area Gaussian of sigma `sigma` over +-half samples (signal.smoothing_kernel), the
+    edge samples repeated."""
     n = samples.size
-    sigma = width * SIGMA_PER_WIDTH
     if sigma <= 0 or n < 2:
         out[:] = samples
         return
-    half = int(KERNEL_HALF_WIDTH_SIGMAS * sigma + 0.5)
     weights = np.empty(2 * half + 1)
     total = 0.0
     for k in range(2 * half + 1):
@@ -231,7 +229,8 @@ def _profile(canopy, ground, drop, denominator, cos_zenith, rossg, omega, step, 
 @njit(**JIT)
 def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_zenith, shape, widths, thresholds,
                    subbins, buffers, canopy_constants, select, reason, scalars, rh, cover_z, pai_z, pavd_z, mode_z):
-    """Every waveform's metrics. widths: (smoothing, zcross smoothing); thresholds: (front, back) in noise sigmas;
+    """Every waveform's metrics. widths: the smoothing's and the zcross smoothing's sigma and half-width (samples,
+    signal.smoothing_kernel); thresholds: (front, back) in noise sigmas;
     buffers: (signal search, ground centre); canopy_constants: (rhov/rhog, rossg, omega, profile step); select: the
     mode selection (MetricSettings.mode_selection). Outputs: reason per waveform, scalars (n, 10): toploc, botloc,
     ground index, ground z, rv, rg, pgap, cover, pai, mode count; rh (n, 101); cover_z, pai_z, pavd_z (n, bins);
@@ -257,7 +256,7 @@ def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_ze
             reason[i] = NO_AXIS
             continue
         smoothed = np.empty(wave.size)
-        _smooth(wave, widths[0], smoothed)
+        _smooth(wave, widths[0], int(widths[1]), smoothed)
         back = mean + thresholds[1] * sd
         toploc, botloc = _extent(smoothed, subbins, mean + thresholds[0] * sd, back)
         if not math.isfinite(toploc):
@@ -265,9 +264,9 @@ def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_ze
             continue
         scalars[i, 0], scalars[i, 1] = toploc, botloc
         zcross_smoothed = smoothed
-        if widths[1] != widths[0]:
+        if widths[2] != widths[0] or widths[3] != widths[1]:
             zcross_smoothed = np.empty(wave.size)
-            _smooth(wave, widths[1], zcross_smoothed)
+            _smooth(wave, widths[2], int(widths[3]), zcross_smoothed)
         count = _modes(zcross_smoothed, toploc, botloc, back, subbins, position, amplitude)
         if count == 0:
             reason[i] = NO_GROUND

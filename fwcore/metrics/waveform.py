@@ -19,7 +19,7 @@ from fwcore.metrics.canopy import CanopySettings, GroundPulse, canopy_cover, can
     ground_return, plant_area_index, vertical_profile
 from fwcore.metrics.ground import cumulative_energy_at, local_energy, selected_mode, signal_modes
 from fwcore.metrics.rh import PERCENTILES, energy_positions, relative_heights
-from fwcore.metrics.signal import gaussian_smooth, signal_extent, subbin_grid
+from fwcore.metrics.signal import gaussian_smooth, signal_extent, smoothing_kernel, subbin_grid
 
 NO_SIGNAL = "no signal above the noise thresholds"
 NO_GROUND = "no mode above the back threshold: no ground"
@@ -179,7 +179,8 @@ def waveform_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.nd
     metrics_kernel(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(offsets, dtype=np.int64),
                    f64(noise_mean), f64(noise_sd), f64(first_z), f64(metres_per_sample), f64(cos_zenith),
                    np.ascontiguousarray(np.asarray(pulse, dtype=np.float64).reshape(n, 4)),
-                   np.array([settings.smoothing_width, settings.smoothing_width_zcross], dtype=np.float64),
+                   np.array([*smoothing_kernel(settings.smoothing_width),
+                             *smoothing_kernel(settings.smoothing_width_zcross)], dtype=np.float64),
                    np.array([settings.front_threshold_sd, settings.back_threshold_sd], dtype=np.float64),
                    int(settings.subbins),
                    np.array([settings.signal_search_buffer, settings.ground_centre_buffer], dtype=np.float64),
