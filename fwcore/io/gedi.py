@@ -303,14 +303,17 @@ def selected_algorithms(l2a: Path | None, beam: str, shots: np.ndarray) -> np.nd
 
 
 def l2a_algorithm_settings(path: str | Path) -> tuple[int, dict[int, dict]]:
-    """The algorithm the L2A granule selected most, and every algorithm's settings (l2a_settings)."""
+    """The algorithm the L2A granule selected most, and every algorithm's settings (l2a_settings): those of its
+    rx_processing_aN groups (a v002 granule may hold more than six), else 1..l2a_alg_count."""
     import h5py
 
     with h5py.File(path, "r") as f:
         count = next((int(f[b]["ancillary/l2a_alg_count"][0]) for b in f if b.startswith("BEAM")
                       and "ancillary/l2a_alg_count" in f[b]), 6)
+        groups = {int(k.removeprefix("rx_processing_a")) for b in f if b.startswith("BEAM") for k in f[b]
+                  if k.startswith("rx_processing_a") and k.removeprefix("rx_processing_a").isdigit()}
     most, _ = l2a_settings(path)
-    return most, {a: l2a_settings(path, a)[1] for a in range(1, count + 1)}
+    return most, {a: l2a_settings(path, a)[1] for a in sorted(groups or range(1, count + 1))}
 
 
 # fwcore.metrics.waveform.MetricSettings's fields by the names of L2A's rx_processing_aN/ancillary

@@ -62,7 +62,7 @@ class AlgorithmPlan:
 
     @property
     def settings(self) -> MetricSettings:
-        return self.algorithms.get(self.default, l2a_algorithm(self.default))
+        return self.algorithms[self.default] if self.default in self.algorithms else l2a_algorithm(self.default)
 
     def shot_algorithms(self, metric_algorithm: np.ndarray | None, n: int) -> np.ndarray:
         """Per shot the algorithm whose ground and RH are its ground_z and rh (int8)."""
