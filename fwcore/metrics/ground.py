@@ -11,6 +11,7 @@ is skipped while it lies within `pulse_sep_thresh` samples of botloc, or its amp
 under the back threshold's, or the cumulative energy at it is under `cumulative_energy_minimum` %; the first mode
 not skipped is the ground if its local energy exceeds `energy_thresh`, or its amplitude above the mean
 `amp_thresh`, or the cumulative energy `cumulative_energy_thresh` %. If no mode qualifies the lowest stays.
+The walk covers the lowest rx_max_mode_count modes (fwcore.metrics.waveform.ground_mode): L2A stores that many.
 Reverse-engineered from L2A's rx_processing_aN results (selected_mode, rx_modelocalenergy, rx_iwaveamps) on the
 shared granule and John Armston's gedipy (its L2A file class); the L2A ATBD (Hofton & Blair) names the steps:
 

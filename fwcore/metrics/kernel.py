@@ -109,15 +109,17 @@ def _cumulative(smoothed, noise_mean, top, bottom, subbins):
 
 
 @njit(**JIT)
-def _ground_mode(smoothed, noise_mean, position, amplitude, count, cumulative, bottom, botloc, back, subbins, select):
-    """ground.selected_mode (select: waveform.MetricSettings.mode_selection): the ground's index among the modes."""
+def _ground_mode(smoothed, noise_mean, position, amplitude, count, cumulative, bottom, botloc, back, subbins, select,
+                 slots):
+    """ground.selected_mode (select: waveform.MetricSettings.mode_selection): the ground's index among the modes,
+    chosen among the lowest `slots` (waveform.ground_mode)."""
     if select[0] == 0.0 or cumulative.size == 0:
         return count - 1
     separation, minimum, enough, energy_thresh, amp_thresh = select[1], select[2], select[3], select[4], select[5]
     total = cumulative[cumulative.size - 1]
     h = int(round(separation * subbins))
     last = (smoothed.size - 1) * subbins
-    for j in range(count - 1, -1, -1):
+    for j in range(count - 1, max(count - max(slots, 1), 0) - 1, -1):
         k = int(round(position[j] * subbins))
         share = 100.0 * cumulative[min(max(bottom - k, 0), cumulative.size - 1)] / total if total > 0 else np.nan
         above = amplitude[j] - noise_mean
@@ -276,7 +278,7 @@ def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_ze
         top, bottom = int(round(toploc * subbins)), int(round(botloc * subbins))
         cumulative = _cumulative(zcross_smoothed, mean, top, bottom, subbins)
         ground = position[_ground_mode(zcross_smoothed, mean, position, amplitude, count, cumulative, bottom, botloc,
-                                       back, subbins, select)]
+                                       back, subbins, select, mode_z.shape[1])]
         scalars[i, 2], scalars[i, 3], scalars[i, 9] = ground, first_z[i] - ground * drop[i], count
         first = max(count - mode_z.shape[1], 0)  # the lowest modes where there are more than the slots
         for j in range(first, count):

@@ -148,14 +148,17 @@ def pulse_metrics(samples: np.ndarray, noise_mean: float, noise_sd: float, first
 
 def ground_mode(x: np.ndarray, energy: np.ndarray, position: np.ndarray, amplitude_above_mean: np.ndarray,
                 toploc: float, botloc: float, back_above_mean: float, settings: MetricSettings) -> int:
-    """The index of the ground among the modes (top to bottom): the lowest, or L2A's selection where enabled."""
+    """The index of the ground among the modes (top to bottom): the lowest, or L2A's selection where enabled, among
+    the lowest `max_modes` (L2A keeps rx_max_mode_count modes: its selected mode is one of them)."""
     if not settings.select_mode:
         return position.size - 1
+    first = max(position.size - max(settings.max_modes, 1), 0)
+    position, amplitude_above_mean = position[first:], amplitude_above_mean[first:]
     cumulative = 100.0 * cumulative_energy_at(x, energy, toploc, botloc, position)
     local = local_energy(energy, position, settings.pulse_sep_thresh, settings.subbins)
-    return selected_mode(position, amplitude_above_mean, cumulative, local, botloc, back_above_mean,
-                         settings.pulse_sep_thresh, settings.cumulative_energy_minimum, settings.energy_thresh,
-                         settings.amp_thresh, settings.cumulative_energy_thresh)
+    return first + selected_mode(position, amplitude_above_mean, cumulative, local, botloc, back_above_mean,
+                                 settings.pulse_sep_thresh, settings.cumulative_energy_minimum,
+                                 settings.energy_thresh, settings.amp_thresh, settings.cumulative_energy_thresh)
 
 
 REASONS = ("", NO_NOISE, NOT_FINITE, NO_AXIS, NO_SIGNAL, NO_GROUND)  # by fwcore.metrics.kernel's codes

@@ -3,6 +3,8 @@ algorithm's settings, against that algorithm's own fields of the L2A granule (el
 rx_processing_aN), not only the selected one's. Target: median |d| 0 and 90th percentile within a quarter sample
 (0.04 m) for algorithms 1 to 6."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -102,6 +104,9 @@ def test_a_tall_forest_shot_algorithm_2_passes_over_a_weak_mode_near_the_end():
         assert np.abs(modes - weak_z).min() < 0.1 and np.abs(modes - ground_z).min() < 0.1  # both see both modes
     assert abs(a1.ground_z[0] - weak_z) < 0.1 and abs(a2.ground_z[0] - ground_z) < 0.1
     assert abs((a1.rh[0, 98] - a2.rh[0, 98]) - 6.0) < 0.5 and abs(a2.rh[0, 100] - (760 - 200) * 0.15) < 2.0
+    # L2A keeps the lowest rx_max_mode_count modes: its selection cannot reach above them (here: the lowest only)
+    capped = waveform_metrics(*args, settings=dataclasses.replace(l2a_algorithm(2), max_modes=1))
+    assert capped.ground_z[0] == capped.mode_z[0, 0] and abs(capped.ground_z[0] - weak_z) < 0.1
     smoothed = gaussian_smooth(wave, 3.5)
     grid, values = subbin_grid(smoothed, 4)
     share = 100 * cumulative_energy_at(grid, values - 205.0, a2.toploc[0], a2.botloc[0], np.array([800.5]))[0]

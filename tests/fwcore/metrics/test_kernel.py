@@ -19,7 +19,7 @@ def _both(*args, **kwargs):
 @pytest.mark.parametrize("settings", [MetricSettings(), MetricSettings(smoothing_width_zcross=3.5,
                                                                        back_threshold_sd=4.0),
                                       l2a_algorithm(2), MetricSettings(select_mode=True, energy_thresh=400.0,
-                                                                       max_modes=1)])
+                                                                       max_modes=2)])
 def test_the_kernel_is_its_reference_on_gedi(gedi_beams, settings):
     for b in gedi_beams:
         args = (b["samples"], b["offsets"], b["noise_mean"], b["noise_sd"], b["first_z"], b["metres_per_sample"],
