@@ -190,8 +190,8 @@ COLUMNS = {c.name: c for c in (
                                                 "selected_algorithm where its granule lies beside the L1B; null: "
                                                 "not GEDI)"),
     Column("mode_z", pa.list_(pa.float32()), "CRS unit", "the height of every mode the ground was chosen from, top to "
-                                                         "bottom (the selected algorithm's zcross modes; those below "
-                                                         "ground_z were passed over)"),
+                                                         "bottom (GEDI: the selected algorithm's zcross modes; those "
+                                                         "below ground_z were passed over; null: none measured)"),
     *(Column(f"ground_z_a{a}", F64, "CRS unit", f"GEDI L2A algorithm {a}'s ground (elev_lowestmode_a{a}); with "
                                                 f"--l2a-algorithms all") for a in range(1, 7)),
     *(Column(f"rh_a{a}", pa.list_(pa.float32()), "m", f"GEDI L2A algorithm {a}'s RH0..RH100 (rh_a{a}); with "
@@ -351,9 +351,10 @@ def _forest_columns(metrics, rows: np.ndarray) -> dict:
 
 
 def _gedi_columns(metrics, algorithms: np.ndarray | None, rows: np.ndarray) -> dict:
-    """The selected algorithm and every mode's height (GEDI; null for other sensors)."""
+    """The selected L2A algorithm (GEDI; null for other sensors) and every mode's height (wherever the forest
+    metrics were measured)."""
     return {"selected_algorithm": _flag(algorithms, rows),
-            "mode_z": (pa.nulls(rows.size, COLUMNS["mode_z"].type) if metrics is None or algorithms is None
+            "mode_z": (pa.nulls(rows.size, COLUMNS["mode_z"].type) if metrics is None
                        else _ragged_lists(metrics.mode_z[rows], "mode_z"))}
 
 
