@@ -130,7 +130,8 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
-                      overrides=_overrides_from_args(args), stratum=args.stratum)
+                      overrides=_overrides_from_args(args), stratum=args.stratum,
+                      l2a_algorithms=args.l2a_algorithms)
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)

@@ -69,6 +69,14 @@ def output_formats(text: str) -> list[str]:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
+def l2a_algorithms(text: str) -> str:
+    """--l2a-algorithms: selected | all | one of GEDI L2A's algorithms 1..6."""
+    text = text.strip().lower()
+    if text in ("selected", "all") or text in {str(a) for a in range(1, 7)}:
+        return text
+    raise argparse.ArgumentTypeError(f"choose selected, all or an algorithm 1..6, not {text!r}")
+
+
 # fwl compare takes several of each (--optimizers, --model), not one
 COMPARED = ("optimizer", "model")
 
@@ -154,6 +162,11 @@ class FwlOptions(PipelineOptions):
                                      "wrongly: an EPSG code (EPSG:25832), WKT or PROJJSON; every output carries it "
                                      "instead of what the inputs say")
         g.add_argument("--stratum", help=STRATUM_HELP)
+        g.add_argument("--l2a-algorithms", dest="l2a_algorithms", type=l2a_algorithms, default="selected",
+                       help="GEDI: whose ground and RH fill ground_z / rh: 'selected' (each shot's L2A-selected "
+                            "algorithm where an L2A granule lies beside the L1B, else algorithm 1), a number 1..6 "
+                            "(that algorithm for every shot), or 'all' (as selected, and every algorithm's in "
+                            "ground_z_a1..a6 / rh_a1..a6)")
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
         add_method_arguments(parser)

@@ -37,6 +37,7 @@ class InputToPlan(NamedTuple):
     stem: str
     crs: str | None = None  # --crs as WKT (fwcore.io.crs.parse_crs), or None: the file's own
     overrides: PulseOverrides = PulseOverrides()  # what the user gave of the pulse instead of measuring it
+    l2a_algorithms: str = "selected"  # --l2a-algorithms (GEDI): selected | all | 1..6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,14 +68,14 @@ class FilePlan:
 
 def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, points_per_range: int,
               limit: int | None, crs: str | None = None,
-              overrides: PulseOverrides = PulseOverrides()) -> list[ReadTask]:
+              overrides: PulseOverrides = PulseOverrides(), l2a_algorithms: str = "selected") -> list[ReadTask]:
     opened = open_input(path)  # the header, read once for the ranges and the summary
     ranges = plan_point_ranges(path, points_per_range, opened)
     summary = input_summary(path, opened)  # LAS or PulseWaves
     adjusted, count = summary.adjusted_standard_gps_time, summary.records
     pulse = file_system_pulse(path, count, config, overrides)  # the file does not record it: measured on it
     found = input_crs(path, crs)
-    settings, settings_source = file_metric_settings(path)
+    settings, settings_source = file_metric_settings(path, l2a_algorithms)
     source = InputFile(path, name, stem, pulse, adjusted, found.wkt, found.source, found.named, settings,
                        settings_source)
     tasks, remaining = [], limit
@@ -88,23 +89,35 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
     return tasks
 
 
-def file_metric_settings(path: str) -> tuple[dict | None, str]:
-    """A GEDI L1B's forest-metric settings: every algorithm's of the L2A granule beside it, each shot taking the
-    one L2A selected for it ({"default": the most selected, "algorithms": {number: settings}}), else None
-    (algorithm 1's, the defaults)."""
+def file_metric_settings(path: str, l2a_algorithms: str = "selected") -> tuple[dict | None, str]:
+    """A GEDI L1B's forest-metric settings ({"default": the algorithm of shots L2A selected none for, "algorithms":
+    {number: settings}, "each_shot": whether each shot takes the one L2A selected for it, "every": whether every
+    algorithm's ground and RH are written, "noise": whence the noise thresholds' mean and sd}): the L2A granule's beside it, else L2A's six algorithms as data
+    (fwcore.metrics.algorithms); None for other formats. `l2a_algorithms`: selected | all | 1..6 (--l2a-algorithms)."""
     from fwcore.io.formats import GEDI_L1B, format_of
-    from fwcore.io.gedi import l2a_algorithm_settings, l2a_beside
+    from fwcore.io.gedi import NOISE_ESTIMATED, l2a_algorithm_settings, l2a_beside, noise_recorded
+    from fwcore.metrics.algorithms import L2A_ALGORITHMS
 
     if format_of(path) is not GEDI_L1B:
         return None, ""
+    named = int(l2a_algorithms) if l2a_algorithms.isdigit() else None
+    plan = {"each_shot": named is None, "every": l2a_algorithms == "all",
+            "noise": "L1B noise_mean_corrected / noise_stddev_corrected" if noise_recorded(path) else NOISE_ESTIMATED}
+    table = {str(a): s.to_dict() for a, s in L2A_ALGORITHMS.items()}
     l2a = l2a_beside(path)
     if l2a is None:
-        return None, "GEDI L2A algorithm 1's (no L2A granule beside the L1B)"
+        return ({**plan, "default": named or 1, "algorithms": table},
+                f"GEDI L2A algorithm {named or 1}'s ({'--l2a-algorithms' if named else 'no L2A granule beside the L1B'})")
     try:
         algorithm, settings = l2a_algorithm_settings(l2a)
     except (OSError, ValueError, KeyError) as err:
-        return None, f"GEDI L2A algorithm 1's ({l2a.name} unreadable: {err})"
-    return ({"default": algorithm, "algorithms": {str(a): s for a, s in settings.items()}},
+        return ({**plan, "default": named or 1, "algorithms": table},
+                f"GEDI L2A algorithm {named or 1}'s ({l2a.name} unreadable: {err})")
+    # the granule's settings over the table's: a granule that omits some keeps L2A's documented values
+    plan.update(algorithms={**table, **{str(a): {**table.get(str(a), {}), **s} for a, s in settings.items()}})
+    if named:
+        return {**plan, "default": named}, f"{l2a.name}: algorithm {named} for every shot (--l2a-algorithms)"
+    return ({**plan, "default": algorithm},
             f"{l2a.name}: each shot's selected algorithm (algorithm {algorithm} for most)")
 
 
@@ -113,7 +126,8 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
     """One file's plan; a file that cannot be planned gives a Rejection naming the problem, never an exception
     but a fault of the machine (pipeline.faults: an I/O error, no memory), which is no fault of the file."""
     try:
-        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.overrides)
+        tasks = plan_file(item.path, item.name, item.stem, config, points_per_range, limit, item.crs, item.overrides,
+                          item.l2a_algorithms)
     except Exception as err:  # noqa: BLE001  a damaged file is rejected, the others run
         fault = machine_fault(err, READING, item.path, f"planning {item.name}")
         if fault is not None:
@@ -124,8 +138,8 @@ def plan_input(item: InputToPlan, config: DecompositionConfig, points_per_range:
 
 
 def inputs_to_plan(paths: list[str], names: InputNames, crs: str | None = None,
-                   overrides: PulseOverrides = PulseOverrides()) -> list[InputToPlan]:
-    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs, overrides) for p in paths]
+                   overrides: PulseOverrides = PulseOverrides(), l2a_algorithms: str = "selected") -> list[InputToPlan]:
+    return [InputToPlan(p, names.name(p), names.stem(names.name(p)), crs, overrides, l2a_algorithms) for p in paths]
 
 
 def plan_inputs(paths: list[str], names: InputNames, config: DecompositionConfig, points_per_range: int,

@@ -174,13 +174,16 @@ def _run_job(options, build) -> object:
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-                 overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None) -> dict:
+                 overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
+                 l2a_algorithms: str = "selected") -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
     if stratum:  # likewise a run without --stratum
         given["stratum"] = stratum
+    if l2a_algorithms != "selected":  # likewise a run without --l2a-algorithms
+        given["l2a_algorithms"] = l2a_algorithms
     return {**given, "config": config.to_dict(), "overrides": overrides.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
@@ -272,7 +275,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
         add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-        overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None) -> dict:
+        overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
+        l2a_algorithms: str = "selected") -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -285,6 +289,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
     `stratum` (--stratum, e.g. ENT_NAm) is the L4A biomass model of large-footprint shots whose land cover no
     L2A granule beside names (fwcore.metrics.biomass; an unknown name is a ValueError listing the strata).
+    `l2a_algorithms` (--l2a-algorithms, GEDI only): "selected" (each shot's L2A-selected algorithm, else 1), a
+    number 1..6 (that algorithm for every shot) or "all" (also every algorithm's ground_z_aN / rh_aN columns).
     A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
     rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
     pipeline.lock) is a FolderLockedError, an OutputFolderError.
@@ -295,13 +301,14 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
     stratum = check_stratum(stratum) if stratum else None
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, stratum)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, stratum,
+                            l2a_algorithms)
     check_radiometry(paths, radiometry)
     try:
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
                                 resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args,
-                                stratum)
+                                stratum, l2a_algorithms)
     except RunStopped:
         raise
     except Exception as err:
@@ -315,7 +322,7 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
                  limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
                  resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, overrides: PulseOverrides,
                  settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None,
-                 stratum: str | None = None) -> dict:
+                 stratum: str | None = None, l2a_algorithms: str = "selected") -> dict:
     """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -327,7 +334,7 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
                         radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides,
-                        stratum)
+                        stratum, l2a_algorithms)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
                      taken, radiometry, not_taken, crs, overrides)
@@ -337,7 +344,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
              small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides(),
-             stratum: str | None = None) -> JobsDone:
+             stratum: str | None = None, l2a_algorithms: str = "selected") -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
@@ -347,8 +354,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
             laps = Laps()
             with laps("plan job"):
-                plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides), config, points_per_range,
-                                   limit, jobs)
+                plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides, l2a_algorithms), config,
+                                   points_per_range, limit, jobs)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
@@ -463,6 +470,9 @@ def _warn_unmeasured(plans: dict[str, FilePlan]) -> None:
         if s is not None and s.pulse.fwhm_source.startswith(("estimated", "default")):
             LOG.warning("%s: system pulse FWHM %.0f ps %s (no single-return pulse measured it; set "
                         "--system-pulse-fwhm-ps to give it)", s.name, s.pulse.fwhm_ps, s.pulse.fwhm_source)
+        noise = (s.metric_settings or {}).get("noise", "") if s is not None else ""
+        if noise.startswith("estimated"):  # GEDI without L1B's noise fields (fwcore.io.gedi.NOISE_ESTIMATED)
+            LOG.warning("%s: GEDI noise %s", s.name, noise)
 
 
 def _write_lost_plans(output: Path, plans: dict[str, FilePlan]) -> None:

@@ -22,8 +22,8 @@ import numpy as np
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, footprint_biomass
+from fwcore.metrics.algorithms import AlgorithmPlan
 from fwcore.metrics.pulses import batch_metrics
-from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -91,14 +91,6 @@ def read_range(task: ReadTask) -> tuple[PulseRange | None, list[Rejection]]:
     return (PulseRange(task, pulses) if len(pulses) else None), rejected
 
 
-def file_metric_settings(planned: dict | None) -> tuple[MetricSettings | None, dict[int, MetricSettings] | None]:
-    """The plan's metric settings (pipeline.plan.file_metric_settings) as the default and each algorithm's."""
-    if not planned:
-        return None, None
-    by_algorithm = {int(a): MetricSettings.from_dict(s) for a, s in planned["algorithms"].items()}
-    return by_algorithm[int(planned["default"])], by_algorithm
-
-
 def warm_up(config: DecompositionConfig, pulse: SystemPulse = nominal_pulse()) -> None:
     """Compile the engine's kernels once per worker (from numba's cache when warm)."""
     warm = WaveformBatch.from_waveforms([np.r_[np.zeros(8), 50.0, 100.0, 50.0, np.zeros(8)]], 1000.0, [0])
@@ -148,14 +140,18 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
         file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
         columns = range_radiometry(pulses, result, xyz, source.pulse.range_offset_ps, file, radiometry)
     with laps("metrics"):
-        settings, by_algorithm = file_metric_settings(source.metric_settings)
-        metrics = batch_metrics(pulses, result, source.pulse, settings, by_algorithm)
+        algorithms, every = None, None
+        if source.metric_settings:  # GEDI: each shot's L2A algorithm (fwcore.metrics.algorithms)
+            metrics, algorithms, every = AlgorithmPlan.from_dict(source.metric_settings).metrics(pulses, result,
+                                                                                               source.pulse)
+        else:
+            metrics = batch_metrics(pulses, result, source.pulse)
     with laps("biomass"):
         biomass = footprint_biomass(metrics.rh, format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
                                     pulses.pft_class, pulses.region_class)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
-                                     result.status == 0, columns, source.crs_wkt, metrics, biomass)
+                                     result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass)
     with laps("cloud"):
         cloud = decomposed_echoes(pulses, result, xyz)
         kept = result.reject == 0

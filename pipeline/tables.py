@@ -193,6 +193,16 @@ COLUMNS = {c.name: c for c in (
     Column("agbd_stratum", STR, "", "the L4A prediction stratum (plant functional type _ region, e.g. ENT_NAm) whose "
                                     "model gave agbd: from the L2A granule's land cover, else --stratum"),
     Column("agbd_reason", STR, "", "'' when agbd was predicted, else why it is null"),
+    Column("selected_algorithm", pa.int8(), "", "GEDI: the L2A algorithm whose ground and RH are ground_z and rh (L2A's "
+                                                "selected_algorithm where its granule lies beside the L1B; null: "
+                                                "not GEDI)"),
+    Column("mode_z", pa.list_(pa.float32()), "CRS unit", "the height of every mode the ground was chosen from, top to "
+                                                         "bottom (GEDI: the selected algorithm's zcross modes; those "
+                                                         "below ground_z were passed over; null: none measured)"),
+    *(Column(f"ground_z_a{a}", F64, "CRS unit", f"GEDI L2A algorithm {a}'s ground (elev_lowestmode_a{a}); with "
+                                                f"--l2a-algorithms all") for a in range(1, 7)),
+    *(Column(f"rh_a{a}", pa.list_(pa.float32()), "m", f"GEDI L2A algorithm {a}'s RH0..RH100 (rh_a{a}); with "
+                                                      f"--l2a-algorithms all") for a in range(1, 7)),
     Column("stale_return_flag", pa.int8(), "", "GEDI L1B's stale return flag (null: not recorded)"),
     Column("degrade_flag", pa.int8(), "", "GEDI L1B's degraded pointing or positioning flag (null: not recorded)"),
     Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
@@ -209,6 +219,9 @@ _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes",
 _METHOD = ("optimizer", "model")
 _FOREST = ("ground_z", "rh", "rv", "rg", "cover", "pai", "pavd_z", "metrics_reason")
 _BIOMASS = ("agbd", "agbd_se", "agbd_stratum", "agbd_reason")
+_GEDI = ("selected_algorithm", "mode_z")
+# written only with --l2a-algorithms all: appended after the table's own columns
+EVERY_ALGORITHM = (*(f"ground_z_a{a}" for a in range(1, 7)), *(f"rh_a{a}" for a in range(1, 7)))
 # Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
 TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
@@ -219,7 +232,7 @@ TABLES = {
                "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
-               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_BIOMASS, "stale_return_flag",
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_GEDI, *_BIOMASS, "stale_return_flag",
                "degrade_flag"),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
     "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", CSV_ENERGY,
@@ -352,6 +365,34 @@ def _biomass_columns(biomass, rows: np.ndarray) -> dict:
                 "agbd_stratum": _strings("", rows.size), "agbd_reason": _strings("not predicted", rows.size)}
     return {"agbd": _null_where_nan(biomass.agbd[rows]), "agbd_se": _null_where_nan(biomass.agbd_se[rows]),
             "agbd_stratum": biomass.stratum[rows].tolist(), "agbd_reason": biomass.reason[rows].tolist()}
+def _gedi_columns(metrics, algorithms: np.ndarray | None, rows: np.ndarray) -> dict:
+    """The selected L2A algorithm (GEDI; null for other sensors) and every mode's height (wherever the forest
+    metrics were measured)."""
+    return {"selected_algorithm": _flag(algorithms, rows),
+            "mode_z": (pa.nulls(rows.size, COLUMNS["mode_z"].type) if metrics is None
+                       else _ragged_lists(metrics.mode_z[rows], "mode_z"))}
+
+
+def _ragged_lists(values: np.ndarray, column: str) -> pa.Array:
+    """Per row its finite values as a list (float32): NaN padding dropped; null where it has none."""
+    finite = np.isfinite(values)
+    counts = finite.sum(axis=1)
+    return pa.ListArray.from_arrays(pa.array(np.r_[0, np.cumsum(counts)], pa.int32()),
+                                    pa.array(values[finite].astype(np.float32)), type=COLUMNS[column].type,
+                                    mask=pa.array(counts == 0))
+
+
+def with_every_algorithm(table: pa.Table, every: dict | None, rows: np.ndarray) -> pa.Table:
+    """The pulses table with every L2A algorithm's ground and RH appended (--l2a-algorithms all)."""
+    if not every:
+        return table
+    for a in range(1, 7):
+        metrics = every.get(a)
+        ground = _null_where_nan(metrics.ground_z[rows]) if metrics else pa.nulls(rows.size, F64)
+        rh = _float_lists(metrics.rh[rows], f"rh_a{a}") if metrics else pa.nulls(rows.size, COLUMNS[f"rh_a{a}"].type)
+        table = table.append_column(COLUMNS[f"ground_z_a{a}"].field, ground)
+        table = table.append_column(COLUMNS[f"rh_a{a}"].field, rh)
+    return table
 
 
 def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
@@ -360,10 +401,12 @@ def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
 
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
                  pulse: SystemPulse, xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
-                 crs_wkt: str | None = None, metrics=None, biomass=None) -> tuple[pa.Table, pa.Table]:
+                 crs_wkt: str | None = None, metrics=None, algorithms: np.ndarray | None = None,
+                 every: dict | None = None, biomass=None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
-    `ok`, with their forest metrics (fwcore.metrics) and biomass (fwcore.metrics.biomass) where given; the
-    geometry's CRS is `crs_wkt` (the run's, fwcore.io.formats.input_crs), else the input file's."""
+    `ok`, with their forest metrics (fwcore.metrics) and biomass (fwcore.metrics.biomass) where given; the geometry's CRS is `crs_wkt` (the run's,
+    fwcore.io.formats.input_crs), else the input file's; GEDI: each shot's L2A `algorithms` and, with
+    --l2a-algorithms all, `every` algorithm's metrics."""
     from fwcore.engine.model import sigma_to_time_unit
     from fwcore.engine.waveform_width import waveform_widths
 
@@ -396,11 +439,12 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, pulse.fwhm_ps),
         "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size),
-        **_forest_columns(metrics, sel), **_biomass_columns(biomass, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
+        **_forest_columns(metrics, sel), **_gedi_columns(metrics, algorithms, sel), **_biomass_columns(biomass, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
         "degrade_flag": _flag(pulses.degrade_flag, sel)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)
     anchors = geo_metadata(*pulses.anchor[sel].T, projjson, covering=False)
+    table = with_every_algorithm(table, every, sel)
     return _with_config(echoes, config, pulse, geo), _with_config(table, config, pulse, anchors)
 
 

@@ -114,18 +114,37 @@ OPTIONAL = {"stale_return_flag": 0, "geolocation/degrade": 0, "geolocation/local
             "geolocation/delta_time": 0.0, "noise_mean_corrected": None, "noise_stddev_corrected": None,
             "tx_sample_count": 0, "tx_sample_start_index": 0, **{k: None for k in TX_SHAPE_FIELDS}}
 NOISE_SAMPLES = 50  # without L1B's noise: the first and last samples of the waveform, above and below any surface
+# L1B's noise_stddev_corrected over the spread of the waveform's own end samples: the L1B waveform is already
+# smoothed, so its samples spread about half as much as GEDI's noise sd says. Median over the shared granule's
+# shots 1.86 (by beam 1.80 to 1.92; shot by shot 1.4 to 2.5, 10th to 90th percentile); other granules 1.5 to 2
+NOISE_SD_PER_END_SPREAD = 1.86
+NOISE_ESTIMATED = (f"estimated: the L1B has no noise_mean_corrected / noise_stddev_corrected; the noise mean is "
+                   f"the median of each waveform's first and last {NOISE_SAMPLES} samples, its sd "
+                   f"{NOISE_SD_PER_END_SPREAD} x their spread (the beam's median over the range's shots): the "
+                   f"signal's extent, and so ground and RH, may differ from L2A's where the ratio differs (1.5-2 by "
+                   f"granule)")
+NOISE_FIELDS = ("noise_mean_corrected", "noise_stddev_corrected")
 
 
 def _noise_at_ends(samples: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each waveform's noise mean and sigma from its first and last NOISE_SAMPLES samples, robustly (the median
-    and 1.4826 x the median absolute deviation: a canopy reaching into the first samples barely moves them)."""
-    mean, sd = np.full(offsets.size - 1, np.nan), np.full(offsets.size - 1, np.nan)
+    """Each waveform's noise mean from its first and last NOISE_SAMPLES samples (their median: a canopy reaching
+    into the first samples barely moves it) and the noise sd L1B would give: NOISE_SD_PER_END_SPREAD x the
+    median over the waveforms (one beam's) of their spread (1.4826 x the median absolute deviation)."""
+    mean, spread = np.full(offsets.size - 1, np.nan), np.full(offsets.size - 1, np.nan)
     for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])):
         ends = np.r_[samples[a:min(a + NOISE_SAMPLES, b)], samples[max(b - NOISE_SAMPLES, a):b]]
         if ends.size:
             mean[i] = np.median(ends)
-            sd[i] = 1.4826 * np.median(np.abs(ends - mean[i]))
-    return mean, sd
+            spread[i] = 1.4826 * np.median(np.abs(ends - mean[i]))
+    finite = spread[np.isfinite(spread)]
+    sd = NOISE_SD_PER_END_SPREAD * (np.median(finite) if finite.size else np.nan)
+    return mean, np.where(np.isfinite(mean), sd, np.nan)
+
+
+def noise_recorded(path: str | Path) -> bool:
+    """Whether every beam of the granule records L1B's noise fields (subsets written by other tools drop them)."""
+    return holds(path, lambda f: all(n in f[b] for b in f if b.startswith("BEAM") and "rxwaveform" in f[b]
+                                     for n in NOISE_FIELDS))
 
 
 def _shots(group, lo: int, hi: int):
@@ -313,24 +332,34 @@ def land_cover_classes(l2a: Path | None, beam: str, shots: np.ndarray) -> tuple[
 
 
 def l2a_algorithm_settings(path: str | Path) -> tuple[int, dict[int, dict]]:
-    """The algorithm the L2A granule selected most, and every algorithm's settings (l2a_settings)."""
+    """The algorithm the L2A granule selected most, and every algorithm's settings (l2a_settings): those of its
+    rx_processing_aN groups (a v002 granule may hold more than six), else 1..l2a_alg_count."""
     import h5py
 
     with h5py.File(path, "r") as f:
         count = next((int(f[b]["ancillary/l2a_alg_count"][0]) for b in f if b.startswith("BEAM")
                       and "ancillary/l2a_alg_count" in f[b]), 6)
+        groups = {int(k.removeprefix("rx_processing_a")) for b in f if b.startswith("BEAM") for k in f[b]
+                  if k.startswith("rx_processing_a") and k.removeprefix("rx_processing_a").isdigit()}
     most, _ = l2a_settings(path)
-    return most, {a: l2a_settings(path, a)[1] for a in range(1, count + 1)}
+    return most, {a: l2a_settings(path, a)[1] for a in sorted(groups or range(1, count + 1))}
+
+
+# fwcore.metrics.waveform.MetricSettings's fields by the names of L2A's rx_processing_aN/ancillary
+L2A_SETTINGS = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
+                "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
+                "subbins": "rx_subbin_resolution", "select_mode": "enable_select_mode",
+                "pulse_sep_thresh": "pulse_sep_thresh", "cumulative_energy_minimum": "cumulative_energy_minimum",
+                "cumulative_energy_thresh": "cumulative_energy_thresh", "energy_thresh": "energy_thresh",
+                "amp_thresh": "amp_thresh", "max_modes": "rx_max_mode_count"}
 
 
 def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, dict]:
     """The L2A granule's waveform settings of `algorithm` (default: the one it selected most often), as the
-    fields of fwcore.metrics.waveform.MetricSettings, and that algorithm's number."""
+    fields of fwcore.metrics.waveform.MetricSettings (those its rx_processing_aN/ancillary holds), and that
+    algorithm's number."""
     import h5py
 
-    names = {"smoothing_width": "rx_smoothing_width_locs", "smoothing_width_zcross": "rx_smoothing_width_zcross",
-             "front_threshold_sd": "rx_front_threshold", "back_threshold_sd": "rx_back_threshold",
-             "subbins": "rx_subbin_resolution"}
     with h5py.File(path, "r") as f:
         beams = [k for k in f if k.startswith("BEAM") and "selected_algorithm" in f[k]]
         if not beams:
@@ -339,7 +368,12 @@ def l2a_settings(path: str | Path, algorithm: int | None = None) -> tuple[int, d
             selected = np.concatenate([f[b]["selected_algorithm"][:] for b in beams])
             selected = selected[selected > 0]
             algorithm = int(np.bincount(selected).argmax()) if selected.size else 1
-        ancillary = f[beams[0]][f"rx_processing_a{algorithm}/ancillary"]
-        settings = {field: float(ancillary[name][0]) for field, name in names.items()}
-    settings["subbins"] = int(settings["subbins"])
+        # a granule without the group (some subsets drop it) gives none: the caller's table fills in
+        ancillary = f[beams[0]].get(f"rx_processing_a{algorithm}/ancillary", {})
+        settings = {field: float(ancillary[name][0]) for field, name in L2A_SETTINGS.items() if name in ancillary}
+    for field in ("subbins", "max_modes"):
+        if field in settings:
+            settings[field] = int(settings[field])
+    if "select_mode" in settings:
+        settings["select_mode"] = bool(settings["select_mode"])
     return algorithm, settings

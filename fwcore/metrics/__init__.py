@@ -3,7 +3,8 @@ cumulative energy above it (GEDI L2A), and canopy cover, PAI and the vertical pr
 energies (GEDI L2B).
 
     signal.py    smoothing, the noise thresholds and the signal's extent (toploc, botloc)
-    ground.py    the lowest mode: the ground
+    ground.py    the modes and the ground: the lowest, or L2A's mode selection (algorithm 2)
+    algorithms.py  GEDI L2A's six algorithms as data, and which one each shot takes
     rh.py        RH0..RH100
     canopy.py    rv, rg, Pgap, cover, PAI, PAVD
     waveform.py  the settings and the batch: every pulse's metrics in one call (kernel.py: its numba kernel)

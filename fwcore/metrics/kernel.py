@@ -13,7 +13,6 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.metrics.canopy import TAIL_SAMPLES, _extended_gaussian_at, _fit_extended_gaussian
-from fwcore.metrics.signal import KERNEL_HALF_WIDTH_SIGMAS, SIGMA_PER_WIDTH
 
 # why a pulse's metrics are null: the index into waveform.REASONS
 MEASURED, NO_NOISE, NOT_FINITE, NO_AXIS, NO_SIGNAL, NO_GROUND = range(6)
@@ -21,14 +20,13 @@ RH_COUNT = 101
 
 
 @njit(**JIT)
-def _smooth(samples, width, out):
-    """gaussian_smooth: a unit-area Gaussian of sigma width * SIGMA_PER_WIDTH, the edge samples repeated."""
+def _smooth(samples, sigma, half, out):
+    """gaussian_smooth: a unit-area Gaussian of sigma `sigma` over +-half samples (signal.smoothing_kernel), the
+    edge samples repeated."""
     n = samples.size
-    sigma = width * SIGMA_PER_WIDTH
     if sigma <= 0 or n < 2:
         out[:] = samples
         return
-    half = int(KERNEL_HALF_WIDTH_SIGMAS * sigma + 0.5)
     weights = np.empty(2 * half + 1)
     total = 0.0
     for k in range(2 * half + 1):
@@ -75,47 +73,80 @@ def _extent(smoothed, subbins, front, back):
 
 
 @njit(**JIT)
-def _lowest_mode(smoothed, toploc, botloc, threshold, subbins):
-    """ground.lowest_mode: the last rising-to-falling zero of the central-difference slope inside the signal whose
-    amplitude clears the threshold, on the sub-bin grid; NaN where there is none."""
+def _modes(smoothed, toploc, botloc, threshold, subbins, position, amplitude):
+    """ground.signal_modes into position and amplitude (top to bottom): the rising-to-falling zeros of the
+    central-difference slope inside the signal whose amplitude clears the threshold, on the sub-bin grid; returns
+    their count."""
     n = smoothed.size
     if n < 3:
-        return np.nan
+        return 0
     slope = np.empty(n)
     slope[0] = smoothed[1] - smoothed[0]
     slope[n - 1] = smoothed[n - 1] - smoothed[n - 2]
     for j in range(1, n - 1):
         slope[j] = 0.5 * (smoothed[j + 1] - smoothed[j - 1])
-    found = np.nan
+    count = 0
     for j in range(n - 1):
         if slope[j] > 0 and slope[j + 1] <= 0:
-            position = np.rint((j + slope[j] / (slope[j] - slope[j + 1])) * subbins) / subbins
-            if toploc <= position <= botloc and _at(smoothed, position) > threshold:
-                found = position
-    return found
+            at = np.rint((j + slope[j] / (slope[j] - slope[j + 1])) * subbins) / subbins
+            value = _at(smoothed, at)
+            if toploc <= at <= botloc and value > threshold:
+                position[count], amplitude[count] = at, value
+                count += 1
+    return count
 
 
 @njit(**JIT)
-def _relative_heights(smoothed, noise_mean, toploc, botloc, ground, drop, subbins, rh):
-    """rh.energy_positions and rh.relative_heights into rh (101 values)."""
-    top, bottom = int(round(toploc * subbins)), int(round(botloc * subbins))
+def _cumulative(smoothed, noise_mean, top, bottom, subbins):
+    """The energy above the noise mean summed from sub-bin `bottom` up to each sub-bin (index 0: bottom alone)."""
     count = bottom - top + 1
-    if count < 2:
-        rh[:] = np.nan
-        return
-    cumulative = np.empty(count)
+    cumulative = np.empty(max(count, 0))
     running = 0.0
     for i in range(count):  # from the bottom up
         running += _at(smoothed, (bottom - i) / subbins) - noise_mean
         cumulative[i] = running
-    total = cumulative[count - 1]
-    if not total > 0:
+    return cumulative
+
+
+@njit(**JIT)
+def _ground_mode(smoothed, noise_mean, position, amplitude, count, cumulative, bottom, botloc, back, subbins, select,
+                 slots):
+    """ground.selected_mode (select: waveform.MetricSettings.mode_selection): the ground's index among the modes,
+    chosen among the lowest `slots` (waveform.ground_mode)."""
+    if select[0] == 0.0 or cumulative.size == 0:
+        return count - 1
+    separation, minimum, enough, energy_thresh, amp_thresh = select[1], select[2], select[3], select[4], select[5]
+    total = cumulative[cumulative.size - 1]
+    h = int(round(separation * subbins))
+    last = (smoothed.size - 1) * subbins
+    for j in range(count - 1, max(count - max(slots, 1), 0) - 1, -1):
+        k = int(round(position[j] * subbins))
+        share = 100.0 * cumulative[min(max(bottom - k, 0), cumulative.size - 1)] / total if total > 0 else np.nan
+        above = amplitude[j] - noise_mean
+        if botloc - position[j] < separation or above < back - noise_mean or share < minimum:
+            continue
+        lo, hi = max(k - h, 0), min(k + h, last)
+        local = 0.0
+        for q in range(lo, hi + 1):
+            local += _at(smoothed, q / subbins) - noise_mean
+        ends = _at(smoothed, lo / subbins) + _at(smoothed, hi / subbins) - 2.0 * noise_mean
+        local = (local - 0.5 * ends * (hi - lo + 1)) / subbins
+        if local > energy_thresh or above > amp_thresh or share > enough:
+            return j
+    return count - 1
+
+
+@njit(**JIT)
+def _relative_heights(cumulative, toploc, botloc, ground, drop, subbins, rh):
+    """rh.energy_positions and rh.relative_heights into rh (101 values), from the signal's cumulative energy."""
+    count = cumulative.size
+    bottom = int(round(botloc * subbins))
+    if count < 2 or not cumulative[count - 1] > 0:
         rh[:] = np.nan
         return
-    for i in range(count):
-        cumulative[i] /= total
+    share = cumulative / cumulative[count - 1]
     for k in range(RH_COUNT):
-        index = np.searchsorted(cumulative, k / 100.0) - 1
+        index = np.searchsorted(share, k / 100.0) - 1
         index = min(max(index, 0), count - 1)
         position = (bottom - index) / subbins
         if k == 0:
@@ -199,11 +230,17 @@ def _profile(canopy, ground, drop, denominator, cos_zenith, rossg, omega, step, 
 
 @njit(**JIT)
 def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_zenith, shape, widths, thresholds,
-                   subbins, buffers, canopy_constants, reason, scalars, rh, cover_z, pai_z, pavd_z):
-    """Every waveform's metrics. widths: (smoothing, zcross smoothing); thresholds: (front, back) in noise sigmas;
-    buffers: (signal search, ground centre); canopy_constants: (rhov/rhog, rossg, omega, profile step). Outputs:
-    reason per waveform, scalars (n, 10): toploc, botloc, ground index, ground z, rv, rg, pgap, cover, pai, (unused);
-    rh (n, 101); cover_z, pai_z, pavd_z (n, bins). Outputs of a waveform whose reason is not MEASURED stay NaN."""
+                   subbins, buffers, canopy_constants, select, reason, scalars, rh, cover_z, pai_z, pavd_z, mode_z):
+    """Every waveform's metrics. widths: the smoothing's and the zcross smoothing's sigma and half-width (samples,
+    signal.smoothing_kernel); thresholds: (front, back) in noise sigmas;
+    buffers: (signal search, ground centre); canopy_constants: (rhov/rhog, rossg, omega, profile step); select: the
+    mode selection (MetricSettings.mode_selection). Outputs: reason per waveform, scalars (n, 10): toploc, botloc,
+    ground index, ground z, rv, rg, pgap, cover, pai, mode count; rh (n, 101); cover_z, pai_z, pavd_z (n, bins);
+    mode_z (n, slots). Outputs of a waveform whose reason is not MEASURED stay NaN."""
+    longest = 0
+    for i in range(offsets.size - 1):
+        longest = max(longest, offsets[i + 1] - offsets[i])
+    position, amplitude = np.empty(longest + 1), np.empty(longest + 1)
     for i in range(offsets.size - 1):
         wave = samples[offsets[i]:offsets[i + 1]]
         mean, sd = noise_mean[i], noise_sd[i]
@@ -221,7 +258,7 @@ def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_ze
             reason[i] = NO_AXIS
             continue
         smoothed = np.empty(wave.size)
-        _smooth(wave, widths[0], smoothed)
+        _smooth(wave, widths[0], int(widths[1]), smoothed)
         back = mean + thresholds[1] * sd
         toploc, botloc = _extent(smoothed, subbins, mean + thresholds[0] * sd, back)
         if not math.isfinite(toploc):
@@ -229,16 +266,24 @@ def metrics_kernel(samples, offsets, noise_mean, noise_sd, first_z, drop, cos_ze
             continue
         scalars[i, 0], scalars[i, 1] = toploc, botloc
         zcross_smoothed = smoothed
-        if widths[1] != widths[0]:
+        if widths[2] != widths[0] or widths[3] != widths[1]:
             zcross_smoothed = np.empty(wave.size)
-            _smooth(wave, widths[1], zcross_smoothed)
-        ground = _lowest_mode(zcross_smoothed, toploc, botloc, back, subbins)
-        if not math.isfinite(ground):
+            _smooth(wave, widths[2], int(widths[3]), zcross_smoothed)
+        count = _modes(zcross_smoothed, toploc, botloc, back, subbins, position, amplitude)
+        if count == 0:
             reason[i] = NO_GROUND
             continue
         reason[i] = MEASURED
-        scalars[i, 2], scalars[i, 3] = ground, first_z[i] - ground * drop[i]
-        _relative_heights(smoothed, mean, toploc, botloc, ground, drop[i], subbins, rh[i])
+        # the modes' energies and the RH from the waveform the modes are found on (rx_smoothing_width_zcross)
+        top, bottom = int(round(toploc * subbins)), int(round(botloc * subbins))
+        cumulative = _cumulative(zcross_smoothed, mean, top, bottom, subbins)
+        ground = position[_ground_mode(zcross_smoothed, mean, position, amplitude, count, cumulative, bottom, botloc,
+                                       back, subbins, select, mode_z.shape[1])]
+        scalars[i, 2], scalars[i, 3], scalars[i, 9] = ground, first_z[i] - ground * drop[i], count
+        first = max(count - mode_z.shape[1], 0)  # the lowest modes where there are more than the slots
+        for j in range(first, count):
+            mode_z[i, j - first] = first_z[i] - position[j] * drop[i]
+        _relative_heights(cumulative, toploc, botloc, ground, drop[i], subbins, rh[i])
         canopy = np.empty(wave.size)
         rg = _canopy(wave, mean, toploc, botloc, ground, shape[i], buffers[0], buffers[1], canopy)
         rv = canopy.sum()

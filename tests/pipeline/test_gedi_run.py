@@ -25,7 +25,7 @@ L2B = GEDI / "GEDI02_B_2019108080338_O01964_T05337_02_001_01_sub.h5"
 def gedi_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("gedi")
     assert main(["run", str(L1B), "--output", str(out), "--formats", "parquet,las", "--optimizer", "lm",
-                 "--points-per-range", "40"]) == 0
+                 "--points-per-range", "40", "--l2a-algorithms", "all"]) == 0
     return out
 
 
@@ -63,6 +63,23 @@ def test_pulses_reproduce_l2a_and_l2b(gedi_run):
     assert (ours.metrics_reason == "").all() and len(ours.pavd_z.iloc[0]) == 30
 
 
+def test_every_algorithms_ground_and_rh_reproduce_l2as_own(gedi_run):
+    """--l2a-algorithms all: ground_z_aN / rh_aN against L2A's elev_lowestmode_aN / rh_aN (cm) for every shot."""
+    pulses = _table(gedi_run, "pulses").set_index("pulse_id")
+    for a in range(1, 7):
+        l2a = _nasa(L2A, (f"geolocation/elev_lowestmode_a{a}", f"geolocation/rh_a{a}"))
+        ours = pulses.loc[l2a["shot"][np.isin(l2a["shot"], pulses.index)]]
+        keep = np.isin(l2a["shot"], pulses.index)
+        ground = np.abs(ours[f"ground_z_a{a}"].to_numpy() - l2a[f"geolocation/elev_lowestmode_a{a}"][keep])
+        rh = np.abs(np.stack(ours[f"rh_a{a}"].to_numpy()) - l2a[f"geolocation/rh_a{a}"][keep] / 100.0)
+        assert ground.size == 164 and np.median(ground) < 1e-3 and np.percentile(ground, 90) <= 0.04, a
+        assert np.median(rh) < 1e-3 and np.percentile(rh, 90) <= 0.04 + 1e-6, a
+    # every shot here selects algorithm 1: ground_z is algorithm 1's, the lowest of its modes
+    assert (pulses.selected_algorithm == 1).all()
+    assert np.array_equal(pulses.ground_z.to_numpy(), pulses.ground_z_a1.to_numpy())
+    assert all(np.isclose(m[-1], g, atol=1e-3) for m, g in zip(pulses.mode_z, pulses.ground_z))
+
+
 def test_every_echo_lies_in_its_shots_footprint_and_the_crs_is_4979(gedi_run):
     echoes = _table(gedi_run, "echoes")
     with h5py.File(L1B) as f:
@@ -95,6 +112,8 @@ def test_unusable_shots_are_rejected_and_each_beam_adds_up(tmp_path):
         out_of = set(rejected.pulse_id) & shots
         assert len(done) + len(out_of) == 10 and not done & out_of
     assert set(rejected.reason.str.split(" ").str[0]) == {"no", "stale"}
+    assert (pulses.selected_algorithm == 1).all()  # no L2A beside: algorithm 1
+    assert "ground_z_a2" not in pulses.columns  # written only with --l2a-algorithms all
 
 
 def test_run_json_says_whose_settings_the_metrics_took(gedi_run):
@@ -103,3 +122,28 @@ def test_run_json_says_whose_settings_the_metrics_took(gedi_run):
     settings = entry["metric_settings"]
     assert settings["default"] == 1 and settings["algorithms"]["1"]["smoothing_width"] == 6.5
     assert settings["algorithms"]["2"]["smoothing_width_zcross"] == 3.5 and len(settings["algorithms"]) == 6
+    assert settings["algorithms"]["2"]["select_mode"] and not settings["algorithms"]["1"]["select_mode"]
+    assert settings["each_shot"] and settings["every"]
+
+
+def test_a_granule_without_noise_fields_says_its_noise_is_estimated(tmp_path, capfd):
+    """The shared L1B without noise_mean_corrected / noise_stddev_corrected (its L2A beside it): run.json's input
+    entry and the terminal say the noise was estimated from the waveforms, and the metrics still match L2A."""
+    bare = tmp_path / L1B.name
+    bare.write_bytes(L1B.read_bytes())
+    (tmp_path / L2A.name).write_bytes(L2A.read_bytes())
+    with h5py.File(bare, "r+") as f:
+        for beam in (k for k in f if k.startswith("BEAM")):
+            del f[beam]["noise_mean_corrected"], f[beam]["noise_stddev_corrected"]
+    out = tmp_path / "run"
+    assert main(["run", str(bare), "--output", str(out), "--formats", "parquet", "--optimizer", "lm",
+                 "--limit", "12", "--l2a-algorithms", "2"]) == 0
+    (entry,) = json.loads((out / "run.json").read_text())["inputs"]
+    assert entry["metric_settings"]["noise"].startswith("estimated: the L1B has no noise_mean_corrected")
+    assert entry["metric_settings"]["default"] == 2 and not entry["metric_settings"]["each_shot"]
+    assert "GEDI noise estimated" in capfd.readouterr().err
+    pulses = _table(out, "pulses").set_index("pulse_id")
+    l2a = _nasa(L2A, ("geolocation/elev_lowestmode_a2",))
+    keep = np.isin(l2a["shot"], pulses.index)
+    d = np.abs(pulses.loc[l2a["shot"][keep]].ground_z.to_numpy() - l2a["geolocation/elev_lowestmode_a2"][keep])
+    assert keep.sum() == 12 and (pulses.selected_algorithm == 2).all() and np.percentile(d, 90) <= 0.04

@@ -51,3 +51,29 @@ def test_the_inputs_to_plan_carry_their_names_and_what_the_user_gave_of_the_puls
     assert plan_path(tmp_path, "leica_a") == tmp_path / "parts" / "plans" / "leica_a.json"
     again = FilePlan.from_json(json.loads(json.dumps(plan.to_json())))  # as a resumed run reads it back
     assert again.tasks == plan.tasks and sum(planned_pulses(t) for t in again.tasks) == 924
+
+
+def test_a_gedi_l1b_plans_its_l2a_algorithms(tmp_path):
+    """Without an L2A granule beside it: L2A's six algorithms as data, algorithm 1 (or the one --l2a-algorithms
+    names) for every shot; the noise's origin said."""
+    import argparse
+
+    import pytest
+
+    from fwcore.metrics.algorithms import L2A_ALGORITHMS
+    from fwcore.studies.gedi_granule import write_granule
+    from pipeline.options import l2a_algorithms
+    from pipeline.plan import file_metric_settings
+
+    path = tmp_path / "GEDI01_B_written.h5"
+    write_granule(path, 4, seed=1, beams=("BEAM0101",), samples=300, faults=False)
+    planned, said = file_metric_settings(str(path))
+    assert planned["default"] == 1 and planned["each_shot"] and not planned["every"]
+    assert planned["algorithms"]["2"] == L2A_ALGORITHMS[2].to_dict() and planned["noise"].startswith("L1B")
+    assert said == "GEDI L2A algorithm 1's (no L2A granule beside the L1B)"
+    named, said = file_metric_settings(str(path), "5")
+    assert named["default"] == 5 and not named["each_shot"] and "--l2a-algorithms" in said
+    assert file_metric_settings(str(tmp_path / "x.las"), "all") == (None, "")
+    assert l2a_algorithms(" ALL ") == "all" and l2a_algorithms("3") == "3"
+    with pytest.raises(argparse.ArgumentTypeError, match="not '7'"):
+        l2a_algorithms("7")

@@ -13,6 +13,17 @@ L2B = GEDI / "GEDI02_B_2019108080338_O01964_T05337_02_001_01_sub.h5"
 TX_FIELDS = ("tx_egsigma", "tx_egsigma_error", "tx_eggamma", "tx_eggamma_error")
 
 
+def _algorithm(beam, a: int, ia: np.ndarray) -> dict:
+    """L2A's results of algorithm `a` for the shots `ia`: its ground and RH (m) and its intermediate results."""
+    processing = beam[f"rx_processing_a{a}"]
+    rh = beam[f"geolocation/rh_a{a}"]
+    return {"ground_z": beam[f"geolocation/elev_lowestmode_a{a}"][:][ia],
+            "rh": rh[:][ia] / (100.0 if rh.dtype.kind == "i" else 1.0),  # centimetres in the _aN fields
+            **{k: processing[k][:][ia] for k in ("zcross", "selected_mode", "rx_nummodes", "rx_modelocs",
+                                                 "rx_modeamps", "rx_modelocalenergy", "rx_iwaveamps", "toploc",
+                                                 "botloc", "mean")}}
+
+
 @pytest.fixture(scope="session")
 def gedi_beams() -> list[dict]:
     """Per beam: the L1B arrays a reader needs, read straight with h5py, and NASA's L2A/L2B values joined to them."""
@@ -48,5 +59,6 @@ def gedi_beams() -> list[dict]:
                    ("cover", "pai", "rv", "rg", "pgap_theta", "rhov", "rhog", "rossg", "omega", "cover_z", "pai_z",
                     "pavd_z")},
                 "l2b_cos_zenith": np.abs(np.sin(l2b[name]["geolocation/local_beam_elevation"][:][ib].astype(float))),
+                "algorithms": {a: _algorithm(l2a[name], a, ia) for a in range(1, 7)},
             })
     return beams

@@ -4,10 +4,11 @@ on waveforms that provoke every reason for null metrics."""
 import numpy as np
 import pytest
 
+from fwcore.metrics.algorithms import l2a_algorithm
 from fwcore.metrics.waveform import MetricSettings, NO_AXIS, NO_GROUND, NO_NOISE, NO_SIGNAL, NOT_FINITE, \
     reference_metrics, waveform_metrics
 
-FIELDS = ("toploc", "botloc", "ground_index", "ground_z", "rh", "rv", "rg", "pgap", "cover", "pai", "cover_z", "pai_z",
+FIELDS = ("toploc", "botloc", "ground_index", "ground_z", "mode_z", "rh", "rv", "rg", "pgap", "cover", "pai", "cover_z", "pai_z",
           "pavd_z")
 
 
@@ -16,7 +17,9 @@ def _both(*args, **kwargs):
 
 
 @pytest.mark.parametrize("settings", [MetricSettings(), MetricSettings(smoothing_width_zcross=3.5,
-                                                                       back_threshold_sd=4.0)])
+                                                                       back_threshold_sd=4.0),
+                                      l2a_algorithm(2), MetricSettings(select_mode=True, energy_thresh=400.0,
+                                                                       max_modes=2)])
 def test_the_kernel_is_its_reference_on_gedi(gedi_beams, settings):
     for b in gedi_beams:
         args = (b["samples"], b["offsets"], b["noise_mean"], b["noise_sd"], b["first_z"], b["metres_per_sample"],

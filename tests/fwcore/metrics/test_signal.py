@@ -31,3 +31,19 @@ def test_extent_on_the_subbin_grid():
     top, bottom = signal_extent(x, fine, 2.0, 5.0)
     assert top == 12.25 and bottom == 25.75  # first sub-bin above 2, last above 5
     assert np.isnan(signal_extent(x, fine, 20.0, 30.0)[0])
+
+
+def test_the_zcross_smoothing_of_3_5_reproduces_nasas_mode_amplitudes(gedi_beams):
+    """Algorithm 2's rx_modeamps (its zcross-smoothed waveform at each mode): L2A's truncated kernel for 3.5."""
+    from fwcore.metrics.signal import smoothing_kernel
+
+    assert smoothing_kernel(3.5) == (3.15, 7) and smoothing_kernel(6.5) == (5.8, 23)
+    diff = []
+    for b in gedi_beams:
+        l2a = b["algorithms"][2]
+        for i in range(len(b["offsets"]) - 1):
+            smoothed = gaussian_smooth(b["samples"][b["offsets"][i]:b["offsets"][i + 1]], 3.5)
+            n = int(l2a["rx_nummodes"][i])
+            at = l2a["rx_modelocs"][i][:n]
+            diff += list(np.interp(at, np.arange(smoothed.size), smoothed) - l2a["rx_modeamps"][i][:n])
+    assert np.median(np.abs(diff)) < 0.15 and np.percentile(np.abs(diff), 90) < 0.6  # DN, of amplitudes 10-900
