@@ -39,6 +39,14 @@ def vertical_axis(pulses: PulseBatch) -> tuple[np.ndarray, np.ndarray]:
     return first_z, pulses.direction[:, 2] * pulses.sample_spacing_ps
 
 
+def top_heights(pulses: PulseBatch, metrics: WaveformMetrics) -> np.ndarray:
+    """Each pulse's highest detected return (LVIS's ZH, GEDI L2A's elev_highestreturn): the height of the signal's
+    start, toploc; NaN where its metrics were not measured."""
+    first_z, drop = vertical_axis(pulses)
+    measured = np.array([r == "" for r in metrics.reason], dtype=bool)
+    return np.where(measured, first_z - metrics.toploc * drop, np.nan)
+
+
 def zenith_cosine(pulses: PulseBatch) -> np.ndarray:
     """The beam's zenith cosine: as the file records it (GEDI), else from its direction (a projected CRS)."""
     if pulses.cos_zenith is not None:
