@@ -7,12 +7,12 @@ shots of the shared LVIS clip against LVIS's own Level 2 of the same shots (docs
 from GEDI's algorithm 1 in five ways:
 
 - the modes, the signal's end and the energy are on the waveform smoothed by the transmitted pulse's own width
-  (a Gaussian of the pulse's sigma, FWHM / 2.355: 4.7 samples for LVIS), not 0.89 x 6.5 samples;
+  (a Gaussian of the pulse's sigma, FWHM / 2.355: 4.5 samples for LVIS), not 0.89 x 6.5 samples;
 - the signal's start (ZH) is where the waveform smoothed by only 2 samples first rises above the noise mean plus 5
   standard deviations (GEDI: 3, on the smoothed waveform);
-- the signal's end is the last position above the noise mean plus 4 standard deviations (GEDI: 6);
+- the signal's end is the last position above the noise mean plus 4.5 standard deviations (GEDI: 6);
 - the energy is the smoothed waveform itself from the end to the start, not the waveform above the noise mean
-  (with the noise subtracted RH10 is 1.0 m too high and RH98 0.9 m too low);
+  (with the noise subtracted RH10 is 0.9 m too high and RH98 0.8 m too low);
 - positions are on a half-sample grid (LVIS's ZG and ZH fall on half samples of the L1B's axis).
 """
 
@@ -34,7 +34,7 @@ class LvisSettings:
 
     start_smoothing_sigma: float = 2.0  # ZH: the signal's start on a lightly smoothed waveform
     start_threshold_sd: float = 5.0
-    end_threshold_sd: float = 4.0  # the signal's end (RH0); a mode must clear it too
+    end_threshold_sd: float = 4.5  # the signal's end (RH0); a mode must clear it too (3.5: noise modes)
     subbins: int = 2  # positions to half a sample
     energy_above_noise: bool = False  # True: GEDI's energy (the smoothed waveform less the noise mean)
 
