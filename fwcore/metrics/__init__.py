@@ -8,5 +8,6 @@ energies (GEDI L2B).
     canopy.py    rv, rg, Pgap, cover, PAI, PAVD
     waveform.py  the settings and the batch: every pulse's metrics in one call (kernel.py: its numba kernel)
     pulses.py    a PulseBatch's metrics, whatever the sensor
+    lvis.py      LVIS's own Level 2 metrics (ZG, ZH, RH) on LVIS files
     footprint.py a large footprint's waveform built from small ones (GEDI from the air)
 """
