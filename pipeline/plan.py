@@ -91,11 +91,16 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
 def file_metric_settings(path: str) -> tuple[dict | None, str]:
     """A GEDI L1B's forest-metric settings: every algorithm's of the L2A granule beside it, each shot taking the
     one L2A selected for it ({"default": the most selected, "algorithms": {number: settings}}), else None
-    (algorithm 1's, the defaults)."""
-    from fwcore.io.formats import GEDI_L1B, format_of
+    (algorithm 1's, the defaults); an LVIS L1B's: None, LVIS's own (fwcore.metrics.lvis), said in the source."""
+    from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
     from fwcore.io.gedi import l2a_algorithm_settings, l2a_beside
+    from fwcore.metrics.lvis import LVIS_L2
 
-    if format_of(path) is not GEDI_L1B:
+    kind = format_of(path)
+    if kind is LVIS_L1B:  # its reader asks for them (PulseBatch.metric_definition); said here for run.json
+        return None, (f"LVIS Level 2's definitions (fwcore.metrics.lvis): {dataclasses.asdict(LVIS_L2)}, smoothed "
+                      f"by the system pulse's sigma")
+    if kind is not GEDI_L1B:
         return None, ""
     l2a = l2a_beside(path)
     if l2a is None:

@@ -69,8 +69,11 @@ def test_the_clip_joins_lvis_level2_and_gives_its_metrics(clip_run):
 def test_every_clip_shot_is_accounted_for(clip_run):
     pulses = _pulses(clip_run)
     rejected = ds.dataset(str(clip_run / "rejected"), format="parquet").to_table()
-    counts = json.loads((clip_run / "run.json").read_text())["counts"]
-    assert len(pulses) + rejected.num_rows == CLIP_SHOTS == counts["pulses_read"]
+    summary = json.loads((clip_run / "run.json").read_text())
+    assert len(pulses) + rejected.num_rows == CLIP_SHOTS == summary["counts"]["pulses_read"]
+    (entry,) = summary["inputs"]
+    assert entry["metric_settings_source"].startswith("LVIS Level 2's definitions")
+    assert "'end_threshold_sd': 4.5" in entry["metric_settings_source"]
     measured = pulses.metrics_reason == ""
     assert pulses.ground_z[measured].notna().all() and pulses.ground_z[~measured].isna().all()
     assert pulses.top_z[measured].notna().all() and pulses.top_z[~measured].isna().all()
