@@ -92,13 +92,20 @@ def plan_file(path: str, name: str, stem: str, config: DecompositionConfig, poin
 def file_metric_settings(path: str, l2a_algorithms: str = "selected") -> tuple[dict | None, str]:
     """A GEDI L1B's forest-metric settings ({"default": the algorithm of shots L2A selected none for, "algorithms":
     {number: settings}, "each_shot": whether each shot takes the one L2A selected for it, "every": whether every
-    algorithm's ground and RH are written, "noise": whence the noise thresholds' mean and sd}): the L2A granule's beside it, else L2A's six algorithms as data
-    (fwcore.metrics.algorithms); None for other formats. `l2a_algorithms`: selected | all | 1..6 (--l2a-algorithms)."""
-    from fwcore.io.formats import GEDI_L1B, format_of
+    algorithm's ground and RH are written, "noise": whence the noise thresholds' mean and sd}): the L2A granule's
+    beside it, else L2A's six algorithms as data (fwcore.metrics.algorithms); an LVIS L1B's: None, LVIS's own
+    (fwcore.metrics.lvis), said in the source; None for other formats. `l2a_algorithms`: selected | all | 1..6
+    (--l2a-algorithms)."""
+    from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
     from fwcore.io.gedi import NOISE_ESTIMATED, l2a_algorithm_settings, l2a_beside, noise_recorded
     from fwcore.metrics.algorithms import L2A_ALGORITHMS
+    from fwcore.metrics.lvis import LVIS_L2
 
-    if format_of(path) is not GEDI_L1B:
+    kind = format_of(path)
+    if kind is LVIS_L1B:  # its reader asks for them (PulseBatch.metric_definition); said here for run.json
+        return None, (f"LVIS Level 2's definitions (fwcore.metrics.lvis): {dataclasses.asdict(LVIS_L2)}, smoothed "
+                      f"by the system pulse's sigma")
+    if kind is not GEDI_L1B:
         return None, ""
     named = int(l2a_algorithms) if l2a_algorithms.isdigit() else None
     plan = {"each_shot": named is None, "every": l2a_algorithms == "all",

@@ -18,6 +18,7 @@ from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.crs import crs_projjson
 from fwcore.engine.records import WAVEFORM_CODES, WAVEFORM_FIELDS, BatchDecomposition
 from fwcore.engine.filter import REJECT_REASONS
+from fwcore.metrics.pulses import top_heights
 
 CONFIG_METADATA_KEY = b"fwlidar.config"
 PULSE_METADATA_KEY = b"fwlidar.pulse"  # the file's system pulse the rows were decomposed with
@@ -203,6 +204,11 @@ COLUMNS = {c.name: c for c in (
                                                 f"--l2a-algorithms all") for a in range(1, 7)),
     *(Column(f"rh_a{a}", pa.list_(pa.float32()), "m", f"GEDI L2A algorithm {a}'s RH0..RH100 (rh_a{a}); with "
                                                       f"--l2a-algorithms all") for a in range(1, 7)),
+    Column("lfid", I64, "", "LVIS's file id (LFID) of the shot, to join LVIS's products (null: not LVIS)"),
+    Column("shot_number", I64, "", "the mission's shot number (LVIS's SHOTNUMBER, GEDI's shot_number), to join its "
+                                   "products (null: the file numbers no shots)"),
+    Column("top_z", F64, "CRS unit", "the highest detected return: where the signal starts (LVIS's ZH, GEDI L2A's "
+                                     "elev_highestreturn; null: see metrics_reason)"),
     Column("stale_return_flag", pa.int8(), "", "GEDI L1B's stale return flag (null: not recorded)"),
     Column("degrade_flag", pa.int8(), "", "GEDI L1B's degraded pointing or positioning flag (null: not recorded)"),
     Column("stage", STR, "", "the stage that rejected it: open | read | decompose | geolocate | write"),
@@ -222,6 +228,7 @@ _BIOMASS = ("agbd", "agbd_se", "agbd_stratum", "agbd_reason")
 _GEDI = ("selected_algorithm", "mode_z")
 # written only with --l2a-algorithms all: appended after the table's own columns
 EVERY_ALGORITHM = (*(f"ground_z_a{a}" for a in range(1, 7)), *(f"rh_a{a}" for a in range(1, 7)))
+_SHOT = ("lfid", "shot_number", "top_z")  # the mission's shot ids and the signal's start: join its products
 # Each table's columns, in order: the outputs of fwl run (echoes/, pulses/, rejected/) and of fwl decompose-csv.
 TABLES = {
     "echoes": ("source_file", "pulse_id", "channel", "segment", "gps_time", "echo_index", "echo_count", "time_ps",
@@ -232,7 +239,8 @@ TABLES = {
                "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
-               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_GEDI, *_BIOMASS, "stale_return_flag",
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_SHOT, *_GEDI, *_BIOMASS,
+               "stale_return_flag",
                "degrade_flag"),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
     "csv echoes": ("waveform_id", "echo_index", "echo_count", "amplitude", "time", "sigma", "alpha", "fwhm", CSV_ENERGY,
@@ -395,6 +403,16 @@ def with_every_algorithm(table: pa.Table, every: dict | None, rows: np.ndarray) 
     return table
 
 
+def _shot_columns(pulses, metrics, rows: np.ndarray) -> dict:
+    """The mission's shot ids (null where the file numbers none) and the signal start's height (null where the
+    metrics were not measured)."""
+    ids = {c: pa.nulls(rows.size, pa.int64()) if getattr(pulses, c) is None else pa.array(getattr(pulses, c)[rows],
+                                                                                          pa.int64())
+           for c in ("lfid", "shot_number")}
+    top = np.full(rows.size, np.nan) if metrics is None else top_heights(pulses, metrics)[rows]
+    return {**ids, "top_z": _null_where_nan(top)}
+
+
 def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
     return pa.nulls(rows.size, pa.int8()) if values is None else pa.array(values[rows], pa.int8())
 
@@ -439,7 +457,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "n_system_returns": np.diff(pulses.return_offsets)[sel],
         "system_pulse_fwhm_ps": np.full(sel.size, pulse.fwhm_ps),
         "shape_tolerance": np.full(sel.size, pulse.shape_tolerance), **_method(config, pulse, sel.size),
-        **_forest_columns(metrics, sel), **_gedi_columns(metrics, algorithms, sel), **_biomass_columns(biomass, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
+        **_forest_columns(metrics, sel), **_shot_columns(pulses, metrics, sel),
+        **_gedi_columns(metrics, algorithms, sel), **_biomass_columns(biomass, sel), "stale_return_flag": _flag(pulses.stale_return_flag, sel),
         "degrade_flag": _flag(pulses.degrade_flag, sel)})
     projjson = crs_projjson(crs_wkt) if crs_wkt else file_crs_projjson(str(pulses.source_file))
     geo = geo_metadata(xyz[:, 0], xyz[:, 1], xyz[:, 2], projjson)

@@ -227,7 +227,8 @@ def read_gedi(point_range: PointRange | str | Path, opened: GediGranule | None =
         rejected=tuple((int(s), str(r)) for s, r in zip(shot[~keep], reasons[~keep])),
         noise_mean=noise, noise_sd=noise_sd, cos_zenith=np.abs(np.sin(elevation)), transmit_shape=shape,
         stale_return_flag=stale.astype(np.int8), degrade_flag=degrade.astype(np.int8), metric_algorithm=algorithm,
-        pft_class=pft, region_class=region)
+        pft_class=pft, region_class=region,
+        shot_number=shot[keep].astype(np.int64))
 
 
 def concatenate(batches: list[PulseBatch]) -> PulseBatch:
@@ -237,7 +238,7 @@ def concatenate(batches: list[PulseBatch]) -> PulseBatch:
     values = {}
     for field in dataclasses.fields(PulseBatch):
         parts = [getattr(b, field.name) for b in batches]
-        if field.name == "source_file":
+        if field.name in ("source_file", "metric_definition"):
             values[field.name] = parts[0]
         elif field.name == "rejected":
             values[field.name] = tuple(r for p in parts for r in p)

@@ -121,7 +121,8 @@ def read_lvis(point_range: PointRange | str | Path, opened: LvisFile | None = No
         channel=np.zeros(n, np.int16), outgoing=tx.ravel(),
         outgoing_offsets=np.arange(n + 1, dtype=np.int64) * tx.shape[1], outgoing_spacing_ps=spacing,
         rejected=tuple((int(p), str(r)) for p, r in zip(pulse_id[~keep], reasons[~keep])),
-        noise_mean=noise_mean, noise_sd=noise_sd, cos_zenith=np.cos(incidence))
+        noise_mean=noise_mean, noise_sd=noise_sd, cos_zenith=np.cos(incidence), lfid=file_id[keep],
+        shot_number=shot[keep], metric_definition="lvis")
 
 
 def describe_lvis(path: str | Path) -> dict:

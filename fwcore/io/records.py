@@ -89,6 +89,13 @@ class PulseBatch:
     # has not the shot), which names its biomass model's stratum (fwcore.metrics.biomass); None: not recorded
     pft_class: np.ndarray | None = None
     region_class: np.ndarray | None = None
+    # per row, where the mission numbers its shots (int64): LVIS's file id (LFID) and shot number, GEDI's shot
+    # number (lfid None), so its products join by them
+    lfid: np.ndarray | None = None
+    shot_number: np.ndarray | None = None
+    # whose definitions the forest metrics follow: "" GEDI L2A's (fwcore.metrics.waveform), "lvis" LVIS Level 2's
+    # (fwcore.metrics.lvis)
+    metric_definition: str = ""
 
     def __len__(self) -> int:
         return self.pulse_id.size

@@ -9,6 +9,7 @@ energies (GEDI L2B).
     canopy.py    rv, rg, Pgap, cover, PAI, PAVD
     waveform.py  the settings and the batch: every pulse's metrics in one call (kernel.py: its numba kernel)
     pulses.py    a PulseBatch's metrics, whatever the sensor
+    lvis.py      LVIS's own Level 2 metrics (ZG, ZH, RH) on LVIS files
     footprint.py a large footprint's waveform built from small ones (GEDI from the air)
     biomass.py   aboveground biomass density from RH by GEDI L4A's models (their table: data/l4a_models.json)
 """

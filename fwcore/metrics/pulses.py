@@ -17,6 +17,7 @@ import numpy as np
 from fwcore.engine.records import BatchDecomposition
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.io.records import PulseBatch
+from fwcore.metrics.lvis import lvis_metrics
 from fwcore.metrics.waveform import GEDI_ALGORITHM_1, MetricSettings, WaveformMetrics, waveform_metrics
 
 FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
@@ -38,6 +39,14 @@ def vertical_axis(pulses: PulseBatch) -> tuple[np.ndarray, np.ndarray]:
     return first_z, pulses.direction[:, 2] * pulses.sample_spacing_ps
 
 
+def top_heights(pulses: PulseBatch, metrics: WaveformMetrics) -> np.ndarray:
+    """Each pulse's highest detected return (LVIS's ZH, GEDI L2A's elev_highestreturn): the height of the signal's
+    start, toploc; NaN where its metrics were not measured."""
+    first_z, drop = vertical_axis(pulses)
+    measured = np.array([r == "" for r in metrics.reason], dtype=bool)
+    return np.where(measured, first_z - metrics.toploc * drop, np.nan)
+
+
 def zenith_cosine(pulses: PulseBatch) -> np.ndarray:
     """The beam's zenith cosine: as the file records it (GEDI), else from its direction (a projected CRS)."""
     if pulses.cos_zenith is not None:
@@ -52,7 +61,8 @@ def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemP
                   by_algorithm: dict[int, MetricSettings] | None = None) -> WaveformMetrics:
     """Every pulse's metrics (`settings`: the file's, e.g. its L2A algorithm's; else GEDI's scaled to its pulse
     where the file records no transmitted shape); where the file names each shot's algorithm
-    (PulseBatch.metric_algorithm) and `by_algorithm` gives their settings, each shot takes its own."""
+    (PulseBatch.metric_algorithm) and `by_algorithm` gives their settings, each shot takes its own. An LVIS file
+    (PulseBatch.metric_definition "lvis") takes LVIS's Level 2 definitions (fwcore.metrics.lvis)."""
     spacing = np.maximum(pulses.sample_spacing_ps, 1e-9)
     sigma = pulse.fwhm_ps / spacing / FWHM_PER_SIGMA
     if pulses.transmit_shape is not None:
@@ -65,6 +75,8 @@ def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemP
     noise_sd = pulses.noise_sd if pulses.noise_sd is not None else result.noise_sigma
     first_z, drop = vertical_axis(pulses)
     columns = (noise_mean, noise_sd, first_z, drop, zenith_cosine(pulses), shape)
+    if pulses.metric_definition == "lvis":  # LVIS's own Level 2 metrics, smoothed by its transmitted pulse
+        return lvis_metrics(pulses.samples, pulses.sample_offsets, *columns, float(np.median(sigma)))
     if not by_algorithm or pulses.metric_algorithm is None:
         return waveform_metrics(pulses.samples, pulses.sample_offsets, *columns, settings)
     algorithm = np.where(np.isin(pulses.metric_algorithm, list(by_algorithm)), pulses.metric_algorithm, 0)

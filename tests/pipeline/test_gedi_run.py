@@ -80,6 +80,17 @@ def test_every_algorithms_ground_and_rh_reproduce_l2as_own(gedi_run):
     assert all(np.isclose(m[-1], g, atol=1e-3) for m, g in zip(pulses.mode_z, pulses.ground_z))
 
 
+def test_pulses_join_l2a_by_shot_number_and_give_its_highest_return(gedi_run):
+    pulses = _table(gedi_run, "pulses")
+    assert (pulses.shot_number == pulses.pulse_id).all() and pulses.lfid.isna().all()
+    l2a = _nasa(L2A, ("elev_highestreturn", "quality_flag"))
+    theirs = {s: i for i, s in enumerate(l2a["shot"])}
+    ours = pulses[pulses.shot_number.isin(l2a["shot"][l2a["quality_flag"] == 1])]
+    index = np.array([theirs[s] for s in ours.shot_number])
+    d = np.abs(ours.top_z.to_numpy() - l2a["elev_highestreturn"][index])
+    assert np.median(d) <= 0.02 and np.percentile(d, 90) <= 0.10
+
+
 def test_every_echo_lies_in_its_shots_footprint_and_the_crs_is_4979(gedi_run):
     echoes = _table(gedi_run, "echoes")
     with h5py.File(L1B) as f:

@@ -39,3 +39,17 @@ def write_lvis(path, shots: int, samples: int = 1024, tx_samples: int = 128, see
             rx[bad_shot, 10] = np.nan
         f["RXWAVE"] = rx
     return {"ground": ground, "top": top, "z0": z0, "lon": lon}
+
+
+LEVEL2_RH = (*range(10, 100, 5), 96, 97, 98, 99, 100)  # the RH columns of an LVIS Level 2 (LGE) text file
+
+
+def read_level2(path) -> dict:
+    """An LVIS Level 2 text file (no header; LFID SHOTNUMBER TIME GLON GLAT ZG HLON HLAT ZH RH10 RH15 .. RH95 RH96
+    .. RH100 AZIMUTH INCIDENTANGLE RANGE and the receiver channel of ZT, ZG and RH), -999 as NaN."""
+    table = np.loadtxt(path, ndmin=2)
+    rh_end = 9 + len(LEVEL2_RH)
+    rh = np.where(table[:, 9:rh_end] == -999, np.nan, table[:, 9:rh_end])
+    return {"lfid": table[:, 0].astype(np.int64), "shot_number": table[:, 1].astype(np.int64), "zg": table[:, 5],
+            "zh": table[:, 8], "rh": {k: rh[:, i] for i, k in enumerate(LEVEL2_RH)},
+            "channel": table[:, rh_end + 3:rh_end + 6].astype(np.int64)}

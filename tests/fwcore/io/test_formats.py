@@ -3,8 +3,9 @@
 from pathlib import Path
 
 from fwcore.io import formats
-from fwcore.io.formats import (EMPTY, FOREIGN_BINARY, FOREIGN_HDF5, GEDI_L1B, LAS, NEON_CSV, PULSEWAVES, TEXT,
-                               WAVES_FILE, WDP_FILE, WDZ_FILE, format_of, kind_of, needs_packet_file, packet_file)
+from fwcore.io.formats import (EMPTY, FOREIGN_BINARY, FOREIGN_HDF5, GEDI_L1B, LAS, LVIS_L1B, NEON_CSV, PULSEWAVES,
+                               TEXT, WAVES_FILE, WDP_FILE, WDZ_FILE, format_of, kind_of, needs_packet_file,
+                               packet_file)
 
 DATA = Path(__file__).resolve().parents[3] / "examples" / "data"
 BUNDLED = {  # every sample bundled under examples/data, and what it is
@@ -18,6 +19,9 @@ BUNDLED = {  # every sample bundled under examples/data, and what it is
     "neon_harvard/outgoing_pulses.csv": "a NEON-layout waveform CSV",
     "neon_harvard/geolocation.csv": "a text file (CSV)", "neon_harvard/system_impulse.csv": "a text file (CSV)",
     "neon_harvard/waveformlidar_gaussian_decomposition.csv": "a text file (CSV)",
+    "lvis/LVIS_Mondah_level1b.SPLIT.8.h5": "an LVIS L1B waveform file (HDF5)",
+    "lvis/lvis_level1_clip_shared.h5": "an LVIS L1B waveform file (HDF5)",
+    "lvis/lvis_level2_clip_shared.txt": "a text file",
     "README.md": "a text file", "pulsewaves/README.md": "a text file",
     **{f"pulsewaves/{name}_example{n}.pls": "a PulseWaves pulse file (.pls)"
        for name, n in (("geolas", 1), ("las13fwf", 1), ("lvis", 1), ("optech", 1), ("riegl", 3))},
@@ -31,6 +35,7 @@ def test_every_bundled_sample_is_sniffed_to_its_kind():
     assert on_disk == set(BUNDLED)  # a sample added without its kind here fails
     assert {name: kind_of(DATA / name).words for name in sorted(BUNDLED)} == dict(sorted(BUNDLED.items()))
     assert format_of(DATA / "gedi" / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5") is GEDI_L1B
+    assert format_of(DATA / "lvis" / "lvis_level1_clip_shared.h5") is LVIS_L1B
 
 
 def test_a_file_s_samples_are_found_beside_it(leica_dir, pulsewaves_dir, tmp_path):

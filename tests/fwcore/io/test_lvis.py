@@ -1,4 +1,7 @@
-"""LVIS L1B files in the product's layout: sample counts, longitudes east of 180, no SIGMEAN, a damaged shot."""
+"""LVIS L1B files in the product's layout: sample counts, longitudes east of 180, no SIGMEAN, a damaged shot; the
+real files' LFID and shot numbers."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -43,3 +46,22 @@ def test_an_hdf5_without_the_layout_names_what_is_missing(tmp_path):
         f["Z0"] = np.zeros(2)
     with pytest.raises(WaveformFileError, match="missing LAT0, LON0, SHOTNUMBER"):
         open_lvis(path)
+
+
+@pytest.mark.parametrize("name,first_shot", [("LVIS_Mondah_level1b.SPLIT.8.h5", 9418932),
+                                             ("lvis_level1_clip_shared.h5", 9427649)])
+def test_real_files_carry_their_lfid_and_shot_number(name, first_shot):
+    """AfriSAR 2016, Mondah (Gabon): the file's own uint32 LFID and SHOTNUMBER, and rLVIS's float64 rewrite of the
+    same flight; the pulse id packs both (LFID in the high 32 bits: shot numbers restart in each LVIS file)."""
+    import h5py
+
+    path = Path(__file__).resolve().parents[3] / "examples" / "data" / "lvis" / name
+    pulses = read_pulses(path)
+    with h5py.File(path, "r") as f:
+        lfid, shot = f["LFID"][:], f["SHOTNUMBER"][:]
+    assert pulses.lfid.dtype == np.int64 and pulses.shot_number.dtype == np.int64
+    assert pulses.lfid.tolist() == [1657455141] * len(shot) and pulses.lfid.tolist() == lfid.astype(int).tolist()
+    assert pulses.shot_number[0] == first_shot and pulses.shot_number.tolist() == shot.astype(int).tolist()
+    assert ((pulses.pulse_id >> 32) == pulses.lfid).all()
+    assert ((pulses.pulse_id & 0xFFFFFFFF) == pulses.shot_number).all()
+    assert pulses.pulse_id[0] == 1657455141 * 2**32 + first_shot
