@@ -97,7 +97,7 @@ def equirectangular(name: str, lon0: float, lat0: float, semi_major: float, inve
     east = prime_vertical * math.cos(math.radians(lat0)) * math.pi / 180.0  # metres per degree of longitude
     north = meridional * math.pi / 180.0  # metres per degree of latitude
     rotation = ((east, 0.0, 0.0), (0.0, north, 0.0), (0.0, 0.0, 1.0))
-    return Frame(("east (m) from the run's centre", "north (m) from the run's centre", f"height (m), {name}"),
+    return Frame(("east (m) from the run's centre", "north (m) from the run's centre", "height (m)"),
                  name, (float(lon0), float(lat0), 0.0), rotation, _where(lat0, lon0))
 
 

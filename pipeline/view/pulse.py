@@ -211,30 +211,32 @@ def forest_markers(raw: RawPulse, row: dict) -> dict | None:
     def time_ps(z: float) -> float:
         return (raw.first_z - z) / raw.metres_per_sample * raw.sample_spacing_ps
     heights = [(k, _finite(rh[k])) for k in (25, 50, 75, 98)] if rh is not None and len(rh) > 98 else []
-    modes = [z for z in (_finite(v) for v in (row.get("mode_z") or [])) if z is not None]
+    listed = row.get("mode_z")
+    modes = [z for z in (_finite(v) for v in ([] if listed is None else listed)) if z is not None]
     return {"ground_time_ps": time_ps(ground), "ground_z": ground,
             "rh": [{"k": k, "height_m": h, "time_ps": time_ps(ground + h)} for k, h in heights if h is not None],
             "modes": [{"z": z, "time_ps": time_ps(z), "passed_over": z < ground - PASSED_OVER_M} for z in modes]}
 
 
 def shot_details(row: dict) -> dict | None:
-    """What the products say of this shot, of the columns the run wrote (SHOT_COLUMNS): its shot number and LFID,
-    the L2A algorithm whose ground and RH the row holds, its highest return, its biomass (L4A's agbd) or why none;
-    None when the run wrote none of them (a LAS or PulseWaves run). Identities as decimal strings (exact)."""
-    present = {c: row[c] for c in SHOT_COLUMNS if c in row}
-    if not present:
-        return None
+    """What the products say of this shot, of the columns the run wrote with values (SHOT_COLUMNS): its shot number
+    and LFID, the L2A algorithm whose ground and RH the row holds, its highest return, its biomass (L4A's agbd) or
+    why there is none; None when there is nothing of them (a LAS or PulseWaves run, or columns left null).
+    Identities as decimal strings (exact)."""
     out = {}
-    for name, value in present.items():
-        if value is None or (isinstance(value, float) and not np.isfinite(value)):
-            out[name] = None
-        elif name in ("shot_number", "lfid"):
+    for name in SHOT_COLUMNS:
+        value = row.get(name)
+        if value is None or value == "" or (isinstance(value, float) and not np.isfinite(value)):
+            continue
+        if name in ("shot_number", "lfid"):
             out[name] = str(int(value))
         elif name in ("agbd_stratum", "agbd_reason"):
             out[name] = str(value)
         else:
             out[name] = int(value) if name == "selected_algorithm" else float(value)
-    return out
+    if "agbd_reason" in out:
+        out.setdefault("agbd", None)  # no biomass, and why
+    return out or None
 
 
 def system_returns(raw: RawPulse) -> list[dict]:

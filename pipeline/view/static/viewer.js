@@ -290,6 +290,9 @@ function sceneAspect(scene) {
     exaggeration: wide / 4 / z };
 }
 
+// a 3D axis has no room for where its origin is: the map says it
+function short(title) { return { text: title.text.replace(" from the run's centre", "") }; }
+
 function axisTitles(frame) {
   const labels = (frame && frame.labels) || ["x", "y", "z"];
   return labels.map((l) => ({ text: l }));
@@ -337,13 +340,14 @@ async function drawOverview() {
   const mapLayout = { margin: { l: 70, r: 10, t: 10, b: 80 }, legend, uirevision: state.run,
     xaxis: { title: tx, tickformat: tickFormat(bx) }, yaxis: { title: ty, scaleanchor: "x", tickformat: tickFormat(by) } };
   if (state.box) { mapLayout.xaxis.range = [state.box[0], state.box[1]]; mapLayout.yaxis.range = [state.box[2], state.box[3]]; }
-  if (map.frame && map.frame.centre) mapLayout.title = { text: `origin ${map.frame.centre}`, font: { size: 10 }, y: 0.99 };
+  // where a local frame's origin is, and the CRS it is made of, beside the panel's title (not under its toolbar)
+  $("map-origin").textContent = map.frame && map.frame.centre ? `origin ${map.frame.centre}, ${map.frame.crs}` : "";
   await Plotly.react("map", mapTraces, mapLayout, { responsive: true, displaylogo: false });
   const aspect = sceneAspect(scene);
   $("scene-count").textContent = `${scene.x.length} of ${scene.total}` +
     (aspect.exaggeration > 1 ? ` · heights ×${fmt(aspect.exaggeration, 1)}` : "");
   await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 30 }, legend, uirevision: state.run,
-    scene: { ...aspect.layout, xaxis: { title: tx }, yaxis: { title: ty }, zaxis: { title: tz } } },
+    scene: { ...aspect.layout, xaxis: { title: short(tx) }, yaxis: { title: short(ty) }, zaxis: { title: short(tz) } } },
     { responsive: true, displaylogo: false });
   bindPlotEvents();
 }
