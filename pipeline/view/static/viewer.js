@@ -332,12 +332,18 @@ async function drawOverview() {
       x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.35)", size: 1.5 } });
   }
   if (lastLayer) mapTraces.unshift(gridTrace(lastLayer));  // first: drawn under the echoes
+  // each trace keyed by what it is, not its place: Plotly keeps a colour bar by the trace's uid, and a grid put
+  // first took over the echoes' bar (its ticks left over it, the grid's own bar drawn off the page)
+  for (const t of [...mapTraces, ...sceneTraces]) t.uid = t.meta;
   mapTraces.push(...pickedTrace(false));
   sceneTraces.push(...pickedTrace(true));
   const [tx, ty, tz] = axisTitles(map.frame);
   const legend = { orientation: "h", x: 0, y: -0.22, yanchor: "top", font: { size: 10 } };
   const [bx, by] = state.box ? [[state.box[0], state.box[1]], [state.box[2], state.box[3]]] : [span(map.x), span(map.y)];
-  const mapLayout = { margin: { l: 70, r: 10, t: 10, b: 80 }, legend, uirevision: state.run,
+  // with a grid's colour bar across the top, fixed margins that hold both bars: left to grow, Plotly's margins
+  // chased the two bars until the map was a strip 60 px high with the grid out of sight
+  const margin = lastLayer ? { l: 70, r: 100, t: 58, b: 100, autoexpand: false } : { l: 70, r: 10, t: 10, b: 80 };
+  const mapLayout = { margin, legend: lastLayer ? { ...legend, y: -0.3 } : legend, uirevision: state.run,
     xaxis: { title: tx, tickformat: tickFormat(bx) }, yaxis: { title: ty, scaleanchor: "x", tickformat: tickFormat(by) } };
   if (state.box) { mapLayout.xaxis.range = [state.box[0], state.box[1]]; mapLayout.yaxis.range = [state.box[2], state.box[3]]; }
   // where a local frame's origin is, and the CRS it is made of, beside the panel's title (not under its toolbar)
@@ -347,7 +353,8 @@ async function drawOverview() {
   $("scene-count").textContent = `${scene.x.length} of ${scene.total}` +
     (aspect.exaggeration > 1 ? ` · heights ×${fmt(aspect.exaggeration, 1)}` : "");
   await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 30 }, legend, uirevision: state.run,
-    scene: { ...aspect.layout, xaxis: { title: short(tx) }, yaxis: { title: short(ty) }, zaxis: { title: short(tz) } } },
+    scene: { ...aspect.layout, xaxis: { title: short(tx) }, yaxis: { title: short(ty) },
+      zaxis: { title: short(tz), nticks: 5 } } },  // a few height ticks: stretched or not, they crowd
     { responsive: true, displaylogo: false });
   bindPlotEvents();
 }
@@ -416,7 +423,7 @@ function gridTrace(layer) {
     hoverongaps: false, hovertemplate: `%{z:.4g}${layer.unit ? " " + layer.unit : ""}<extra>grid</extra>`,
     // across the top: the echoes' colour bar keeps the right side
     colorbar: { title: { text: `grid: ${layer.label}${unit}, 2nd–98th pct`, side: "top" }, orientation: "h",
-      thickness: 10, len: 0.7, x: 0.5, xanchor: "center", y: 1.02, yanchor: "bottom" } };
+      thickness: 10, len: 0.6, x: 0, xanchor: "left", y: 1.01, yanchor: "bottom", ypad: 0 } };  // left: the toolbar is right
 }
 
 let bound = false;

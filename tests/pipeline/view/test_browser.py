@@ -549,3 +549,52 @@ def test_a_gedi_shot_shows_its_algorithm_passed_over_modes_and_biomass(browser, 
     assert f"{row.agbd:.1f} ± {row.agbd_se:.1f} Mg/ha" in text and "GSW_SAm" in text
     assert "4, 2 passed over (below the ground)" in text
     browser.save_screenshot(str(tmp_path / "fwl-view-gedi-products.png"))
+
+
+def test_a_grid_of_a_gedi_run_lies_under_its_echoes_in_metres(browser, gedi_viewed, tmp_path):
+    """fwl grid of a geographic run has cells in degrees: the map draws each scaled to metres about the run's
+    centre, under the echoes, its colour bar across the top and the map full height (a grid put first once took
+    over the echoes' colour bar and squeezed the map to a strip)."""
+    import json
+    from urllib.parse import quote
+
+    import pyproj
+    import rasterio
+    from selenium.webdriver.support.ui import Select
+
+    from pipeline.cli import main
+
+    cell = 0.002
+    out = tmp_path / "grid"
+    assert main(["grid", str(gedi_viewed.run), "--cell", str(cell), "--output", str(out)]) == 0
+    # a grid elsewhere names its run in its mark; the viewer finds grids under its folders: put it beside the run
+    target = gedi_viewed.run.parent / "gedi-grid"
+    if not target.exists():
+        out.rename(target)
+    run = quote(gedi_viewed.run_id, safe="")
+    (listed,) = gedi_viewed.get(f"/api/grids?run={run}")["grids"]
+    assert listed["unavailable"] is None and listed["cell"].startswith("0.002° (216 × 221")
+    browser.get(f"{gedi_viewed.url}?run={run}&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _wait(browser, "document.getElementById('grid-layer').options.length > 1")
+    select = Select(browser.find_element("id", "grid-layer"))
+    wanted = next(o.get_attribute("value") for o in select.options if '"highest.tif"' in o.get_attribute("value"))
+    select.select_by_value(wanted)
+    drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    with rasterio.open(target / "highest.tif") as tif:
+        west, north, size = tif.transform.c, tif.transform.f, tif.transform.a
+    echoes = gedi_viewed.echoes()
+    lon0, lat0 = (echoes.x.min() + echoes.x.max()) / 2, (echoes.y.min() + echoes.y.max()) / 2
+    geod = pyproj.Geod(ellps="WGS84")
+    east_m = geod.inv(lon0 - size / 2, lat0, lon0 + size / 2, lat0)[2]  # a cell's width at the centre
+    assert drawn["dx"] == pytest.approx(east_m, rel=1e-4) and drawn["dx"] != drawn["dy"]
+    assert drawn["x0"] - drawn["dx"] / 2 == pytest.approx(np.sign(west - lon0) * geod.inv(lon0, lat0, west, lat0)[2],
+                                                          abs=0.5)
+    north_m = drawn["y0"] + (len(drawn["z"]) - 0.5) * drawn["dy"]  # the top row's north edge
+    assert north_m == pytest.approx(np.sign(north - lat0) * geod.inv(lon0, lat0, lon0, north)[2], abs=0.5)
+    box = json.loads(browser.execute_script(
+        "const r = document.querySelector('#map .cbgrid').getBoundingClientRect(), "
+        "m = document.getElementById('map').getBoundingClientRect(), L = document.getElementById('map')._fullLayout;"
+        " return JSON.stringify([r.top - m.top, r.bottom - m.top, L._size.h, m.height])"))
+    assert 0 <= box[0] < box[1] <= 70 and box[2] > 0.45 * box[3]  # the bar in the top margin; the map not a strip
+    browser.save_screenshot(str(tmp_path / "fwl-view-gedi-grid.png"))
