@@ -17,6 +17,9 @@ is fetched from the network.
     GET  /api/grid?run=&grid=&map=&band=&box= one layer: its cells' values (in a box) and where the map draws them
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
+
+Identities (pulse_id, shot_number, lfid) go out as strings of their digits and come back as such: GEDI's
+shot numbers and LVIS's pulse ids lie beyond 2^53, where a JavaScript number rounds them to other shots.
 """
 
 from __future__ import annotations
