@@ -194,6 +194,7 @@ PASSED_OVER_M = 0.01  # a mode this far below the selected ground was passed ove
 # the pulse row's columns that say what a shot is and what the products made of it (pipeline.tables), when present
 SHOT_COLUMNS = ("shot_number", "lfid", "selected_algorithm", "top_z", "agbd", "agbd_se", "agbd_stratum",
                 "agbd_reason")
+SHOT_IDENTITY = {"shot_number", "lfid", "selected_algorithm", "agbd"}  # what makes a pulse a mission's shot
 
 
 def _finite(value) -> float | None:
@@ -221,7 +222,8 @@ def forest_markers(raw: RawPulse, row: dict) -> dict | None:
 def shot_details(row: dict) -> dict | None:
     """What the products say of this shot, of the columns the run wrote with values (SHOT_COLUMNS): its shot number
     and LFID, the L2A algorithm whose ground and RH the row holds, its highest return, its biomass (L4A's agbd) or
-    why there is none; None when there is nothing of them (a LAS or PulseWaves run, or columns left null).
+    why there is none; None when none of SHOT_IDENTITY has a value (a LAS or PulseWaves run: its top_z and
+    agbd_reason alone are no shot's products).
     Identities as decimal strings (exact)."""
     out = {}
     for name in SHOT_COLUMNS:
@@ -234,9 +236,11 @@ def shot_details(row: dict) -> dict | None:
             out[name] = str(value)
         else:
             out[name] = int(value) if name == "selected_algorithm" else float(value)
+    if not out.keys() & SHOT_IDENTITY:  # a small-footprint pulse: no mission shot, no product to show
+        return None
     if "agbd_reason" in out:
         out.setdefault("agbd", None)  # no biomass, and why
-    return out or None
+    return out
 
 
 def system_returns(raw: RawPulse) -> list[dict]:

@@ -84,8 +84,11 @@ def test_a_shot_s_products_are_what_its_row_holds_and_ids_stay_exact():
     assert shot_details(row) == {"shot_number": "19640119700108618", "selected_algorithm": 2, "top_z": 803.0,
                                  "agbd": 42.25, "agbd_se": 6.5, "agbd_stratum": "GSW_SAm"}
     # no biomass, and why; an LVIS shot's LFID and shot number
-    assert shot_details({"agbd": float("nan"), "agbd_se": None, "agbd_reason": "no stratum: give --stratum"}) == \
-        {"agbd": None, "agbd_reason": "no stratum: give --stratum"}
+    assert shot_details({"shot_number": 7, "agbd": float("nan"), "agbd_se": None,
+                         "agbd_reason": "no stratum: give --stratum"}) == \
+        {"shot_number": "7", "agbd": None, "agbd_reason": "no stratum: give --stratum"}
+    # a small-footprint pulse's top_z and agbd_reason alone are no shot's products
+    assert shot_details({"top_z": 32.8, "agbd": None, "agbd_reason": "not a large footprint"}) is None
     assert shot_details({"lfid": 2333001003, "shot_number": 277275}) == {"lfid": "2333001003", "shot_number": "277275"}
     # a LAS run (the columns absent, or present and null): nothing to show
     assert shot_details({"pulse_id": 5, "gps_time": 1.0}) is None

@@ -401,7 +401,7 @@ def test_a_gedi_shot_comes_with_its_algorithm_modes_and_biomass(gedi_products, v
     p = gedi_products.get(f"/api/pulse?run={quote(gedi_products.run_id, safe='')}&file={GEDI_L1B}&pulse={shot}")
     assert p["shot"] == {"shot_number": str(shot), "selected_algorithm": 2 if shot % 2 == 0 else 1,
                          "agbd": pytest.approx(float(row.agbd)), "agbd_se": pytest.approx(float(row.agbd_se)),
-                         "agbd_stratum": "GSW_SAm"}
+                         "agbd_stratum": "GSW_SAm", "top_z": pytest.approx(float(row.top_z))}
     with h5py.File(GEDI / GEDI_L1B) as f:
         for beam in (k for k in f if k.startswith("BEAM")):
             hit = np.flatnonzero(f[beam]["shot_number"][:].astype(np.int64) == shot)
