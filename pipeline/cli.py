@@ -129,7 +129,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
-                      overrides=_overrides_from_args(args))
+                      overrides=_overrides_from_args(args), pulse_metrics=args.pulse_metrics)
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -189,7 +189,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
     overrides = _overrides_from_args(args)
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides)
+                            overrides, args.pulse_metrics)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -197,7 +197,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides)
+                          overrides=overrides, pulse_metrics=args.pulse_metrics)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise

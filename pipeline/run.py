@@ -29,6 +29,7 @@ from fwcore.instrument.pulse import PulseOverrides
 from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
+from fwcore.metrics.echo_column import ECHOES, PULSE_METRICS
 from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
 from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
@@ -173,11 +174,13 @@ def _run_job(options, build) -> object:
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-                 overrides: PulseOverrides = PulseOverrides()) -> dict:
+                 overrides: PulseOverrides = PulseOverrides(), pulse_metrics: str = ECHOES) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
+    if pulse_metrics != ECHOES:
+        given["pulse_metrics"] = pulse_metrics
     return {**given, "config": config.to_dict(), "overrides": overrides.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
@@ -269,7 +272,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
         add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-        overrides: PulseOverrides = PulseOverrides()) -> dict:
+        overrides: PulseOverrides = PulseOverrides(), pulse_metrics: str = ECHOES) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -280,21 +283,25 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
     code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `overrides` (--system-pulse-fwhm-ps,
     --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
+    `pulse_metrics` (--pulse-metrics): a small footprint's forest metrics from its echoes, or FULL (its waveform's).
     A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
     rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
     pipeline.lock) is a FolderLockedError, an OutputFolderError.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
+    if pulse_metrics not in PULSE_METRICS:
+        raise ValueError(f"--pulse-metrics must be one of {', '.join(PULSE_METRICS)}, not {pulse_metrics!r}")
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides)
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, pulse_metrics)
     check_radiometry(paths, radiometry)
     try:
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                                resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args)
+                                resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args,
+                                pulse_metrics)
     except RunStopped:
         raise
     except Exception as err:
@@ -307,7 +314,8 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
 def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, formats: frozenset[str],
                  limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
                  resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, overrides: PulseOverrides,
-                 settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None) -> dict:
+                 settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None,
+                 pulse_metrics: str = ECHOES) -> dict:
     """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -318,16 +326,18 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
         jobs = JobsDone(ranges=None, ranges_reused=None, metrics={}, planned={}, pulses_processed=0)
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
-                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides)
+                        radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides,
+                        pulse_metrics)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, not_taken, crs, overrides)
+                     taken, radiometry, not_taken, crs, overrides, pulse_metrics)
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
-             small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides()) -> JobsDone:
+             small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides(),
+             pulse_metrics: str = ECHOES) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
@@ -372,7 +382,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                         result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
                                                                 | "DecomposeFlight" >> DecomposeFlight(
                                                                     config, str(output), formats, spread=not jobs.dask,
-                                                                    radiometry=radiometry)), small)
+                                                                    radiometry=radiometry,
+                                                                    pulse_metrics=pulse_metrics)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))

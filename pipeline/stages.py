@@ -21,6 +21,8 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
+from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
+from fwcore.metrics.echo_column import ECHOES, FULL, pulse_column_metrics
 from fwcore.metrics.pulses import batch_metrics
 from fwcore.metrics.waveform import MetricSettings
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
@@ -51,6 +53,7 @@ class RangeSettings:
     config: DecompositionConfig
     formats: frozenset[str]
     radiometry: RadiometryConfig = RadiometryConfig()
+    pulse_metrics: str = ECHOES  # a small footprint's: fwcore.metrics.echo_column's, or FULL (the waveform's)
 
 
 @dataclasses.dataclass
@@ -129,10 +132,25 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
             "echo_reject": result.reject}
 
 
+def large_footprint(source) -> bool:
+    """Whether an input's pulses are large footprints (GEDI, LVIS): their metrics are NASA's, whatever was asked."""
+    return format_of(source.path) in (GEDI_L1B, LVIS_L1B)
+
+
+def range_metrics(item: DecomposedRange, xyz, pulse_metrics: str = ECHOES):
+    """Every pulse's forest metrics: a large footprint's (and any with `pulse_metrics` FULL) GEDI L2A/L2B's on its
+    waveform (fwcore.metrics.pulses), a small footprint's from its echoes (fwcore.metrics.echo_column)."""
+    pulses, result, source = item.pulses, item.result, item.task.source
+    if pulse_metrics == FULL or large_footprint(source):
+        settings, by_algorithm = file_metric_settings(source.metric_settings)
+        return batch_metrics(pulses, result, source.pulse, settings, by_algorithm)
+    return pulse_column_metrics(pulses, result, xyz)
+
+
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
-                    laps: Laps | None = None) -> GeolocatedRange:
+                    laps: Laps | None = None, pulse_metrics: str = ECHOES) -> GeolocatedRange:
     """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
-    and radiometry computed, every pulse's forest metrics (fwcore.metrics), the range's tables built; each step's
+    and radiometry computed, every pulse's forest metrics (range_metrics), the range's tables built; each step's
     time into `laps`."""
     laps = laps or Laps()
     pulses, result, source = item.pulses, item.result, item.task.source
@@ -144,8 +162,7 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
         file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
         columns = range_radiometry(pulses, result, xyz, source.pulse.range_offset_ps, file, radiometry)
     with laps("metrics"):
-        settings, by_algorithm = file_metric_settings(source.metric_settings)
-        metrics = batch_metrics(pulses, result, source.pulse, settings, by_algorithm)
+        metrics = range_metrics(item, xyz, pulse_metrics)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
                                      result.status == 0, columns, source.crs_wkt, metrics)
@@ -225,7 +242,7 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
             held, rejected = decompose_range(held, settings.config)
         outcome.rejected += rejected
         stage = "geolocate"
-        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps)
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.pulse_metrics)
         stage = "write"
         outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated, laps)
     except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected

@@ -159,7 +159,8 @@ def planned_of(plan: FilePlan) -> dict:
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
               radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
-              crs: str | None = None, overrides: PulseOverrides = PulseOverrides()) -> dict:
+              crs: str | None = None, overrides: PulseOverrides = PulseOverrides(),
+              pulse_metrics: str = "echoes") -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -192,6 +193,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
+        "pulse_metrics": pulse_metrics,  # a small footprint's forest metrics: from its echoes, or "full"
         "overrides": overrides.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
         "radiometry": {**radiometry.to_dict(), "calibration": calibration,
                        "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},

@@ -34,6 +34,7 @@ import apache_beam as beam
 from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
+from fwcore.metrics.echo_column import ECHOES
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.assemble import assemble_file
@@ -165,11 +166,12 @@ class DecomposeFlight(beam.PTransform):
     formats: frozenset[str]
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
     radiometry: RadiometryConfig = RadiometryConfig()
+    pulse_metrics: str = ECHOES  # a small footprint's forest metrics (pipeline.stages.range_metrics)
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry)
+        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.pulse_metrics)
         return tasks | "RangeStages" >> beam.ParDo(RangeStages(settings))
 
 
