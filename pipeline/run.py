@@ -34,7 +34,7 @@ from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, o
 from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
 from pipeline.logs import watched_logs
-from pipeline.marks import range_is_complete, remove_range_files
+from pipeline.marks import counts_from_marks, range_is_complete, remove_range_files
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (InputNames, add_to_output_folder, input_identity, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files, resume_output_folder,
@@ -341,7 +341,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration = None, Jobs(options, small_in_process), None
+    result, jobs, calibration, counted = None, Jobs(options, small_in_process), None, {}
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
@@ -394,6 +394,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                              | AssembleFiles(str(output), laz, formats), small)
             log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
+            # without Parquet tables run.json counts what the ranges' marks say, read before the parts go
+            counted = counts_from_marks(output, tasks) if "parquet" not in formats else {}
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
@@ -401,7 +403,9 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     _write_lost_plans(output, plans)
     # the calibration each input's ranges used, kept in the manifest for a run.json written later
     return JobsDone(len(tasks), len(reused), beam_metrics(result, files_rejected),
-                    {path: {**planned_of(plan), **ranges_from.get(path, {}), "calibration": calibration}
+                    {path: {**planned_of(plan), **ranges_from.get(path, {}), "calibration": calibration,
+                            **({"ranges_counted": counted[plan.source.name]}
+                               if plan.source is not None and plan.source.name in counted else {})}
                      for path, plan in plans.items()}, calibration, total)
 
 

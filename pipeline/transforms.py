@@ -40,7 +40,7 @@ from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.assemble import assemble_file
 from pipeline.layout import part_name, plan_path
 from pipeline.logs import log_to_file
-from pipeline.marks import mark_range_done
+from pipeline.marks import MARK_COUNTS, mark_range_done
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
 from pipeline.rejections import write_file_rejection, write_rejections
@@ -89,7 +89,8 @@ class RangeStages(beam.DoFn):
                 if outcome.rejected:  # the one place where the dead letter leaves
                     write_rejections(self.settings.output, task, outcome.rejected)
                 # the one place where a range's end is recorded
-                mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
+                mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected,
+                                {k: getattr(outcome, k) for k in MARK_COUNTS})
         except MachineFault as fault:
             LOG.error("%s: stopped: %s", task.label, fault.said())
             self._stop(task, fault)
