@@ -47,6 +47,7 @@ from pipeline.rejections import write_file_rejection, write_rejections
 from pipeline.sinks import write_json
 from pipeline.stages import RangeSettings, run_range, warm_up
 from pipeline.timing import Laps, log_timing
+from pipeline.worker_exit import leave_quickly_at_exit
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
@@ -71,6 +72,7 @@ class RangeStages(beam.DoFn):
 
     def setup(self):
         log_to_file(self.settings.output)
+        leave_quickly_at_exit()  # the job's end need not wait for this worker's teardown
         laps = Laps()
         with laps("warm up"):
             warm_up(self.settings.config)
