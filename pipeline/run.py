@@ -45,7 +45,8 @@ from pipeline.progress import ProgressBar
 from pipeline.rejections import write_file_rejection
 from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
 from pipeline.timing import Laps, log_timing
-from pipeline.transforms import AssembleFiles, DecomposeFlight, PlanFiles
+from pipeline.handoff import hand_over, withdraw
+from pipeline.transforms import AssembleFiles, AwaitRanges, DecomposeFlight, PlanFiles
 
 __all__ = ["Jobs", "RunStopped", "check_run_arguments", "run", "run_jobs", "run_settings"]
 
@@ -226,6 +227,58 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
     return calibrated, {**found.to_dict(), "source": calibrated.calibration_source}
 
 
+class EarlyRanges:
+    """The ranges' job started in a thread before the plans are made (pipeline.handoff): its worker processes
+    start while the driver plans, then take the ranges `finish` hands over. Only where its workers are processes
+    of this machine (the DirectRunner's) and the ranges' settings are known before the plans (no reference patch
+    to calibrate on first)."""
+
+    def __init__(self, options, output: Path, config: DecompositionConfig, formats: frozenset[str],
+                 radiometry: RadiometryConfig, pulse_metrics: str):
+        self.output, self.result, self.error, self.handed = output, None, None, False
+
+        def build(p):
+            workers = max(1, options.view_as(DirectOptions).direct_num_workers)
+            return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
+                    | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
+                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
+                                                           pulse_metrics=pulse_metrics))
+        self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
+        self.thread.start()
+
+    @staticmethod
+    def wanted(jobs: "Jobs", paths: list[str], radiometry: RadiometryConfig) -> bool:
+        """Whether to start the ranges' job early: DirectRunner processes, inputs too big to plan in this process."""
+        return (jobs.direct_processes and not jobs.dask and radiometry.calibration_reference is None
+                and sum(_size(p) for p in paths) > IN_PROCESS_BYTES)
+
+    def _run(self, options, build) -> None:
+        try:
+            self.result = _run_job(options, build)
+        except BaseException as err:  # noqa: BLE001  raised in the driver's thread by finish
+            self.error = err
+
+    def finish(self, tasks: list) -> object:
+        """The ranges handed over; the job's result once it ended (its error raised here)."""
+        if not self.handed:
+            hand_over(self.output, tasks)
+            self.handed = True
+        self.thread.join()
+        withdraw(self.output)
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+    def abandon(self, wait: bool) -> None:
+        """No ranges for it (the run stopped before them): the job ends; waited for unless interrupted."""
+        if not self.handed:
+            hand_over(self.output, [])
+            self.handed = True
+        if wait:
+            self.thread.join()
+        withdraw(self.output)
+
+
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
                limit: int | None, jobs: Jobs) -> dict[str, FilePlan]:
     """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker."""
@@ -341,10 +394,12 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration, counted = None, Jobs(options, small_in_process), None, {}
+    result, jobs, calibration, counted, early = None, Jobs(options, small_in_process), None, {}, None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
+            if EarlyRanges.wanted(jobs, paths, radiometry):  # its workers start while the inputs are planned
+                early = EarlyRanges(options, output, config, formats, radiometry, pulse_metrics)
             laps = Laps()
             with laps("plan job"):
                 plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides), config, points_per_range,
@@ -379,11 +434,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     laps.seconds["ranges job began"] = time.time()
                     with laps("ranges job"):
-                        result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
-                                                                | "DecomposeFlight" >> DecomposeFlight(
-                                                                    config, str(output), formats, spread=not jobs.dask,
-                                                                    radiometry=radiometry,
-                                                                    pulse_metrics=pulse_metrics)), small)
+                        result = early.finish(todo) if early else jobs.run(len(todo), lambda p: (
+                            p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
+                                config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
+                                pulse_metrics=pulse_metrics)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
@@ -399,6 +453,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
+        if early is not None:  # stopped before its ranges: it gets none
+            early.abandon(wait=not INTERRUPTED.is_set())
         remove_partial_files(output)
     _write_lost_plans(output, plans)
     # the calibration each input's ranges used, kept in the manifest for a run.json written later

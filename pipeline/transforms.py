@@ -37,6 +37,7 @@ from fwcore.engine.config import DecompositionConfig
 from fwcore.metrics.echo_column import ECHOES
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
+from pipeline.handoff import await_ranges
 from pipeline.assemble import assemble_file
 from pipeline.layout import part_name, plan_path
 from pipeline.logs import log_to_file
@@ -158,6 +159,27 @@ class PlanFiles(beam.PTransform):
         if self.spread:
             inputs = inputs | "Spread" >> beam.Reshuffle()
         return inputs | "PlanFile" >> beam.ParDo(PlanFile(self.output, self.config, self.points_per_range, self.limit))
+
+
+class AwaitRanges(beam.DoFn):
+    """A worker's number -> (worker 0) the ranges the driver hands over once it has planned them
+    (pipeline.handoff): the ranges' job, started before the plans, has its workers up and their kernels loaded
+    (warmed up on one element each, where the runner spreads them) by then."""
+
+    def __init__(self, output: str, config: DecompositionConfig):
+        self.output, self.config = output, config
+
+    def setup(self):
+        log_to_file(self.output)
+        leave_quickly_at_exit()
+        laps = Laps()
+        with laps("warm up"):
+            warm_up(self.config)  # while the driver plans: the ranges' DoFn then finds the kernels loaded
+        log_timing("setup", "awaiting ranges", laps)
+
+    def process(self, worker: int):
+        if worker == 0:
+            yield from await_ranges(self.output)
 
 
 @dataclasses.dataclass
