@@ -66,3 +66,20 @@ def RadiometryConfig():
     from fwcore.radiometry.equations import RadiometryConfig
 
     return RadiometryConfig()
+
+
+def test_a_run_whose_ranges_job_starts_early_writes_what_it_wrote_before(tmp_path, leica_dir, monkeypatch):
+    from pipeline.run import run
+
+    las = [str(leica_dir / "leica_a.las")]
+    before = run(las, tmp_path / "before", CONFIG, ("parquet",), None, 300, watch=False, beam_args=WORKERS)
+    monkeypatch.setattr("pipeline.run.IN_PROCESS_BYTES", 0)  # the sample counts as big: the job starts early
+    early = run(las, tmp_path / "early", CONFIG, ("parquet",), None, 300, watch=False, beam_args=WORKERS)
+    assert early["counts"] == before["counts"] and early["counts"]["pulses_read"] == 924
+    for table, order in (("pulses", ["pulse_id"]), ("echoes", ["pulse_id", "echo_index"])):
+        keys = [(k, "ascending") for k in order]
+        assert pq.read_table(tmp_path / "early" / table).sort_by(keys).equals(
+            pq.read_table(tmp_path / "before" / table).sort_by(keys))
+    assert not handoff_path(tmp_path / "early").exists()
+    timings = (tmp_path / "early" / "logs").glob("*.log")
+    assert any("awaiting ranges" in f.read_text() for f in timings)  # the workers warmed up before the ranges
