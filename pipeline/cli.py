@@ -131,7 +131,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
                       overrides=_overrides_from_args(args), stratum=args.stratum,
-                      l2a_algorithms=args.l2a_algorithms)
+                      l2a_algorithms=args.l2a_algorithms, pulse_metrics=args.pulse_metrics)
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -193,7 +193,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     overrides = _overrides_from_args(args)
     stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides, stratum)
+                            overrides, stratum, pulse_metrics=args.pulse_metrics)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -201,7 +201,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides, stratum=stratum)
+                          overrides=overrides, stratum=stratum, pulse_metrics=args.pulse_metrics)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
