@@ -105,7 +105,8 @@ def test_a_small_footprints_metrics_come_from_its_echoes_unless_the_full_ones_ar
     from pipeline.stages import range_metrics
 
     item, xyz = _decomposed(task)
-    echoes, full = range_metrics(item, xyz), range_metrics(item, xyz, "full")
+    (echoes, none, _), (full, _, _) = range_metrics(item, xyz), range_metrics(item, xyz, "full")
+    assert none is None  # no L2A algorithm for an airborne pulse
     kept = item.result.reject == 0
     last = np.array([np.flatnonzero(kept[lo:hi])[-1] + lo for lo, hi in zip(item.result.echo_offsets[:-1],
                                                                               item.result.echo_offsets[1:])])
@@ -118,17 +119,18 @@ def test_a_small_footprints_metrics_come_from_its_echoes_unless_the_full_ones_ar
 def test_a_gedi_shots_metrics_stay_nasas_whatever_is_asked(tmp_path):
     import numpy as np
 
-    from fwcore.metrics.pulses import batch_metrics
-    from pipeline.stages import file_metric_settings, range_metrics
+    from fwcore.metrics.algorithms import AlgorithmPlan
+    from pipeline.stages import range_metrics
     from tests.fwcore.metrics.conftest import L1B
 
     paths = [str(L1B)]
     gedi = plan_inputs(paths, InputNames.of(paths), CONFIG, 40, limit=40)[0][0]
     item, xyz = _decomposed(gedi)
-    settings, by_algorithm = file_metric_settings(gedi.source.metric_settings)
-    expected = batch_metrics(item.pulses, item.result, gedi.source.pulse, settings, by_algorithm)
+    expected, algorithms, _ = AlgorithmPlan.from_dict(gedi.source.metric_settings).metrics(item.pulses, item.result,
+                                                                                           gedi.source.pulse)
     for asked in ("echoes", "full"):
-        got = range_metrics(item, xyz, asked)
+        got, chosen, _ = range_metrics(item, xyz, asked)
         assert np.array_equal(got.ground_z, expected.ground_z, equal_nan=True)
         assert np.array_equal(got.rh, expected.rh, equal_nan=True)
+        assert np.array_equal(chosen, algorithms)
     assert np.isfinite(expected.ground_z).sum() > 10
