@@ -32,6 +32,7 @@ import numpy as np
 
 from fwcore.grid import Grid
 from fwcore.metrics.canopy import gap_probability, plant_area_index
+from fwcore.terrain.beams import beam_positions, interception_height, range_normalised
 from fwcore.terrain.canopy_height import echo_tops
 from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
@@ -43,7 +44,7 @@ from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_spill, 
 
 SPILL_DIR = ".forest-maps"
 PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this far above the terrain
-MAP_COLUMNS = ("x", "y", "z", "classification", "height", "energy", "fwhm_ps", "pulse_id")
+MAP_COLUMNS = ("x", "y", "z", "classification", "height", "energy", "fwhm_ps", "pulse_id", "range_m")
 FLOAT32 = ("chm", "cover", "pai", "pai_corrected", "rh98", "rh50")  # as the maps are written
 SUB_CELL_M = 1.0  # the clumping correction's sub-cells
 MIN_SUB_PULSES = 4  # pulses a sub-cell needs for its own gap probability
@@ -99,55 +100,71 @@ def tile_forest_maps(task: TileTask, e: dict[str, np.ndarray], s: ForestSettings
     ground = e["classification"] == GROUND
     cx, cy = t.centres()
     dtm = interpolate(e["x"][ground], e["y"][ground], e["z"][ground], cx, cy)
+    # a pulse's canopy and ground energies together, where its beam crosses the canopy (fwcore.terrain.beams)
+    canopy_energy = np.nan_to_num(range_normalised(e["energy"], e["range_m"]))
+    at = interception_height(e["height"], canopy_energy, np.isin(e["classification"], VEGETATION))
+    bx, by = beam_positions(e["pulse_id"], e["x"], e["y"], e["z"], e["height"], at)
+    gap = _gap_sums(task, e, bx, by, canopy_energy, n, s)
     core, c = _cells(task, e["x"], e["y"])
     e = {k: v[core] for k, v in e.items()}
     code, h, energy = e["classification"], e["height"], np.nan_to_num(e["energy"])
-    veg, ground = np.isin(code, VEGETATION), code == GROUND
+    veg = np.isin(code, VEGETATION)
     seen = np.bincount(c, minlength=n) > 0
     dsm, chm = np.full(n, -np.inf), np.full(n, -np.inf)
     np.maximum.at(dsm, c, echo_tops(e["z"], e["fwhm_ps"], s.system_fwhm_ps))
     np.maximum.at(chm, c[veg], echo_tops(h[veg], e["fwhm_ps"][veg], s.system_fwhm_ps))
-    rv = np.bincount(c[veg], weights=energy[veg], minlength=n)
-    rg = np.bincount(c[ground], weights=energy[ground], minlength=n)
     bottom = -s.bin_height  # one bin below the terrain: the ground's own energy
     k = np.clip(np.floor((np.nan_to_num(h, nan=bottom) - bottom) / s.bin_height), 0, s.bins - 1).astype(np.int64)
     profiled = ~(code == BUILDING) & np.isfinite(h)
     profile = np.bincount(c[profiled] * s.bins + k[profiled], weights=energy[profiled],
-                          minlength=n * s.bins).reshape(n, s.bins)  # every echo's energy, for RH
-    canopy = np.bincount(c[veg] * s.bins + k[veg], weights=energy[veg], minlength=n * s.bins).reshape(n, s.bins)
+                          minlength=n * s.bins).reshape(n, s.bins)  # every echo's energy where it lies, for RH
+    rv, rg, canopy = gap["rv"], gap["rg"], gap["canopy"]
     cover, pai = cover_and_pai(rv, rg)
     pavd = plant_area_density(canopy[:, 1:], rv, rg, s.bin_height)  # from the terrain up
     chm = np.where(seen, np.maximum(np.where(np.isfinite(chm), chm, 0.0), 0.0), np.nan)
     maps = {"dsm": np.where(seen, dsm, np.nan), "chm": chm, "cover": cover,
             "pai": np.where(np.isfinite(pai), pai, np.nan),
-            "pai_corrected": clumping_corrected_pai(task, e, c, veg, ground, s),
+            "pai_corrected": gap["pai_corrected"],
             "pavd": np.where(np.isfinite(pavd), pavd, np.nan).astype(np.float32),
             "rh98": relative_heights(profile, bottom, s.bin_height, 98),
             "rh50": relative_heights(profile, bottom, s.bin_height, 50)}
     return {"dtm": dtm, **{k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}}
 
 
-def clumping_corrected_pai(task: TileTask, e: dict[str, np.ndarray], c: np.ndarray, veg: np.ndarray,
-                           ground: np.ndarray, s: ForestSettings) -> np.ndarray:
+def _gap_sums(task: TileTask, e: dict[str, np.ndarray], bx: np.ndarray, by: np.ndarray, energy: np.ndarray,
+              n: int, s: ForestSettings) -> dict[str, np.ndarray]:
+    """rv, rg and the canopy's energy profile per core cell, each pulse's echoes in the cell of its beam's
+    position (bx, by); and the clumping-corrected PAI over the cells' sub-cells."""
+    core, c = _cells(task, bx, by)
+    code, h, energy = e["classification"][core], e["height"][core], energy[core]
+    veg, ground = np.isin(code, VEGETATION), code == GROUND
+    k = np.clip(np.floor((np.nan_to_num(h) + s.bin_height) / s.bin_height), 0, s.bins - 1).astype(np.int64)
+    return {"rv": np.bincount(c[veg], weights=energy[veg], minlength=n),
+            "rg": np.bincount(c[ground], weights=energy[ground], minlength=n),
+            "canopy": np.bincount(c[veg] * s.bins + k[veg], weights=energy[veg],
+                                  minlength=n * s.bins).reshape(n, s.bins),
+            "pai_corrected": clumping_corrected_pai(bx[core], by[core], c, e["pulse_id"][core], energy, veg, ground,
+                                                    n, s)}
+
+
+def clumping_corrected_pai(x: np.ndarray, y: np.ndarray, c: np.ndarray, pulse: np.ndarray, energy: np.ndarray,
+                           veg: np.ndarray, ground: np.ndarray, n: int, s: ForestSettings) -> np.ndarray:
     """Per cell, the mean over its sub-cells of -ln(Pgap) / G (log-averaging, Lang and Xiang 1986): the clumping
     of crowns and gaps within the cell, which -ln(mean Pgap) hides, counted; NaN where a sub-cell has fewer than
     MIN_SUB_PULSES pulses, or the cell is not split (cells under two sub-cells wide). A sub-cell no pulse's
     energy reached the ground through is taken at half one pulse's gap, 1 / (2 n): the least it could show."""
     g = s.grid
-    t = task.tile
-    n = (t.row1 - t.row0) * (t.col1 - t.col0)
     sub = int(round(g.cell / s.sub_cell_m))
     if sub < 2:
         return np.full(n, np.nan)
-    col_f, row_f = (e["x"] - g.west) / g.cell, (g.north - e["y"]) / g.cell
+    col_f, row_f = (x - g.west) / g.cell, (g.north - y) / g.cell
     sc = np.clip(np.floor((col_f - np.floor(col_f)) * sub), 0, sub - 1).astype(np.int64)
     sr = np.clip(np.floor((row_f - np.floor(row_f)) * sub), 0, sub - 1).astype(np.int64)
     key = (c * sub + sr) * sub + sc
     m = n * sub * sub
-    energy = np.nan_to_num(e["energy"])
     rv = np.bincount(key[veg], weights=energy[veg], minlength=m)
     rg = np.bincount(key[ground], weights=energy[ground], minlength=m)
-    pairs = np.unique(np.column_stack([key, e["pulse_id"]]), axis=0)
+    pairs = np.unique(np.column_stack([key, pulse]), axis=0)
     pulses = np.bincount(pairs[:, 0], minlength=m)
     pgap = np.maximum(gap_probability(rv, rg), 0.5 / np.maximum(pulses, 1))
     sub_pai = plant_area_index(pgap, 1.0).reshape(n, sub * sub)
