@@ -403,9 +403,9 @@ def _grid(args: argparse.Namespace, beam_args: list[str]) -> int:
     check_beam_args(beam_args)
     if not Path(args.run_dir).is_dir():  # named as grid_run names it, without making it
         raise FileNotFoundError(f"{args.run_dir}: no such folder")
-    # the folder it writes: the run's own (its grid/ goes with the run), or --output; --classify writes the run's
-    with folder_lock(args.output or args.run_dir, "fwl grid"), \
-            folder_lock(args.run_dir if args.classify else (args.output or args.run_dir), "fwl grid"):
+    # the folders it writes: --output (or the run's own grid/), and the run (--classify's classes, the forest
+    # maps' tiles under RUN/.forest-maps)
+    with folder_lock(args.output or args.run_dir, "fwl grid"), folder_lock(args.run_dir, "fwl grid"):
         summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify,
                            beam_args, args.resume)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
