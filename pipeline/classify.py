@@ -9,7 +9,8 @@ runner's workers as `fwl run`'s ranges are (pipeline.tiled):
        or margin holds them (under the run's .classify/ folder, removed at the end)
     2. the workers, a tile each (classify_tile): the ground filter, roofs and heights over its core and margin;
        its core's echoes' results by their row in the table into the tile's result file, then its mark
-    3. the driver: the results into each echo file's two columns (atomically: a file is old or new, never half)
+    3. the driver gathers the results; the workers, a file each (write_file_columns), write them into each echo
+       file's two columns (atomically: a file is old or new, never half)
     4. the run's LAS and COPC files rewritten with the classes (pipeline.classes_las)
 
 An interrupted call leaves .classify/ behind: `resume` (--resume) keeps its spill and the tiles with a mark.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import shutil
 from pathlib import Path
 from typing import Iterator
@@ -37,8 +39,8 @@ from pipeline.classes_las import classify_point_clouds
 from pipeline.echo_table import BATCH_ROWS, echo_bounds, echo_files
 from pipeline.outputs import read_run
 from pipeline.tables import COLUMNS
-from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_spill, result_path, run_tiles, spill,
-                            spilled_echoes, start_spill, tile_results)
+from pipeline.tiled import (IN_PROCESS_ECHOES, FileTask, TileTask, mark_tile, read_spill, result_path, run_tiles,
+                            spill, spilled_echoes, start_spill, tile_is_done, tile_results)
 
 SPILL_DIR = ".classify"
 SPILL_COLUMNS = ("row", "x", "y", "z", "pulse_id", "echo_index")
@@ -128,40 +130,59 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
         ground[r["row"]], building[r["row"]], noise[r["row"]] = r["ground"], r["building"], r["noise"]
         height[r["row"]] = r["height"]
     codes = asprs_classes(height, ground, building, noise)
-    by_class = _write_columns(files, codes, height)
+    by_class = _write_columns(files, codes, height, spill_dir, beam_args)
     del ground, building, noise, height, codes
     matched = classify_point_clouds(run_dir, files, spill_dir)
     shutil.rmtree(spill_dir, ignore_errors=True)  # kept until here: an interrupted call resumes from it
     return Classified(int(sum(by_class.values())), by_class, len(tasks), tile, overlap, sum(matched.values()))
 
 
-def _write_columns(files: list[Path], codes: np.ndarray, height: np.ndarray) -> dict[int, int]:
-    """Step 3: each file with classification and height (null where not kept or not placed)."""
-    by_class: dict[int, int] = {}
-    first = 0
-    for f in files:
-        pf = pq.ParquetFile(f)
-        table = pf.read()
-        n = table.num_rows
-        kept = (np.asarray(pc.fill_null(table.column("kept"), False))
-                & np.isfinite(table.column("x").to_numpy(zero_copy_only=False))
-                & np.isfinite(table.column("y").to_numpy(zero_copy_only=False)))
-        c, h = codes[first:first + n], height[first:first + n]
-        for code, count in zip(*np.unique(c[kept], return_counts=True)):
-            by_class[int(code)] = by_class.get(int(code), 0) + int(count)
-        for name, values in (("classification", pa.array(c, pa.uint8(), mask=~kept)),
-                             ("height", pa.array(h.astype(np.float64), pa.float64(), mask=~kept))):
-            field = COLUMNS[name].field
-            if name in table.column_names:
-                table = table.set_column(table.column_names.index(name), field, values)
-            else:
-                table = table.append_column(field, values)
-        tmp = f.with_name(f.name + ".tmp")
-        group = pf.metadata.row_group(0).num_rows if pf.metadata.num_row_groups else n
-        pq.write_table(table, tmp, row_group_size=max(group, 1), compression="zstd")
-        tmp.replace(f)
+def _write_columns(files: list[Path], codes: np.ndarray, height: np.ndarray, folder: Path,
+                   beam_args: list[str] | None) -> dict[int, int]:
+    """Step 3: each file's slice of the classes and heights into the work folder, then each file rewritten
+    with them on a worker (write_file_columns); the kept echoes by class."""
+    tasks, first = [], 0
+    for i, f in enumerate(files):
+        n = pq.ParquetFile(f).metadata.num_rows
+        task = FileTask(str(folder), i, str(f))
+        if not tile_is_done(task):
+            np.savez(result_path(task, ".classes.npz"), codes=codes[first:first + n], height=height[first:first + n])
+        tasks.append(task)
         first += n
+    run_tiles(write_file_columns, tasks, beam_args, small=first <= IN_PROCESS_ECHOES)
+    by_class: dict[int, int] = {}
+    for _, path in tile_results(tasks, ".json"):
+        for code, count in json.loads(path.read_text()).items():
+            by_class[int(code)] = by_class.get(int(code), 0) + count
     return by_class
+
+
+def write_file_columns(task: FileTask) -> None:
+    """A file's work, on a worker: its classification and height columns (null where not kept or not placed)
+    written, atomically; its kept echoes by class into its result; then its mark."""
+    f = Path(task.path)
+    with np.load(result_path(task, ".classes.npz")) as given:
+        c, h = given["codes"], given["height"]
+    pf = pq.ParquetFile(f)
+    table = pf.read()
+    n = table.num_rows
+    kept = (np.asarray(pc.fill_null(table.column("kept"), False))
+            & np.isfinite(table.column("x").to_numpy(zero_copy_only=False))
+            & np.isfinite(table.column("y").to_numpy(zero_copy_only=False)))
+    counts = {int(code): int(count) for code, count in zip(*np.unique(c[kept], return_counts=True))}
+    for name, values in (("classification", pa.array(c, pa.uint8(), mask=~kept)),
+                         ("height", pa.array(h.astype(np.float64), pa.float64(), mask=~kept))):
+        field = COLUMNS[name].field
+        if name in table.column_names:
+            table = table.set_column(table.column_names.index(name), field, values)
+        else:
+            table = table.append_column(field, values)
+    tmp = f.with_name(f.name + ".tmp")
+    group = pf.metadata.row_group(0).num_rows if pf.metadata.num_row_groups else n
+    pq.write_table(table, tmp, row_group_size=max(group, 1), compression="zstd")
+    tmp.replace(f)
+    result_path(task, ".json").write_text(json.dumps(counts))
+    mark_tile(task)
 
 
 def summary_line(result: Classified) -> str:

@@ -7,6 +7,7 @@ worker, as a range's is in `fwl run`.
     run_tiles(work, tasks, beam_args, small)  the job: each task without its mark run on a worker; `work(task)` writes
                                             the task's result (result_path) and then its mark (mark_tile)
     tile_results(tasks)                     the results, in task order, as the driver assembles them
+    FileTask                                a file's share of the assembly, run on the workers as a tile's
 
 A tile's result is trusted only with its mark, written after it (pipeline.marks' habit for ranges): a resumed
 command redoes only the tiles without one, and a command interrupted leaves its work folder for --resume. The
@@ -39,27 +40,43 @@ class TileTask(NamedTuple):
     index: int
     tile: Tile
 
+    @property
+    def name(self) -> str:
+        return f"tile-{self.index:05d}"
+
+
+class FileTask(NamedTuple):
+    """One file's share of an assembly (fwl classify: the classes into an echo file), as a tile's."""
+
+    folder: str
+    index: int
+    path: str
+
+    @property
+    def name(self) -> str:
+        return f"file-{self.index:05d}"
+
 
 def spill_path(task: TileTask) -> Path:
-    return Path(task.folder) / f"tile-{task.index:05d}.parquet"
+    return Path(task.folder) / f"{task.name}.parquet"
 
 
-def result_path(task: TileTask, suffix: str = ".parquet") -> Path:
-    return Path(task.folder) / f"tile-{task.index:05d}.result{suffix}"
+def result_path(task: TileTask | FileTask, suffix: str = ".parquet") -> Path:
+    return Path(task.folder) / f"{task.name}.result{suffix}"
 
 
-def mark_path(task: TileTask) -> Path:
-    return Path(task.folder) / f"tile-{task.index:05d}.done"
+def mark_path(task: TileTask | FileTask) -> Path:
+    return Path(task.folder) / f"{task.name}.done"
 
 
-def mark_tile(task: TileTask) -> None:
+def mark_tile(task: TileTask | FileTask) -> None:
     """The tile's end, written after its result (atomically): a resumed command trusts the result."""
     tmp = mark_path(task).with_suffix(".tmp")
     tmp.write_text("done\n")
     tmp.replace(mark_path(task))
 
 
-def tile_is_done(task: TileTask) -> bool:
+def tile_is_done(task: TileTask | FileTask) -> bool:
     return mark_path(task).is_file()
 
 
@@ -120,7 +137,7 @@ def read_spill(task: TileTask) -> dict[str, np.ndarray]:
     return {c: table.column(c).to_numpy() for c in table.column_names}
 
 
-def run_tiles(work: Callable[[TileTask], None], tasks: list[TileTask], beam_args: list[str] | None,
+def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args: list[str] | None,
               small: bool) -> int:
     """The tiles' job on the runner `beam_args` name (pipeline.options: the DirectRunner with 2 workers when none):
     `work(task)` for each task without its mark; `small` lets the default runner keep the job in the driver's
@@ -144,12 +161,12 @@ def run_tiles(work: Callable[[TileTask], None], tasks: list[TileTask], beam_args
     return len(todo)
 
 
-def _run_one(task: TileTask, work: Callable[[TileTask], None]) -> int:
+def _run_one(task: TileTask | FileTask, work: Callable) -> int:
     work(task)
     return task.index
 
 
-def tile_results(tasks: list[TileTask], suffix: str = ".parquet") -> Iterator[tuple[TileTask, Path]]:
+def tile_results(tasks: list, suffix: str = ".parquet") -> Iterator[tuple[TileTask | FileTask, Path]]:
     """The tasks whose work wrote a result, with its path, in task order."""
     for t in tasks:
         path = result_path(t, suffix)
