@@ -21,9 +21,10 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
-from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, footprint_biomass
+from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, ShotBiomass, predict_agbd, shot_strata
 from fwcore.metrics.algorithms import AlgorithmPlan
 from fwcore.metrics.pulses import batch_metrics
+from fwcore.metrics.waveform import WaveformMetrics
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -124,6 +125,19 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
             "echo_reject": result.reject}
 
 
+def range_biomass(item: DecomposedRange, metrics: WaveformMetrics, plan: AlgorithmPlan | None,
+                  algorithms: np.ndarray | None, every: dict | None, stratum: str | None) -> ShotBiomass:
+    """Each large footprint's L4A biomass by its stratum (fwcore.metrics.biomass: the L2A land cover's, else
+    `stratum`); GEDI: from the RH of the algorithm L4A would take (AlgorithmPlan.l4a_rh), not L2A's selected."""
+    pulses, source = item.pulses, item.task.source
+    names, reasons = shot_strata(len(pulses), format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
+                                 pulses.pft_class, pulses.region_class)
+    if plan is None or not (names != "").any():
+        return predict_agbd(metrics.rh, names, reasons)
+    rh, algorithm = plan.l4a_rh(pulses, item.result, source.pulse, names, metrics, algorithms, every)
+    return dataclasses.replace(predict_agbd(rh, names, reasons), algorithm=algorithm)
+
+
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
                     laps: Laps | None = None, stratum: str | None = None) -> GeolocatedRange:
     """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
@@ -140,15 +154,14 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
         file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
         columns = range_radiometry(pulses, result, xyz, source.pulse.range_offset_ps, file, radiometry)
     with laps("metrics"):
-        algorithms, every = None, None
+        algorithms, every, plan = None, None, None
         if source.metric_settings:  # GEDI: each shot's L2A algorithm (fwcore.metrics.algorithms)
-            metrics, algorithms, every = AlgorithmPlan.from_dict(source.metric_settings).metrics(pulses, result,
-                                                                                               source.pulse)
+            plan = AlgorithmPlan.from_dict(source.metric_settings)
+            metrics, algorithms, every = plan.metrics(pulses, result, source.pulse)
         else:
             metrics = batch_metrics(pulses, result, source.pulse)
     with laps("biomass"):
-        biomass = footprint_biomass(metrics.rh, format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
-                                    pulses.pft_class, pulses.region_class)
+        biomass = range_biomass(item, metrics, plan, algorithms, every, stratum)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
                                      result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass)
