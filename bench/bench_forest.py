@@ -3,7 +3,7 @@
     python bench/bench_forest.py [--pulses 100000] [--seed 11] [--workdir DIR] [--skip-sylva]
 
 fwlidar: `fwl run --preset fast`, `fwl grid --classify --cell 1` (DTM, CHM, classes) and `--cell 5` (cover and
-PAI of 5 m blocks). Sylva 0.3.0 (sylva-rs), its own chain with its defaults: sylva.waveform.decompose, then
+PAI of 5 m blocks), the run given the flight's trajectory (ranges). Sylva 0.3.0 (sylva-rs), its own chain with its defaults: sylva.waveform.decompose, then
 sylva.ground.classify_ground_csf, make_dtm, normalize_height, make_chm, on the same flight; its DTM and CHM at
 1 m on our grid's bounds. Ground F1: ours matches each kept echo to the truth's by pulse and time (1.5 ns);
 Sylva's echoes carry no pulse id, so each is matched to the nearest true echo within 0.5 m in space. Cells
@@ -145,7 +145,9 @@ def main() -> None:
         seconds["simulate"] = fwl("simulate", "--scene", "forest", "--pulses", str(args.pulses), "--seed",
                                   str(args.seed), "--output", str(las), "--overwrite")
     if not (run / "run.json").exists():
-        seconds["run"] = fwl("run", str(las), "--output", str(run), "--preset", "fast", "--formats", "parquet")
+        # with the flight's trajectory: each echo's range, which the PAI's energies need (fwcore.terrain.beams)
+        seconds["run"] = fwl("run", str(las), "--output", str(run), "--preset", "fast", "--formats", "parquet",
+                             "--trajectory", str(las.with_suffix(".trajectory.csv")))
     seconds["classify"] = fwl("classify", str(run))
     seconds["grid 1 m"] = fwl("grid", str(run), "--cell", "1", "--output", str(work / f"grid{args.seed}-1m"))
     seconds["grid 5 m"] = fwl("grid", str(run), "--cell", "5", "--output", str(work / f"grid{args.seed}-5m"))

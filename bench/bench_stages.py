@@ -6,7 +6,7 @@ A RIEGL-like flight line (`fwl simulate --system-response riegl --format las14-i
 once in the work folder unless --riegl gives a file) and the Leica sample, each through `fwl run` as a user
 runs it (DirectRunner, 2 workers) with every default output, `--preset fast`, and one output at a time. Each
 run's split comes from the timing lines its workers wrote into logs/ (pipeline.timing): the plan, the runner's
-start-up (the ranges' job starting to its first range), each range's read, decompose, geolocate, radiometry,
+start-up (the ranges handed to the ranges' job, or that job starting, to its first range), each range's read, decompose, geolocate, radiometry,
 metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended. The
 engine's share is decompose over the workers' busy time (ranges, plan and assembly). Sylva (sylva-rs, 2 Rayon
 threads): read the waveforms, decompose them, write the echoes as LAS. With Dask (a `distributed`
@@ -64,9 +64,7 @@ def fwl_run(path: Path, out: Path, extra: list[str], script: str | None = None) 
     wall = time.perf_counter() - began
     if done.returncode not in (0, 3):
         raise SystemExit(f"{' '.join(command[:6])}: exit {done.returncode}\n{done.stderr[-3000:]}")
-    # run.json counts what the tables hold: an MCAP-only run writes none, so its pulses are the plan's
-    summary = json.loads((out / "run.json").read_text())
-    pulses = summary["counts"]["pulses_read"] or sum(e.get("pulses_planned", 0) for e in summary["inputs"])
+    pulses = json.loads((out / "run.json").read_text())["counts"]["pulses_read"]
     return {"wall": wall, "pulses": pulses, **split(read_timings(out / "logs"))}
 
 

@@ -131,7 +131,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
                       overrides=_overrides_from_args(args), stratum=args.stratum,
-                      l2a_algorithms=args.l2a_algorithms)
+                      l2a_algorithms=args.l2a_algorithms, pulse_metrics=args.pulse_metrics)
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -193,7 +193,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     overrides = _overrides_from_args(args)
     stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides, stratum)
+                            overrides, stratum, pulse_metrics=args.pulse_metrics)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -201,7 +201,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides, stratum=stratum)
+                          overrides=overrides, stratum=stratum, pulse_metrics=args.pulse_metrics)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
@@ -399,16 +399,19 @@ def _response_line(response: dict | None) -> str:
     return f"  system response: FWHM {r.fwhm_ps / 1000:.2f} ns{after}; from {r.source}"
 
 
-def _grid(args: argparse.Namespace) -> int:
+def _grid(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.grid import grid_run
     from pipeline.layout import GRID_DIR
+    from pipeline.options import check_beam_args
 
+    check_beam_args(beam_args)
     if not Path(args.run_dir).is_dir():  # named as grid_run names it, without making it
         raise FileNotFoundError(f"{args.run_dir}: no such folder")
-    # the folder it writes: the run's own (its grid/ goes with the run), or --output; --classify writes the run's
-    with folder_lock(args.output or args.run_dir, "fwl grid"), \
-            folder_lock(args.run_dir if args.classify else (args.output or args.run_dir), "fwl grid"):
-        summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify)
+    # the folders it writes: --output (or the run's own grid/), and the run (--classify's classes, the forest
+    # maps' tiles under RUN/.forest-maps)
+    with folder_lock(args.output or args.run_dir, "fwl grid"), folder_lock(args.run_dir, "fwl grid"):
+        summary = grid_run(args.run_dir, args.cell, args.output, args.crs, args.bin_height, args.classify,
+                           beam_args, args.resume)
     print(f"fwl grid: {summary['echoes']:,} kept echoes in {summary['cells_with_echoes']:,} of "
           f"{summary['width']} x {summary['height']} cells of {summary['cell_m']:g} {_horizontal_unit(summary['crs'])}; "
           f"{summary['bins']} height bins "
@@ -631,7 +634,8 @@ def _add_info(sub) -> None:
 
 def _add_grid(sub) -> None:
     g = sub.add_parser("grid", help="maps of a run's kept echoes as Cloud Optimized GeoTIFFs: highest and lowest "
-                                    "echo, echo count, mean reflectance (or amplitude), vertical energy profile")
+                                    "echo, echo count, mean reflectance (or amplitude), vertical energy profile",
+                       epilog=TILED_EPILOG)
     g.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
     g.add_argument("--cell", type=float, required=True, help="cell size, in the CRS's units (metres)")
     g.add_argument("--output", help="folder for the GeoTIFFs: new, empty or an earlier fwl grid's (default: the run's "
@@ -643,6 +647,8 @@ def _add_grid(sub) -> None:
     g.add_argument("--classify", action="store_true",
                    help="classify the run's echoes first (as fwl classify) if they are not yet: the forest's maps "
                         "(dtm, dsm, chm, cover, pai, pavd, rh98, rh50) need the classes")
+    g.add_argument("--resume", action="store_true",
+                   help="go on with an interrupted fwl grid (and its --classify): the tiles it finished are kept")
     g.set_defaults(handler=_grid)
 
 
@@ -656,12 +662,17 @@ def _horizontal_unit(crs_wkt: str | None) -> str:
     return {"metre": "m", "degree": "degrees"}.get(unit, unit)
 
 
-def _footprints(args: argparse.Namespace) -> int:
-    from fwcore.metrics.biomass import check_stratum
+def _footprints(args: argparse.Namespace, beam_args: list[str]) -> int:
     from pipeline.footprints import footprints_run
+    from pipeline.options import check_beam_args
 
-    path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs,
-                          stratum=check_stratum(args.stratum) if args.stratum else None)
+    check_beam_args(beam_args)
+    if not Path(args.run_dir).is_dir():
+        raise FileNotFoundError(f"{args.run_dir}: no such folder")
+    with folder_lock(args.run_dir, "fwl footprints"):  # its work folder is in the run
+        path = footprints_run(args.run_dir, args.spacing, args.gedi, args.output, args.crs, beam_args=beam_args,
+                              resume=args.resume,
+                              stratum=check_stratum(args.stratum) if args.stratum else None)
     import pyarrow.parquet as pq
 
     table = pq.read_table(path, columns=["reason", "agbd_reason"])
@@ -674,7 +685,8 @@ def _footprints(args: argparse.Namespace) -> int:
 
 def _add_footprints(sub) -> None:
     f = sub.add_parser("footprints", help="what GEDI would record over a run: 25 m footprints' waveforms built from "
-                                          "the airborne echoes, and their GEDI metrics, as GeoParquet")
+                                          "the airborne echoes, and their GEDI metrics, as GeoParquet",
+                       epilog=TILED_EPILOG)
     f.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
     where = f.add_mutually_exclusive_group(required=True)
     where.add_argument("--gedi", help="a GEDI L2A granule (.h5): footprints at its shots over the run")
@@ -682,26 +694,36 @@ def _add_footprints(sub) -> None:
     f.add_argument("--output", help="the GeoParquet file (default RUN_DIR/footprints.parquet)")
     f.add_argument("--crs", help="the run's CRS where its inputs name none (to place GEDI's shots)")
     f.add_argument("--stratum", help=STRATUM_HELP)
+    f.add_argument("--resume", action="store_true",
+                   help="go on with an interrupted fwl footprints: the bands of footprints it finished are kept")
     f.set_defaults(handler=_footprints)
 
 
-def _classify(args: argparse.Namespace) -> int:
+def _classify(args: argparse.Namespace, beam_args: list[str]) -> int:
     from fwcore.terrain.ground import GroundConfig
     from pipeline.classify import classify_run, summary_line
+    from pipeline.options import check_beam_args
 
     config = GroundConfig(cloth_resolution=args.cloth_resolution, rigidness=args.rigidness)
+    check_beam_args(beam_args)  # a mistyped runner option stops here, before the run is touched
     if not Path(args.run_dir).is_dir():
         raise FileNotFoundError(f"{args.run_dir}: no such folder")
     with folder_lock(args.run_dir, "fwl classify"):  # it rewrites the run's echo table and point clouds
-        print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config)))
+        print(summary_line(classify_run(args.run_dir, args.tile, args.overlap, config, beam_args, args.resume)))
     return 0
+
+
+TILED_EPILOG = ("Any other option must be a Beam pipeline option (--runner, --direct_num_workers, "
+                "--dask_client_address, ...): the tiles run on the runners of fwl run, by default the DirectRunner with "
+                "2 worker processes (docs/cluster.md).")
 
 
 def _add_classify(sub) -> None:
     from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M
 
     c = sub.add_parser("classify", help="classify a run's kept echoes (ASPRS ground, building, vegetation by height) "
-                                        "and give each its height above the terrain, in the run's echo table")
+                                        "and give each its height above the terrain, in the run's echo table",
+                       epilog=TILED_EPILOG)
     c.add_argument("run_dir", metavar="RUN_DIR", help="a finished fwl run's output folder (with its echo table)")
     c.add_argument("--tile", type=float, default=DEFAULT_TILE_M, help="tile size, metres (default %(default)g)")
     c.add_argument("--overlap", type=float, default=DEFAULT_OVERLAP_M,
@@ -710,6 +732,8 @@ def _add_classify(sub) -> None:
                    help="the cloth simulation filter's grid, metres (default 1)")
     c.add_argument("--rigidness", type=int, choices=[1, 2, 3], default=2,
                    help="the cloth's rigidness: 1 steep terrain, 2 moderate slopes, 3 flat (default 2)")
+    c.add_argument("--resume", action="store_true",
+                   help="go on with an interrupted fwl classify of the run: the tiles it finished are kept")
     c.set_defaults(handler=_classify)
 
 
@@ -741,7 +765,7 @@ def main(argv: list[str] | None = None) -> int:
     args, rest = parser.parse_known_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        if args.command in ("run", "watch"):
+        if args.command in ("run", "watch", "classify", "grid", "footprints"):  # these take Beam's options
             return args.handler(args, rest)
         if rest:
             raise unknown_option_error(rest, _parser_flags(parser, args.command))

@@ -8,14 +8,21 @@ latitude and longitude, in the run's CRS) or on a square grid of `spacing` over 
 less than two sigmas (11 m) inside the echoes' extent is left out. Each footprint's biomass (agbd, agbd_se) is
 GEDI L4A's prediction from its RH (fwcore.metrics.biomass), by --stratum or the L2A granule's land cover.
 
-Memory: the echoes within reach of a band of footprints at a time (a band as tall as the footprint's reach).
+Tile by tile on the runner's workers (pipeline.tiled): the driver spills the kept echoes into tiles of TILE_M with
+a margin of the footprint's reach (under the run's .footprints/ folder); each tile measures the footprints centred
+in its core (footprint_tile); the driver writes them in the footprints' order.
+Memory: a tile's echoes a worker; the footprints' metrics in the driver.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import hashlib
 import json
 import logging
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +30,20 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fwcore.metrics.biomass import footprint_biomass
+from fwcore.grid import Grid
 from fwcore.metrics.footprint import FootprintSensor, footprint_metrics, footprint_waveform
+from fwcore.terrain.tiles import tiles_over
 from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.outputs import read_run
+from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_spill, result_path, run_tiles, spill,
+                            spilled_echoes, start_spill, tile_results)
 
 FOOTPRINTS_FILE = "footprints.parquet"
 RH_COLUMNS = (0, 10, 25, 50, 75, 90, 95, 98, 100)
 LOG = logging.getLogger("fwl")
 INSIDE_SIGMAS = 2.0  # a footprint's centre at least this many of its sigmas inside the echoes' extent
+SPILL_DIR = ".footprints"
+TILE_M = 200.0  # a tile's core: its margin (the footprint's reach, 16 m for GEDI's) adds a third to its echoes
 
 
 def grid_centres(bounds: tuple[float, float, float, float], spacing: float,
@@ -75,10 +88,12 @@ def gedi_shots(path: str | Path, crs_wkt: str) -> dict[str, np.ndarray]:
 
 def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str | Path | None = None,
                    output: str | Path | None = None, crs: str | None = None,
-                   sensor: FootprintSensor = FootprintSensor(), stratum: str | None = None) -> Path:
-    """The footprints of a finished run (see the module) into `output`; its path. Each footprint's biomass by
-    GEDI L4A's model of `stratum` (e.g. ENT_NAm), or of the stratum a version 002 L2A granule (`gedi`) names
-    for its shot; none without either (agbd_reason)."""
+                   sensor: FootprintSensor = FootprintSensor(), beam_args: list[str] | None = None,
+                   resume: bool = False, stratum: str | None = None) -> Path:
+    """The footprints of a finished run (see the module) into `output`; its path. The tiles run on the runner
+    `beam_args` names (pipeline.tiled); `resume` keeps those an interrupted call finished. Each footprint's biomass by GEDI L4A's model of
+    `stratum` (e.g. ENT_NAm), or of the stratum a version 002 L2A granule (`gedi`) names for its shot; none without
+    either (agbd_reason)."""
     import pyproj
 
     run_dir = Path(run_dir)
@@ -107,48 +122,57 @@ def footprints_run(run_dir: str | Path, spacing: float | None = None, gedi: str 
         LOG.warning("%s: no footprint centre lies %.0f m (%g footprint sigmas) inside the echoes' extent of "
                     "%.0f x %.0f: give a smaller --spacing, or GEDI shots over the run", run_dir, reach,
                     INSIDE_SIGMAS, xmax - xmin, ymax - ymin)
-    rows = _measure(files, shots["x"], shots["y"], sensor)
+    metrics = _measure(files, bounds, shots["x"], shots["y"], sensor, run_dir, beam_args, resume)
     output = run_dir / FOOTPRINTS_FILE if output is None else Path(output)
-    _write(output, shots, rows, wkt, sensor, stratum)
+    _write(output, shots, metrics, wkt, sensor, stratum)
     return output
 
 
-def _measure(files: list[Path], cx: np.ndarray, cy: np.ndarray, sensor: FootprintSensor) -> list[dict]:
-    """Each footprint's metrics, a band of footprints (by y) at a time."""
+def _measure(files: list[Path], bounds: tuple[float, float, float, float], cx: np.ndarray, cy: np.ndarray,
+             sensor: FootprintSensor, run_dir: Path, beam_args: list[str] | None, resume: bool) -> pa.Table:
+    """Each footprint's metrics (a row each, in the footprints' order), tile by tile on the runner's workers: a
+    tile's footprints are those centred in its core, its echoes those of its core and a margin of the
+    footprint's reach (pipeline.tiled)."""
+    grid = Grid.covering(*bounds, 1.0)
+    folder = run_dir / SPILL_DIR
+    tasks = [TileTask(str(folder), k, t) for k, t in enumerate(tiles_over(grid, TILE_M, sensor.radius_m))]
+    if not start_spill(folder, {"centres": hashlib.sha256(np.column_stack([cx, cy]).tobytes()).hexdigest(),
+                                "sensor": dataclasses.asdict(sensor),
+                                "echo_files": [[f.name, f.stat().st_size] for f in files]}, resume):
+        spill(kept_batches(files, ["x", "y", "z", "energy"]), tasks, ("x", "y", "z", "energy"))
+    run_tiles(functools.partial(footprint_tile, cx=cx, cy=cy, sensor=sensor), tasks, beam_args,
+              small=spilled_echoes(folder) <= IN_PROCESS_ECHOES)
+    parts = [pq.read_table(path) for _, path in tile_results(tasks)]
+    table = pa.concat_tables(parts) if parts else _metric_table(np.zeros(0, np.int64), [])
+    table = table.take(np.argsort(table.column("index").to_numpy(), kind="stable"))
+    shutil.rmtree(folder, ignore_errors=True)  # kept until here: an interrupted call resumes from it
+    if table.num_rows != cx.size:
+        raise RuntimeError(f"{run_dir}: {table.num_rows} of {cx.size} footprints measured")
+    return table.drop_columns(["index"])
+
+
+def footprint_tile(task: TileTask, cx: np.ndarray, cy: np.ndarray, sensor: FootprintSensor) -> None:
+    """A tile's work, on a worker: the footprints centred in its core measured on its spilled echoes, into its
+    result file (their index among all footprints, their metrics), then its mark."""
     from scipy.spatial import cKDTree
 
-    reach = sensor.radius_m
-    out: list[dict] = [{} for _ in range(cx.size)]
-    if cx.size == 0:
-        return out
-    band = 4 * reach
-    for low in np.arange(cy.min(), cy.max() + band, band):
-        members = np.flatnonzero((cy >= low) & (cy < low + band))
-        if not members.size:
-            continue
-        tree = cKDTree(np.column_stack([cx[members], cy[members]]))
-        parts: list[list[np.ndarray]] = [[] for _ in members]
-        for b in kept_batches(files, ["x", "y", "z", "energy"]):
-            near = (b["y"] >= low - reach) & (b["y"] < low + band + reach)
-            if not near.any():
-                continue
-            xyz = np.column_stack([b["x"][near], b["y"][near], b["z"][near], b["energy"][near]])
-            hits = tree.query_ball_point(xyz[:, :2], reach)
-            lengths = np.fromiter((len(h) for h in hits), np.int64, len(hits))
-            if lengths.sum() == 0:
-                continue
-            echo = np.repeat(np.arange(len(hits)), lengths)
-            owner = np.concatenate([np.asarray(h, np.int64) for h in hits if h])
-            for k in np.unique(owner):
-                parts[k].append(xyz[echo[owner == k]])
-        for k, i in enumerate(members):
-            if not parts[k]:
-                out[i] = {"reason": "no echo in the footprint", "n_echoes": 0}
-                continue
-            e = np.concatenate(parts[k])
-            samples, top = footprint_waveform(e[:, 0] - cx[i], e[:, 1] - cy[i], e[:, 2], e[:, 3], sensor)
-            out[i] = {**footprint_metrics(samples, top, sensor), "n_echoes": int(len(e))}
-    return out
+    members = np.flatnonzero(task.tile.in_core(cx, cy))
+    if members.size:
+        e = read_spill(task)
+        rows: list[dict] = [{"reason": "no echo in the footprint", "n_echoes": 0} for _ in members]
+        if e:
+            hits = cKDTree(np.column_stack([e["x"], e["y"]])).query_ball_point(
+                np.column_stack([cx[members], cy[members]]), sensor.radius_m)
+            for k, (i, near) in enumerate(zip(members, hits)):
+                if near:
+                    near = np.sort(np.asarray(near, np.int64))  # the echoes in the spill's order, on every runner
+                    samples, top = footprint_waveform(e["x"][near] - cx[i], e["y"][near] - cy[i], e["z"][near],
+                                                      e["energy"][near], sensor)
+                    rows[k] = {**footprint_metrics(samples, top, sensor), "n_echoes": int(near.size)}
+        tmp = result_path(task).with_suffix(".tmp")
+        pq.write_table(_metric_table(members, rows), tmp)
+        tmp.replace(result_path(task))
+    mark_tile(task)
 
 
 def biomass_columns(rh: np.ndarray, shots: dict, stratum: str | None) -> dict[str, np.ndarray]:
@@ -157,29 +181,50 @@ def biomass_columns(rh: np.ndarray, shots: dict, stratum: str | None) -> dict[st
     return {"agbd": found.agbd, "agbd_se": found.agbd_se, "agbd_stratum": found.stratum, "agbd_reason": found.reason}
 
 
-def _write(output: Path, shots: dict, rows: list[dict], wkt: str | None, sensor: FootprintSensor,
-           stratum: str | None = None) -> None:
-    from pipeline.tables import geo_metadata, wkb_points
-    from fwcore.io.crs import crs_projjson
-
+def _metric_table(index: np.ndarray, rows: list[dict]) -> pa.Table:
+    """The footprints' metric columns, with their index among all footprints."""
     n = len(rows)
-    ground = np.array([r.get("ground_z", np.nan) for r in rows], float)
     rh = np.array([r["rh"] if "rh" in r else np.full(101, np.nan) for r in rows], float).reshape(n, 101)
-    columns = {k: v for k, v in shots.items() if k not in ("x", "y", "pft_class", "region_class")}
-    columns.update({"x": shots["x"], "y": shots["y"], "ground_z": ground})
+    columns = {"index": np.asarray(index, np.int64),
+               "ground_z": np.array([r.get("ground_z", np.nan) for r in rows], float)}
     for k in RH_COLUMNS:
         columns[f"rh{k}"] = rh[:, k]
     for name in ("cover", "pai", "rv", "rg"):
         columns[name] = np.array([r.get(name, np.nan) for r in rows], float)
     columns["n_echoes"] = np.array([r.get("n_echoes", 0) for r in rows], np.int64)
-    columns["reason"] = np.array([r.get("reason", "") for r in rows], object)
-    columns.update(biomass_columns(rh, shots, stratum))
-    table = pa.table({k: (pa.array(list(v), pa.string()) if np.asarray(v).dtype == object else v)
-                      for k, v in columns.items()})
+    table = pa.table(columns).append_column("reason", pa.array([r.get("reason", "") for r in rows], pa.string()))
     table = table.append_column("rh", pa.array(list(rh), pa.list_(pa.float64())))
     for name in ("pai_z", "pavd_z"):
         table = table.append_column(name, pa.array([list(r[name]) if name in r else None for r in rows],
                                                    pa.list_(pa.float64())))
+    return table
+
+
+def biomass_columns(rh: np.ndarray, shots: dict, stratum: str | None) -> dict[str, np.ndarray]:
+    """Each footprint's agbd, agbd_se, agbd_stratum and agbd_reason (fwcore.metrics.biomass) from its RH."""
+    found = footprint_biomass(rh, True, stratum, shots.get("pft_class"), shots.get("region_class"))
+    return {"agbd": found.agbd, "agbd_se": found.agbd_se, "agbd_stratum": found.stratum, "agbd_reason": found.reason}
+
+
+def _write(output: Path, shots: dict, metrics: pa.Table, wkt: str | None, sensor: FootprintSensor,
+           stratum: str | None = None) -> None:
+    from pipeline.tables import geo_metadata, wkb_points
+    from fwcore.io.crs import crs_projjson
+
+    ground = metrics.column("ground_z").to_numpy()
+    rh = np.array([np.full(101, np.nan) if r is None else r for r in metrics.column("rh").to_pylist()],
+                  float).reshape(metrics.num_rows, 101)
+    columns = {k: v for k, v in shots.items() if k not in ("x", "y", "pft_class", "region_class")}
+    columns.update({"x": shots["x"], "y": shots["y"]})
+    # the biomass after the metrics: cheap, in the driver, from each footprint's RH (the shot's L2A land cover)
+    biomass = biomass_columns(rh, shots, stratum)
+    table = pa.table({k: (pa.array(list(v), pa.string()) if np.asarray(v).dtype.kind in "OU" else v)
+                      for k, v in columns.items()})
+    for name in metrics.column_names:
+        table = table.append_column(metrics.schema.field(name), metrics.column(name))
+    for name, values in biomass.items():
+        table = table.append_column(name, pa.array(list(values), pa.string()) if values.dtype == object
+                                    else pa.array(values))
     z = np.where(np.isfinite(ground), ground, 0.0)
     table = table.append_column("geometry", wkb_points(shots["x"], shots["y"], z))
     meta = geo_metadata(shots["x"], shots["y"], z, crs_projjson(wkt) if wkt else None, covering=False)

@@ -8,34 +8,46 @@ over each cell's echoes, fwcore.metrics.canopy).
                half the depth its widening beyond the system pulse implies; 0: echoes, none of them vegetation)
     cover.tif  cos(zenith) (1 - Pgap), Pgap = 1 - rv / (rv + rhov/rhog rg): rv the energy of the vegetation
                echoes, rg of the ground echoes (zenith 0: the echo table does not carry the beam's angle)
-    pai.tif    -ln(Pgap) / (rossg omega) (NaN where no ground was seen: saturated)
+    pai.tif    GEDI L2B's effective PAI, -ln(Pgap) / (rossg omega), omega 1 (NaN where no ground was seen)
+    pai_corrected.tif  the clumping-corrected PAI: the mean over 1 m sub-cells of -ln(Pgap_sub) / rossg, where
+               each sub-cell has MIN_SUB_PULSES pulses (cells of 2 m and more; NaN elsewhere)
     pavd.tif   plant area volume density, a band a bin of --bin-height above the terrain
     rh98.tif, rh50.tif  the height above the terrain under which 98 % / 50 % of the cell's echo energy lies
 
-Memory: the grids (a float per cell per map, and the two profiles' bins per cell, float32, as many as the tallest
-echo needs), one tile's ground echoes.
+Tile by tile on the runner's workers (pipeline.tiled): the driver spills the kept echoes into each tile's file
+(core and margin) under the run's .forest-maps/ folder; each tile's maps are computed from its file alone
+(forest_tile: a plain function), and the driver pastes each tile's core windows into the maps.
+Memory: a tile's echoes a worker; the maps in the driver (a float per cell per map, the PAVD's bins per cell).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import shutil
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
-from fwcore.grid import Grid, HeightProfile
+from fwcore.grid import Grid
+from fwcore.metrics.canopy import gap_probability, plant_area_index
+from fwcore.terrain.beams import beam_positions, interception_height, range_normalised
 from fwcore.terrain.canopy_height import echo_tops
 from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
 from fwcore.terrain.profile import cover_and_pai, plant_area_density, relative_heights
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tiles_over
 from pipeline.echo_table import kept_batches
+from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_spill, result_path, run_tiles, spill,
+                            spilled_echoes, start_spill, tile_results)
 
 SPILL_DIR = ".forest-maps"
-ROWS_AT_ONCE = 100_000
 PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this far above the terrain
+MAP_COLUMNS = ("x", "y", "z", "classification", "height", "energy", "fwhm_ps", "pulse_id", "range_m")
+FLOAT32 = ("chm", "cover", "pai", "pai_corrected", "rh98", "rh50")  # as the maps are written
+SUB_CELL_M = 1.0  # the clumping correction's sub-cells
+MIN_SUB_PULSES = 4  # pulses a sub-cell needs for its own gap probability
 
 
 def run_system_fwhm_ps(run_dir: Path) -> float:
@@ -48,108 +60,160 @@ def run_system_fwhm_ps(run_dir: Path) -> float:
     return float(np.median(widths)) if widths else 0.0
 
 
-def tiled_dtm(files: list[Path], grid: Grid, run_dir: Path, tile: float = DEFAULT_TILE_M,
-              overlap: float = DEFAULT_OVERLAP_M) -> np.ndarray:
-    """The terrain at the grid's cell centres from the ground echoes, tile by tile (spilled per tile under the
-    run's .forest-maps/ folder, removed at the end)."""
-    import pyarrow as pa
+@dataclasses.dataclass(frozen=True)
+class ForestSettings:
+    """What every tile's maps need beside its echoes: the profiles' bins, the system pulse, the sub-cells."""
 
-    tiles = tiles_over(grid, tile, overlap)
-    boxes = np.array([t.buffered for t in tiles])
-    folder = run_dir / SPILL_DIR
-    shutil.rmtree(folder, ignore_errors=True)
-    folder.mkdir(parents=True)
-    dtm = np.full((grid.height, grid.width), np.nan)
-    writers: dict[int, pq.ParquetWriter] = {}
-    try:
-        for b in kept_batches(files, ["x", "y", "z", "classification"]):
-            g = b["classification"] == GROUND
-            x, y, z = b["x"][g], b["y"][g], b["z"][g]
-            if not x.size:
-                continue
-            near = np.flatnonzero((boxes[:, 0] <= x.max()) & (boxes[:, 2] > x.min()) & (boxes[:, 1] <= y.max())
-                                  & (boxes[:, 3] > y.min()))
-            for k in near:
-                inside = tiles[k].in_buffered(x, y)
-                if inside.any():
-                    table = pa.table({"x": x[inside], "y": y[inside], "z": z[inside]})
-                    if k not in writers:
-                        writers[k] = pq.ParquetWriter(folder / f"tile-{k}.parquet", table.schema)
-                    writers[k].write_table(table)
-        for w in writers.values():
-            w.close()
-        writers.clear()
-        for k, t in enumerate(tiles):
-            path = folder / f"tile-{k}.parquet"
-            if not path.exists():
-                continue
-            e = pq.read_table(path)
-            cx, cy = t.centres()
-            dtm[t.row0:t.row1, t.col0:t.col1] = interpolate(*(e.column(c).to_numpy() for c in "xyz"), cx, cy)
-            path.unlink()
-    finally:
-        for w in writers.values():
-            w.close()
-        shutil.rmtree(folder, ignore_errors=True)
-    return dtm
+    grid: Grid
+    bins: int
+    bin_height: float
+    system_fwhm_ps: float
+    sub_cell_m: float = SUB_CELL_M
+
+
+def _cells(task: TileTask, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The echoes in the tile's core, and their cell in the core (row-major over its rows and columns): by the
+    whole grid's cell rule, so that tiles meet without a gap or a double."""
+    t, g = task.tile, task.tile.grid
+    cell = g.index(x, y)
+    row, col = cell // g.width, cell % g.width
+    core = (cell >= 0) & (row >= t.row0) & (row < t.row1) & (col >= t.col0) & (col < t.col1)
+    return core, (row[core] - t.row0) * (t.col1 - t.col0) + (col[core] - t.col0)
+
+
+def forest_tile(task: TileTask, settings: ForestSettings) -> None:
+    """A tile's forest maps, on a worker, from its spilled echoes (core and margin: the terrain's triangulation
+    reaches past the core's edge), into its result file (the core's windows of each map), then its mark."""
+    e = read_spill(task)
+    if e:
+        tmp = result_path(task, ".tmp.npz")
+        np.savez(tmp, **tile_forest_maps(task, e, settings))
+        tmp.replace(result_path(task, ".npz"))
+    mark_tile(task)
+
+
+def tile_forest_maps(task: TileTask, e: dict[str, np.ndarray], s: ForestSettings) -> dict[str, np.ndarray]:
+    """The maps of the module over the tile's core cells, (rows, cols[, bins]) arrays."""
+    t = task.tile
+    shape = (t.row1 - t.row0, t.col1 - t.col0)
+    n = shape[0] * shape[1]
+    ground = e["classification"] == GROUND
+    cx, cy = t.centres()
+    dtm = interpolate(e["x"][ground], e["y"][ground], e["z"][ground], cx, cy)
+    # a pulse's canopy and ground energies together, where its beam crosses the canopy (fwcore.terrain.beams)
+    canopy_energy = np.nan_to_num(range_normalised(e["energy"], e["range_m"]))
+    at = interception_height(e["height"], canopy_energy, np.isin(e["classification"], VEGETATION))
+    bx, by = beam_positions(e["pulse_id"], e["x"], e["y"], e["z"], e["height"], at)
+    gap = _gap_sums(task, e, bx, by, canopy_energy, n, s)
+    core, c = _cells(task, e["x"], e["y"])
+    e = {k: v[core] for k, v in e.items()}
+    code, h, energy = e["classification"], e["height"], np.nan_to_num(e["energy"])
+    veg = np.isin(code, VEGETATION)
+    seen = np.bincount(c, minlength=n) > 0
+    dsm, chm = np.full(n, -np.inf), np.full(n, -np.inf)
+    np.maximum.at(dsm, c, echo_tops(e["z"], e["fwhm_ps"], s.system_fwhm_ps))
+    np.maximum.at(chm, c[veg], echo_tops(h[veg], e["fwhm_ps"][veg], s.system_fwhm_ps))
+    bottom = -s.bin_height  # one bin below the terrain: the ground's own energy
+    k = np.clip(np.floor((np.nan_to_num(h, nan=bottom) - bottom) / s.bin_height), 0, s.bins - 1).astype(np.int64)
+    profiled = ~(code == BUILDING) & np.isfinite(h)
+    profile = np.bincount(c[profiled] * s.bins + k[profiled], weights=energy[profiled],
+                          minlength=n * s.bins).reshape(n, s.bins)  # every echo's energy where it lies, for RH
+    rv, rg, canopy = gap["rv"], gap["rg"], gap["canopy"]
+    cover, pai = cover_and_pai(rv, rg)
+    pavd = plant_area_density(canopy[:, 1:], rv, rg, s.bin_height)  # from the terrain up
+    chm = np.where(seen, np.maximum(np.where(np.isfinite(chm), chm, 0.0), 0.0), np.nan)
+    maps = {"dsm": np.where(seen, dsm, np.nan), "chm": chm, "cover": cover,
+            "pai": np.where(np.isfinite(pai), pai, np.nan),
+            "pai_corrected": gap["pai_corrected"],
+            "pavd": np.where(np.isfinite(pavd), pavd, np.nan).astype(np.float32),
+            "rh98": relative_heights(profile, bottom, s.bin_height, 98),
+            "rh50": relative_heights(profile, bottom, s.bin_height, 50)}
+    return {"dtm": dtm, **{k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}}
+
+
+def _gap_sums(task: TileTask, e: dict[str, np.ndarray], bx: np.ndarray, by: np.ndarray, energy: np.ndarray,
+              n: int, s: ForestSettings) -> dict[str, np.ndarray]:
+    """rv, rg and the canopy's energy profile per core cell, each pulse's echoes in the cell of its beam's
+    position (bx, by); and the clumping-corrected PAI over the cells' sub-cells."""
+    core, c = _cells(task, bx, by)
+    code, h, energy = e["classification"][core], e["height"][core], energy[core]
+    veg, ground = np.isin(code, VEGETATION), code == GROUND
+    k = np.clip(np.floor((np.nan_to_num(h) + s.bin_height) / s.bin_height), 0, s.bins - 1).astype(np.int64)
+    return {"rv": np.bincount(c[veg], weights=energy[veg], minlength=n),
+            "rg": np.bincount(c[ground], weights=energy[ground], minlength=n),
+            "canopy": np.bincount(c[veg] * s.bins + k[veg], weights=energy[veg],
+                                  minlength=n * s.bins).reshape(n, s.bins),
+            "pai_corrected": clumping_corrected_pai(bx[core], by[core], c, e["pulse_id"][core], energy, veg, ground,
+                                                    n, s)}
+
+
+def clumping_corrected_pai(x: np.ndarray, y: np.ndarray, c: np.ndarray, pulse: np.ndarray, energy: np.ndarray,
+                           veg: np.ndarray, ground: np.ndarray, n: int, s: ForestSettings) -> np.ndarray:
+    """Per cell, the mean over its sub-cells of -ln(Pgap) / G (log-averaging, Lang and Xiang 1986): the clumping
+    of crowns and gaps within the cell, which -ln(mean Pgap) hides, counted; NaN where a sub-cell has fewer than
+    MIN_SUB_PULSES pulses, or the cell is not split (cells under two sub-cells wide). A sub-cell no pulse's
+    energy reached the ground through is taken at half one pulse's gap, 1 / (2 n): the least it could show."""
+    g = s.grid
+    sub = int(round(g.cell / s.sub_cell_m))
+    if sub < 2:
+        return np.full(n, np.nan)
+    col_f, row_f = (x - g.west) / g.cell, (g.north - y) / g.cell
+    sc = np.clip(np.floor((col_f - np.floor(col_f)) * sub), 0, sub - 1).astype(np.int64)
+    sr = np.clip(np.floor((row_f - np.floor(row_f)) * sub), 0, sub - 1).astype(np.int64)
+    key = (c * sub + sr) * sub + sc
+    m = n * sub * sub
+    rv = np.bincount(key[veg], weights=energy[veg], minlength=m)
+    rg = np.bincount(key[ground], weights=energy[ground], minlength=m)
+    pairs = np.unique(np.column_stack([key, pulse]), axis=0)
+    pulses = np.bincount(pairs[:, 0], minlength=m)
+    pgap = np.maximum(gap_probability(rv, rg), 0.5 / np.maximum(pulses, 1))
+    sub_pai = plant_area_index(pgap, 1.0).reshape(n, sub * sub)
+    enough = (pulses >= MIN_SUB_PULSES).reshape(n, sub * sub).all(axis=1)
+    return np.where(enough, sub_pai.mean(axis=1), np.nan)
 
 
 def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float, z_unit: str,
-                energy_unit: str) -> dict:
-    """The maps of the module: name -> (bands, dtype, nodata, descriptions), as pipeline.grid writes them."""
-    dtm = tiled_dtm(files, grid, run_dir)
-    cells = grid.cells
-    dsm, chm = np.full(cells, -np.inf), np.full(cells, -np.inf)
-    seen = np.zeros(cells, bool)
-    rv, rg = np.zeros(cells), np.zeros(cells)
+                energy_unit: str, beam_args: list[str] | None = None, resume: bool = False,
+                tile: float = DEFAULT_TILE_M, overlap: float = DEFAULT_OVERLAP_M) -> dict:
+    """The maps of the module: name -> (bands, dtype, nodata, descriptions), as pipeline.grid writes them; the
+    tiles on the runner `beam_args` names (pipeline.tiled), `resume` keeping those an interrupted call finished."""
     tallest = max((float(np.nanmax(b["height"])) for b in kept_batches(files, ["x", "y", "height"])
                    if np.isfinite(b["height"]).any()), default=0.0)
-    bins = int(math.ceil(min(max(tallest, 0.0), PROFILE_TOP_M) / bin_height)) + 2  # the tallest echo's, and the ground's
-    bottom = -bin_height  # one bin below the terrain: the ground's own energy
-    energy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # every echo's, for RH
-    canopy = HeightProfile(grid, np.full(cells, bottom), bin_height, bins)  # the vegetation's, for PAVD
-    energy.sums, canopy.sums = energy.sums.astype(np.float32), canopy.sums.astype(np.float32)  # half the memory
-    system_fwhm = run_system_fwhm_ps(run_dir)
-    for b in kept_batches(files, ["x", "y", "z", "classification", "height", "energy", "fwhm_ps"]):
-        cell = grid.index(b["x"], b["y"])
-        inside = cell >= 0
-        c = cell[inside]
-        code, h = b["classification"][inside], b["height"][inside]
-        e = np.nan_to_num(b["energy"][inside])
-        seen[c] = True
-        np.maximum.at(dsm, c, echo_tops(b["z"][inside], b["fwhm_ps"][inside], system_fwhm))
-        veg = np.isin(code, VEGETATION)
-        np.maximum.at(chm, c[veg], echo_tops(h[veg], b["fwhm_ps"][inside][veg], system_fwhm))
-        rv += np.bincount(c[veg], weights=e[veg], minlength=cells)
-        ground = code == GROUND
-        rg += np.bincount(c[ground], weights=e[ground], minlength=cells)
-        canopy_echo = ~(code == BUILDING) & np.isfinite(h)
-        x, y = b["x"][inside], b["y"][inside]
-        energy.add(x[canopy_echo], y[canopy_echo], h[canopy_echo], e[canopy_echo])
-        canopy.add(x[veg], y[veg], h[veg], e[veg])
-    dsm = np.where(seen, dsm, np.nan)
-    chm = np.where(seen, np.maximum(np.where(np.isfinite(chm), chm, 0.0), 0.0), np.nan)
-    cover, pai = cover_and_pai(rv, rg)
-    pai = np.where(np.isfinite(pai), pai, np.nan)
-    pavd = np.empty((cells, bins - 1), np.float32)
-    rh = {k: np.empty(cells) for k in (98, 50)}
-    for lo in range(0, cells, ROWS_AT_ONCE):  # the profiles' float64 arithmetic a slice of cells at a time
-        part = slice(lo, lo + ROWS_AT_ONCE)
-        p = plant_area_density(canopy.sums[part, 1:], rv[part], rg[part], bin_height)  # from the terrain up
-        pavd[part] = np.where(np.isfinite(p), p, np.nan)
-        for k in rh:
-            rh[k][part] = relative_heights(energy.sums[part], bottom, bin_height, k)
-    r = grid.raster
-    edges = [(k * bin_height, (k + 1) * bin_height) for k in range(bins - 1)]
-    return {
-        "dtm.tif": ([r(dtm.ravel())], "float64", np.nan, [f"terrain z [{z_unit}] from the ground echoes"]),
-        "dsm.tif": ([r(dsm)], "float64", np.nan, [f"highest kept echo's top z [{z_unit}]"]),
-        "chm.tif": ([r(chm)], "float32", np.nan, [f"highest vegetation echo's top above the terrain [{z_unit}]"]),
-        "cover.tif": ([r(cover)], "float32", np.nan, ["canopy cover 1 - Pgap (GEDI L2B) from echo energies"]),
-        "pai.tif": ([r(pai)], "float32", np.nan, ["plant area index -ln(Pgap) / (0.5 x 1) [m2/m2]"]),
-        "pavd.tif": ([r(pavd[:, k]) for k in range(pavd.shape[1])], "float32", np.nan,
-                     [f"plant area volume density [m2/m3] {lo:g}-{hi:g} m above the terrain" for lo, hi in edges]),
-        "rh98.tif": ([r(rh[98])], "float32", np.nan, [f"height under 98 % of the echo energy [{z_unit}]"]),
-        "rh50.tif": ([r(rh[50])], "float32", np.nan, [f"height under 50 % of the echo energy [{z_unit}]"]),
-    }
+    bins = int(math.ceil(min(max(tallest, 0.0), PROFILE_TOP_M) / bin_height)) + 2  # the tallest echo's, the ground's
+    settings = ForestSettings(grid, bins, bin_height, run_system_fwhm_ps(run_dir))
+    folder = run_dir / SPILL_DIR
+    tasks = [TileTask(str(folder), k, t) for k, t in enumerate(tiles_over(grid, tile, overlap))]
+    if not start_spill(folder, {"settings": repr(settings), "tile_m": tile, "overlap_m": overlap,
+                                "echo_files": [[f.name, f.stat().st_size] for f in files]}, resume):
+        spill(kept_batches(files, list(MAP_COLUMNS)), tasks, MAP_COLUMNS)
+    run_tiles(functools.partial(forest_tile, settings=settings), tasks, beam_args,
+              small=spilled_echoes(folder) <= IN_PROCESS_ECHOES)
+    maps = {name: np.full((grid.height, grid.width), np.nan, np.float32 if name in FLOAT32 else np.float64)
+            for name in ("dtm", "dsm", "chm", "cover", "pai", "pai_corrected", "rh98", "rh50")}
+    pavd = np.full((bins - 1, grid.height, grid.width), np.nan, np.float32)
+    for t, path in tile_results(tasks, ".npz"):
+        window = (slice(t.tile.row0, t.tile.row1), slice(t.tile.col0, t.tile.col1))
+        with np.load(path) as part:
+            for name, values in maps.items():
+                values[window] = part[name]
+            pavd[(slice(None), *window)] = np.moveaxis(part["pavd"], -1, 0)
+    shutil.rmtree(folder, ignore_errors=True)  # kept until here: an interrupted call resumes from it
+    return _described(maps, pavd, bin_height, z_unit)
 
+
+def _described(maps: dict[str, np.ndarray], pavd: np.ndarray, bin_height: float, z_unit: str) -> dict:
+    edges = [(k * bin_height, (k + 1) * bin_height) for k in range(pavd.shape[0])]
+    return {
+        "dtm.tif": ([maps["dtm"]], "float64", np.nan, [f"terrain z [{z_unit}] from the ground echoes"]),
+        "dsm.tif": ([maps["dsm"]], "float64", np.nan, [f"highest kept echo's top z [{z_unit}]"]),
+        "chm.tif": ([maps["chm"]], "float32", np.nan, [f"highest vegetation echo's top above the terrain [{z_unit}]"]),
+        "cover.tif": ([maps["cover"]], "float32", np.nan, ["canopy cover 1 - Pgap (GEDI L2B) from echo energies"]),
+        "pai.tif": ([maps["pai"]], "float32", np.nan, ["effective plant area index -ln(mean Pgap) / (0.5 x 1) [m2/m2]"]),
+        "pai_corrected.tif": ([maps["pai_corrected"]], "float32", np.nan,
+                              ["clumping-corrected plant area index: the mean over sub-cells of -ln(Pgap) / 0.5 "
+                               "[m2/m2]"]),
+        "pavd.tif": (list(pavd), "float32", np.nan,
+                     [f"plant area volume density [m2/m3] {lo:g}-{hi:g} m above the terrain" for lo, hi in edges]),
+        "rh98.tif": ([maps["rh98"]], "float32", np.nan, [f"height under 98 % of the echo energy [{z_unit}]"]),
+        "rh50.tif": ([maps["rh50"]], "float32", np.nan, [f"height under 50 % of the echo energy [{z_unit}]"]),
+    }

@@ -97,11 +97,13 @@ def _profile(files: list[Path], grid: Grid, stats: CellStatistics, bin_height: f
 
 
 def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None, crs: str | None = None,
-             bin_height: float = DEFAULT_BIN_HEIGHT_M, classify: bool = False) -> dict:
+             bin_height: float = DEFAULT_BIN_HEIGHT_M, classify: bool = False, beam_args: list[str] | None = None,
+             resume: bool = False) -> dict:
     """The maps of a finished run's kept echoes into `output` (None: the run's grid/ folder; see the module);
     what was written, as in fwl-grid.json. `crs` (anything pyproj reads, e.g. EPSG:25832) names the CRS where
     the run's inputs name none or name it wrongly. Where the run's echoes are classified (`fwl classify`, or
-    here with `classify`), the forest's maps too (pipeline.forest_maps)."""
+    here with `classify`), the forest's maps too (pipeline.forest_maps), tile by tile on the runner `beam_args`
+    names; `resume` keeps the tiles an interrupted call finished."""
     import pyproj
 
     run_dir = Path(run_dir)
@@ -119,12 +121,13 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
     from pipeline.classify import classify_run, is_classified
 
     if classify and not is_classified(run_dir):
-        classify_run(run_dir)
+        classify_run(run_dir, beam_args=beam_args, resume=resume)
     if is_classified(run_dir):
         from pipeline.forest_maps import forest_maps
 
         files = echo_files(run_dir)
-        forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit)
+        forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit,
+                             beam_args, resume)
     elif large_footprint_run(run_dir):  # GEDI, LVIS: each shot is a footprint's sample of the forest
         forest = shot_metric_maps(run_dir, grid)
     forest = {**forest, **biomass_maps(run_dir, grid)}  # agbd.tif, footprints_agbd.tif where predicted

@@ -19,12 +19,31 @@ from pipeline.records import ReadTask
 from pipeline.sinks import remove_parts, write_json
 
 
-def mark_range_done(output: str | Path, task: ReadTask, planned: int, rejected: int) -> Path:
-    """The range's end: its planned pulses, those rejected, and the files it wrote with their sizes (written
-    last, atomically)."""
+MARK_COUNTS = ("pulses_decomposed", "echoes_kept", "echoes_spurious")  # what only the tables hold otherwise
+
+
+def mark_range_done(output: str | Path, task: ReadTask, planned: int, rejected: int,
+                    counts: dict[str, int] | None = None) -> Path:
+    """The range's end: its planned pulses, those rejected, what it decomposed and kept (`counts`, MARK_COUNTS:
+    a run without Parquet tables counts from them) and the files it wrote with their sizes (written last,
+    atomically)."""
     written = {p.relative_to(output).as_posix(): p.stat().st_size for p in range_files(output, task) if p.exists()}
     return write_json(progress_mark(output, task.source.stem, task.start),
-                      {"pulses": planned, "rejected": rejected, "files": written})
+                      {"pulses": planned, "rejected": rejected, "counts": counts or {}, "files": written})
+
+
+def counts_from_marks(output: str | Path, tasks: list[ReadTask]) -> dict[str, dict[str, int]]:
+    """Per input name, MARK_COUNTS summed over its ranges' marks (those there: a range that did not end has none)."""
+    totals: dict[str, dict[str, int]] = {}
+    for task in tasks:
+        try:
+            counts = json.loads(progress_mark(output, task.source.stem, task.start).read_text()).get("counts", {})
+        except (OSError, ValueError, AttributeError):
+            continue
+        into = totals.setdefault(task.source.name, dict.fromkeys(MARK_COUNTS, 0))
+        for key in MARK_COUNTS:
+            into[key] += int(counts.get(key, 0))
+    return totals
 
 
 def range_is_complete(output: str | Path, task: ReadTask) -> bool:

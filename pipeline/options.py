@@ -22,6 +22,7 @@ from fwcore.engine.config import OPTIMIZERS, PRESETS, DecompositionConfig
 from fwcore.metrics.biomass import STRATUM_HELP
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides
 from fwcore.instrument.response import named_response
+from fwcore.metrics.echo_column import PULSE_METRICS
 
 FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
 DEFAULT_FORMATS = ("parquet", "las", "mcap")
@@ -169,6 +170,10 @@ class FwlOptions(PipelineOptions):
                             "ground_z_a1..a6 / rh_a1..a6)")
         g.add_argument("--verbose", action="store_true",
                        help="show Beam's and the workers' logs on the terminal (they always go to logs/)")
+        g.add_argument("--pulse-metrics", dest="pulse_metrics", choices=PULSE_METRICS, default=PULSE_METRICS[0],
+                       help="each small-footprint pulse's forest metrics: 'echoes' (default) from its decomposed "
+                            "echoes, the last one its ground; 'full': GEDI L2A/L2B's on its waveform, the ground "
+                            "return fitted again (GEDI and LVIS always take the full ones)")
         add_method_arguments(parser)
         add_radiometry_arguments(parser)
 

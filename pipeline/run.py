@@ -30,11 +30,12 @@ from fwcore.metrics.biomass import check_stratum
 from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
+from fwcore.metrics.echo_column import FROM_ECHOES, PULSE_METRICS
 from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
 from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
 from pipeline.logs import watched_logs
-from pipeline.marks import range_is_complete, remove_range_files
+from pipeline.marks import counts_from_marks, range_is_complete, remove_range_files
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (InputNames, add_to_output_folder, input_identity, mark_inputs_done, match_inputs,
                               read_manifest, read_run, remove_input_outputs, remove_partial_files, resume_output_folder,
@@ -45,7 +46,8 @@ from pipeline.progress import ProgressBar
 from pipeline.rejections import write_file_rejection
 from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
 from pipeline.timing import Laps, log_timing
-from pipeline.transforms import AssembleFiles, DecomposeFlight, PlanFiles
+from pipeline.handoff import hand_over, withdraw
+from pipeline.transforms import AssembleFiles, AwaitRanges, DecomposeFlight, PlanFiles
 
 __all__ = ["Jobs", "RunStopped", "check_run_arguments", "run", "run_jobs", "run_settings"]
 
@@ -175,7 +177,7 @@ def _run_job(options, build) -> object:
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
                  overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
-                 l2a_algorithms: str = "selected") -> dict:
+                 l2a_algorithms: str = "selected", pulse_metrics: str = FROM_ECHOES) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
@@ -184,6 +186,8 @@ def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: in
         given["stratum"] = stratum
     if l2a_algorithms != "selected":  # likewise a run without --l2a-algorithms
         given["l2a_algorithms"] = l2a_algorithms
+    if pulse_metrics != FROM_ECHOES:  # likewise a run with the default
+        given["pulse_metrics"] = pulse_metrics
     return {**given, "config": config.to_dict(), "overrides": overrides.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
@@ -227,6 +231,58 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
     calibrated = dataclasses.replace(radiometry, calibration_constant=found.constant,
                                      calibration_source=f"reference patch ({found.n} single returns)")
     return calibrated, {**found.to_dict(), "source": calibrated.calibration_source}
+
+
+class EarlyRanges:
+    """The ranges' job started in a thread before the plans are made (pipeline.handoff): its worker processes
+    start while the driver plans, then take the ranges `finish` hands over. Only where its workers are processes
+    of this machine (the DirectRunner's) and the ranges' settings are known before the plans (no reference patch
+    to calibrate on first)."""
+
+    def __init__(self, options, output: Path, config: DecompositionConfig, formats: frozenset[str],
+                 radiometry: RadiometryConfig, pulse_metrics: str):
+        self.output, self.result, self.error, self.handed = output, None, None, False
+
+        def build(p):
+            workers = max(1, options.view_as(DirectOptions).direct_num_workers)
+            return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
+                    | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
+                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
+                                                           pulse_metrics=pulse_metrics))
+        self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
+        self.thread.start()
+
+    @staticmethod
+    def wanted(jobs: "Jobs", paths: list[str], radiometry: RadiometryConfig) -> bool:
+        """Whether to start the ranges' job early: DirectRunner processes, inputs too big to plan in this process."""
+        return (jobs.direct_processes and not jobs.dask and radiometry.calibration_reference is None
+                and sum(_size(p) for p in paths) > IN_PROCESS_BYTES)
+
+    def _run(self, options, build) -> None:
+        try:
+            self.result = _run_job(options, build)
+        except BaseException as err:  # noqa: BLE001  raised in the driver's thread by finish
+            self.error = err
+
+    def finish(self, tasks: list) -> object:
+        """The ranges handed over; the job's result once it ended (its error raised here)."""
+        if not self.handed:
+            hand_over(self.output, tasks)
+            self.handed = True
+        self.thread.join()
+        withdraw(self.output)
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+    def abandon(self, wait: bool) -> None:
+        """No ranges for it (the run stopped before them): the job ends; waited for unless interrupted."""
+        if not self.handed:
+            hand_over(self.output, [])
+            self.handed = True
+        if wait:
+            self.thread.join()
+        withdraw(self.output)
 
 
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
@@ -276,7 +332,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
         add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
         overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
-        l2a_algorithms: str = "selected") -> dict:
+        l2a_algorithms: str = "selected", pulse_metrics: str = FROM_ECHOES) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -291,24 +347,27 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     L2A granule beside names (fwcore.metrics.biomass; an unknown name is a ValueError listing the strata).
     `l2a_algorithms` (--l2a-algorithms, GEDI only): "selected" (each shot's L2A-selected algorithm, else 1), a
     number 1..6 (that algorithm for every shot) or "all" (also every algorithm's ground_z_aN / rh_aN columns).
+    `pulse_metrics` (--pulse-metrics): a small footprint's forest metrics from its echoes, or "full" (its waveform's).
     A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
     rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
     pipeline.lock) is a FolderLockedError, an OutputFolderError.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
+    if pulse_metrics not in PULSE_METRICS:
+        raise ValueError(f"--pulse-metrics must be one of {', '.join(PULSE_METRICS)}, not {pulse_metrics!r}")
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
     stratum = check_stratum(stratum) if stratum else None
     settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, stratum,
-                            l2a_algorithms)
+                            l2a_algorithms, pulse_metrics)
     check_radiometry(paths, radiometry)
     try:
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
                                 resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args,
-                                stratum, l2a_algorithms)
+                                stratum, l2a_algorithms, pulse_metrics)
     except RunStopped:
         raise
     except Exception as err:
@@ -322,7 +381,8 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
                  limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
                  resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, overrides: PulseOverrides,
                  settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None,
-                 stratum: str | None = None, l2a_algorithms: str = "selected") -> dict:
+                 stratum: str | None = None, l2a_algorithms: str = "selected",
+                 pulse_metrics: str = FROM_ECHOES) -> dict:
     """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -334,24 +394,27 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
                         radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides,
-                        stratum, l2a_algorithms)
+                        stratum, l2a_algorithms, pulse_metrics)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, not_taken, crs, overrides)
+                     taken, radiometry, not_taken, crs, overrides, pulse_metrics)
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
              small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides(),
-             stratum: str | None = None, l2a_algorithms: str = "selected") -> JobsDone:
+             stratum: str | None = None, l2a_algorithms: str = "selected",
+             pulse_metrics: str = FROM_ECHOES) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
-    result, jobs, calibration = None, Jobs(options, small_in_process), None
+    result, jobs, calibration, counted, early = None, Jobs(options, small_in_process), None, {}, None
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
+            if EarlyRanges.wanted(jobs, paths, radiometry):  # its workers start while the inputs are planned
+                early = EarlyRanges(options, output, config, formats, radiometry, pulse_metrics)
             laps = Laps()
             with laps("plan job"):
                 plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides, l2a_algorithms), config,
@@ -386,10 +449,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     laps.seconds["ranges job began"] = time.time()
                     with laps("ranges job"):
-                        result = jobs.run(len(todo), lambda p: (p | "Ranges" >> beam.Create(todo)
-                                                                | "DecomposeFlight" >> DecomposeFlight(
-                                                                    config, str(output), formats, spread=not jobs.dask,
-                                                                    radiometry=radiometry, stratum=stratum)), small)
+                        result = early.finish(todo) if early else jobs.run(len(todo), lambda p: (
+                            p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
+                                config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
+                                stratum=stratum, pulse_metrics=pulse_metrics)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
@@ -400,14 +463,20 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                              | AssembleFiles(str(output), laz, formats), small)
             log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
+            # without Parquet tables run.json counts what the ranges' marks say, read before the parts go
+            counted = counts_from_marks(output, tasks) if "parquet" not in formats else {}
         for path in paths:  # their parts are in the assembled files now; other inputs' (fwl watch) stay
             remove_input_outputs(output, names.stem(names.name(path)), (PARTS,))
     finally:
+        if early is not None:  # stopped before its ranges: it gets none
+            early.abandon(wait=not INTERRUPTED.is_set())
         remove_partial_files(output)
     _write_lost_plans(output, plans)
     # the calibration each input's ranges used, kept in the manifest for a run.json written later
     return JobsDone(len(tasks), len(reused), beam_metrics(result, files_rejected),
-                    {path: {**planned_of(plan), **ranges_from.get(path, {}), "calibration": calibration}
+                    {path: {**planned_of(plan), **ranges_from.get(path, {}), "calibration": calibration,
+                            **({"ranges_counted": counted[plan.source.name]}
+                               if plan.source is not None and plan.source.name in counted else {})}
                      for path, plan in plans.items()}, calibration, total)
 
 

@@ -21,6 +21,8 @@ import numpy as np
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
+from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
+from fwcore.metrics.echo_column import FROM_ECHOES, FROM_WAVEFORM, pulse_column_metrics
 from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, ShotBiomass, predict_agbd, shot_strata
 from fwcore.metrics.algorithms import AlgorithmPlan
 from fwcore.metrics.pulses import batch_metrics
@@ -28,7 +30,6 @@ from fwcore.metrics.waveform import WaveformMetrics
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
-from fwcore.io.formats import format_of
 from fwcore.io.crs import horizontal_metres
 from fwcore.io.writer import write_point_cloud
 from fwcore.plausibility import CELL_M, filter_under_ground
@@ -55,6 +56,7 @@ class RangeSettings:
     formats: frozenset[str]
     radiometry: RadiometryConfig = RadiometryConfig()
     stratum: str | None = None  # --stratum: the L4A biomass model of shots whose land cover no L2A names
+    pulse_metrics: str = FROM_ECHOES  # a small footprint's: fwcore.metrics.echo_column's, or FROM_WAVEFORM (the waveform's)
 
 
 @dataclasses.dataclass
@@ -125,23 +127,43 @@ def waveform_views(pulses, result) -> dict[str, np.ndarray]:
             "echo_reject": result.reject}
 
 
-def range_biomass(item: DecomposedRange, metrics: WaveformMetrics, plan: AlgorithmPlan | None,
-                  algorithms: np.ndarray | None, every: dict | None, stratum: str | None) -> ShotBiomass:
+def large_footprint(source) -> bool:
+    """Whether an input's pulses are large footprints (GEDI, LVIS): their metrics are NASA's, whatever was asked."""
+    return format_of(source.path) in (GEDI_L1B, LVIS_L1B)
+
+
+def range_metrics(item: DecomposedRange, xyz, pulse_metrics: str = FROM_ECHOES):
+    """Every pulse's forest metrics, and GEDI's L2A algorithms (each shot's, and every algorithm's with
+    --l2a-algorithms all; None elsewhere): a large footprint's (and any with `pulse_metrics` FROM_WAVEFORM) GEDI
+    L2A/L2B's on its waveform (fwcore.metrics.algorithms for GEDI, fwcore.metrics.pulses), a small footprint's from
+    its echoes (fwcore.metrics.echo_column)."""
+    pulses, result, source = item.pulses, item.result, item.task.source
+    if source.metric_settings:  # GEDI: each shot's L2A algorithm
+        return AlgorithmPlan.from_dict(source.metric_settings).metrics(pulses, result, source.pulse)
+    if pulse_metrics == FROM_WAVEFORM or large_footprint(source):
+        return batch_metrics(pulses, result, source.pulse), None, None
+    return pulse_column_metrics(pulses, result, xyz), None, None
+
+
+def range_biomass(item: DecomposedRange, metrics: WaveformMetrics, algorithms: np.ndarray | None,
+                  every: dict | None, stratum: str | None) -> ShotBiomass:
     """Each large footprint's L4A biomass by its stratum (fwcore.metrics.biomass: the L2A land cover's, else
     `stratum`); GEDI: from the RH of the algorithm L4A would take (AlgorithmPlan.l4a_rh), not L2A's selected."""
     pulses, source = item.pulses, item.task.source
     names, reasons = shot_strata(len(pulses), format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
                                  pulses.pft_class, pulses.region_class)
-    if plan is None or not (names != "").any():
+    if not source.metric_settings or algorithms is None or not (names != "").any():
         return predict_agbd(metrics.rh, names, reasons)
+    plan = AlgorithmPlan.from_dict(source.metric_settings)  # GEDI: the file's L2A algorithms
     rh, algorithm = plan.l4a_rh(pulses, item.result, source.pulse, names, metrics, algorithms, every)
     return dataclasses.replace(predict_agbd(rh, names, reasons), algorithm=algorithm)
 
 
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
-                    laps: Laps | None = None, stratum: str | None = None) -> GeolocatedRange:
+                    laps: Laps | None = None, stratum: str | None = None,
+                    pulse_metrics: str = FROM_ECHOES) -> GeolocatedRange:
     """Every echo placed along its beam (those far under the ground filtered: fwcore.plausibility), its range
-    and radiometry computed, every pulse's forest metrics (fwcore.metrics) and, for large footprints, biomass
+    and radiometry computed, every pulse's forest metrics (range_metrics) and, for large footprints, biomass
     (fwcore.metrics.biomass: the L2A land cover's stratum, else `stratum`), the range's tables built; each
     step's time into `laps`."""
     laps = laps or Laps()
@@ -154,14 +176,9 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
         file = file_radiometry(source.path, source.adjusted_standard_gps_time, radiometry)
         columns = range_radiometry(pulses, result, xyz, source.pulse.range_offset_ps, file, radiometry)
     with laps("metrics"):
-        algorithms, every, plan = None, None, None
-        if source.metric_settings:  # GEDI: each shot's L2A algorithm (fwcore.metrics.algorithms)
-            plan = AlgorithmPlan.from_dict(source.metric_settings)
-            metrics, algorithms, every = plan.metrics(pulses, result, source.pulse)
-        else:
-            metrics = batch_metrics(pulses, result, source.pulse)
+        metrics, algorithms, every = range_metrics(item, xyz, pulse_metrics)
     with laps("biomass"):
-        biomass = range_biomass(item, metrics, plan, algorithms, every, stratum)
+        biomass = range_biomass(item, metrics, algorithms, every, stratum)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
                                      result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass)
@@ -241,7 +258,8 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
             held, rejected = decompose_range(held, settings.config)
         outcome.rejected += rejected
         stage = "geolocate"
-        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.stratum)
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.stratum,
+                               settings.pulse_metrics)
         stage = "write"
         outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated, laps)
     except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected

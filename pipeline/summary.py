@@ -63,14 +63,20 @@ def _rejection_kinds(rejected: pa.Table) -> pa.Table:
     return rejected.append_column("is_file", is_file).append_column("is_pulse", is_pulse)
 
 
-def count_outputs(output: Path, names: list[str]) -> tuple[dict[str, int], dict[str, dict[str, int]]]:
+def count_outputs(output: Path, names: list[str],
+                  counted: dict[str, dict] | None = None) -> tuple[dict[str, int], dict[str, dict[str, int]]]:
     """Totals and per-input counts read back from what was written, so that they add up by construction.
 
     A rejected row is a file (stage open), a pulse (pulse_id >= 0), or a problem: a range that failed
-    as a whole, or point records the header promises and the file lacks (pulse_id -1).
+    as a whole, or point records the header promises and the file lacks (pulse_id -1). A run that wrote no
+    tables (--formats las or mcap) gives `counted`: per input, the pulses decomposed and the echoes its ranges'
+    marks counted (pipeline.marks.counts_from_marks), in place of the pulses/ and echoes/ tables'.
     """
     per_pulses = _counts_by_input(output / PULSES, ["source_file"], [("source_file", "count")])
     per_echoes = _counts_by_input(output / ECHOES, ["source_file", "kept"], [("kept", "count"), ("kept", "sum")])
+    for name, c in (counted or {}).items():  # the marks' counts, in the tables' terms
+        per_pulses[name] = {"source_file_count": c["pulses_decomposed"]}
+        per_echoes[name] = {"kept_sum": c["echoes_kept"], "kept_count": c["echoes_kept"] + c["echoes_spurious"]}
     per_rejected = _counts_by_input(output / REJECTED, ["source_file", "stage", "pulse_id"],
                                     [("is_file", "count"), ("is_file", "sum"), ("is_pulse", "sum")], _rejection_kinds)
     per_input = {}
@@ -159,7 +165,8 @@ def planned_of(plan: FilePlan) -> dict:
 def summarise(output: Path, formats: frozenset[str], limit: int | None, points_per_range: int,
               config: DecompositionConfig, options, seconds: float, jobs: JobsDone, taken: str,
               radiometry: RadiometryConfig = RadiometryConfig(), not_taken: list[tuple[str, str]] = (),
-              crs: str | None = None, overrides: PulseOverrides = PulseOverrides()) -> dict:
+              crs: str | None = None, overrides: PulseOverrides = PulseOverrides(),
+              pulse_metrics: str = "echoes") -> dict:
     """run.json: the counts read back from what was written, over every input of the folder (each said done
     or not: fwl watch's folder may hold an interrupted batch's); Beam's metrics of this call's jobs (the
     ranges it ran, not those reused or added earlier)."""
@@ -170,7 +177,9 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
     if calibration and not radiometry.calibrated:  # found on the reference patch: what the ranges used
         radiometry = dataclasses.replace(radiometry, calibration_constant=calibration["constant"],
                                          calibration_source=calibration["source"])
-    counts, per_input = count_outputs(output, [e["name"] for e in entries])
+    counted = ({e["name"]: c for e in entries if (c := e.get("planned", {}).get("ranges_counted"))}
+               if "parquet" not in formats else None)
+    counts, per_input = count_outputs(output, [e["name"] for e in entries], counted)
     processed = counts["pulses_read"] if jobs.pulses_processed is None else jobs.pulses_processed
     # a match given as an input that holds none makes the run partial; the counts stay the files'
     status = "partial" if not_taken and status_of(counts) == "complete" else status_of(counts)
@@ -192,6 +201,7 @@ def summarise(output: Path, formats: frozenset[str], limit: int | None, points_p
         "ranges_reused": jobs.ranges_reused,
         "taken": taken,
         "config": config.to_dict(),
+        "pulse_metrics": pulse_metrics,  # a small footprint's forest metrics: from its echoes, or "full"
         "overrides": overrides.to_dict(),  # what was given of every file's pulse (each file's own: inputs[])
         "radiometry": {**radiometry.to_dict(), "calibration": calibration,
                        "values": "calibrated" if radiometry.calibrated else "relative (C_cal = 1)"},

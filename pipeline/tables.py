@@ -177,11 +177,14 @@ COLUMNS = {c.name: c for c in (
     Column("optimizer", STR, "", "the optimizer"),
     Column("model", STR, "", "the echo model"),
     Column("ground_z", F64, "CRS unit", "the ground's height: the waveform's lowest mode (GEDI L2A's elev_lowestmode; "
-                                        "null: see metrics_reason)"),
+                                        "a small footprint's last kept echo unless --pulse-metrics full; null: see "
+                                        "metrics_reason)"),
     Column("rh", pa.list_(pa.float32()), "m", "RH0..RH100: the height above the ground below which 0..100 % of "
                                                    "the waveform's energy lies (GEDI L2A), truncated to cm"),
-    Column("rv", F64, "DN sample", "the canopy's energy: the waveform above the ground return, above the ground (L2B)"),
-    Column("rg", F64, "DN sample", "the ground's energy: the fitted ground return's area (L2B)"),
+    Column("rv", F64, "DN sample", "the canopy's energy: the waveform above the ground return, above the ground (L2B; "
+                                   "a small footprint's: its kept echoes' above the ground echo)"),
+    Column("rg", F64, "DN sample", "the ground's energy: the fitted ground return's area (L2B; a small footprint's: "
+                                   "its ground echo's)"),
     Column("cover", F64, "1", "canopy cover: cos(zenith) (1 - Pgap), Pgap = 1 - rv / (rv + 1.5 rg) (GEDI L2B)"),
     Column("pai", F64, "m2/m2", "plant area index: -ln(Pgap) cos(zenith) / (0.5 x 1) (GEDI L2B)"),
     Column("pavd_z", pa.list_(pa.float32()), "m2/m3", "plant area volume density in 5 m bins from the ground up "

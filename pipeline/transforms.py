@@ -34,18 +34,21 @@ import apache_beam as beam
 from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
+from fwcore.metrics.echo_column import FROM_ECHOES
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
+from pipeline.handoff import await_ranges
 from pipeline.assemble import assemble_file
 from pipeline.layout import part_name, plan_path
 from pipeline.logs import log_to_file
-from pipeline.marks import mark_range_done
+from pipeline.marks import MARK_COUNTS, mark_range_done
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 from pipeline.records import ReadTask
 from pipeline.rejections import write_file_rejection, write_rejections
 from pipeline.sinks import write_json
 from pipeline.stages import RangeSettings, run_range, warm_up
 from pipeline.timing import Laps, log_timing
+from pipeline.worker_exit import leave_quickly_at_exit
 
 LOG = logging.getLogger("fwl")
 NAMESPACE = "fwl"
@@ -70,6 +73,7 @@ class RangeStages(beam.DoFn):
 
     def setup(self):
         log_to_file(self.settings.output)
+        leave_quickly_at_exit()  # the job's end need not wait for this worker's teardown
         laps = Laps()
         with laps("warm up"):
             warm_up(self.settings.config)
@@ -88,7 +92,8 @@ class RangeStages(beam.DoFn):
                 if outcome.rejected:  # the one place where the dead letter leaves
                     write_rejections(self.settings.output, task, outcome.rejected)
                 # the one place where a range's end is recorded
-                mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected)
+                mark_range_done(self.settings.output, task, planned_pulses(task), outcome.pulses_rejected,
+                                {k: getattr(outcome, k) for k in MARK_COUNTS})
         except MachineFault as fault:
             LOG.error("%s: stopped: %s", task.label, fault.said())
             self._stop(task, fault)
@@ -156,6 +161,27 @@ class PlanFiles(beam.PTransform):
         return inputs | "PlanFile" >> beam.ParDo(PlanFile(self.output, self.config, self.points_per_range, self.limit))
 
 
+class AwaitRanges(beam.DoFn):
+    """A worker's number -> (worker 0) the ranges the driver hands over once it has planned them
+    (pipeline.handoff): the ranges' job, started before the plans, has its workers up and their kernels loaded
+    (warmed up on one element each, where the runner spreads them) by then."""
+
+    def __init__(self, output: str, config: DecompositionConfig):
+        self.output, self.config = output, config
+
+    def setup(self):
+        log_to_file(self.output)
+        leave_quickly_at_exit()
+        laps = Laps()
+        with laps("warm up"):
+            warm_up(self.config)  # while the driver plans: the ranges' DoFn then finds the kernels loaded
+        log_timing("setup", "awaiting ranges", laps)
+
+    def process(self, worker: int):
+        if worker == 0:
+            yield from await_ranges(self.output)
+
+
 @dataclasses.dataclass
 class DecomposeFlight(beam.PTransform):
     """Planned ranges -> each range read, decomposed, geolocated and written (stages.run_range), with its mark."""
@@ -166,11 +192,13 @@ class DecomposeFlight(beam.PTransform):
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
     radiometry: RadiometryConfig = RadiometryConfig()
     stratum: str | None = None  # --stratum (fwcore.metrics.biomass)
+    pulse_metrics: str = FROM_ECHOES  # a small footprint's forest metrics (pipeline.stages.range_metrics)
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.stratum)
+        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.stratum,
+                                 self.pulse_metrics)
         return tasks | "RangeStages" >> beam.ParDo(RangeStages(settings))
 
 

@@ -37,6 +37,7 @@ MAPS = {"highest.tif": "max", "lowest.tif": "min", "count.tif": "sum", "profile.
         "pavd.tif": "mean", "rh98.tif": "max", "rh50.tif": "mean"}
 LOCAL_FRAME = ("the map draws this earth-centred run in east and north metres about its centre; a grid of its "
                "earth-centred x and y has no place on it")
+PLACED = ("x0", "dx", "west", "east"), ("y0", "dy", "north", "south")  # a layer's x and y: where the map draws them
 DESCRIPTION = re.compile(r"(?P<what>[^\[]*?)\s*\[(?P<unit>[^\]]*)\]\s*(?P<rest>.*)")
 
 
@@ -145,6 +146,39 @@ def _reduce(block: np.ndarray, k: int, how: str) -> np.ndarray:
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN blocks: NaN, as wanted
         out = {"max": np.nanmax, "min": np.nanmin, "sum": np.nansum, "mean": np.nanmean}[how](cells, axis=1)
     return np.where(empty, np.nan, out)
+
+
+def in_frame(layer: dict, frame) -> dict:
+    """A layer of the CRS's x and y where a planar frame (pipeline.view.frame: a geographic run's metres about its
+    centre) draws it: each cell's centre and size scaled, the cells as they are."""
+    if frame.rotation is None:
+        return layer
+    x0, sx, y0, sy = frame.xy_scale()
+    placed = dict(layer)
+    for (origin, scale), names in zip(((x0, sx), (y0, sy)), PLACED):
+        for name in names:
+            placed[name] = layer[name] * scale if name.startswith("d") else (layer[name] - origin) * scale
+    placed["shown_cell_m"] = layer["shown_cell_m"] * sx  # east-west, in metres
+    return placed
+
+
+def cell_words(cell: float | None, frame) -> str | None:
+    """A grid's cell as the map's reader takes it: metres as they are; a geographic run's degrees with the
+    metres they span on its map."""
+    if cell is None:
+        return None
+    if frame.rotation is None:
+        return f"{cell:g} m"
+    _, sx, _, sy = frame.xy_scale()
+    return f"{cell:g}° ({cell * sx:.3g} × {cell * sy:.3g} m)"
+
+
+def crs_box(box, frame):
+    """A box of the map (xmin, xmax, ymin, ymax in a planar frame) in the CRS's x and y."""
+    if box is None or frame.rotation is None:
+        return box
+    x0, sx, y0, sy = frame.xy_scale()
+    return (box[0] / sx + x0, box[1] / sx + x0, box[2] / sy + y0, box[3] / sy + y0)
 
 
 def _window(box, west: float, north: float, cell: float, width: int, height: int) -> tuple[int, int, int, int]:

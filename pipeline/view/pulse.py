@@ -190,18 +190,57 @@ def _response_curve(model: Model, pulse: SystemPulse, result, spacing: float) ->
             "source": response.source}
 
 
+PASSED_OVER_M = 0.01  # a mode this far below the selected ground was passed over (mode_z is float32: 1e-4 m steps)
+# the pulse row's columns that say what a shot is and what the products made of it (pipeline.tables), when present
+SHOT_COLUMNS = ("shot_number", "lfid", "selected_algorithm", "top_z", "agbd", "agbd_se", "agbd_stratum",
+                "agbd_reason")
+SHOT_IDENTITY = {"shot_number", "lfid", "selected_algorithm", "agbd"}  # what makes a pulse a mission's shot
+
+
+def _finite(value) -> float | None:
+    return float(value) if value is not None and np.isfinite(float(value)) else None
+
+
 def forest_markers(raw: RawPulse, row: dict) -> dict | None:
-    """Where the pulse's ground and RH25/50/75/98 lie on its waveform (ps from the first sample), from its row's
-    ground_z and rh; None where the run measured none."""
-    ground, rh = row.get("ground_z"), row.get("rh")
-    if ground is None or rh is None or not np.isfinite(raw.metres_per_sample) or raw.metres_per_sample <= 0:
+    """Where the pulse's ground, RH25/50/75/98 and detected modes lie on its waveform (ps from the first sample),
+    from its row's ground_z, rh and (when the run wrote it) mode_z: a mode below the ground is one the selected
+    L2A algorithm passed over. None where the run measured no ground."""
+    ground, rh = _finite(row.get("ground_z")), row.get("rh")
+    if ground is None or not np.isfinite(raw.metres_per_sample) or raw.metres_per_sample <= 0:
         return None
 
     def time_ps(z: float) -> float:
         return (raw.first_z - z) / raw.metres_per_sample * raw.sample_spacing_ps
-    return {"ground_time_ps": time_ps(ground),
-            "rh": [{"k": k, "height_m": float(rh[k]), "time_ps": time_ps(ground + float(rh[k]))}
-                   for k in (25, 50, 75, 98) if rh[k] is not None]}
+    heights = [(k, _finite(rh[k])) for k in (25, 50, 75, 98)] if rh is not None and len(rh) > 98 else []
+    listed = row.get("mode_z")
+    modes = [z for z in (_finite(v) for v in ([] if listed is None else listed)) if z is not None]
+    return {"ground_time_ps": time_ps(ground), "ground_z": ground,
+            "rh": [{"k": k, "height_m": h, "time_ps": time_ps(ground + h)} for k, h in heights if h is not None],
+            "modes": [{"z": z, "time_ps": time_ps(z), "passed_over": z < ground - PASSED_OVER_M} for z in modes]}
+
+
+def shot_details(row: dict) -> dict | None:
+    """What the products say of this shot, of the columns the run wrote with values (SHOT_COLUMNS): its shot number
+    and LFID, the L2A algorithm whose ground and RH the row holds, its highest return, its biomass (L4A's agbd) or
+    why there is none; None when none of SHOT_IDENTITY has a value (a LAS or PulseWaves run: its top_z and
+    agbd_reason alone are no shot's products).
+    Identities as decimal strings (exact)."""
+    out = {}
+    for name in SHOT_COLUMNS:
+        value = row.get(name)
+        if value is None or value == "" or (isinstance(value, float) and not np.isfinite(value)):
+            continue
+        if name in ("shot_number", "lfid"):
+            out[name] = str(int(value))
+        elif name in ("agbd_stratum", "agbd_reason"):
+            out[name] = str(value)
+        else:
+            out[name] = int(value) if name == "selected_algorithm" else float(value)
+    if not out.keys() & SHOT_IDENTITY:  # a small-footprint pulse: no mission shot, no product to show
+        return None
+    if "agbd_reason" in out:
+        out.setdefault("agbd", None)  # no biomass, and why
+    return out
 
 
 def system_returns(raw: RawPulse) -> list[dict]:

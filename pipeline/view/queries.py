@@ -7,7 +7,6 @@ as the box shrinks, so a run of millions of echoes stays responsive.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import threading
@@ -18,6 +17,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from pipeline.layout import ECHOES, PULSES, REJECTED, RUN_JSON
+from pipeline.view.frame import Frame, of_crs
 
 # the page's colour choices -> echo table columns
 COLOUR_COLUMNS = {"height": "z", "amplitude": "amplitude", "width": "fwhm_ps", "fit_error": "fit_error",
@@ -52,38 +52,6 @@ def _query(sql: str, params: list | None = None) -> dict[str, np.ndarray]:
     return _connection().execute(sql, params or []).fetchnumpy()
 
 
-@dataclasses.dataclass(frozen=True)
-class Frame:
-    """The coordinates a person reads on the map and 3D view: the run's projected CRS as it is, or, for an
-    earth-centred CRS (EPSG:4978), east, north and up in metres about the run's centre (a rotation about it)."""
-
-    labels: tuple[str, str, str]
-    crs: str | None = None
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rotation: tuple[tuple[float, ...], ...] | None = None  # rows: east, north, up in the CRS's axes
-    centre: str | None = None  # where the local frame's origin is, in words
-
-    def sql(self) -> tuple[str, str, str]:
-        """The frame's x, y, z as DuckDB expressions over the echo table's x, y, z."""
-        if self.rotation is None:
-            return "x", "y", "z"
-        x0, y0, z0 = self.origin
-        return tuple(f"({r[0]!r} * (x - {x0!r}) + {r[1]!r} * (y - {y0!r}) + {r[2]!r} * (z - {z0!r}))"
-                     for r in self.rotation)
-
-    def apply(self, x, y, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        x, y, z = (np.asarray(v, dtype=float) for v in (x, y, z))
-        if self.rotation is None:
-            return x, y, z
-        d = np.stack([x - self.origin[0], y - self.origin[1], z - self.origin[2]])
-        e, n, u = np.asarray(self.rotation) @ d
-        return e, n, u
-
-    def describe(self) -> dict:
-        return {"labels": list(self.labels), "crs": self.crs, "centre": self.centre,
-                "local": self.rotation is not None}
-
-
 def _crs_of(run: Path):
     """The pyproj CRS of the run's echo table (its GeoParquet metadata), None when the input named none."""
     files = sorted((run / ECHOES).glob("*.parquet"))
@@ -108,32 +76,8 @@ def frame(run: Path) -> Frame:
 @functools.lru_cache(maxsize=64)
 def _frame(run: Path, _mtime: int) -> Frame:
     crs = _crs_of(run)
-    if crs is None:
-        return Frame(("x (m, CRS unknown)", "y (m, CRS unknown)", "z (m, CRS unknown)"))
-    name = crs.name + (f" (EPSG:{crs.to_epsg()})" if crs.to_epsg() else "")
-    if not crs.is_geocentric:
-        units = [a.unit_name.replace("metre", "m") for a in crs.axis_info] or ["m", "m"]
-        x_name, y_name = ("easting", "northing") if crs.is_projected else ("x", "y")
-        return Frame((f"{x_name} ({units[0]}), {name}", f"{y_name} ({units[min(1, len(units) - 1)]}), {name}",
-                      "height (m)"), name)
-    b = _raw_bounds(run)
-    if b is None:
-        return Frame(("x (m)", "y (m)", "z (m)"), name)
-    import pyproj
-    origin = tuple((lo + hi) / 2 for lo, hi in (b["x"], b["y"], b["z"]))
-    ellipsoid = crs.ellipsoid  # the centre's latitude and longitude on the CRS's own ellipsoid
-    geodetic = pyproj.Transformer.from_pipeline(
-        f"+proj=pipeline +step +inv +proj=cart +a={ellipsoid.semi_major_metre!r} +rf={ellipsoid.inverse_flattening!r} "
-        f"+step +proj=unitconvert +xy_in=rad +xy_out=deg")
-    lon, lat, h = geodetic.transform(*origin)
-    lam, phi = np.radians(lon), np.radians(lat)
-    rotation = ((-np.sin(lam), np.cos(lam), 0.0),
-                (-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)),
-                (np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)))
-    rotation = tuple(tuple(float(v) for v in row) for row in rotation)
-    centre = f"{abs(lat):.6f}°{'N' if lat >= 0 else 'S'} {abs(lon):.6f}°{'E' if lon >= 0 else 'W'}, {h:.1f} m"
-    return Frame(("east (m) from the run's centre", "north (m) from the run's centre", "up (m) from the run's centre"),
-                 name, origin, rotation, centre)
+    local = crs is not None and (crs.is_geocentric or crs.is_geographic)  # a frame about the run's centre
+    return of_crs(crs, _raw_bounds(run) if local else None)
 
 
 def _raw_bounds(run: Path) -> dict | None:
@@ -244,7 +188,7 @@ def _echoes_in_box(run: Path, colour: str, box, limit: int, kept_only: bool) -> 
             **{c: np.round(_floats(rows[c]), 3) for c in ("x", "y", "z")},
             "value": values.astype(np.float32).astype(float), "kept": rows["kept"],
             "file": np.array([index[s] for s in rows["source_file"]], dtype=np.int32),
-            "pulse_id": rows["pulse_id"]}
+            "pulse_id": rows["pulse_id"].astype(str)}  # ids as their digits: beyond 2^53 a page's number rounds
 
 
 def pulse_echoes(run: Path, source_file: str, pulse_id: int) -> list[dict]:

@@ -17,6 +17,9 @@ is fetched from the network.
     GET  /api/grid?run=&grid=&map=&band=&box= one layer: its cells' values (in a box) and where the map draws them
     POST /api/try              {run, file, pulse, preset, changes}: the run's fit and another, side by side
     POST /api/decompose        {input}: decompose an input without a run, in the background
+
+Identities (pulse_id, shot_number, lfid) go out as strings of their digits and come back as such: GEDI's
+shot numbers and LVIS's pulse ids lie beyond 2^53, where a JavaScript number rounds them to other shots.
 """
 
 from __future__ import annotations
@@ -45,8 +48,8 @@ from pipeline.view import params, queries
 from pipeline.view.catalog import OutsideRoots, Roots, run_inputs, run_summary
 from pipeline.view.jobs import Jobs
 from pipeline.view.params import BadRequest
-from pipeline.view.pulse import (decompose_pulse, forest_markers, load_pulse, reproduces, system_return_points,
-                                 system_returns, try_config, try_pulse)
+from pipeline.view.pulse import (decompose_pulse, forest_markers, load_pulse, reproduces, shot_details,
+                                 system_return_points, system_returns, try_config, try_pulse)
 
 STATIC = Path(__file__).resolve().parent / "static"
 MAX_BODY = 64 * 1024
@@ -58,6 +61,14 @@ def _plotly_js() -> Path:
 
 
 JS_SAFE_INTEGER = 2**53 - 1  # beyond it a JavaScript number is not exact: GEDI's shot numbers go as strings
+# identities, always as their digits: GEDI's shot numbers and LVIS's pulse ids lie beyond 2^53, and a page that
+# holds some ids as numbers and others as strings rounds one some day (the page never makes a number of them)
+ID_COLUMNS = ("pulse_id", "shot_number", "lfid")
+
+
+def text_ids(row: dict) -> dict:
+    """A table row for the page: its identities as decimal strings (exact), everything else as it is."""
+    return {k: str(int(v)) if k in ID_COLUMNS and v is not None else v for k, v in row.items()}
 
 
 def _exact(value: int) -> int | str:
@@ -86,6 +97,16 @@ def jsonable(value):
     if isinstance(value, int) and not isinstance(value, bool):
         return _exact(value)
     return value
+
+
+def _first_pulse(run: Path) -> list[str] | None:
+    found = queries.first_pulse(run)
+    return None if found is None else [found[0], str(found[1])]
+
+
+def _rejected(run: Path) -> dict:
+    rejected = queries.rejected(run)
+    return {**rejected, "rows": [text_ids(r) for r in rejected["rows"]]}
 
 
 class Refits:
@@ -221,7 +242,7 @@ class Viewer:
                 + counts.get("pulses_rejected", 0),
                 "bounds": queries.bounds(run), "frame": queries.frame(run).describe(),
                 "colours": queries.colours(run), "files": queries.source_files(run),
-                "first_pulse": queries.first_pulse(run), "rejected": queries.rejected(run),
+                "first_pulse": _first_pulse(run), "rejected": _rejected(run),
                 "distributions": queries.distributions(run)}
 
     def echoes(self, query) -> dict:
@@ -239,7 +260,8 @@ class Viewer:
     def pulses(self, query) -> dict:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
         order = params.choice(query, "order", tuple(queries.PULSE_ORDERS), "kept")
-        return {"pulses": queries.pulse_list(run, order, params.limit(query, 40, params.MAX_PULSE_LIST))}
+        listed = queries.pulse_list(run, order, params.limit(query, 40, params.MAX_PULSE_LIST))
+        return {"pulses": [text_ids(p) for p in listed]}
 
     def pulse(self, query) -> dict:
         ident = params.name(params.query_value(query, "run"), "run")
@@ -252,21 +274,28 @@ class Viewer:
         fit = self.refits.run(page, "pulse", lambda: decompose_pulse(raw, config, pulse))
         mx, my, mz = queries.frame(run).apply([r["x"] for r in rows], [r["y"] for r in rows],
                                               [r["z"] for r in rows])
-        return {"run": ident, "file": source_file, "pulse_id": pulse_id, "pulse": row, "echo_rows": rows,
-                "map": {"x": mx, "y": my, "z": mz}, "fit": fit, "system_returns": system_returns(raw),
-                "forest": forest_markers(raw, row), "reproduced": reproduces(fit, rows)}
+        return {"run": ident, "file": source_file, "pulse_id": str(pulse_id), "pulse": text_ids(row),
+                "echo_rows": [text_ids(r) for r in rows], "map": {"x": mx, "y": my, "z": mz}, "fit": fit,
+                "system_returns": system_returns(raw), "forest": forest_markers(raw, row), "shot": shot_details(row),
+                "reproduced": reproduces(fit, rows)}
 
     def grids(self, query) -> dict:
         ident = params.name(params.query_value(query, "run"), "run")
         run = self.roots.run_of(ident)
-        return {"run": ident, "grids": layers.listing(self.roots, run, queries.frame(run).rotation is None)}
+        frame = queries.frame(run)
+        listed = layers.listing(self.roots, run, frame.planar)
+        for grid in listed:
+            grid["cell"] = layers.cell_words(grid["cell_m"], frame) if frame.planar else None
+        return {"run": ident, "grids": listed}
 
     def grid(self, query) -> dict:
         run = self.roots.run_of(params.name(params.query_value(query, "run"), "run"))
-        path, band = layers.request(self.roots, run, query, queries.frame(run).rotation is None)
+        frame = queries.frame(run)
+        path, band = layers.request(self.roots, run, query, frame.planar)
         box = params.box(query)
-        key = ("grid", str(path), path.stat().st_mtime_ns, band, box)
-        return self.answers.get(key, lambda: layers.read_layer(path, band, box=box))
+        key = ("grid", str(path), path.stat().st_mtime_ns, band, box, frame)
+        return self.answers.get(key, lambda: layers.in_frame(
+            layers.read_layer(path, band, box=layers.crs_box(box, frame)), frame))
 
     def try_fit(self, body) -> dict:
         ident = params.name(body.get("run"), "run")
@@ -281,7 +310,7 @@ class Viewer:
         changed = {k: v for k, v in other.to_dict().items() if base.to_dict()[k] != v}
         if other_pulse.shape_tolerance != pulse.shape_tolerance:  # a preset's word on the pulse (the paper's)
             changed["shape_tolerance"] = other_pulse.shape_tolerance
-        return {"run": ident, "file": source_file, "pulse_id": pulse_id, "system_returns": system_returns(raw),
+        return {"run": ident, "file": source_file, "pulse_id": str(pulse_id), "system_returns": system_returns(raw),
                 "a": a, "b": b, "changed": changed}
 
     def decompose(self, body) -> dict:

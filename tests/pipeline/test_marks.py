@@ -5,7 +5,7 @@ import json
 
 from fwcore.engine.config import DecompositionConfig
 from pipeline.layout import progress_mark, range_files
-from pipeline.marks import mark_range_done, range_is_complete, remove_range_files
+from pipeline.marks import counts_from_marks, mark_range_done, range_is_complete, remove_range_files
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
 
 
@@ -17,10 +17,12 @@ def test_a_range_is_finished_only_with_its_mark_and_every_file_it_lists_at_its_s
         f.parent.mkdir(parents=True, exist_ok=True)
         f.write_bytes(data)
     assert not range_is_complete(tmp_path, task)  # parts without their mark: never trusted
-    mark_range_done(tmp_path, task, planned_pulses(task), 0)
+    counts = {"pulses_decomposed": 309, "echoes_kept": 700, "echoes_spurious": 12}
+    mark_range_done(tmp_path, task, planned_pulses(task), 1, counts)
     mark = json.loads(progress_mark(tmp_path, "leica_a", 400).read_text())
-    assert mark == {"pulses": 310, "rejected": 0, "files": {"echoes/leica_a-000000000400.parquet": 9,
-                                                             "parts/leica_a-000000000400.las": 11}}
+    assert mark == {"pulses": 310, "rejected": 1, "counts": counts,
+                    "files": {"echoes/leica_a-000000000400.parquet": 9, "parts/leica_a-000000000400.las": 11}}
+    assert counts_from_marks(tmp_path, [task]) == {"leica_a.las": counts}
     assert range_is_complete(tmp_path, task)
     las.write_bytes(b"LASF")  # rewritten since, cut short
     assert not range_is_complete(tmp_path, task)

@@ -88,3 +88,49 @@ def test_echoes_under_the_ground_go_to_the_spurious_echoes_with_their_reason(tmp
     assert outcome.echoes_kept + outcome.echoes_spurious == len(echoes)
     assert outcome.echoes_spurious == int((~echoes.kept).sum()) >= len(under)
     assert ((echoes.reject_reason == "") == echoes.kept).all()
+
+
+def _decomposed(task):
+    from fwcore.pulses import echo_positions
+    from pipeline.stages import decompose_range, read_range
+
+    item, _ = decompose_range(read_range(task)[0], CONFIG)
+    return item, echo_positions(item.pulses, item.result, task.source.pulse.range_offset_ps)
+
+
+def test_a_small_footprints_metrics_come_from_its_echoes_unless_the_full_ones_are_asked_for(task):
+    import numpy as np
+
+    from fwcore.metrics.pulses import batch_metrics
+    from pipeline.stages import range_metrics
+
+    item, xyz = _decomposed(task)
+    (echoes, none, _), (full, _, _) = range_metrics(item, xyz), range_metrics(item, xyz, "full")
+    assert none is None  # no L2A algorithm for an airborne pulse
+    kept = item.result.reject == 0
+    last = np.array([np.flatnonzero(kept[lo:hi])[-1] + lo for lo, hi in zip(item.result.echo_offsets[:-1],
+                                                                              item.result.echo_offsets[1:])])
+    assert np.array_equal(echoes.ground_z, xyz[last, 2])  # each pulse's last kept echo
+    expected = batch_metrics(item.pulses, item.result, task.source.pulse)
+    assert np.array_equal(full.ground_z, expected.ground_z, equal_nan=True)
+    assert np.array_equal(full.rg, expected.rg, equal_nan=True)
+
+
+def test_a_gedi_shots_metrics_stay_nasas_whatever_is_asked(tmp_path):
+    import numpy as np
+
+    from fwcore.metrics.algorithms import AlgorithmPlan
+    from pipeline.stages import range_metrics
+    from tests.fwcore.metrics.conftest import L1B
+
+    paths = [str(L1B)]
+    gedi = plan_inputs(paths, InputNames.of(paths), CONFIG, 40, limit=40)[0][0]
+    item, xyz = _decomposed(gedi)
+    expected, algorithms, _ = AlgorithmPlan.from_dict(gedi.source.metric_settings).metrics(item.pulses, item.result,
+                                                                                           gedi.source.pulse)
+    for asked in ("echoes", "full"):
+        got, chosen, _ = range_metrics(item, xyz, asked)
+        assert np.array_equal(got.ground_z, expected.ground_z, equal_nan=True)
+        assert np.array_equal(got.rh, expected.rh, equal_nan=True)
+        assert np.array_equal(chosen, algorithms)
+    assert np.isfinite(expected.ground_z).sum() > 10

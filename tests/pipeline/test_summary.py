@@ -51,3 +51,19 @@ def test_the_status_and_its_exit_code():
     assert status_of({**clean, "problems": 1}) == "partial"  # a range that failed whole: not complete
     assert status_of({**clean, "files_rejected": 1, "pulses_decomposed": 0}) == "failed"
     assert EXIT_CODES == {"complete": 0, "partial": 3, "failed": 4}
+
+
+def test_a_run_without_tables_counts_what_its_ranges_decomposed_and_kept(tmp_path, leica_dir):
+    """An MCAP-only (or LAS-only) run writes no pulses/ nor echoes/: its counts come from its ranges' marks, and
+    are those of the same run with the tables."""
+    from fwcore.engine.config import DecompositionConfig
+    from pipeline.run import run
+
+    las = str(leica_dir / "leica_a.las")
+    # two ranges of 300 points: the marks of both are summed
+    tables = run([las], tmp_path / "tables", DecompositionConfig(), ("parquet",), 400, 300, watch=False)
+    for formats in (("mcap",), ("las",)):
+        alone = run([las], tmp_path / formats[0], DecompositionConfig(), formats, 400, 300, watch=False)
+        assert alone["counts"] == tables["counts"]
+        assert alone["counts"]["pulses_read"] == 400 and alone["counts"]["echoes_kept"] > 400
+        assert alone["inputs"][0]["counts"] == tables["inputs"][0]["counts"]

@@ -72,7 +72,18 @@ function say(text) { $("message").textContent = text || ""; }
 
 // ---------------------------------------------------------------- URL state
 
-const PULSE_ID = /^-?[0-9]{1,19}$/;
+// a pulse id stays its digits end to end: GEDI's shot numbers and LVIS's pulse ids lie beyond 2^53, where a
+// JavaScript number is no longer exact (19640119700108618 would become ...616); BigInt checks it without rounding
+const PULSE_ID = /^-?[0-9]{1,20}$/;
+const INT64 = [-(2n ** 63n), 2n ** 63n - 1n];
+
+// the id's canonical digits ("007" -> "7"), as the server answers them; null when it is no 64-bit whole number
+function pulseText(text) {
+  const digits = String(text ?? "").trim();
+  if (!PULSE_ID.test(digits)) return null;
+  const value = BigInt(digits);
+  return value < INT64[0] || value > INT64[1] ? null : value.toString();
+}
 
 function readUrl() {
   const q = new URLSearchParams(location.search);
@@ -86,7 +97,7 @@ function readUrl() {
   if (pulse && pulse.includes(":")) {
     const at = pulse.lastIndexOf(":");
     const id = pulse.slice(at + 1);
-    if (PULSE_ID.test(id)) { state.file = pulse.slice(0, at); state.pulse = Number(id); }
+    if (pulseText(id) !== null) { state.file = pulse.slice(0, at); state.pulse = pulseText(id); }
     else $("pulse-error").textContent = `the URL's pulse ${JSON.stringify(id)} is no pulse id (a whole number)`;
   }
 }
@@ -254,6 +265,34 @@ function pickedTrace(three) {
   return [t];
 }
 
+function span(values) {
+  let lo = Infinity, hi = -Infinity;
+  for (const v of values) { if (v < lo) lo = v; if (v > hi) hi = v; }
+  return [lo, hi];
+}
+
+// tick labels with as many decimals as the view's span needs (whole metres over a field, centimetres over a
+// tree): never "41, 41, 41"
+function tickFormat([lo, hi]) {
+  const width = hi - lo;
+  if (!(width > 0) || !isFinite(width)) return ",.0f";
+  return `,.${Math.min(6, Math.max(0, Math.ceil(1 - Math.log10(width))))}f`;
+}
+
+// the 3D view in true proportions (metres on every axis), unless the run is far wider than tall (a GEDI track
+// kilometres long and 40 m high would be a flat sheet): then heights stretched until they span a quarter of the
+// width, and the title says by how much
+function sceneAspect(scene) {
+  const [x, y, z] = [span(scene.x), span(scene.y), span(scene.z)].map(([lo, hi]) => hi - lo);
+  const wide = Math.max(x, y);
+  if (!(z > 0) || !(wide > 0) || z >= wide / 8) return { layout: { aspectmode: "data" }, exaggeration: 1 };
+  return { layout: { aspectmode: "manual", aspectratio: { x: x / wide, y: y / wide, z: 0.25 } },
+    exaggeration: wide / 4 / z };
+}
+
+// a 3D axis has no room for where its origin is: the map says it
+function short(title) { return { text: title.text.replace(" from the run's centre", "") }; }
+
 function axisTitles(frame) {
   const labels = (frame && frame.labels) || ["x", "y", "z"];
   return labels.map((l) => ({ text: l }));
@@ -278,7 +317,6 @@ async function loadEchoes() {
   $("colour-note").textContent = map.unavailable ? `${state.colour}: ${map.unavailable}` :
     (map.below + map.above ? `${map.below} below and ${map.above} above the 2nd–98th percentile (triangles)` : "");
   $("map-count").textContent = `${map.x.length} of ${map.total} echoes in view`;
-  $("scene-count").textContent = `${scene.x.length} of ${scene.total}`;
   await drawOverview();
 }
 
@@ -294,17 +332,30 @@ async function drawOverview() {
       x: returns.x, y: returns.y, z: returns.z, marker: { color: "rgba(230,80,40,0.35)", size: 1.5 } });
   }
   if (lastLayer) mapTraces.unshift(gridTrace(lastLayer));  // first: drawn under the echoes
+  // each trace keyed by what it is, not its place: Plotly keeps a colour bar by the trace's uid, and a grid put
+  // first took over the echoes' bar (its ticks left over it, the grid's own bar drawn off the page)
+  for (const t of [...mapTraces, ...sceneTraces]) t.uid = t.meta;
   mapTraces.push(...pickedTrace(false));
   sceneTraces.push(...pickedTrace(true));
   const [tx, ty, tz] = axisTitles(map.frame);
   const legend = { orientation: "h", x: 0, y: -0.22, yanchor: "top", font: { size: 10 } };
-  const mapLayout = { margin: { l: 70, r: 10, t: 10, b: 80 }, legend, uirevision: state.run,
-    xaxis: { title: tx, tickformat: ",.0f" }, yaxis: { title: ty, scaleanchor: "x", tickformat: ",.0f" } };
+  const [bx, by] = state.box ? [[state.box[0], state.box[1]], [state.box[2], state.box[3]]] : [span(map.x), span(map.y)];
+  // with a grid's colour bar across the top, fixed margins that hold both bars: left to grow, Plotly's margins
+  // chased the two bars until the map was a strip 60 px high with the grid out of sight
+  const margin = lastLayer ? { l: 70, r: 100, t: 58, b: 100, autoexpand: false } : { l: 70, r: 10, t: 10, b: 80 };
+  const mapLayout = { margin, legend: lastLayer ? { ...legend, y: -0.3 } : legend, uirevision: state.run,
+    xaxis: { title: tx, tickformat: tickFormat(bx) }, yaxis: { title: ty, scaleanchor: "x", tickformat: tickFormat(by) } };
   if (state.box) { mapLayout.xaxis.range = [state.box[0], state.box[1]]; mapLayout.yaxis.range = [state.box[2], state.box[3]]; }
-  if (map.frame && map.frame.centre) mapLayout.title = { text: `origin ${map.frame.centre}`, font: { size: 10 }, y: 0.99 };
+  // where a local frame's origin is, and the CRS it is made of, beside the panel's title (not under its toolbar)
+  $("map-origin").textContent = map.frame && map.frame.centre ? `origin ${map.frame.centre}, ${map.frame.crs}` : "";
   await Plotly.react("map", mapTraces, mapLayout, { responsive: true, displaylogo: false });
+  const aspect = sceneAspect(scene);
+  $("scene-count").textContent = `${scene.x.length} of ${scene.total}` +
+    (aspect.exaggeration > 1 ? ` · heights ×${fmt(aspect.exaggeration, 1)}` : "");
   await Plotly.react("scene", sceneTraces, { margin: { l: 0, r: 0, t: 0, b: 30 }, legend, uirevision: state.run,
-    scene: { aspectmode: "data", xaxis: { title: tx }, yaxis: { title: ty }, zaxis: { title: tz } } },
+    // the camera a little further out than Plotly's (1.25 each way): the axis titles stay inside the panel
+    scene: { ...aspect.layout, camera: { eye: { x: 1.55, y: 1.55, z: 1.0 } }, xaxis: { title: short(tx) }, yaxis: { title: short(ty) },
+      zaxis: { title: short(tz), nticks: 5 } } },  // a few height ticks: stretched or not, they crowd
     { responsive: true, displaylogo: false });
   bindPlotEvents();
 }
@@ -325,7 +376,7 @@ async function loadGrids() {
   const data = await api(`/api/grids?run=${encodeURIComponent(run)}`);
   if (run !== state.run) return;
   for (const grid of data.grids) {
-    const group = el("optgroup", null, { label: `${grid.name}: ${fmt(grid.cell_m)} m cells` });
+    const group = el("optgroup", null, { label: `${grid.name}: ${grid.cell || `${fmt(grid.cell_m)} m`} cells` });
     for (const layer of grid.layers) {
       const option = new Option(layer.label, JSON.stringify([grid.id, layer.map, layer.band]));
       if (grid.unavailable) { option.disabled = true; option.title = grid.unavailable; }
@@ -373,7 +424,7 @@ function gridTrace(layer) {
     hoverongaps: false, hovertemplate: `%{z:.4g}${layer.unit ? " " + layer.unit : ""}<extra>grid</extra>`,
     // across the top: the echoes' colour bar keeps the right side
     colorbar: { title: { text: `grid: ${layer.label}${unit}, 2nd–98th pct`, side: "top" }, orientation: "h",
-      thickness: 10, len: 0.7, x: 0.5, xanchor: "center", y: 1.02, yanchor: "bottom" } };
+      thickness: 10, len: 0.6, x: 0, xanchor: "left", y: 1.01, yanchor: "bottom", ypad: 0 } };  // left: the toolbar is right
 }
 
 let bound = false;
@@ -488,6 +539,56 @@ function waveformLayout(returns, fit, forest = null) {
     legend: { orientation: "h", x: 0, y: -0.2, yanchor: "top", font: { size: 10 } } };
 }
 
+// y of a curve at time t (ps), linear between its samples
+function curveAt(times, values, t) {
+  let i = 1;
+  while (i < times.length - 1 && times[i] < t) i++;
+  const w = (t - times[i - 1]) / (times[i] - times[i - 1]);
+  return values[i - 1] + Math.min(1, Math.max(0, w)) * (values[i] - values[i - 1]);
+}
+
+// the waveform's detected modes (the run's mode_z) on its denoised curve: the ground and those above it, and the
+// ones below it that the selected L2A algorithm passed over
+function modeTraces(fit, forest) {
+  if (!forest || !forest.modes || !forest.modes.length || fit.time_ps.length < 2) return [];
+  const traces = [];
+  for (const passed of [false, true]) {
+    const modes = forest.modes.filter((m) => m.passed_over === passed);
+    if (!modes.length) continue;
+    traces.push({ type: "scatter", mode: "markers", meta: passed ? "passed-over" : "modes",
+      name: passed ? "passed-over modes (below the ground)" : "modes (the ground and above)",
+      x: modes.map((m) => m.time_ps / NS), y: modes.map((m) => curveAt(fit.time_ps, fit.denoised, m.time_ps)),
+      customdata: modes.map((m) => m.z), hovertemplate: "mode at %{customdata:.2f} m<extra>%{fullData.name}</extra>",
+      marker: passed ? { color: "#d62728", size: 11, symbol: "x-thin-open", line: { width: 2.5, color: "#d62728" } }
+        : { color: "#7a4a10", size: 9, symbol: "triangle-down" } });
+  }
+  return traces;
+}
+
+// what the products say of the shot (GEDI L2A's algorithm, L4A's biomass, LVIS's LFID and shot number), as
+// far as the run wrote their columns
+function shotTable(shot, forest) {
+  const rows = [];
+  if ("shot_number" in shot) rows.push(["shot number", shot.shot_number ?? "–"]);
+  if ("lfid" in shot) rows.push(["LFID", shot.lfid ?? "–"]);
+  if ("selected_algorithm" in shot) rows.push(["L2A algorithm", shot.selected_algorithm === null ? "–" : `a${shot.selected_algorithm}`]);
+  if (forest && forest.modes && forest.modes.length) {
+    const passed = forest.modes.filter((m) => m.passed_over).length;
+    rows.push(["modes", `${forest.modes.length}, ${passed} passed over (below the ground)`]);
+  }
+  if (forest) rows.push(["ground", fmt(forest.ground_z, 2, "m")]);
+  if ("top_z" in shot) rows.push(["highest return", fmt(shot.top_z, 2, "m")]);
+  if ("agbd" in shot) {
+    const se = shot.agbd_se === null || shot.agbd_se === undefined ? "" : ` ± ${fmt(shot.agbd_se, 1)}`;
+    const text = shot.agbd === null ? `– ${shot.agbd_reason ? `(${shot.agbd_reason})` : ""}` :
+      `${fmt(shot.agbd, 1)}${se} Mg/ha`;
+    rows.push(["biomass (agbd)", { text, title: "aboveground biomass density, L4A's model of the shot's stratum" }]);
+    if (shot.agbd_stratum) rows.push(["L4A stratum", shot.agbd_stratum]);
+  }
+  const table = fillTable(el("table", null, { id: "pulse-shot" }), null, rows);
+  return table;
+}
+
 function metricsTable(table, fit, extra = []) {
   return fillTable(table, null, [["fit error (Eq. 9)", fmt(fit.fit_error)], ["fit error vs raw", fmt(fit.fit_error_raw)],
     ["RMSE", fmt(fit.rmse, 2, "DN")], ["R²", fmt(fit.r2, 4)], ["background", fmt(fit.background, 2, "DN")],
@@ -512,13 +613,14 @@ function markPicked(data) {
   if (lastEchoes) drawOverview().catch((e) => say(e.message));
 }
 
-async function showPulse(file, pulse) {
-  if (!PULSE_ID.test(String(pulse))) {  // said beside the box where it was typed; the shown pulse stays
-    $("pulse-error").textContent = `${JSON.stringify(String(pulse))} is no pulse id: type a whole number`;
+async function showPulse(file, typed) {
+  const pulse = pulseText(typed);
+  if (pulse === null) {  // said beside the box where it was typed; the shown pulse stays
+    $("pulse-error").textContent = `${JSON.stringify(String(typed))} is no pulse id: type a whole number`;
     return;
   }
   $("pulse-error").textContent = "";
-  state.file = file; state.pulse = Number(pulse);
+  state.file = file; state.pulse = pulse;
   writeUrl();
   $("pulse-id").value = state.pulse;
   $("pulse-file").value = file;
@@ -534,7 +636,8 @@ async function showPulse(file, pulse) {
     `(${data.echo_rows.filter((e) => e.kept).length} kept), ${data.system_returns.length} system returns, ` +
     `${fit.config.optimizer} / ${fit.config.model}`;
   const plot = $("waveform");
-  await Plotly.react(plot, waveformTraces(fit), waveformLayout(data.system_returns, fit, data.forest), { responsive: true, displaylogo: false });
+  await Plotly.react(plot, [...waveformTraces(fit), ...modeTraces(fit, data.forest)],
+    waveformLayout(data.system_returns, fit, data.forest), { responsive: true, displaylogo: false });
   plot.dataset.pulse = data.pulse_id;
   plot.dataset.file = data.file;
   plot.dataset.components = fit.echoes.length;
@@ -542,6 +645,7 @@ async function showPulse(file, pulse) {
   metrics.replaceChildren(metricsTable(el("table"), fit, [["system pulse FWHM", fmt(fit.pulse.fwhm_ps / NS, 2, "ns")]]));
   metrics.appendChild(data.reproduced ? el("div", "the refit reproduces the run's echoes", { class: "ok" })
     : el("div", `today's engine gives ${fit.echoes.length} echoes here; the run's table (below) holds ${data.echo_rows.length}`, { class: "bad" }));
+  if (data.shot) metrics.appendChild(shotTable(data.shot, data.forest));
   echoTable($("pulse-echoes"), data.echo_rows);
   $("pulse-returns").replaceChildren(el("b", "system returns "), document.createTextNode(data.system_returns.map((r) =>
     `#${r.return_number} at ${fmt(r.time_ps / NS, 3)} ns (intensity ${r.intensity} DN)`).join(", ") || "none"));

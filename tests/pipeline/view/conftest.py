@@ -97,3 +97,88 @@ def gridded(viewed):
     assert main(["grid", str(viewed.run), "--cell", str(GRID_CELL), "--bin-height", "2"]) == 0
     assert main(["grid", str(viewed.run), "--cell", "5", "--output", str(viewed.folder / "maps")]) == 0
     return viewed.run / "grid"
+
+
+GEDI = Path(__file__).resolve().parents[3] / "examples" / "data" / "gedi"
+GEDI_L1B = "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
+
+
+@pytest.fixture(scope="session")
+def gedi_viewed(tmp_path_factory):
+    """A viewer over a folder holding the shared GEDI L1B granule (EPSG:4979; shot numbers beyond 2^53), its first
+    24 shots decomposed by the viewer's background job."""
+    folder = tmp_path_factory.mktemp("gedi-view")
+    shutil.copy(GEDI / GEDI_L1B, folder / GEDI_L1B)
+    runs = folder / "runs"
+    args = ["--limit", "24", "--optimizer", "lm", "--formats", "parquet", "--direct_num_workers=1",
+            "--direct_running_mode=in_memory"]
+    server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, args, 12))
+    serve_in_thread(server)
+    v = Viewed(url_of(server), folder, runs / Path(GEDI_L1B).stem, "", "", [])
+    try:
+        (listed,) = v.get("/api/catalog")["inputs"]
+        v.input_id = listed["id"]
+        listed = v.decompose(v.input_id)
+        assert listed["job"]["status"] == "done", (runs / (Path(GEDI_L1B).stem + ".log")).read_text()
+        v.run_id = listed["run"]
+        yield v
+    finally:
+        server.viewer.jobs.stop_all()
+        server.shutdown()
+        server.server_close()
+
+
+# the drops of the modes written below the ground: the shot's passed-over modes
+PASSED_OVER_DROPS_M = (2.5, 4.0)
+
+
+def add_products(run: Path) -> None:
+    """Write into a run's pulses/ the columns GEDI's products add (pipeline.tables: selected_algorithm, mode_z,
+    agbd, agbd_se, agbd_stratum, agbd_reason, lfid, shot_number), with values made from each row so a test knows
+    them: algorithm 2 for even shot numbers, else 1; modes at RH98, the ground and 2.5 and 4 m below it; agbd
+    ten times RH98 (RH98 at or below 0 m: null, with a reason)."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for part in sorted((run / "pulses").glob("*.parquet")):
+        table = pq.read_table(part)
+        shots = table.column("pulse_id").to_numpy()
+        ground = table.column("ground_z").to_numpy(zero_copy_only=False)
+        rh98 = np.array([np.nan if r is None else r[98] for r in table.column("rh").to_pylist()])
+        modes = [None if not np.isfinite(g) else [g + h, g] + [g - d for d in PASSED_OVER_DROPS_M]
+                 for g, h in zip(ground, rh98)]
+        biomass = np.where(rh98 > 0, 10.0 * rh98, np.nan)
+        columns = {
+            "selected_algorithm": pa.array(np.where(shots % 2 == 0, 2, 1).astype(np.int8)),
+            "mode_z": pa.array(modes, pa.list_(pa.float32())),
+            "agbd": pa.array(biomass, mask=~np.isfinite(biomass)),
+            "agbd_se": pa.array(biomass / 4, mask=~np.isfinite(biomass)),
+            "agbd_stratum": pa.array(["GSW_SAm"] * len(shots)),
+            "agbd_reason": pa.array(["" if np.isfinite(b) else "RH98 at or below the ground" for b in biomass]),
+            "lfid": pa.nulls(len(shots), pa.int64()),
+            "shot_number": pa.array(shots, pa.int64())}
+        for name, values in columns.items():
+            if name in table.column_names:
+                table = table.drop_columns([name])
+            table = table.append_column(name, values)
+        pq.write_table(table, part)
+
+
+@pytest.fixture(scope="session")
+def gedi_products(gedi_viewed, tmp_path_factory):
+    """A copy of the GEDI run whose pulses/ holds the products' columns (add_products), in a viewer of its own."""
+    folder = tmp_path_factory.mktemp("gedi-products")
+    run = folder / gedi_viewed.run.name
+    shutil.copytree(gedi_viewed.run, run)
+    add_products(run)
+    server = make_server([run], port=0, runs_dir=folder / "runs")
+    serve_in_thread(server)
+    v = Viewed(url_of(server), folder, run, "", gedi_viewed.input_id, [])
+    try:
+        (listed,) = v.get("/api/catalog")["runs"]
+        v.run_id = listed["id"]
+        yield v
+    finally:
+        server.shutdown()
+        server.server_close()

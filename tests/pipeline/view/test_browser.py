@@ -137,7 +137,7 @@ def test_clicking_an_echo_on_the_map_or_typing_an_id_shows_its_pulse(browser, fw
     browser.get(f"{fwl_view}?run=0/&colour=height&tab=explore")
     _wait(browser, "document.body.dataset.ready === '1'")
     echoes = viewed.echoes()
-    first_shown = viewed.get(f"/api/summary?run={viewed.run_id}")["first_pulse"][1]
+    first_shown = int(viewed.get(f"/api/summary?run={viewed.run_id}")["first_pulse"][1])
     kept = echoes[echoes.kept & (echoes.pulse_id != first_shown)]
     target = kept.iloc[len(kept) // 2]
     # where Plotly drew that echo, in pixels from the map's centre
@@ -322,6 +322,8 @@ def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl
     import numpy as np
     from urllib.parse import quote
 
+    from selenium.webdriver.common.by import By
+
     browser.get(f"{riegl.url}?run={quote(riegl.run_id, safe='')}&colour=amplitude&tab=explore")
     _wait(browser, "document.body.dataset.ready === '1'")
     layout = _wait(browser, "document.getElementById('map')._fullLayout && document.getElementById('map')"
@@ -331,7 +333,9 @@ def test_an_earth_centred_run_is_drawn_in_metres_about_its_centre(browser, riegl
     assert layout[0] == "east (m) from the run's centre" and layout[1] == "north (m) from the run's centre"
     assert all(abs(v) < 5000 for v in layout[2])  # metres about the centre, not 4.1 million of ECEF
     scene = browser.execute_script("return document.getElementById('scene')._fullLayout.scene.zaxis.title.text")
-    assert scene == "up (m) from the run's centre"
+    assert scene == "up (m)"  # the 3D view's short title; the map says where its origin is
+    assert browser.find_element(By.ID, "map-origin").text.startswith("origin ") and "EPSG:4978" in \
+        browser.find_element(By.ID, "map-origin").text
     kept = browser.execute_script("return document.getElementById('map').data.find(t => t.meta === 'kept').marker")
     served = riegl.get(f"/api/echoes?run={quote(riegl.run_id, safe='')}&colour=amplitude&limit=60000")
     values = np.array([v for v in served["value"] if v is not None])
@@ -403,3 +407,194 @@ def test_a_viewer_with_a_token_takes_it_once_from_its_url(browser, viewed):
     finally:
         server.shutdown()
         server.server_close()
+
+
+# ---------------------------------------------------------------- GEDI: shot numbers beyond 2^53, degrees as metres
+
+def _l1b_samples(shot: int) -> np.ndarray:
+    """A shot's received waveform as the L1B granule holds it (rx_sample_start_index counts from 1)."""
+    import h5py
+
+    from tests.pipeline.view.conftest import GEDI, GEDI_L1B
+
+    with h5py.File(GEDI / GEDI_L1B) as f:
+        for beam in (k for k in f if k.startswith("BEAM")):
+            hit = np.flatnonzero(f[beam]["shot_number"][:].astype(np.int64) == shot)
+            if hit.size:
+                start, count = (int(f[beam][k][hit[0]]) for k in ("rx_sample_start_index", "rx_sample_count"))
+                return f[beam]["rxwaveform"][start - 1:start - 1 + count].astype(float)
+    raise LookupError(shot)
+
+
+def _rounded_away(shots) -> list[int]:
+    """The shots whose number a JavaScript number (float64) would turn into another."""
+    return [s for s in (int(v) for v in shots) if int(float(s)) != s]
+
+
+def _shown_shot(browser, shot: int) -> None:
+    """The page shows THAT shot: its id, and its raw samples equal to the L1B's."""
+    _wait(browser, f"document.getElementById('waveform').dataset.pulse === '{shot}'")
+    raw = browser.execute_script("return document.getElementById('waveform').data.find(t => t.meta === 'raw').y")
+    assert np.array_equal(np.array(raw, dtype=float), _l1b_samples(shot))
+    assert browser.execute_script("return document.getElementById('pulse-title').textContent").startswith(
+        f"Pulse {shot} of ")
+    assert browser.find_element("id", "pulse-id").get_attribute("value") == str(shot)
+    assert f"%3A{shot}&" in browser.current_url
+
+
+def test_a_link_to_a_gedi_shot_and_a_click_in_the_list_show_that_shot(browser, gedi_viewed):
+    """Shot numbers beyond 2^53 (19640119700108618 was opened as ...616): a link and a click keep every digit."""
+    from urllib.parse import quote
+
+    from selenium.webdriver.common.by import By
+
+    from tests.pipeline.view.conftest import GEDI_L1B
+
+    pulses = gedi_viewed.pulses()
+    shots = _rounded_away(pulses.pulse_id)
+    assert len(shots) >= 2  # the test's point: ids a float64 rounds to another number
+    shot = shots[len(shots) // 2]
+    browser.get(f"{gedi_viewed.url}?run={quote(gedi_viewed.run_id, safe='')}&pulse={quote(GEDI_L1B)}:{shot}"
+                f"&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _shown_shot(browser, shot)
+    assert browser.find_element(By.ID, "message").text == ""
+    # the picked shot's echoes, marked on the map, are its rows of the echo table (in the map's metres)
+    served = gedi_viewed.get(f"/api/pulse?run={quote(gedi_viewed.run_id, safe='')}&file={GEDI_L1B}&pulse={shot}")
+    marked = _wait(browser, "(document.getElementById('map').data.find(t => t.meta === 'picked') || {}).x")
+    assert sorted(marked) == pytest.approx(sorted(served["map"]["x"]), abs=1e-6)
+    assert served["pulse_id"] == str(shot) and len(served["echo_rows"]) == int((gedi_viewed.echoes().pulse_id
+                                                                                == shot).sum())
+    # a click on another such shot in the list
+    _wait(browser, "document.querySelectorAll('#pulses li.pulse').length > 1")
+    listed = browser.find_elements(By.CSS_SELECTOR, "#pulses li.pulse")
+    pick = next(li for li in listed if int(li.get_attribute("data-pulse")) in shots
+                and int(li.get_attribute("data-pulse")) != shot)
+    other = int(pick.get_attribute("data-pulse"))
+    assert str(other) in pick.text
+    pick.click()
+    _shown_shot(browser, other)
+    assert "active" in pick.get_attribute("class")
+    # a typed id is taken as its digits too
+    box = browser.find_element(By.ID, "pulse-id")
+    box.clear()
+    box.send_keys(f"  {shot}")
+    browser.find_element(By.CSS_SELECTOR, "#pulse-form button").click()
+    _shown_shot(browser, shot)
+
+
+def test_a_gedi_run_is_drawn_in_metres_with_distinct_ticks(browser, gedi_viewed, tmp_path):
+    """EPSG:4979: the map's ticks were "41, 41, 41" and the 3D view a vertical line (degrees against metres); now
+    east and north metres about the run's centre, as far apart as the geodesic says."""
+    import pyproj
+    from urllib.parse import quote
+
+    browser.get(f"{gedi_viewed.url}?run={quote(gedi_viewed.run_id, safe='')}&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _wait(browser, "document.getElementById('waveform').dataset.pulse")
+    for axis in ("xtick", "ytick"):
+        labels = browser.execute_script(f"return [...document.querySelectorAll('#map .{axis} text')]"
+                                        ".map(t => t.textContent)")
+        assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
+    titles = browser.execute_script("const L = document.getElementById('map')._fullLayout; "
+                                    "return [L.xaxis.title.text, L.yaxis.title.text]")
+    assert titles == ["east (m) from the run's centre", "north (m) from the run's centre"]
+    origin = browser.find_element("id", "map-origin").text
+    assert origin.startswith("origin 13.7") and "°S 44.1" in origin and "EPSG:4979" in origin
+    assert browser.execute_script("const S = document.getElementById('scene')._fullLayout.scene; "
+                                  "return [S.xaxis.title.text, S.yaxis.title.text, S.zaxis.title.text]") == \
+        ["east (m)", "north (m)", "height (m)"]
+    echoes = gedi_viewed.echoes()
+    geod = pyproj.Geod(ellps="WGS84")
+    lat = float(echoes.y.mean())
+    east_west = geod.inv(echoes.x.min(), lat, echoes.x.max(), lat)[2]
+    north_south = geod.inv(float(echoes.x.mean()), echoes.y.min(), float(echoes.x.mean()), echoes.y.max())[2]
+    scene = browser.execute_script("const d = document.getElementById('scene').data.filter(t => t.meta === 'kept' "
+                                   "|| t.meta === 'spurious'); return ['x', 'y', 'z'].map(k => d.flatMap(t => t[k]))")
+    spans = [max(v) - min(v) for v in scene]
+    assert spans[0] == pytest.approx(east_west, rel=0.01) and spans[1] == pytest.approx(north_south, rel=0.01)
+    assert spans[2] == pytest.approx(echoes.z.max() - echoes.z.min(), abs=1e-3)  # metres on all three axes
+    aspect = browser.execute_script("return document.getElementById('scene')._fullLayout.scene.aspectratio")
+    stretch = max(spans[:2]) / 4 / spans[2]  # kilometres wide, 40 m high: heights stretched to a quarter
+    assert aspect["z"] == pytest.approx(0.25) and aspect["x"] == pytest.approx(spans[0] / max(spans[:2]))
+    assert f"heights ×{stretch:.1f}" in browser.find_element("id", "scene-count").text
+    shot = tmp_path / "fwl-view-gedi.png"
+    browser.save_screenshot(str(shot))
+    print(f"screenshot: {shot}")
+
+
+def test_a_gedi_shot_shows_its_algorithm_passed_over_modes_and_biomass(browser, gedi_products, tmp_path):
+    """The products' columns, where a run's pulses/ has them: the shot's L2A algorithm, its detected modes with the
+    ones below the ground passed over (markers on its waveform), its agbd with the error and stratum."""
+    from urllib.parse import quote
+
+    from tests.pipeline.view.conftest import GEDI_L1B, PASSED_OVER_DROPS_M
+
+    pulses = gedi_products.pulses()
+    row = pulses[pulses.agbd.notna() & pulses.pulse_id.isin(_rounded_away(pulses.pulse_id))].iloc[0]
+    shot = int(row.pulse_id)
+    browser.get(f"{gedi_products.url}?run={quote(gedi_products.run_id, safe='')}&pulse={quote(GEDI_L1B)}:{shot}")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _shown_shot(browser, shot)
+    traces = browser.execute_script("return document.getElementById('waveform').data"
+                                    ".filter(t => t.meta === 'modes' || t.meta === 'passed-over')"
+                                    ".map(t => [t.meta, t.customdata])")
+    drawn = {meta: sorted(z) for meta, z in traces}
+    ground = float(row.ground_z)
+    assert drawn["passed-over"] == pytest.approx(sorted(ground - d for d in PASSED_OVER_DROPS_M), abs=1e-4)
+    assert drawn["modes"] == pytest.approx(sorted([ground, ground + float(row.rh[98])]), abs=1e-4)
+    text = browser.find_element("id", "pulse-shot").text
+    algorithm = 2 if shot % 2 == 0 else 1
+    assert f"L2A algorithm a{algorithm}" in text and f"shot number {shot}" in text
+    assert f"{row.agbd:.1f} ± {row.agbd_se:.1f} Mg/ha" in text and "GSW_SAm" in text
+    assert "4, 2 passed over (below the ground)" in text
+    browser.save_screenshot(str(tmp_path / "fwl-view-gedi-products.png"))
+
+
+def test_a_grid_of_a_gedi_run_lies_under_its_echoes_in_metres(browser, gedi_viewed, tmp_path):
+    """fwl grid of a geographic run has cells in degrees: the map draws each scaled to metres about the run's
+    centre, under the echoes, its colour bar across the top and the map full height (a grid put first once took
+    over the echoes' colour bar and squeezed the map to a strip)."""
+    import json
+    from urllib.parse import quote
+
+    import pyproj
+    import rasterio
+    from selenium.webdriver.support.ui import Select
+
+    from pipeline.cli import main
+
+    cell = 0.002
+    out = tmp_path / "grid"
+    assert main(["grid", str(gedi_viewed.run), "--cell", str(cell), "--output", str(out)]) == 0
+    # a grid elsewhere names its run in its mark; the viewer finds grids under its folders: put it beside the run
+    target = gedi_viewed.run.parent / "gedi-grid"
+    if not target.exists():
+        out.rename(target)
+    run = quote(gedi_viewed.run_id, safe="")
+    (listed,) = gedi_viewed.get(f"/api/grids?run={run}")["grids"]
+    assert listed["unavailable"] is None and listed["cell"].startswith("0.002° (216 × 221")
+    browser.get(f"{gedi_viewed.url}?run={run}&colour=height&tab=explore")
+    _wait(browser, "document.body.dataset.ready === '1'")
+    _wait(browser, "document.getElementById('grid-layer').options.length > 1")
+    select = Select(browser.find_element("id", "grid-layer"))
+    wanted = next(o.get_attribute("value") for o in select.options if '"highest.tif"' in o.get_attribute("value"))
+    select.select_by_value(wanted)
+    drawn = _wait(browser, "(document.getElementById('map').data || []).find(t => t.meta === 'grid')")
+    with rasterio.open(target / "highest.tif") as tif:
+        west, north, size = tif.transform.c, tif.transform.f, tif.transform.a
+    echoes = gedi_viewed.echoes()
+    lon0, lat0 = (echoes.x.min() + echoes.x.max()) / 2, (echoes.y.min() + echoes.y.max()) / 2
+    geod = pyproj.Geod(ellps="WGS84")
+    east_m = geod.inv(lon0 - size / 2, lat0, lon0 + size / 2, lat0)[2]  # a cell's width at the centre
+    assert drawn["dx"] == pytest.approx(east_m, rel=1e-4) and drawn["dx"] != drawn["dy"]
+    assert drawn["x0"] - drawn["dx"] / 2 == pytest.approx(np.sign(west - lon0) * geod.inv(lon0, lat0, west, lat0)[2],
+                                                          abs=0.5)
+    north_m = drawn["y0"] + (len(drawn["z"]) - 0.5) * drawn["dy"]  # the top row's north edge
+    assert north_m == pytest.approx(np.sign(north - lat0) * geod.inv(lon0, lat0, lon0, north)[2], abs=0.5)
+    box = json.loads(browser.execute_script(
+        "const r = document.querySelector('#map .cbgrid').getBoundingClientRect(), "
+        "m = document.getElementById('map').getBoundingClientRect(), L = document.getElementById('map')._fullLayout;"
+        " return JSON.stringify([r.top - m.top, r.bottom - m.top, L._size.h, m.height])"))
+    assert 0 <= box[0] < box[1] <= 70 and box[2] > 0.45 * box[3]  # the bar in the top margin; the map not a strip
+    browser.save_screenshot(str(tmp_path / "fwl-view-gedi-grid.png"))

@@ -1,12 +1,14 @@
 """One pulse of a run, again: the file's pulse as run.json records it (one record; an earlier run's flattened keys
-read the same), and another preset's method and pulse for Try, the run's model and seed kept."""
+read the same), and another preset's method and pulse for Try, the run's model and seed kept; where a shot's
+ground, RH and modes lie on its waveform, and what the products' columns say of it, on hand-made rows."""
 
+import numpy as np
 import pytest
 
 from fwcore.engine.config import DecompositionConfig, Model, Optimizer
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, SystemPulse
 from fwcore.instrument.response import gaussian_response
-from pipeline.view.pulse import load_pulse, run_pulse, try_config, try_pulse
+from pipeline.view.pulse import RawPulse, forest_markers, load_pulse, run_pulse, shot_details, try_config, try_pulse
 
 PULSE = SystemPulse(10337.0, "single returns (95)", 0.05, "single returns (95)", -1213.25, "single returns (268)",
                     gaussian_response(10337.0), "system", "system: at held-out samples ...")
@@ -49,3 +51,45 @@ def test_a_pulse_of_the_viewed_run_comes_back_with_its_file_s_recorded_pulse(vie
     assert pulse.fwhm_ps == row["system_pulse_fwhm_ps"] and pulse.shape_tolerance == row["shape_tolerance"]
     assert pulse.fwhm_source != "the run's"  # from run.json's record, not rebuilt from the row
     assert config.optimizer is Optimizer.LM and found["pulse_id"] == row["pulse_id"]  # the fast preset's
+
+
+def _gedi_like() -> RawPulse:
+    """A GEDI-like waveform: 1 ns samples, the first at 812.0 m, 0.15 m lower a sample."""
+    none = np.zeros(0)
+    return RawPulse(np.zeros(1000), 1000.0, 0, none, none.astype(int), none.astype(int), first_z=812.0,
+                    metres_per_sample=0.15)
+
+
+def test_a_shot_s_modes_below_its_ground_are_the_passed_over_ones():
+    rh = [None] * 101
+    rh[25], rh[50], rh[75], rh[98] = -0.3, 0.6, 3.0, 7.5
+    row = {"ground_z": 795.5, "rh": rh, "mode_z": np.array([803.0, 795.5000305, 793.25, 790.1], dtype=np.float32)}
+    markers = forest_markers(_gedi_like(), row)
+    # (812.0 - 795.5) / 0.15 = 110 samples of 1000 ps
+    assert markers["ground_time_ps"] == pytest.approx(110_000.0) and markers["ground_z"] == 795.5
+    assert [m["k"] for m in markers["rh"]] == [25, 50, 75, 98]
+    assert markers["rh"][-1]["time_ps"] == pytest.approx((812.0 - 803.0) / 0.15 * 1000)
+    # the ground's own mode (float32: 3e-5 m off) is no passed-over one; the two below it are
+    assert [m["passed_over"] for m in markers["modes"]] == [False, False, True, True]
+    assert markers["modes"][2]["time_ps"] == pytest.approx((812.0 - 793.25) / 0.15 * 1000)
+    # no mode_z column (a run before it, a non-GEDI run): the ground and RH alone
+    assert forest_markers(_gedi_like(), {"ground_z": 795.5, "rh": rh})["modes"] == []
+    assert forest_markers(_gedi_like(), {"ground_z": None, "rh": rh}) is None
+    assert forest_markers(_gedi_like(), {"ground_z": float("nan"), "rh": rh}) is None
+
+
+def test_a_shot_s_products_are_what_its_row_holds_and_ids_stay_exact():
+    row = {"pulse_id": 19640119700108618, "shot_number": 19640119700108618, "lfid": None, "selected_algorithm": 2,
+           "agbd": 42.25, "agbd_se": 6.5, "agbd_stratum": "GSW_SAm", "agbd_reason": "", "top_z": 803.0}
+    assert shot_details(row) == {"shot_number": "19640119700108618", "selected_algorithm": 2, "top_z": 803.0,
+                                 "agbd": 42.25, "agbd_se": 6.5, "agbd_stratum": "GSW_SAm"}
+    # no biomass, and why; an LVIS shot's LFID and shot number
+    assert shot_details({"shot_number": 7, "agbd": float("nan"), "agbd_se": None,
+                         "agbd_reason": "no stratum: give --stratum"}) == \
+        {"shot_number": "7", "agbd": None, "agbd_reason": "no stratum: give --stratum"}
+    # a small-footprint pulse's top_z and agbd_reason alone are no shot's products
+    assert shot_details({"top_z": 32.8, "agbd": None, "agbd_reason": "not a large footprint"}) is None
+    assert shot_details({"lfid": 2333001003, "shot_number": 277275}) == {"lfid": "2333001003", "shot_number": "277275"}
+    # a LAS run (the columns absent, or present and null): nothing to show
+    assert shot_details({"pulse_id": 5, "gps_time": 1.0}) is None
+    assert shot_details({"shot_number": None, "lfid": None, "selected_algorithm": None, "agbd_reason": ""}) is None

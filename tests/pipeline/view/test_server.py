@@ -38,7 +38,7 @@ def test_summary_counts_and_distributions_add_up(viewed):
     assert s["bounds"]["echoes"] == len(echoes) and s["bounds"]["z"] == [echoes.z.min(), echoes.z.max()]
     assert s["rejected"]["total"] == c["pulses_rejected"] + c["files_rejected"]
     top = pulses.sort_values(["n_echoes", "gps_time"], ascending=[False, True]).iloc[0]
-    assert s["first_pulse"] == ["leica_a.las", int(top.pulse_id)]
+    assert s["first_pulse"] == ["leica_a.las", str(top.pulse_id)]  # ids as their digits
 
 
 def test_echoes_in_a_box_are_the_tables_rows(viewed):
@@ -54,7 +54,7 @@ def test_echoes_in_a_box_are_the_tables_rows(viewed):
     assert again["pulse_id"] == some["pulse_id"]  # the sample is deterministic
     for i in range(25):
         same = [np.isclose(inside[c], some[c][i], rtol=0, atol=6e-4) for c in ("x", "y", "z")]
-        row = inside[(inside.pulse_id == some["pulse_id"][i]) & same[0] & same[1] & same[2]]
+        row = inside[(inside.pulse_id == int(some["pulse_id"][i])) & same[0] & same[1] & same[2]]
         assert len(row) == 1 and np.isclose(row.amplitude.iloc[0], some["value"][i], rtol=1e-6, atol=0)
         assert bool(row.kept.iloc[0]) == some["kept"][i]
     kept = viewed.get(f"/api/echoes?run={viewed.run_id}&colour=height&kept=1&limit=200000")
@@ -244,7 +244,7 @@ def test_a_partial_run_shows_its_rejected_pulses_with_reasons(tmp_path, leica_di
         assert c["pulses_rejected"] > 0 and c["pulses_decomposed"] > 0
         rejected = ds.dataset(str(runs / "cut" / "rejected"), format="parquet").to_table().to_pandas()
         assert s["rejected"]["total"] == len(rejected) == c["pulses_rejected"]
-        assert sorted(r["pulse_id"] for r in s["rejected"]["rows"]) == sorted(rejected.pulse_id)
+        assert sorted(int(r["pulse_id"]) for r in s["rejected"]["rows"]) == sorted(rejected.pulse_id)
         (kind,) = s["rejected"]["reasons"]  # one kind of failure, the offsets and sizes as N
         assert kind["count"] == len(rejected) and "beyond the end of cut.wdp" in kind["reason"]
         assert "N" in kind["reason"] and not any(ch.isdigit() for ch in kind["reason"])
@@ -295,7 +295,7 @@ def test_a_pulsewaves_input_is_decomposed_and_its_pulses_reproduced(tmp_path, st
                 f"+proj=topocentric +X_0={centre[0]!r} +Y_0={centre[1]!r} +Z_0={centre[2]!r} +ellps=WGS84")
             rows = echoes.set_index(["pulse_id", "echo_index"])
             for i in range(0, len(served["x"]), 7):
-                match = echoes[(echoes.pulse_id == served["pulse_id"][i])]
+                match = echoes[(echoes.pulse_id == int(served["pulse_id"][i]))]
                 e, n, u = enu.transform(match.x.to_numpy(), match.y.to_numpy(), match.z.to_numpy())
                 d = (e - served["x"][i]) ** 2 + (n - served["y"][i]) ** 2 + (u - served["z"][i]) ** 2
                 assert d.min() < 2e-6, (i, d.min())  # millimetres, as served
@@ -354,3 +354,69 @@ def test_a_gedi_shot_is_reproduced_with_its_ground_and_rh_markers(tmp_path):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_a_gedi_runs_ids_come_as_their_digits_and_its_map_in_metres(gedi_viewed):
+    """Every identity the server sends is a string of its exact digits (shot numbers lie beyond 2^53, where a
+    JSON number read by a page rounds: 19640119700108618 -> ...616); an id is parsed back to int64 exactly."""
+    from urllib.parse import quote
+
+    from tests.pipeline.view.conftest import GEDI_L1B
+
+    run = quote(gedi_viewed.run_id, safe="")
+    shots = {int(s) for s in gedi_viewed.pulses().pulse_id}
+    rounded = sorted(s for s in shots if int(float(s)) != s)
+    assert rounded  # the test's point: ids a float64 turns into other numbers
+    served = gedi_viewed.get(f"/api/echoes?run={run}&colour=height&limit=200000")
+    assert all(isinstance(p, str) for p in served["pulse_id"]) and {int(p) for p in served["pulse_id"]} <= shots
+    listed = gedi_viewed.get(f"/api/pulses?run={run}&order=echoes&limit=1000")["pulses"]
+    assert sorted(int(p["pulse_id"]) for p in listed) == sorted(shots)
+    assert all(p["pulse_id"] == str(int(p["pulse_id"])) for p in listed)
+    summary = gedi_viewed.get(f"/api/summary?run={run}")
+    assert isinstance(summary["first_pulse"][1], str) and int(summary["first_pulse"][1]) in shots
+    shot = rounded[0]
+    p = gedi_viewed.get(f"/api/pulse?run={run}&file={GEDI_L1B}&pulse=000{shot}")  # leading zeros: the same id
+    assert p["pulse_id"] == p["pulse"]["pulse_id"] == str(shot) and p["reproduced"]
+    assert {r["pulse_id"] for r in p["echo_rows"]} == {str(shot)}
+    # EPSG:4979 drawn in metres about the run's centre: the granule's 0.03 degrees are some 3.3 km
+    assert summary["frame"]["labels"][:2] == ["east (m) from the run's centre", "north (m) from the run's centre"]
+    b = summary["bounds"]
+    assert 500 < b["x"][1] - b["x"][0] < 4000 and 500 < b["y"][1] - b["y"][0] < 4000
+    echoes = gedi_viewed.echoes()
+    assert b["z"] == [echoes.z.min(), echoes.z.max()]  # heights as they are
+
+
+def test_a_gedi_shot_comes_with_its_algorithm_modes_and_biomass(gedi_products, viewed):
+    """With the products' columns in pulses/ (conftest.add_products): the shot's algorithm and agbd as written, its
+    modes placed on the waveform by the L1B's own elevations, those below the ground passed over; a LAS run
+    without them has no shot details."""
+    import h5py
+    from urllib.parse import quote
+
+    from tests.pipeline.view.conftest import GEDI, GEDI_L1B, PASSED_OVER_DROPS_M
+
+    pulses = gedi_products.pulses()
+    row = pulses[pulses.agbd.notna()].iloc[-1]
+    shot = int(row.pulse_id)
+    p = gedi_products.get(f"/api/pulse?run={quote(gedi_products.run_id, safe='')}&file={GEDI_L1B}&pulse={shot}")
+    assert p["shot"] == {"shot_number": str(shot), "selected_algorithm": 2 if shot % 2 == 0 else 1,
+                         "agbd": pytest.approx(float(row.agbd)), "agbd_se": pytest.approx(float(row.agbd_se)),
+                         "agbd_stratum": "GSW_SAm", "top_z": pytest.approx(float(row.top_z))}
+    with h5py.File(GEDI / GEDI_L1B) as f:
+        for beam in (k for k in f if k.startswith("BEAM")):
+            hit = np.flatnonzero(f[beam]["shot_number"][:].astype(np.int64) == shot)
+            if hit.size:
+                geo, i = f[beam]["geolocation"], hit[0]
+                drop = (geo["elevation_bin0"][i] - geo["elevation_lastbin"][i]) / (f[beam]["rx_sample_count"][i] - 1)
+    modes = p["forest"]["modes"]
+    assert [m["passed_over"] for m in modes] == [False, False, True, True]
+    ground_ps = p["forest"]["ground_time_ps"]
+    for m, below in zip(modes[2:], PASSED_OVER_DROPS_M):  # 1 ns a sample, `drop` metres lower each
+        assert m["time_ps"] - ground_ps == pytest.approx(below / drop * 1000.0, abs=0.5)
+    null = pulses[pulses.agbd.isna()]
+    if len(null):  # RH98 at or below the ground: no biomass, and why
+        q = gedi_products.get(f"/api/pulse?run={quote(gedi_products.run_id, safe='')}&file={GEDI_L1B}"
+                              f"&pulse={int(null.pulse_id.iloc[0])}")
+        assert q["shot"]["agbd"] is None and q["shot"]["agbd_reason"] == "RH98 at or below the ground"
+    leica = int(viewed.pulses().pulse_id.iloc[0])
+    assert viewed.get(f"/api/pulse?run={viewed.run_id}&file=leica_a.las&pulse={leica}")["shot"] is None

@@ -1,0 +1,102 @@
+"""The maps on the runners: `fwl classify` then `fwl grid` (the forest's maps) of a synthetic run, timed on the
+DirectRunner with 1 and 2 workers and on a local Dask cluster of 2 workers, at two sizes.
+
+    python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR]
+
+The run is bench_grid.py's (echoes/ parts of every column along a 300 m swath, canopy up to 30 m). Each runner
+gets its own copy of the run (fwl classify writes into it); each command runs in a fresh process, its wall time
+start-up included. Peak memory is the largest sum of RSS over this process and all its children (the command,
+Beam's workers, the Dask cluster's workers), sampled every 0.2 s. At the end the maps of every runner are
+compared pixel for pixel (every band of every COG) and the classes column for column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+from bench_grid import write_run  # noqa: E402
+from bench_pipeline import PeakMemory  # noqa: E402
+
+DASK = "apache_beam.runners.dask.dask_runner.DaskRunner"
+
+
+def fwl(*args: str) -> float:
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "pipeline.cli", *args], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def maps_of(folder: Path) -> dict[str, bytes]:
+    import rasterio
+
+    out = {}
+    for tif in sorted(folder.glob("*.tif")):
+        with rasterio.open(tif) as src:
+            out[tif.name] = src.read().tobytes()
+    return out
+
+
+def classes_of(run: Path) -> bytes:
+    import pyarrow.parquet as pq
+
+    return b"".join(pq.read_table(f, columns=["classification", "height"]).to_pandas().to_numpy(float).tobytes()
+                    for f in sorted((run / "echoes").glob("*.parquet")))
+
+
+def one(source: Path, work: Path, name: str, cell: float, runner: list[str]) -> dict:
+    run = work / name / "run"
+    shutil.copytree(source, run)
+    with PeakMemory() as memory:
+        classify = fwl("classify", str(run), *runner)
+        grid = fwl("grid", str(run), "--cell", str(cell), "--output", str(work / name / "maps"), "--crs",
+                   "EPSG:25832", *runner)
+    return {"classify": classify, "grid": grid, "peak": memory.peak / 2**20, "maps": maps_of(work / name / "maps"),
+            "classes": classes_of(run)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", default="2000000,20000000")
+    parser.add_argument("--cell", type=float, default=5.0)
+    parser.add_argument("--workdir")
+    args = parser.parse_args()
+    print("| echoes | runner | classify s | grid s | total s | speed-up | peak MiB | maps as direct-1 |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | --- |", flush=True)
+    for size in (int(s) for s in args.sizes.split(",")):
+        with tempfile.TemporaryDirectory(dir=args.workdir) as work:
+            work = Path(work)
+            write_run(work / "source", size)
+            fwl("grid", str(work / "source"), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
+            results = {}
+            for name, runner in (("direct-1", ["--direct_num_workers=1", "--direct_running_mode=multi_processing"]),
+                                 ("direct-2", ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]),
+                                 ("dask-2", None)):
+                if runner is None:
+                    from distributed import LocalCluster
+
+                    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster:
+                        results[name] = one(work / "source", work, name, args.cell,
+                                            [f"--runner={DASK}", f"--dask_client_address={cluster.scheduler_address}"])
+                else:
+                    results[name] = one(work / "source", work, name, args.cell, runner)
+                r, base = results[name], results["direct-1"]
+                total = r["classify"] + r["grid"]
+                same = r["maps"] == base["maps"] and r["classes"] == base["classes"] and np.all(
+                    [len(v) for v in r["maps"].values()])
+                print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | "
+                      f"{(base['classify'] + base['grid']) / total:.2f} | {r['peak']:.0f} | {same} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

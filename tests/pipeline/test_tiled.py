@@ -1,0 +1,115 @@
+"""The maps' tiles on the runners: the spill puts each echo in every tile whose core or margin holds it; a resumed
+job redoes only the tiles without their mark; and the forest's maps and classes are the same, byte for byte, on
+the DirectRunner with one and two workers and on a Dask cluster."""
+
+import functools
+import json
+import shutil
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import rasterio
+
+from fwcore.grid import Grid
+from fwcore.terrain.tiles import tiles_over
+from pipeline.cli import main
+from pipeline.tiled import (TileTask, mark_tile, read_spill, result_path, run_tiles, spill, start_spill, tile_is_done,
+                            tile_results)
+
+IN_PROCESS = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
+
+
+def _tasks(folder, rng):
+    grid = Grid(0.0, 40.0, 1.0, 40, 40)
+    x, y, z = rng.uniform(0, 40, 3000), rng.uniform(0, 40, 3000), rng.normal(100, 5, 3000)
+    return [TileTask(str(folder), k, t) for k, t in enumerate(tiles_over(grid, 20.0, 5.0))], x, y, z
+
+
+def _sum_core(task, fail=-1, calls=None):
+    """A tile's work: the sum of its core's z into its result, as a worker would write it."""
+    if task.index == fail:
+        raise RuntimeError("a worker lost")
+    e = read_spill(task)
+    core = task.tile.in_core(e["x"], e["y"])
+    result_path(task, ".json").write_text(json.dumps(float(e["z"][core].sum())))
+    if calls is not None:
+        with open(calls, "a") as f:
+            f.write(f"{task.index}\n")
+    mark_tile(task)
+
+
+def test_the_spill_gives_each_tile_its_core_and_margin(tmp_path):
+    tasks, x, y, z = _tasks(tmp_path, np.random.default_rng(3))
+    assert not start_spill(tmp_path, {"a": 1}, resume=False)
+    assert spill([{"x": x, "y": y, "z": z}], tasks, ("x", "y", "z")) == 3000
+    for t in tasks:
+        e = read_spill(t)
+        xmin, ymin, xmax, ymax = t.tile.core
+        inside = (x >= xmin - 5) & (x < xmax + 5) & (y >= ymin - 5) & (y < ymax + 5)
+        np.testing.assert_array_equal(np.sort(e["z"]), np.sort(z[inside]))
+    # the same settings resume the spill; others start it anew
+    assert start_spill(tmp_path, {"a": 1}, resume=True)
+    assert not start_spill(tmp_path, {"a": 2}, resume=True) and not read_spill(tasks[0])
+
+
+def test_a_resumed_job_redoes_only_the_tiles_without_their_mark(tmp_path):
+    tasks, x, y, z = _tasks(tmp_path, np.random.default_rng(4))
+    start_spill(tmp_path, {}, resume=False)
+    spill([{"x": x, "y": y, "z": z}], tasks, ("x", "y", "z"))
+    mark_tile(tasks[0])  # tile 0 "finished" by an earlier attempt, with a result of its own
+    result_path(tasks[0], ".json").write_text("-1.0")
+    calls = tmp_path / "calls.txt"
+    with pytest.raises(Exception, match="a worker lost"):
+        run_tiles(functools.partial(_sum_core, fail=2, calls=calls), tasks, IN_PROCESS, small=True)
+    assert not tile_is_done(tasks[2])
+    before = set(calls.read_text().split()) if calls.exists() else set()
+    redone = run_tiles(functools.partial(_sum_core, calls=calls), tasks, IN_PROCESS, small=True)
+    assert redone == len(tasks) - 1 - len(before)
+    sums = {t.index: json.loads(p.read_text()) for t, p in tile_results(tasks, ".json")}
+    assert sums[0] == -1.0  # kept, not redone
+    for t in tasks[1:]:
+        xmin, ymin, xmax, ymax = t.tile.core
+        core = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
+        assert sums[t.index] == pytest.approx(z[core].sum())
+    assert run_tiles(_sum_core, tasks, IN_PROCESS, small=True) == 0  # all done: no job
+
+
+def _maps_and_classes(run, out, runner_args):
+    assert main(["grid", str(run), "--cell", "5", "--output", str(out), "--classify", *runner_args]) == 0
+    maps = {}
+    for name in ("dtm", "chm", "cover", "pai", "pai_corrected", "pavd", "rh98"):
+        with rasterio.open(out / f"{name}.tif") as src:
+            maps[name] = src.read()
+    table = pq.read_table(sorted((run / "echoes").glob("*.parquet"))[0], columns=["classification", "height"])
+    return maps, table
+
+
+@pytest.fixture(scope="module")
+def dask_cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_the_maps_are_the_same_on_every_runner(forest_run, tmp_path, dask_cluster):
+    runners = {"direct-1": ["--direct_num_workers=1", "--direct_running_mode=multi_processing"],
+               "direct-2": ["--direct_num_workers=2", "--direct_running_mode=multi_processing"],
+               "dask": ["--runner=apache_beam.runners.dask.dask_runner.DaskRunner",
+                        f"--dask_client_address={dask_cluster}"]}
+    results = {}
+    for name, args in runners.items():
+        run = tmp_path / name / "run"
+        shutil.copytree(forest_run, run)
+        for f in (run / "echoes").glob("*.parquet"):  # unclassified, as fwl run left it
+            t = pq.read_table(f)
+            pq.write_table(t.drop_columns([c for c in ("classification", "height") if c in t.column_names]), f)
+        results[name] = _maps_and_classes(run, tmp_path / name / "grid", args)
+    (maps, table) = results["direct-1"]
+    assert np.isfinite(maps["dtm"]).sum() > 100 and (table.column("classification").to_numpy(False) == 2).sum() > 100
+    for name in ("direct-2", "dask"):
+        other, other_table = results[name]
+        assert table.equals(other_table), name
+        for k in maps:
+            assert maps[k].tobytes() == other[k].tobytes(), (name, k)
