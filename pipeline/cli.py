@@ -663,6 +663,7 @@ def _horizontal_unit(crs_wkt: str | None) -> str:
 
 
 def _footprints(args: argparse.Namespace, beam_args: list[str]) -> int:
+    from fwcore.metrics.biomass import check_stratum
     from pipeline.footprints import footprints_run
     from pipeline.options import check_beam_args
 
