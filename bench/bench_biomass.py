@@ -6,8 +6,9 @@ quality shots) on a granule triple of one orbit.
 Runs `fwl run` on the L1B (its L2A beside it gives each shot's algorithm and land cover, hence its stratum),
 joins the shots to L4A by shot number and prints, on L4A's l4_quality_flag 1 shots, the median and 90th
 percentile of |agbd - L4A| / L4A against L4A's prediction of the algorithm the shot's RH came from
-(agbd_prediction/agbd_aN, N the L2A's selected algorithm), and against L4A's own agbd (its own algorithm
-choice, which may differ: setting group 10); with the same for the L4A models on L2A's own rh_aN (the models'
+(agbd_prediction/agbd_aN, N our agbd_algorithm: L4A's rule, fwcore.metrics.l4a_algorithm), and against L4A's own
+agbd (its own algorithm choice: where it is setting group 10 we measure algorithm 5); how often our
+agbd_algorithm is L4A's selected_algorithm; with the same for the L4A models on L2A's own rh_aN (the models'
 share of the difference: zero but for float32). Shots L4A predicts 0 (a negative agbd_t) are left out of the
 relative figures and counted.
 """
@@ -36,6 +37,7 @@ def _l4a(path: Path) -> dict[int, dict]:
             by = {a: p[f"agbd_a{a}"][:] for a in algorithms}
             for i, s in enumerate(g["shot_number"][:]):
                 shots[int(s)] = {"agbd": float(g["agbd"][i]), "quality": int(g["l4_quality_flag"][i]),
+                                 "algorithm": int(g["selected_algorithm"][i]),
                                  "stratum": g["predict_stratum"][i].decode(),
                                  "by": {a: float(v[i]) for a, v in by.items()}}
     return shots
@@ -67,12 +69,15 @@ def main_(l1b: Path, l4a: Path, workdir: Path) -> None:
     nasa, l2a = _l4a(l4a), _l2a(l2a_beside(l1b))
     shots = [s for s, v in nasa.items() if v["quality"] == 1 and s in pulses.index and s in l2a
              and np.isfinite(pulses.at[s, "agbd"])]
-    same = [s for s in shots if l2a[s]["algorithm"] in nasa[s]["by"]]
+    same = [s for s in shots if int(pulses.at[s, "agbd_algorithm"]) in nasa[s]["by"]]
     ours = pulses.loc[same, "agbd"].to_numpy()
-    _say("ours against L4A's agbd_aN of the shot's L2A algorithm", ours,
-         np.array([nasa[s]["by"][l2a[s]["algorithm"]] for s in same]))
+    _say("ours against L4A's agbd_aN of our agbd_algorithm", ours,
+         np.array([nasa[s]["by"][int(pulses.at[s, "agbd_algorithm"])] for s in same]))
     _say("ours against L4A's agbd (its own algorithm choice)", pulses.loc[shots, "agbd"].to_numpy(),
          np.array([nasa[s]["agbd"] for s in shots]))
+    agree = np.mean([int(pulses.at[s, "agbd_algorithm"]) == nasa[s]["algorithm"] for s in shots])
+    print(f"agbd_algorithm is L4A's selected_algorithm for {agree:.1%} of {len(shots)} shots (10: we measure 5)")
+    same = [s for s in same if l2a[s]["algorithm"] in nasa[s]["by"]]
     rh = np.stack([l2a[s]["rh"][l2a[s]["algorithm"]] for s in same])
     models = predict_agbd(rh, np.array([nasa[s]["stratum"] for s in same], dtype=object)).agbd
     _say("the models on L2A's own RH against L4A's agbd_aN", models,

@@ -23,9 +23,10 @@ from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.io.formats import GEDI_L1B, LVIS_L1B, format_of
 from fwcore.metrics.echo_column import FROM_ECHOES, FROM_WAVEFORM, pulse_column_metrics
-from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, footprint_biomass
+from fwcore.metrics.biomass import LARGE_FOOTPRINT_FORMATS, ShotBiomass, predict_agbd, shot_strata
 from fwcore.metrics.algorithms import AlgorithmPlan
 from fwcore.metrics.pulses import batch_metrics
+from fwcore.metrics.waveform import WaveformMetrics
 from fwcore.radiometry.flight import file_radiometry, range_radiometry
 from fwcore.instrument.pulse import SystemPulse, nominal_pulse
 from fwcore.io import read_pulses
@@ -144,6 +145,20 @@ def range_metrics(item: DecomposedRange, xyz, pulse_metrics: str = FROM_ECHOES):
     return pulse_column_metrics(pulses, result, xyz), None, None
 
 
+def range_biomass(item: DecomposedRange, metrics: WaveformMetrics, algorithms: np.ndarray | None,
+                  every: dict | None, stratum: str | None) -> ShotBiomass:
+    """Each large footprint's L4A biomass by its stratum (fwcore.metrics.biomass: the L2A land cover's, else
+    `stratum`); GEDI: from the RH of the algorithm L4A would take (AlgorithmPlan.l4a_rh), not L2A's selected."""
+    pulses, source = item.pulses, item.task.source
+    names, reasons = shot_strata(len(pulses), format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
+                                 pulses.pft_class, pulses.region_class)
+    if not source.metric_settings or algorithms is None or not (names != "").any():
+        return predict_agbd(metrics.rh, names, reasons)
+    plan = AlgorithmPlan.from_dict(source.metric_settings)  # GEDI: the file's L2A algorithms
+    rh, algorithm = plan.l4a_rh(pulses, item.result, source.pulse, names, metrics, algorithms, every)
+    return dataclasses.replace(predict_agbd(rh, names, reasons), algorithm=algorithm)
+
+
 def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_views: bool,
                     laps: Laps | None = None, stratum: str | None = None,
                     pulse_metrics: str = FROM_ECHOES) -> GeolocatedRange:
@@ -163,8 +178,7 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     with laps("metrics"):
         metrics, algorithms, every = range_metrics(item, xyz, pulse_metrics)
     with laps("biomass"):
-        biomass = footprint_biomass(metrics.rh, format_of(source.path).name in LARGE_FOOTPRINT_FORMATS, stratum,
-                                    pulses.pft_class, pulses.region_class)
+        biomass = range_biomass(item, metrics, algorithms, every, stratum)
     with laps("tables"):
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
                                      result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass)

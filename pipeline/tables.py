@@ -197,6 +197,9 @@ COLUMNS = {c.name: c for c in (
     Column("agbd_stratum", STR, "", "the L4A prediction stratum (plant functional type _ region, e.g. ENT_NAm) whose "
                                     "model gave agbd: from the L2A granule's land cover, else --stratum"),
     Column("agbd_reason", STR, "", "'' when agbd was predicted, else why it is null"),
+    Column("agbd_algorithm", pa.int8(), "", "GEDI: the L2A algorithm whose RH gave agbd, as L4A chooses it (not "
+                                            "always selected_algorithm; L4A's algorithm 10 is measured as 5: "
+                                            "fwcore.metrics.l4a_algorithm; null: no agbd, or not GEDI)"),
     Column("selected_algorithm", pa.int8(), "", "GEDI: the L2A algorithm whose ground and RH are ground_z and rh (L2A's "
                                                 "selected_algorithm where its granule lies beside the L1B; null: "
                                                 "not GEDI)"),
@@ -228,6 +231,7 @@ _COUNTS = ("n_echoes_initial", "n_echoes_dropped", "n_echoes_added", "n_echoes",
 _METHOD = ("optimizer", "model")
 _FOREST = ("ground_z", "rh", "rv", "rg", "cover", "pai", "pavd_z", "metrics_reason")
 _BIOMASS = ("agbd", "agbd_se", "agbd_stratum", "agbd_reason")
+_L4A = ("agbd_algorithm",)  # which algorithm's RH L4A predicts from
 _GEDI = ("selected_algorithm", "mode_z")
 # written only with --l2a-algorithms all: appended after the table's own columns
 EVERY_ALGORITHM = (*(f"ground_z_a{a}" for a in range(1, 7)), *(f"rh_a{a}" for a in range(1, 7)))
@@ -242,7 +246,7 @@ TABLES = {
                "classification", "height"),
     "pulses": ("source_file", "pulse_id", "channel", "segment", "packet_offset", "gps_time", PULSE_GEOMETRY, "n_samples",
                "sample_spacing_ps", "noise_sigma", "background", "background_volts", *_FIT, *_COUNTS,
-               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_SHOT, *_GEDI, *_BIOMASS,
+               "n_system_returns", "system_pulse_fwhm_ps", "shape_tolerance", *_METHOD, *_FOREST, *_SHOT, *_GEDI, *_BIOMASS, *_L4A,
                "stale_return_flag",
                "degrade_flag"),
     "rejected": ("source_file", "pulse_id", "stage", "reason"),
@@ -373,9 +377,19 @@ def _biomass_columns(biomass, rows: np.ndarray) -> dict:
     """fwcore.metrics.biomass.ShotBiomass at rows, NaN as null; all null (with the reason) without it."""
     if biomass is None:
         return {"agbd": pa.nulls(rows.size, F64), "agbd_se": pa.nulls(rows.size, F64),
-                "agbd_stratum": _strings("", rows.size), "agbd_reason": _strings("not predicted", rows.size)}
+                "agbd_stratum": _strings("", rows.size), "agbd_reason": _strings("not predicted", rows.size),
+                "agbd_algorithm": pa.nulls(rows.size, pa.int8())}
     return {"agbd": _null_where_nan(biomass.agbd[rows]), "agbd_se": _null_where_nan(biomass.agbd_se[rows]),
-            "agbd_stratum": biomass.stratum[rows].tolist(), "agbd_reason": biomass.reason[rows].tolist()}
+            "agbd_stratum": biomass.stratum[rows].tolist(), "agbd_reason": biomass.reason[rows].tolist(),
+            "agbd_algorithm": _l4a_algorithm(biomass, rows)}
+
+
+def _l4a_algorithm(biomass, rows: np.ndarray) -> pa.Array:
+    """The algorithm whose RH gave each shot's agbd; null where none did (no agbd, or not GEDI)."""
+    if biomass is None or biomass.algorithm is None:
+        return pa.nulls(rows.size, pa.int8())
+    algorithm = biomass.algorithm[rows]
+    return pa.array(algorithm, pa.int8(), mask=(algorithm == 0) | ~np.isfinite(biomass.agbd[rows]))
 def _gedi_columns(metrics, algorithms: np.ndarray | None, rows: np.ndarray) -> dict:
     """The selected L2A algorithm (GEDI; null for other sensors) and every mode's height (wherever the forest
     metrics were measured)."""

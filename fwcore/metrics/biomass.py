@@ -135,6 +135,7 @@ class ShotBiomass:
     agbd_se: np.ndarray
     stratum: np.ndarray  # object: names, '' where none
     reason: np.ndarray  # object: '' where predicted
+    algorithm: np.ndarray | None = None  # GEDI: the L2A algorithm whose RH gave agbd (int8, 0: none; L4A's choice)
 
 
 def predict_agbd(rh: np.ndarray, strata: np.ndarray, reasons: np.ndarray | None = None) -> ShotBiomass:
@@ -158,20 +159,27 @@ def predict_agbd(rh: np.ndarray, strata: np.ndarray, reasons: np.ndarray | None 
     return ShotBiomass(agbd, se, strata, reason)
 
 
-def footprint_biomass(rh: np.ndarray, large_footprint: bool, stratum: str | None = None,
-                      pft_class: np.ndarray | None = None, region_class: np.ndarray | None = None) -> ShotBiomass:
-    """Biomass of a batch of waveforms: where they are large footprints, each by the stratum its land cover
-    names (L2A's pft_class / region_class, where recorded), else by `stratum` (e.g. --stratum ENT_NAm, checked);
-    small footprints: none (NOT_LARGE)."""
-    n = len(np.asarray(rh).reshape(-1, 101))
+def shot_strata(n: int, large_footprint: bool, stratum: str | None = None, pft_class: np.ndarray | None = None,
+                region_class: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per waveform of a batch of n its prediction stratum ('' where none) and why none: where they are large
+    footprints, the stratum its land cover names (L2A's pft_class / region_class, where recorded), else `stratum`
+    (e.g. --stratum ENT_NAm, checked); small footprints: none (NOT_LARGE)."""
     if not large_footprint:
-        empty = np.full(n, "", dtype=object)
-        return ShotBiomass(np.full(n, np.nan), np.full(n, np.nan), empty, np.full(n, NOT_LARGE, dtype=object))
+        return np.full(n, "", dtype=object), np.full(n, NOT_LARGE, dtype=object)
     given = check_stratum(stratum) if stratum else ""
     if pft_class is not None and region_class is not None:
         names, reasons = strata_of_land_cover(pft_class, region_class)
         if given:  # the land cover's first; --stratum for shots the L2A granule does not hold
             names = np.where((names == "") & (reasons == ""), given, names)
-    else:
-        names, reasons = np.full(n, given, dtype=object), np.full(n, "", dtype=object)
+        return names, reasons
+    return np.full(n, given, dtype=object), np.full(n, "", dtype=object)
+
+
+def footprint_biomass(rh: np.ndarray, large_footprint: bool, stratum: str | None = None,
+                      pft_class: np.ndarray | None = None, region_class: np.ndarray | None = None) -> ShotBiomass:
+    """Biomass of a batch of waveforms from their RH, by the strata shot_strata gives them."""
+    n = len(np.asarray(rh).reshape(-1, 101))
+    names, reasons = shot_strata(n, large_footprint, stratum, pft_class, region_class)
+    if not large_footprint:
+        return ShotBiomass(np.full(n, np.nan), np.full(n, np.nan), names, reasons)
     return predict_agbd(rh, names, reasons)

@@ -63,18 +63,10 @@ def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemP
     where the file records no transmitted shape); where the file names each shot's algorithm
     (PulseBatch.metric_algorithm) and `by_algorithm` gives their settings, each shot takes its own. An LVIS file
     (PulseBatch.metric_definition "lvis") takes LVIS's Level 2 definitions (fwcore.metrics.lvis)."""
-    spacing = np.maximum(pulses.sample_spacing_ps, 1e-9)
-    sigma = pulse.fwhm_ps / spacing / FWHM_PER_SIGMA
-    if pulses.transmit_shape is not None:
-        shape = pulses.transmit_shape
-    else:
-        shape = np.stack([sigma, sigma / 3.0, np.ones_like(sigma), np.full_like(sigma, 0.3)], axis=1)
+    sigma = pulse.fwhm_ps / np.maximum(pulses.sample_spacing_ps, 1e-9) / FWHM_PER_SIGMA
     if settings is None:
         settings = GEDI_ALGORITHM_1 if pulses.transmit_shape is not None else settings_for_pulse(np.median(sigma))
-    noise_mean = pulses.noise_mean if pulses.noise_mean is not None else result.background
-    noise_sd = pulses.noise_sd if pulses.noise_sd is not None else result.noise_sigma
-    first_z, drop = vertical_axis(pulses)
-    columns = (noise_mean, noise_sd, first_z, drop, zenith_cosine(pulses), shape)
+    columns = metric_columns(pulses, result, pulse)
     if pulses.metric_definition == "lvis":  # LVIS's own Level 2 metrics, smoothed by its transmitted pulse
         return lvis_metrics(pulses.samples, pulses.sample_offsets, *columns, float(np.median(sigma)))
     if not by_algorithm or pulses.metric_algorithm is None:
@@ -87,6 +79,27 @@ def batch_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemP
         parts[int(a)] = (rows, waveform_metrics(samples, offsets, *(c[rows] for c in columns),
                                                 by_algorithm.get(int(a), settings)))
     return joined_metrics(len(pulses), list(parts.values()))
+
+
+def metric_columns(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemPulse) -> tuple[np.ndarray, ...]:
+    """Per pulse what the metrics' kernel reads beside the samples: noise mean and sd (the file's, else the
+    engine's), the first sample's height and the drop per sample, the zenith cosine and the transmitted shape."""
+    sigma = pulse.fwhm_ps / np.maximum(pulses.sample_spacing_ps, 1e-9) / FWHM_PER_SIGMA
+    if pulses.transmit_shape is not None:
+        shape = pulses.transmit_shape
+    else:
+        shape = np.stack([sigma, sigma / 3.0, np.ones_like(sigma), np.full_like(sigma, 0.3)], axis=1)
+    noise_mean = pulses.noise_mean if pulses.noise_mean is not None else result.background
+    noise_sd = pulses.noise_sd if pulses.noise_sd is not None else result.noise_sigma
+    first_z, drop = vertical_axis(pulses)
+    return noise_mean, noise_sd, first_z, drop, zenith_cosine(pulses), shape
+
+
+def rows_metrics(pulses: PulseBatch, result: BatchDecomposition, pulse: SystemPulse, settings: MetricSettings,
+                 rows: np.ndarray) -> WaveformMetrics:
+    """The metrics of pulses `rows` only, by `settings` (GEDI: one L2A algorithm's): a subset's, at its cost."""
+    samples, offsets = take_waveforms(pulses.samples, pulses.sample_offsets, rows)
+    return waveform_metrics(samples, offsets, *(c[rows] for c in metric_columns(pulses, result, pulse)), settings)
 
 
 def take_waveforms(samples: np.ndarray, offsets: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -53,6 +53,7 @@ def test_every_measured_shot_has_its_agbd_from_its_own_rh(biomass_run):
     measured = pulses[pulses.metrics_reason == ""]
     assert len(measured) >= 150
     assert set(measured.agbd_stratum) == {STRATUM} and set(measured.agbd_reason) == {""}
+    assert set(measured.agbd_algorithm) == {1}  # grass: L4A's rule never leaves algorithm 1, nor L2A's here
     rh = np.stack(measured.rh.to_numpy()).astype(np.float64)
     again = predict_agbd(rh, np.full(len(rh), STRATUM, dtype=object))
     np.testing.assert_allclose(measured.agbd, again.agbd, rtol=1e-6)  # RH stored as float32

@@ -12,6 +12,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
+from fwcore.metrics.biomass import l4a_models
 from fwcore.studies.gedi_granule import write_granule
 from pipeline.cli import main
 
@@ -19,13 +20,14 @@ GEDI = Path(__file__).resolve().parents[2] / "examples" / "data" / "gedi"
 L1B = GEDI / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
 L2A = GEDI / "GEDI02_A_2019108080338_O01964_T05337_02_001_01_sub.h5"
 L2B = GEDI / "GEDI02_B_2019108080338_O01964_T05337_02_001_01_sub.h5"
+STRATUM = "ENT_NAm"  # a tree stratum: L4A's rule may take algorithm 2's RH (fwcore.metrics.l4a_algorithm)
 
 
 @pytest.fixture(scope="module")
 def gedi_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("gedi")
     assert main(["run", str(L1B), "--output", str(out), "--formats", "parquet,las", "--optimizer", "lm",
-                 "--points-per-range", "40", "--l2a-algorithms", "all"]) == 0
+                 "--points-per-range", "40", "--l2a-algorithms", "all", "--stratum", STRATUM]) == 0
     return out
 
 
@@ -78,6 +80,60 @@ def test_every_algorithms_ground_and_rh_reproduce_l2as_own(gedi_run):
     assert (pulses.selected_algorithm == 1).all()
     assert np.array_equal(pulses.ground_z.to_numpy(), pulses.ground_z_a1.to_numpy())
     assert all(np.isclose(m[-1], g, atol=1e-3) for m, g in zip(pulses.mode_z, pulses.ground_z))
+
+
+def _peak_above_noise() -> dict[int, float]:
+    """Per shot, by hand from the L1B: max(rxwaveform) - noise_mean_corrected (L2A's rx_assess/rx_maxamp)."""
+    peaks = {}
+    with h5py.File(L1B) as f:
+        for beam in (f[k] for k in f if k.startswith("BEAM")):
+            flat, noise = beam["rxwaveform"][:], beam["noise_mean_corrected"][:]
+            for s, i, c, m in zip(beam["shot_number"][:], beam["rx_sample_start_index"][:] - 1,
+                                  beam["rx_sample_count"][:], noise):
+                peaks[int(s)] = float(flat[i:i + c].max()) - float(m)
+    return peaks
+
+
+def _l4a_by_hand(rh: np.ndarray) -> np.ndarray:
+    """ENT_NAm's L4A model by hand: C (par . [1, sqrt(RH_k + 100)])^2, 0 below zero."""
+    model = l4a_models().strata[STRATUM]
+    t = model.par[0] + np.sqrt(rh[:, list(model.rh_index)] + 100.0) @ model.par[1:]
+    return np.where(t > 0, model.bias_correction * t ** 2, 0.0)
+
+
+def test_agbd_takes_the_rh_of_the_algorithm_l4a_selects(gedi_run):
+    """ENT_NAm (a tree): L4A's rule from the run's own grounds and the peak above the noise; agbd its model on
+    that algorithm's RH; ground_z / rh stay L2A's selected (algorithm 1 here)."""
+    pulses = _table(gedi_run, "pulses")
+    peak = np.array([_peak_above_noise()[s] for s in pulses.shot_number])
+    expected = np.where((peak < 400) & (pulses.ground_z_a2 < pulses.ground_z_a1), 2, 1)
+    measured = pulses.metrics_reason == ""
+    assert (pulses.agbd_algorithm[measured] == expected[measured]).all()
+    assert pulses.agbd_algorithm.isna().equals(pulses.agbd.isna())
+    counts = pulses.agbd_algorithm.value_counts().to_dict()
+    assert counts.get(2, 0) >= 10 and counts.get(1, 0) >= 10, counts  # both, and unlike selected_algorithm (all 1)
+    for a in (1, 2):
+        at = pulses[pulses.agbd_algorithm == a]
+        np.testing.assert_allclose(at.agbd, _l4a_by_hand(np.stack(at[f"rh_a{a}"].to_numpy()).astype(float)),
+                                   rtol=1e-6)
+    assert (pulses.selected_algorithm == 1).all() and np.array_equal(pulses.ground_z, pulses.ground_z_a1)
+
+
+def test_agbd_against_l4a_s_rule_on_l2a_s_own_fields(gedi_run):
+    """What NASA's L4A would give these shots: its rule on L2A's rx_maxamp and grounds, its model on L2A's RH of
+    the algorithm chosen; ours within the issue's 3 % median, 15 % 90th percentile relative."""
+    pulses = _table(gedi_run, "pulses").set_index("shot_number")
+    l2a = _nasa(L2A, ("rx_assess/rx_maxamp", "geolocation/elev_lowestmode_a1", "geolocation/elev_lowestmode_a2",
+                      "geolocation/rh_a1", "geolocation/rh_a2", "quality_flag"))
+    take = np.isin(l2a["shot"], pulses.index) & (l2a["quality_flag"] == 1)
+    chosen = np.where((l2a["rx_assess/rx_maxamp"] < 400)
+                      & (l2a["geolocation/elev_lowestmode_a2"] < l2a["geolocation/elev_lowestmode_a1"]), 2, 1)[take]
+    rh = np.where((chosen == 2)[:, None], l2a["geolocation/rh_a2"][take], l2a["geolocation/rh_a1"][take]) / 100.0
+    nasa = _l4a_by_hand(rh)
+    ours = pulses.loc[l2a["shot"][take]]
+    relative = np.abs(ours.agbd.to_numpy() - nasa) / nasa
+    assert take.sum() >= 150 and np.median(relative) <= 0.03 and np.percentile(relative, 90) <= 0.15
+    assert np.mean(ours.agbd_algorithm.to_numpy() == chosen) >= 0.9
 
 
 def test_pulses_join_l2a_by_shot_number_and_give_its_highest_return(gedi_run):
