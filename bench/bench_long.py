@@ -126,22 +126,23 @@ def out_bin0(group: h5py.Group, index: np.ndarray) -> np.ndarray:
     return group["geolocation/elevation_bin0"][:][index]
 
 
-def run_fwl(path: Path, work: Path) -> dict:
-    """`fwl run` with defaults (DirectRunner, 2 workers) on `path`: shots/s a core, the plan's seconds, model
-    evaluations a shot, peak RSS."""
+def run_fwl(path: Path, work: Path, model: str = "auto") -> dict:
+    """`fwl run` with defaults (DirectRunner, 2 workers; `model` the echo model, auto by default) on `path`:
+    shots/s a core, the run's stage timing, model evaluations a shot, peak RSS."""
     from fwcore.engine.config import DecompositionConfig
     from pipeline.run import run
 
-    out = work / f"run_{path.stem}"
+    out = work / f"run_{path.stem}_{model}"
     with PeakMemory() as memory:
         start = time.perf_counter()
-        run([str(path)], out, DecompositionConfig(), ("parquet", "las", "mcap"), points_per_range=5000, watch=False)
+        run([str(path)], out, DecompositionConfig(model=model), ("parquet", "las", "mcap"), points_per_range=5000,
+            watch=False)
         seconds = time.perf_counter() - start
     summary = json.loads((out / "run.json").read_text())
     counts = summary.get("counts", {})
     shots = counts.get("pulses_read") or counts.get("pulses")
     timing = summary.get("timing", {})
-    return {"file": path.name, "shots": shots, "seconds": round(seconds, 1),
+    return {"file": path.name, "model": model, "shots": shots, "seconds": round(seconds, 1),
             "shots_per_s_core": round(shots / seconds / 2, 1), "timing": timing,
             "nfev_per_shot": summary.get("engine", {}).get("nfev_per_pulse"),
             "peak_rss_mib": round(memory.peak / 2**20)}
@@ -156,6 +157,7 @@ def main() -> None:
     parser.add_argument("--tall-shots", type=int, default=12000)
     parser.add_argument("--only", default="lvis,tall,savanna")
     parser.add_argument("--workdir", type=Path, default=None)
+    parser.add_argument("--model", default="auto", help="the echo model (LVIS's 303-shot forest file chose system)")
     args = parser.parse_args()
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_long_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -171,7 +173,7 @@ def main() -> None:
         files.append(work / "GEDI01_B_savanna_repeated.h5")
         repeat_gedi(args.gedi_l1b, files[-1], args.savanna_shots, tall=False)
     for path in files:
-        print(json.dumps(run_fwl(path, work)), flush=True)
+        print(json.dumps(run_fwl(path, work, args.model)), flush=True)
 
 
 if __name__ == "__main__":
