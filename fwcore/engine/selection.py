@@ -11,7 +11,7 @@ echo costing its parameters x ln(m). Every candidate is an LM refit from a warm
 start, so the step is cheap and runs only where the filter or the residual asks.
 
 On a long waveform of many echoes (LVIS, GEDI over tall canopy: a thousand
-samples, a dozen echoes) a candidate's refit is local: only the echoes whose
+samples, a dozen echoes; at least LOCAL_MIN_SAMPLES) a candidate's refit is local: only the echoes whose
 reach meets the dropped (or added) echo's move, over the samples they reach,
 with the other echoes and the background held in the model; chi^2 is still
 that of the whole waveform. Where any candidate was kept that way, one LM
@@ -38,8 +38,11 @@ from fwcore._jit import searchsorted
 # an echo's reach for a local refit: where it falls below 2**-LOCAL_REACH_BITS of its height (the held echoes
 # stay in the model, so this only says which echoes move: those whose reach meets the candidate's)
 LOCAL_REACH_BITS = 10.0
-# a local refit where the moving echoes reach at most this share of the waveform's samples
+# a local refit where the moving echoes reach at most this share of the waveform's samples, on waveforms of at
+# least LOCAL_MIN_SAMPLES valid samples (LVIS's 1024, GEDI's 700-1400): on short ones (Leica's 256, RIEGL's 80)
+# a full refit costs little and their echoes stay those measured against the accuracy bars
 LOCAL_MAX_SHARE = 0.5
+LOCAL_MIN_SAMPLES = 512
 
 
 
@@ -93,9 +96,10 @@ def echo_reach(x, k, shape):
 def local_refit(p, shape, x, n_echoes, start, stop, times, target, weights, lower, upper):
     """LM refit, in place, of the echoes of x whose reach meets [start, stop] (times), over the samples their
     reaches cover, with the background and the other echoes held in the model. Returns the Jacobians
-    evaluated, or -1 (x untouched) where the waveform has p.local_refit_echoes echoes or fewer, or the moving
-    ones reach more than LOCAL_MAX_SHARE of its samples: a full refit is then as cheap."""
-    if n_echoes <= p.local_refit_echoes:
+    evaluated, or -1 (x untouched) where the waveform has p.local_refit_echoes echoes or fewer or fewer than
+    LOCAL_MIN_SAMPLES valid samples, or the moving ones reach more than LOCAL_MAX_SHARE of its samples: a full
+    refit is then as cheap."""
+    if n_echoes <= p.local_refit_echoes or times.size < LOCAL_MIN_SAMPLES:
         return -1
     near = np.zeros(n_echoes, dtype=np.bool_)
     lo_t, hi_t = start, stop
