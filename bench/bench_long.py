@@ -39,6 +39,9 @@ def repeat_lvis(source: Path, path: Path, shots: int) -> int:
         index = np.arange(shots) % n
         copy = np.arange(shots) // n
         for key, data in f.items():
+            if not isinstance(data, h5py.Dataset):  # ancillary_data: the file's, once
+                f.copy(key, out)
+                continue
             value = data[:][index]
             if key == "SHOTNUMBER":
                 value = (value.astype(np.int64) + copy * 100_000).astype(data.dtype)
