@@ -300,9 +300,10 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
     shapes = echo_shapes(config, pulse, batch.sample_spacing_ps)
     noise_floor = np.zeros(n) if batch.noise_floor is None else np.nan_to_num(batch.noise_floor.astype(np.float64))
     params = config.kernel_params(pulse.echo_model(config.model), pulse.shape_tolerance)
-    for spacing, shape in shapes.items():
-        # the kernel skips waveforms whose status is not 0: those of other spacings wait their turn
-        group = status if len(shapes) == 1 else np.where(batch.sample_spacing_ps == spacing, status, -1)
+    for shape, spacings in _shape_groups(shapes):
+        # the kernel skips waveforms whose status is not 0: those of other shapes wait their turn
+        group = status if len(spacings) == len(shapes) else np.where(np.isin(batch.sample_spacing_ps, spacings),
+                                                                      status, -1)
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
                        smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
                        pulse_sigma_samples(pulse, batch.sample_spacing_ps), noise_floor, batch.seeds, params,
@@ -335,15 +336,34 @@ def uses_response(config: DecompositionConfig, pulse: SystemPulse) -> bool:
     return pulse.echo_model(config.model) is Model.SYSTEM and config.optimizer is not Optimizer.GA_ITERATIVE
 
 
+# spacings equal to this many significant digits share one echo table: LVIS's differ from shot to shot in the
+# seventh (its Z0..Z1023 and incidence give each its own, 1 ns within 1e-6), and a table a shot cost 0.3 s each
+SHAPE_SPACING_DIGITS = 6
+
+
 def echo_shapes(config: DecompositionConfig, pulse: SystemPulse,
                 sample_spacing_ps: np.ndarray) -> dict[float, EchoShape]:
-    """The kernels' echo shape for each distinct sample spacing of a batch."""
+    """The kernels' echo shape for each distinct sample spacing of a batch: one object for all spacings (the
+    analytic shape), or a table for each spacing to SHAPE_SPACING_DIGITS digits, shared by the spacings it rounds."""
     spacings = [float(s) for s in np.unique(sample_spacing_ps)] or [1000.0]
     if not uses_response(config, pulse):
-        return {s: analytic_shape() for s in spacings}
+        shape = analytic_shape()
+        return {s: shape for s in spacings}
     response = pulse.echo_response()
-    # rows one FWHM wider than the filter's limit, so that a too-wide echo can show as one
-    return {s: echo_shape(response, s, config.max_width_factor + 1.0) for s in spacings}
+    tables: dict[float, EchoShape] = {}
+    for s in spacings:
+        key = float(f"{s:.{SHAPE_SPACING_DIGITS}g}")
+        if key not in tables:  # rows one FWHM wider than the filter's limit, so that a too-wide echo can show as one
+            tables[key] = echo_shape(response, key, config.max_width_factor + 1.0)
+    return {s: tables[float(f"{s:.{SHAPE_SPACING_DIGITS}g}")] for s in spacings}
+
+
+def _shape_groups(shapes: dict[float, EchoShape]) -> list[tuple[EchoShape, list[float]]]:
+    """The distinct shapes of echo_shapes, each with the spacings it serves (one kernel pass per shape)."""
+    groups: dict[int, tuple[EchoShape, list[float]]] = {}
+    for spacing, shape in shapes.items():
+        groups.setdefault(id(shape), (shape, []))[1].append(spacing)
+    return list(groups.values())
 
 
 def decompose_waveform(samples, sample_spacing_ps: float = 1000.0, seed: int = 0,

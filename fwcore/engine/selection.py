@@ -9,6 +9,14 @@ decided by the Bayesian information criterion on the raw samples,
 chi^2 = sum ((model - raw) / sigma_i)^2 with sigma_i from the noise model, each
 echo costing its parameters x ln(m). Every candidate is an LM refit from a warm
 start, so the step is cheap and runs only where the filter or the residual asks.
+
+On a long waveform of many echoes (LVIS, GEDI over tall canopy: a thousand
+samples, a dozen echoes; at least LOCAL_MIN_SAMPLES) a candidate's refit is local: only the echoes whose
+reach meets the dropped (or added) echo's move, over the samples they reach,
+with the other echoes and the background held in the model; chi^2 is still
+that of the whole waveform. Where any candidate was kept that way, one LM
+refit of every echo from there ends the step, so the result is again a joint
+least-squares fit; a waveform of few echoes refits all of them as before.
 """
 
 from __future__ import annotations
@@ -21,10 +29,20 @@ from numba import njit
 from fwcore._jit import JIT
 from fwcore.engine.bounds import echo_bounds
 from fwcore.engine.filter import KEPT, mark_spurious
-from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model,
+from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model, table_reach,
                                  table_peak_offset)
 from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.engine.smoothing import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
+from fwcore._jit import searchsorted
+
+# an echo's reach for a local refit: where it falls below 2**-LOCAL_REACH_BITS of its height (the held echoes
+# stay in the model, so this only says which echoes move: those whose reach meets the candidate's)
+LOCAL_REACH_BITS = 10.0
+# a local refit where the moving echoes reach at most this share of the waveform's samples, on waveforms of at
+# least LOCAL_MIN_SAMPLES valid samples (LVIS's 1024, GEDI's 700-1400): on short ones (Leica's 256, RIEGL's 80)
+# a full refit costs little and their echoes stay those measured against the accuracy bars
+LOCAL_MAX_SHARE = 0.5
+LOCAL_MIN_SAMPLES = 512
 
 
 
@@ -62,6 +80,87 @@ def _with_room(x, extra):
 
 
 @njit(**JIT)
+def echo_reach(x, k, shape):
+    """The times between which echo k of individual x is above 2**-LOCAL_REACH_BITS of its height (a tabulated
+    echo: its table's support)."""
+    base = 1 + PARAMS_PER_ECHO * k
+    u, s = x[base + 1], x[base + 2]
+    if shape.tabulated:
+        before, after = table_reach(shape, s)
+        return u - before, u + after
+    reach = s * SQRT_2LN2 * LOCAL_REACH_BITS ** (1.0 / (x[base + 3] * x[base + 3]))
+    return u - reach, u + reach
+
+
+@njit(**JIT)
+def local_refit(p, shape, x, n_echoes, start, stop, times, target, weights, lower, upper):
+    """LM refit, in place, of the echoes of x whose reach meets [start, stop] (times), over the samples their
+    reaches cover, with the background and the other echoes held in the model. Returns the Jacobians
+    evaluated, or -1 (x untouched) where the waveform has p.local_refit_echoes echoes or fewer or fewer than
+    LOCAL_MIN_SAMPLES valid samples, or the moving ones reach more than LOCAL_MAX_SHARE of its samples: a full
+    refit is then as cheap."""
+    if n_echoes <= p.local_refit_echoes or times.size < LOCAL_MIN_SAMPLES:
+        return -1
+    near = np.zeros(n_echoes, dtype=np.bool_)
+    lo_t, hi_t = start, stop
+    for j in range(n_echoes):
+        a, b = echo_reach(x, j, shape)
+        if b >= start and a <= stop:
+            near[j] = True
+            lo_t, hi_t = min(lo_t, a), max(hi_t, b)
+    n_near = int(np.sum(near))
+    lo, hi = searchsorted(times, lo_t), searchsorted(times, hi_t, right=True)
+    if n_near == 0 or n_near == n_echoes or hi - lo > LOCAL_MAX_SHARE * times.size:
+        return -1
+    held = x.copy()  # the model's fixed part: the background and the echoes that do not move
+    local = np.zeros(1 + PARAMS_PER_ECHO * n_near)  # the background 0 and held: it is in `held`
+    local_lower, local_upper = local.copy(), local.copy()
+    q = 0
+    for j in range(n_echoes):
+        if not near[j]:
+            continue
+        base, to = 1 + PARAMS_PER_ECHO * j, 1 + PARAMS_PER_ECHO * q
+        held[base] = 0.0  # an echo of amplitude 0 adds nothing to individual_model
+        local[to:to + PARAMS_PER_ECHO] = x[base:base + PARAMS_PER_ECHO]
+        local_lower[to:to + PARAMS_PER_ECHO] = lower[base:base + PARAMS_PER_ECHO]
+        local_upper[to:to + PARAMS_PER_ECHO] = upper[base:base + PARAMS_PER_ECHO]
+        q += 1
+    sub = times[lo:hi]
+    fixed = np.empty(sub.size)
+    individual_model(held, n_echoes, sub, shape, fixed)
+    _, used, _ = levenberg_marquardt(local, n_near, sub, shape, target[lo:hi] - fixed, weights[lo:hi], local_lower,
+                                     local_upper, p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
+                                     p.lm_predicted_stop)
+    q = 0
+    for j in range(n_echoes):
+        if near[j]:
+            base, to = 1 + PARAMS_PER_ECHO * j, 1 + PARAMS_PER_ECHO * q
+            x[base:base + PARAMS_PER_ECHO] = local[to:to + PARAMS_PER_ECHO]
+            q += 1
+    return used
+
+
+@njit(**JIT)
+def _refit(p, shape, x, n_echoes, start, stop, times, target, weights, lower, upper):
+    """A candidate's refit: local (local_refit) where that is worth it, else of every echo. Returns
+    (Jacobians, whether it was local)."""
+    used = local_refit(p, shape, x, n_echoes, start, stop, times, target, weights, lower, upper)
+    if used >= 0:
+        return used, True
+    _, used, _ = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, p.lm_iterations,
+                                     p.lm_tolerance, p.lm_chi2_tolerance, p.lm_predicted_stop)
+    return used, False
+
+
+@njit(**JIT)
+def _joint_polish(p, shape, x, n_echoes, times, target, weights, lower, upper):
+    """One LM refit of every echo after local refits were kept: the fit is joint again. Returns Jacobians."""
+    _, used, _ = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, p.lm_iterations,
+                                     p.lm_tolerance, p.lm_chi2_tolerance, p.lm_predicted_stop)
+    return used
+
+
+@njit(**JIT)
 def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, raw, weights, first, last,
                          pulse_fwhm, noise):
     """Drop flagged echoes, weakest first, while a refit without one raises chi^2 by no more than
@@ -70,6 +169,7 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
     chi2 = np.nan  # computed once an echo is flagged: most fits have none
     dropped = 0
     n_jacobians = 0
+    kept_local = False
     while n_echoes > 0:
         reasons = spurious_reasons(best, n_echoes, first, last, pulse_fwhm, noise, p)
         flagged = np.flatnonzero(reasons != KEPT)
@@ -82,9 +182,9 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
         for k in flagged[np.argsort(amplitude)]:
             reduced = _without_echo(best, k)
             reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
-            _, used, _ = levenberg_marquardt(reduced, n_echoes - 1, times, shape, target, weights, reduced_lower,
-                                             reduced_upper, p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
-                                             p.lm_predicted_stop)
+            start, stop = echo_reach(best, k, shape)
+            used, local = _refit(p, shape, reduced, n_echoes - 1, start, stop, times, target, weights,
+                                 reduced_lower, reduced_upper)
             n_jacobians += used
             reduced_chi2 = squared_error(reduced, n_echoes - 1, times, shape, raw, weights)
             if reduced_chi2 - chi2 <= penalty:
@@ -92,9 +192,12 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
                 n_echoes -= 1
                 dropped += 1
                 removed = True
+                kept_local = kept_local or local
                 break
         if not removed:
             break
+    if kept_local:
+        n_jacobians += _joint_polish(p, shape, best, n_echoes, times, target, weights, lower, upper)
     return best, lower, upper, n_echoes, dropped, n_jacobians
 
 
@@ -141,6 +244,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
     added = 0
     n_jacobians = 0
+    kept_local = False
     while added < p.max_added_echoes and n_echoes < p.max_echoes:
         individual_model(best, n_echoes, times, shape, model)
         score = p.noise_threshold * filtered_noise
@@ -176,9 +280,9 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         position = peak - table_peak_offset(shape, math.hypot(shape.s_min, pulse_sigma))
         echo_bounds(amplitude, position, pulse_sigma, amplitude, noise, first, last, p.alpha_fixed, p.alpha_min,
                     p.alpha_max, shape, d, trial, trial_lower, scratch, trial_upper)
-        _, used, _ = levenberg_marquardt(trial, n_echoes + 1, times, shape, target, weights, trial_lower, trial_upper,
-                                         p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
-                                         p.lm_predicted_stop)
+        start, stop = echo_reach(trial, n_echoes, shape)
+        used, local = _refit(p, shape, trial, n_echoes + 1, start, stop, times, target, weights, trial_lower,
+                             trial_upper)
         n_jacobians += used
         trial_chi2 = squared_error(trial, n_echoes + 1, times, shape, raw, weights)
         if np.isnan(chi2):
@@ -188,4 +292,7 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         best, lower, upper, chi2 = trial, trial_lower, trial_upper, trial_chi2
         n_echoes += 1
         added += 1
+        kept_local = kept_local or local
+    if kept_local:
+        n_jacobians += _joint_polish(p, shape, best, n_echoes, times, target, weights, lower, upper)
     return best, lower, upper, n_echoes, added, n_jacobians

@@ -92,3 +92,41 @@ def test_the_add_step_leaves_an_echo_the_filter_calls_weak(floor_ratio, expected
     _, _, _, n, added, used = _add_step(truth, truth[:5], floor_ratio)
     assert (n, added) == (1 + expected, expected)
     assert (used > 0) == bool(expected)
+
+
+def _tall_canopy(rng, n_waves):
+    """LVIS-like waveforms of tropical forest: 1024 samples, 8-12 layers over 40-60 m and the ground."""
+    t = np.arange(1024.0)
+    waves, truth = [], []
+    for _ in range(n_waves):
+        k = int(rng.integers(8, 13))
+        ground = rng.uniform(600, 700)
+        pos = np.sort(np.r_[ground - np.sort(rng.choice(np.arange(14.0, 400.0, 14.0), k - 1, replace=False)), ground])
+        amp = np.r_[rng.uniform(25, 120, k - 1), rng.uniform(150, 300)]
+        waves.append(waveform_model(t, 100.0, amp, pos, rng.uniform(3.0, 4.0, k), rng.uniform(1.3, 1.6, k))
+                     + rng.normal(0, 2.0, t.size))
+        truth.append(pos)
+    return waves, truth
+
+
+def test_a_local_refit_keeps_the_echoes_of_the_full_refit_on_tall_canopy():
+    rng = np.random.default_rng(11)
+    waves, truth = _tall_canopy(rng, 30)
+    batch = WaveformBatch.from_waveforms(waves, 1000.0, np.arange(len(waves)))
+    pulse = nominal_pulse(3.5 * 2 * math.sqrt(2 * math.log(2)) * 1000.0)
+    local = decompose_batch(batch, DecompositionConfig(), pulse, threads=1)
+    full = decompose_batch(batch, DecompositionConfig(local_refit_echoes=1000), pulse, threads=1)
+    assert (local.per_waveform["n_echoes_initial"] > 6).sum() >= 20  # the local refit's case
+    assert not np.array_equal(local.position, full.position)  # it ran: the paths differ
+    recall, same, total = {}, 0, 0
+    for name, result in (("local", local), ("full", full)):
+        found = sum(np.abs(result.waveform(i).position[result.waveform(i).kept] - u).min() < 1.0
+                    for i, pos in enumerate(truth) for u in pos)
+        recall[name] = found / sum(p.size for p in truth)
+    for i in range(len(waves)):
+        a, b = local.waveform(i), full.waveform(i)
+        pa, pb = a.position[a.kept], b.position[b.kept]
+        total += max(pa.size, pb.size)
+        same += sum(np.abs(pb - u).min() < 0.1 for u in pa) if pb.size else 0
+    assert recall["local"] >= recall["full"] - 0.01 and recall["local"] > 0.8
+    assert same >= 0.95 * total  # kept echoes within a tenth of a sample of the full refit's
