@@ -28,6 +28,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.metrics.canopy import CanopySettings
+from fwcore.metrics.kernel import plant_area_density
 from fwcore.metrics.waveform import NO_AXIS, WaveformMetrics, empty_metrics
 
 # a small-footprint pulse's metrics: from its echoes (this module), or the full waveform metrics (fwl run --pulse-metrics)
@@ -90,13 +91,7 @@ def _profile(centre, sd, energy, ground, denominator, cos_zenith, rossg, omega, 
         pgap = min(max(1.0 - above / denominator, 0.0), 1.0) if denominator > 0 else 1.0
         cover_z[b] = cos_zenith * (1.0 - pgap)
         pai_z[b] = -math.log(pgap) * cos_zenith / (rossg * omega) + 0.0 if pgap > 0 else np.inf
-    if bins > 1:
-        pavd_z[0] = -(pai_z[1] - pai_z[0]) / step
-        pavd_z[bins - 1] = -(pai_z[bins - 1] - pai_z[bins - 2]) / step
-        for b in range(1, bins - 1):
-            pavd_z[b] = -(pai_z[b + 1] - pai_z[b - 1]) / (2.0 * step)
-    elif bins == 1:
-        pavd_z[0] = 0.0
+    plant_area_density(pai_z, step, pavd_z)
 
 
 @njit(**JIT)

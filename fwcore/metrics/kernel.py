@@ -197,6 +197,20 @@ def _canopy(samples, noise_mean, toploc, botloc, ground, shape, buffer, centre_b
 
 
 @njit(**JIT)
+def plant_area_density(pai_z, step, pavd_z):
+    """PAVD in each height bin: minus the PAI profile's derivative (central differences, one-sided at the ends;
+    canopy.vertical_profile), into pavd_z."""
+    bins = pai_z.size
+    if bins > 1:
+        pavd_z[0] = -(pai_z[1] - pai_z[0]) / step
+        pavd_z[bins - 1] = -(pai_z[bins - 1] - pai_z[bins - 2]) / step
+        for b in range(1, bins - 1):
+            pavd_z[b] = -(pai_z[b + 1] - pai_z[b - 1]) / (2.0 * step)
+    elif bins == 1:
+        pavd_z[0] = 0.0
+
+
+@njit(**JIT)
 def _profile(canopy, ground, drop, denominator, cos_zenith, rossg, omega, step, cover_z, pai_z, pavd_z):
     """canopy.vertical_profile into cover_z, pai_z and pavd_z."""
     n, bins = canopy.size, cover_z.size
@@ -219,13 +233,7 @@ def _profile(canopy, ground, drop, denominator, cos_zenith, rossg, omega, step, 
         value = min(max(value, 0.0), 1.0)
         cover_z[b] = cos_zenith * (1.0 - value)
         pai_z[b] = -math.log(value) * cos_zenith / (rossg * omega) if value > 0 else np.inf
-    if bins > 1:
-        pavd_z[0] = -(pai_z[1] - pai_z[0]) / step
-        pavd_z[bins - 1] = -(pai_z[bins - 1] - pai_z[bins - 2]) / step
-        for b in range(1, bins - 1):
-            pavd_z[b] = -(pai_z[b + 1] - pai_z[b - 1]) / (2.0 * step)
-    elif bins == 1:
-        pavd_z[0] = 0.0
+    plant_area_density(pai_z, step, pavd_z)
 
 
 @njit(**JIT)
