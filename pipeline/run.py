@@ -240,7 +240,7 @@ class EarlyRanges:
     to calibrate on first)."""
 
     def __init__(self, options, output: Path, config: DecompositionConfig, formats: frozenset[str],
-                 radiometry: RadiometryConfig, pulse_metrics: str):
+                 radiometry: RadiometryConfig, pulse_metrics: str, stratum: str | None = None):
         self.output, self.result, self.error, self.handed = output, None, None, False
 
         def build(p):
@@ -248,7 +248,7 @@ class EarlyRanges:
             return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
                     | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
                     | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
-                                                           pulse_metrics=pulse_metrics))
+                                                           stratum=stratum, pulse_metrics=pulse_metrics))
         self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
         self.thread.start()
 
@@ -414,7 +414,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
             if EarlyRanges.wanted(jobs, paths, radiometry):  # its workers start while the inputs are planned
-                early = EarlyRanges(options, output, config, formats, radiometry, pulse_metrics)
+                early = EarlyRanges(options, output, config, formats, radiometry, pulse_metrics, stratum)
             laps = Laps()
             with laps("plan job"):
                 plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides, l2a_algorithms), config,

@@ -55,6 +55,25 @@ def test_the_early_job_writes_what_the_ranges_job_writes(tmp_path, leica_dir):
         assert a.drop_columns(["source_file"]).equals(b.drop_columns(["source_file"]))
 
 
+def test_the_early_job_gives_a_gedi_shot_its_biomass_as_the_ranges_job_does(tmp_path):
+    """--stratum reaches the early job's workers: the same agbd, none of it null."""
+    from tests.fwcore.metrics.conftest import L1B
+
+    paths = [str(L1B)]
+    tasks = plan_inputs(paths, InputNames.of(paths), CONFIG, 20, limit=40)[0]
+    formats = frozenset({"parquet"})
+    early = EarlyRanges(check_beam_args(WORKERS), tmp_path / "early", CONFIG, formats, RadiometryConfig(), "echoes",
+                        "ENT_NAm")
+    early.finish(tasks)
+    late = tmp_path / "late"
+    Jobs(check_beam_args(WORKERS)).run(len(tasks), lambda p: p | beam.Create(tasks) | DecomposeFlight(
+        CONFIG, str(late), formats, stratum="ENT_NAm"))
+    a = pq.read_table(tmp_path / "early" / "pulses").sort_by("pulse_id").to_pandas()
+    b = pq.read_table(late / "pulses").sort_by("pulse_id").to_pandas()
+    assert len(a) == 40 and a.agbd.notna().all() and (a.agbd_stratum == "ENT_NAm").all()
+    assert a.agbd.tolist() == b.agbd.tolist() and a.agbd_se.tolist() == b.agbd_se.tolist()
+
+
 def test_an_abandoned_early_job_ends_with_nothing_run(tmp_path):
     early = EarlyRanges(check_beam_args(WORKERS), tmp_path, CONFIG, frozenset({"parquet"}), RadiometryConfig(), "echoes")
     early.abandon(wait=True)
