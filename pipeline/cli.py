@@ -193,7 +193,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
     overrides = _overrides_from_args(args)
     stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides, stratum, pulse_metrics=args.pulse_metrics)
+                            overrides, stratum, args.l2a_algorithms, args.pulse_metrics)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -201,7 +201,8 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides, stratum=stratum, pulse_metrics=args.pulse_metrics)
+                          overrides=overrides, stratum=stratum, l2a_algorithms=args.l2a_algorithms,
+                          pulse_metrics=args.pulse_metrics)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise
