@@ -1,6 +1,6 @@
 """Long forest waveforms at survey speed: `fwl run` with defaults on LVIS and GEDI files of tall canopy.
 
-    flock /tmp/bench.lock python bench/bench_long.py [--lvis L1B.h5] [--lvis-shots 6000] [--gedi-l1b L1B.h5]
+    python bench/bench_long.py [--lvis L1B.h5] [--lvis-shots 6000] [--gedi-l1b L1B.h5]
         [--savanna-shots 60000] [--tall-shots 12000] [--only lvis,tall,savanna] [--workdir DIR]
 
 Builds, in NASA's layouts (h5py), (1) a real LVIS L1B file of tropical forest (the shared Mondah shots) repeated
