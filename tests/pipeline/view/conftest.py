@@ -1,5 +1,6 @@
 """One small run for every viewer test: the bundled Leica sample, decomposed by the viewer's own background job."""
 
+import contextlib
 import dataclasses
 import json
 import shutil
@@ -61,6 +62,27 @@ class Viewed:
         return ds.dataset(str(self.run / "pulses"), format="parquet").to_table().to_pandas()
 
 
+@contextlib.contextmanager
+def decomposed_in_viewer(folder: Path, run_name: str, args: list[str], points_per_range: int):
+    """A viewer over `folder` (one input), the input picked and its background job run to the end: the Viewed
+    of its run `run_name`; the server stopped after."""
+    runs = folder / "runs"
+    server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, args, points_per_range))
+    serve_in_thread(server)
+    v = Viewed(url_of(server), folder, runs / run_name, "", "", [])
+    try:
+        (listed,) = v.get("/api/catalog")["inputs"]
+        v.input_id = listed["id"]
+        listed = v.decompose(v.input_id)
+        assert listed["job"]["status"] == "done", (runs / f"{run_name}.log").read_text()
+        v.run_id = listed["run"]
+        yield v
+    finally:
+        server.viewer.jobs.stop_all()
+        server.shutdown()
+        server.server_close()
+
+
 @pytest.fixture(scope="session")
 def viewed(tmp_path_factory, leica_dir):
     """A viewer over a folder holding a copy of the Leica sample; picking it decomposes it in the background."""
@@ -68,21 +90,8 @@ def viewed(tmp_path_factory, leica_dir):
     (folder / "inputs").mkdir()
     for name in ("leica_a.las", "leica_a.wdp"):
         shutil.copy(leica_dir / name, folder / "inputs" / name)
-    runs = folder / "runs"
-    server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, RUN_ARGS, POINTS_PER_RANGE))
-    serve_in_thread(server)
-    v = Viewed(url_of(server), folder, runs / "leica_a", "", "", [])
-    try:
-        (listed,) = v.get("/api/catalog")["inputs"]
-        v.input_id = listed["id"]
-        listed = v.decompose(v.input_id)
-        assert listed["job"]["status"] == "done", (runs / "leica_a.log").read_text()
-        v.run_id = listed["run"]
+    with decomposed_in_viewer(folder, "leica_a", RUN_ARGS, POINTS_PER_RANGE) as v:
         yield v
-    finally:
-        server.viewer.jobs.stop_all()
-        server.shutdown()
-        server.server_close()
 
 
 GRID_CELL = 2.0
@@ -109,23 +118,10 @@ def gedi_viewed(tmp_path_factory):
     24 shots decomposed by the viewer's background job."""
     folder = tmp_path_factory.mktemp("gedi-view")
     shutil.copy(GEDI / GEDI_L1B, folder / GEDI_L1B)
-    runs = folder / "runs"
     args = ["--limit", "24", "--optimizer", "lm", "--formats", "parquet", "--direct_num_workers=1",
             "--direct_running_mode=in_memory"]
-    server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, args, 12))
-    serve_in_thread(server)
-    v = Viewed(url_of(server), folder, runs / Path(GEDI_L1B).stem, "", "", [])
-    try:
-        (listed,) = v.get("/api/catalog")["inputs"]
-        v.input_id = listed["id"]
-        listed = v.decompose(v.input_id)
-        assert listed["job"]["status"] == "done", (runs / (Path(GEDI_L1B).stem + ".log")).read_text()
-        v.run_id = listed["run"]
+    with decomposed_in_viewer(folder, Path(GEDI_L1B).stem, args, 12) as v:
         yield v
-    finally:
-        server.viewer.jobs.stop_all()
-        server.shutdown()
-        server.server_close()
 
 
 # the drops of the modes written below the ground: the shot's passed-over modes
