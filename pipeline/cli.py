@@ -32,6 +32,13 @@ def _config_from_args(args: argparse.Namespace) -> DecompositionConfig:
     return decomposition_config(args)
 
 
+def forest_settings(args: argparse.Namespace):
+    """What the flags give of the forest's metrics (pipeline.options.forest_settings)."""
+    from pipeline.options import forest_settings as from_flags
+
+    return from_flags(args)
+
+
 def _overrides_from_args(args: argparse.Namespace):
     """What the flags give of every file's pulse (pipeline.options.pulse_overrides)."""
     from pipeline.options import pulse_overrides
@@ -130,8 +137,7 @@ def _run(args: argparse.Namespace, beam_args: list[str]) -> int:
     try:
         summary = run(args.inputs, args.output, config, args.formats, args.limit, args.points_per_range, args.laz,
                       beam_args, verbose=args.verbose, resume=args.resume, radiometry=radiometry, crs=args.crs,
-                      overrides=_overrides_from_args(args), stratum=args.stratum,
-                      l2a_algorithms=args.l2a_algorithms, pulse_metrics=args.pulse_metrics)
+                      overrides=_overrides_from_args(args), forest=forest_settings(args))
     except RunStopped as stopped:  # the machine's fault: one line per cause, nothing in rejected/
         for line in stopped.lines(resume_command(args.argv)):
             print(f"fwl run: stopped: {line}", file=sys.stderr)
@@ -176,7 +182,6 @@ def _say_what_was_not_done(summary: dict, output: str) -> None:
 
 
 def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
-    from fwcore.metrics.biomass import check_stratum
     from pipeline.options import check_beam_args, radiometry_config
     from pipeline.run import check_run_arguments, run, run_settings
     from pipeline.watch import watch
@@ -191,9 +196,9 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         raise ValueError(f"--poll must be a number of seconds > 0, not {args.poll}")
     check_beam_args(beam_args)  # a mistyped option stops here, not at the first file
     overrides = _overrides_from_args(args)
-    stratum = check_stratum(args.stratum) if args.stratum else None  # a bad name stops here, not at a batch
+    forest = forest_settings(args).checked()  # a bad stratum stops here, not at a batch
     settings = run_settings(config, formats, args.limit, args.points_per_range, args.laz, radiometry, args.crs,
-                            overrides, stratum, args.l2a_algorithms, args.pulse_metrics)
+                            overrides, forest)
     running = []
 
     def run_batch(paths: list[str]) -> dict:
@@ -201,8 +206,7 @@ def _watch(args: argparse.Namespace, beam_args: list[str]) -> int:
         try:
             summary = run(paths, args.output, config, formats, args.limit, args.points_per_range, args.laz,
                           beam_args, verbose=args.verbose, add=True, radiometry=radiometry, crs=args.crs,
-                          overrides=overrides, stratum=stratum, l2a_algorithms=args.l2a_algorithms,
-                          pulse_metrics=args.pulse_metrics)
+                          overrides=overrides, forest=forest)
         except Exception:  # failed, not interrupted: the watch goes on, idle
             running.clear()
             raise

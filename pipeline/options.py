@@ -23,6 +23,7 @@ from fwcore.metrics.biomass import STRATUM_HELP
 from fwcore.instrument.pulse import DEFAULT_PULSE_FWHM_PS, PulseOverrides
 from fwcore.instrument.response import named_response
 from fwcore.metrics.echo_column import PULSE_METRICS
+from pipeline.forest_settings import ForestSettings
 
 FORMATS = ("parquet", "las", "mcap", "copc")  # copc: only when asked (pipeline.copc)
 DEFAULT_FORMATS = ("parquet", "las", "mcap")
@@ -128,6 +129,11 @@ def decomposition_config(args: Any) -> DecompositionConfig:
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(DecompositionConfig)
                  if getattr(args, f.name, None) is not None}
     return config.replace(**overrides)
+
+
+def forest_settings(args: Any) -> ForestSettings:
+    """--stratum, --l2a-algorithms and --pulse-metrics as one record (pipeline.forest_settings), unchecked."""
+    return ForestSettings(args.stratum, args.l2a_algorithms, args.pulse_metrics)
 
 
 def pulse_overrides(args: Any) -> PulseOverrides:

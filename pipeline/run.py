@@ -26,11 +26,10 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 import fwcore
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.instrument.pulse import PulseOverrides
-from fwcore.metrics.biomass import check_stratum
 from fwcore.radiometry.flight import PatchFile, calibrate_on_reference, check_flight, file_radiometry
 from fwcore.radiometry.equations import RadiometryConfig, RadiometryError
 from fwcore.io.crs import GIVEN, crs_name, parse_crs
-from fwcore.metrics.echo_column import FROM_ECHOES, PULSE_METRICS
+from pipeline.forest_settings import ForestSettings
 from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
 from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
@@ -176,18 +175,12 @@ def _run_job(options, build) -> object:
 
 def run_settings(config: DecompositionConfig, formats: frozenset[str], limit: int | None, points_per_range: int,
                  laz: bool, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-                 overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
-                 l2a_algorithms: str = "selected", pulse_metrics: str = FROM_ECHOES) -> dict:
+                 overrides: PulseOverrides = PulseOverrides(), forest: ForestSettings = ForestSettings()) -> dict:
     """What makes a run's outputs what they are (not the runner, nor the number of workers; the version of
     fwlidar, whose engine may change them): its fingerprint. A --crs pyproj cannot read is a ValueError here."""
     trajectory = {"trajectory_identity": input_identity(radiometry.trajectory)} if radiometry.trajectory else {}
     given = {"crs": crs} if crs and parse_crs(crs) else {}  # a run without --crs keeps the fingerprint it had
-    if stratum:  # likewise a run without --stratum
-        given["stratum"] = stratum
-    if l2a_algorithms != "selected":  # likewise a run without --l2a-algorithms
-        given["l2a_algorithms"] = l2a_algorithms
-    if pulse_metrics != FROM_ECHOES:  # likewise a run with the default
-        given["pulse_metrics"] = pulse_metrics
+    given.update(forest.fingerprint())  # likewise a run with the forest's defaults
     return {**given, "config": config.to_dict(), "overrides": overrides.to_dict(), "formats": sorted(formats), "limit": limit,
             "points_per_range": points_per_range, "laz": laz, "radiometry": {**radiometry.to_dict(), **trajectory},
             "fwlidar": fwcore.__version__}
@@ -240,7 +233,7 @@ class EarlyRanges:
     to calibrate on first)."""
 
     def __init__(self, options, output: Path, config: DecompositionConfig, formats: frozenset[str],
-                 radiometry: RadiometryConfig, pulse_metrics: str, stratum: str | None = None):
+                 radiometry: RadiometryConfig, forest: ForestSettings = ForestSettings()):
         self.output, self.result, self.error, self.handed = output, None, None, False
 
         def build(p):
@@ -248,7 +241,7 @@ class EarlyRanges:
             return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
                     | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
                     | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
-                                                           stratum=stratum, pulse_metrics=pulse_metrics))
+                                                           forest=forest))
         self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
         self.thread.start()
 
@@ -331,8 +324,7 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
         limit: int | None = None, points_per_range: int = 5000, laz: bool = False,
         beam_args: list[str] | None = None, verbose: bool = False, watch: bool = True, resume: bool = False,
         add: bool = False, radiometry: RadiometryConfig = RadiometryConfig(), crs: str | None = None,
-        overrides: PulseOverrides = PulseOverrides(), stratum: str | None = None,
-        l2a_algorithms: str = "selected", pulse_metrics: str = FROM_ECHOES) -> dict:
+        overrides: PulseOverrides = PulseOverrides(), forest: ForestSettings = ForestSettings()) -> dict:
     """Decompose every pulse of the inputs into DIR's outputs; return (and write) the run summary.
 
     Everything is checked before the output folder is touched; ValueError / FileNotFoundError
@@ -343,31 +335,28 @@ def run(inputs: list[str], output: str | Path, config: DecompositionConfig, form
     to the terminal; logs go to DIR/logs/ (and to the terminal too with `verbose`). `crs` (--crs: an EPSG
     code, WKT or PROJJSON) replaces the CRS the inputs say in every output. `overrides` (--system-pulse-fwhm-ps,
     --system-response, --shape-tolerance, a preset's) is taken instead of what each file's plan would measure.
-    `stratum` (--stratum, e.g. ENT_NAm) is the L4A biomass model of large-footprint shots whose land cover no
-    L2A granule beside names (fwcore.metrics.biomass; an unknown name is a ValueError listing the strata).
-    `l2a_algorithms` (--l2a-algorithms, GEDI only): "selected" (each shot's L2A-selected algorithm, else 1), a
-    number 1..6 (that algorithm for every shot) or "all" (also every algorithm's ground_z_aN / rh_aN columns).
-    `pulse_metrics` (--pulse-metrics): a small footprint's forest metrics from its echoes, or "full" (its waveform's).
+    `forest` (pipeline.forest_settings): --stratum, the L4A biomass model of large-footprint shots whose land
+    cover no L2A granule beside names (an unknown name is a ValueError listing the strata); --l2a-algorithms
+    (GEDI only): "selected" (each shot's L2A-selected algorithm, else 1), a number 1..6 (that algorithm for
+    every shot) or "all" (also every algorithm's ground_z_aN / rh_aN columns); --pulse-metrics, a small
+    footprint's forest metrics from its echoes, or "full" (its waveform's).
     A fault of the machine (pipeline.faults) stops the run with RunStopped naming each cause: no run.json, nothing
     rejected for it, the ranges that finished kept for `resume`. Another command writing the folder (its lock,
     pipeline.lock) is a FolderLockedError, an OutputFolderError.
     """
     formats = check_run_arguments(formats, limit, points_per_range)
-    if pulse_metrics not in PULSE_METRICS:
-        raise ValueError(f"--pulse-metrics must be one of {', '.join(PULSE_METRICS)}, not {pulse_metrics!r}")
     output = Path(output).resolve()
     options = check_beam_args(beam_args or [])
     matched = match_inputs(inputs or [str(BUNDLED_SAMPLE)])
     paths = matched.paths
-    stratum = check_stratum(stratum) if stratum else None
-    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, stratum,
-                            l2a_algorithms, pulse_metrics)
+    forest = forest.checked()
+    settings = run_settings(config, formats, limit, points_per_range, laz, radiometry, crs, overrides, forest)
     check_radiometry(paths, radiometry)
     try:
         with folder_lock(output, "fwl watch" if add else "fwl run"):  # one writer: a second is refused (exit 2)
             return _run_claimed(paths, output, config, formats, limit, points_per_range, laz, options, verbose, watch,
                                 resume, add, radiometry, crs, overrides, settings, matched.not_taken, beam_args,
-                                stratum, l2a_algorithms, pulse_metrics)
+                                forest)
     except RunStopped:
         raise
     except Exception as err:
@@ -381,8 +370,7 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
                  limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
                  resume: bool, add: bool, radiometry: RadiometryConfig, crs: str | None, overrides: PulseOverrides,
                  settings: dict, not_taken: list[tuple[str, str]], beam_args: list[str] | None,
-                 stratum: str | None = None, l2a_algorithms: str = "selected",
-                 pulse_metrics: str = FROM_ECHOES) -> dict:
+                 forest: ForestSettings = ForestSettings()) -> dict:
     """run() once the folder's lock is held: claim it, run the jobs, summarise."""
     names, taken = claim_folder(output, paths, settings, resume, add)  # not_taken: into run.json, said by fwl run
     if taken == "complete":  # its run.json stays as it is
@@ -394,18 +382,17 @@ def _run_claimed(paths: list[str], output: Path, config: DecompositionConfig, fo
     else:
         jobs = run_jobs(output, paths, names, config, formats, limit, points_per_range, laz, options, verbose, watch,
                         radiometry, parse_crs(crs) if crs else None, not runner_given(beam_args or []), overrides,
-                        stratum, l2a_algorithms, pulse_metrics)
+                        forest)
         mark_inputs_done(output, paths, jobs.planned)
     return summarise(output, formats, limit, points_per_range, config, options, time.perf_counter() - began, jobs,
-                     taken, radiometry, not_taken, crs, overrides, pulse_metrics)
+                     taken, radiometry, not_taken, crs, overrides, forest.pulse_metrics)
 
 
 def run_jobs(output: Path, paths: list[str], names: InputNames, config: DecompositionConfig, formats: frozenset[str],
              limit: int | None, points_per_range: int, laz: bool, options, verbose: bool, watch: bool,
              radiometry: RadiometryConfig = RadiometryConfig(), crs_wkt: str | None = None,
              small_in_process: bool = False, overrides: PulseOverrides = PulseOverrides(),
-             stratum: str | None = None, l2a_algorithms: str = "selected",
-             pulse_metrics: str = FROM_ECHOES) -> JobsDone:
+             forest: ForestSettings = ForestSettings()) -> JobsDone:
     """The three jobs (plan, ranges, files) over the inputs `paths` of the claimed folder, each range finished
     by an earlier attempt kept; the parts of these inputs removed at the end."""
     plans: dict[str, FilePlan] = {}
@@ -414,11 +401,11 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
             if EarlyRanges.wanted(jobs, paths, radiometry):  # its workers start while the inputs are planned
-                early = EarlyRanges(options, output, config, formats, radiometry, pulse_metrics, stratum)
+                early = EarlyRanges(options, output, config, formats, radiometry, forest)
             laps = Laps()
             with laps("plan job"):
-                plans = plan_files(output, inputs_to_plan(paths, names, crs_wkt, overrides, l2a_algorithms), config,
-                                   points_per_range, limit, jobs)
+                to_plan = inputs_to_plan(paths, names, crs_wkt, overrides, forest.l2a_algorithms)
+                plans = plan_files(output, to_plan, config, points_per_range, limit, jobs)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
@@ -452,7 +439,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                         result = early.finish(todo) if early else jobs.run(len(todo), lambda p: (
                             p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
                                 config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
-                                stratum=stratum, pulse_metrics=pulse_metrics)), small)
+                                forest=forest)), small)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))

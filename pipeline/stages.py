@@ -36,6 +36,7 @@ from fwcore.plausibility import CELL_M, filter_under_ground
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry.equations import RadiometryConfig
 from fwcore.engine.records import STATUS_REASONS, WaveformBatch, model_samples
+from pipeline.forest_settings import ForestSettings
 from pipeline.copc import has_point_cloud_parts
 from pipeline.faults import READING, WRITING, MachineFault, machine_fault
 from pipeline.geoparquet import write_echo_part
@@ -55,8 +56,7 @@ class RangeSettings:
     config: DecompositionConfig
     formats: frozenset[str]
     radiometry: RadiometryConfig = RadiometryConfig()
-    stratum: str | None = None  # --stratum: the L4A biomass model of shots whose land cover no L2A names
-    pulse_metrics: str = FROM_ECHOES  # a small footprint's: fwcore.metrics.echo_column's, or FROM_WAVEFORM (the waveform's)
+    forest: ForestSettings = ForestSettings()  # --stratum, --pulse-metrics (--l2a-algorithms is the plan's)
 
 
 @dataclasses.dataclass
@@ -258,8 +258,8 @@ def run_range(task: ReadTask, settings: RangeSettings) -> RangeOutcome:
             held, rejected = decompose_range(held, settings.config)
         outcome.rejected += rejected
         stage = "geolocate"
-        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.stratum,
-                               settings.pulse_metrics)
+        held = geolocate_range(held, settings.radiometry, "mcap" in settings.formats, laps, settings.forest.stratum,
+                               settings.forest.pulse_metrics)
         stage = "write"
         outcome.part = write_range(held, settings.output, settings.formats, settings.radiometry.calibrated, laps)
     except MachineFault as fault:  # the machine's, not the pulses': the range fails, nothing is rejected

@@ -34,8 +34,8 @@ import apache_beam as beam
 from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
-from fwcore.metrics.echo_column import FROM_ECHOES
 from fwcore.radiometry.equations import RadiometryConfig
+from pipeline.forest_settings import ForestSettings
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.handoff import await_ranges
 from pipeline.assemble import assemble_file
@@ -191,14 +191,12 @@ class DecomposeFlight(beam.PTransform):
     formats: frozenset[str]
     spread: bool = True  # Reshuffle the ranges over workers (the Dask runner spreads them by its partitions)
     radiometry: RadiometryConfig = RadiometryConfig()
-    stratum: str | None = None  # --stratum (fwcore.metrics.biomass)
-    pulse_metrics: str = FROM_ECHOES  # a small footprint's forest metrics (pipeline.stages.range_metrics)
+    forest: ForestSettings = ForestSettings()  # --stratum, --pulse-metrics (pipeline.stages.geolocate_range)
 
     def expand(self, tasks):
         if self.spread:
             tasks = tasks | "Spread" >> beam.Reshuffle()
-        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.stratum,
-                                 self.pulse_metrics)
+        settings = RangeSettings(self.output, self.config, self.formats, self.radiometry, self.forest)
         return tasks | "RangeStages" >> beam.ParDo(RangeStages(settings))
 
 

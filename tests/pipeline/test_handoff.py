@@ -9,6 +9,7 @@ import pyarrow.parquet as pq
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
+from pipeline.forest_settings import ForestSettings
 from pipeline.handoff import await_ranges, hand_over, handoff_path, withdraw
 from pipeline.options import check_beam_args
 from pipeline.outputs import InputNames
@@ -42,7 +43,7 @@ def test_a_worker_waits_for_the_ranges_handed_over(tmp_path, leica_dir):
 def test_the_early_job_writes_what_the_ranges_job_writes(tmp_path, leica_dir):
     tasks = _tasks(leica_dir)
     formats = frozenset({"parquet"})
-    early = EarlyRanges(check_beam_args(WORKERS), tmp_path / "early", CONFIG, formats, RadiometryConfig(), "echoes")
+    early = EarlyRanges(check_beam_args(WORKERS), tmp_path / "early", CONFIG, formats, RadiometryConfig())
     time.sleep(0.5)  # the workers starting: the plans are being made
     early.finish(tasks)
     late = tmp_path / "late"
@@ -62,12 +63,12 @@ def test_the_early_job_gives_a_gedi_shot_its_biomass_as_the_ranges_job_does(tmp_
     paths = [str(L1B)]
     tasks = plan_inputs(paths, InputNames.of(paths), CONFIG, 20, limit=40)[0]
     formats = frozenset({"parquet"})
-    early = EarlyRanges(check_beam_args(WORKERS), tmp_path / "early", CONFIG, formats, RadiometryConfig(), "echoes",
-                        "ENT_NAm")
+    early = EarlyRanges(check_beam_args(WORKERS), tmp_path / "early", CONFIG, formats, RadiometryConfig(),
+                        ForestSettings(stratum="ENT_NAm"))
     early.finish(tasks)
     late = tmp_path / "late"
     Jobs(check_beam_args(WORKERS)).run(len(tasks), lambda p: p | beam.Create(tasks) | DecomposeFlight(
-        CONFIG, str(late), formats, stratum="ENT_NAm"))
+        CONFIG, str(late), formats, forest=ForestSettings(stratum="ENT_NAm")))
     a = pq.read_table(tmp_path / "early" / "pulses").sort_by("pulse_id").to_pandas()
     b = pq.read_table(late / "pulses").sort_by("pulse_id").to_pandas()
     assert len(a) == 40 and a.agbd.notna().all() and (a.agbd_stratum == "ENT_NAm").all()
