@@ -17,6 +17,10 @@ with the other echoes and the background held in the model; chi^2 is still
 that of the whole waveform. Where any candidate was kept that way, one LM
 refit of every echo from there ends the step, so the result is again a joint
 least-squares fit; a waveform of few echoes refits all of them as before.
+
+On a long record (at least LOCAL_MIN_SAMPLES samples, whatever its valid window: GEDI, LVIS) a drop candidate's
+refit is screened: after SCREEN_ITERATIONS LM steps, a candidate whose chi^2 is still far above the BIC's price
+stays without the rest of its refit (most such refits end far above it; docs/benchmarks.md).
 """
 
 from __future__ import annotations
