@@ -204,7 +204,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
             weights = 1.0 / np.sqrt(variance)
         best, lower, local_upper, n_echoes, dropped, used = drop_unneeded_echoes(
             p, shape, best, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm,
-            noise)
+            noise, n)
         nfev += used
         best, lower, local_upper, n_echoes, added, used = add_missing_echoes(
             p, shape, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,

@@ -164,18 +164,11 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad):
         _echo_block(jac, residual, weights, windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k, jtj, grad)
     for k in range(n_echoes):  # two echoes' columns meet where their windows overlap
         for q in range(k + 1, n_echoes):
-            lo = max(windows[k, 0], windows[q, 0])
-            hi = min(windows[k, 1], windows[q, 1])
-            for r in range(1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * (k + 1)):
-                for c in range(1 + PARAMS_PER_ECHO * q, 1 + PARAMS_PER_ECHO * (q + 1)):
-                    acc = 0.0
-                    for i in range(lo, hi):
-                        acc += jac[i, r] * jac[i, c] * weights[i] * weights[i]
-                    jtj[r, c] = acc
-                    jtj[c, r] = acc
+            _pair_block(jac, weights, max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1]),
+                        1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
 
 
-assert PARAMS_PER_ECHO == 4, "_echo_block keeps one accumulator per pair of an echo's 4 columns"
+assert PARAMS_PER_ECHO == 4, "_echo_block and _pair_block keep one accumulator per pair of an echo's 4 columns"
 
 
 @njit(**JIT_INLINE)
@@ -222,6 +215,51 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     jtj[base + 2, base + 2] = a33
     jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
     jtj[base + 3, base + 3] = a44
+
+
+@njit(**JIT_INLINE)
+def _pair_block(jac, weights, lo, hi, r, c, jtj):
+    """The rows of J^T W J of two echoes' columns (r..r + 3 with c..c + 3), summed over [lo, hi) in one pass: 16
+    accumulators, each summed in sample order with the product taken as jac jac w w, so the bits are those of a
+    pass per pair of columns (which were strided and each bound by one accumulator's latency)."""
+    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
+    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
+    for i in range(lo, hi):
+        w = weights[i]
+        r0, r1, r2, r3 = jac[i, r], jac[i, r + 1], jac[i, r + 2], jac[i, r + 3]
+        c0, c1, c2, c3 = jac[i, c], jac[i, c + 1], jac[i, c + 2], jac[i, c + 3]
+        a00 += r0 * c0 * w * w
+        a01 += r0 * c1 * w * w
+        a02 += r0 * c2 * w * w
+        a03 += r0 * c3 * w * w
+        a10 += r1 * c0 * w * w
+        a11 += r1 * c1 * w * w
+        a12 += r1 * c2 * w * w
+        a13 += r1 * c3 * w * w
+        a20 += r2 * c0 * w * w
+        a21 += r2 * c1 * w * w
+        a22 += r2 * c2 * w * w
+        a23 += r2 * c3 * w * w
+        a30 += r3 * c0 * w * w
+        a31 += r3 * c1 * w * w
+        a32 += r3 * c2 * w * w
+        a33 += r3 * c3 * w * w
+    jtj[r, c] = jtj[c, r] = a00
+    jtj[r, c + 1] = jtj[c + 1, r] = a01
+    jtj[r, c + 2] = jtj[c + 2, r] = a02
+    jtj[r, c + 3] = jtj[c + 3, r] = a03
+    jtj[r + 1, c] = jtj[c, r + 1] = a10
+    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
+    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
+    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
+    jtj[r + 2, c] = jtj[c, r + 2] = a20
+    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
+    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
+    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
+    jtj[r + 3, c] = jtj[c, r + 3] = a30
+    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
+    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
+    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
 
 
 @njit(**JIT)
