@@ -29,15 +29,18 @@ def individual(*echoes):
     return np.array(x)
 
 
-def test_the_strongest_echo_stands_alone_only_where_every_other_would_be_filtered_against_it():
+def test_the_strongest_echo_stands_alone_only_where_every_other_would_be_filtered_as_weak():
     p = SYSTEM.kernel_params(SYSTEM.model, 0.0)
     noise = 3.0
     # 3% of the strong echo, 2 pulse widths behind it: weak (under 5% of the largest)
     assert strongest_alone(individual((60.0, 30.0), (2000.0, 20.0)), 2, 0.0, 61.0, FWHM, noise, p) == 1
     # 40% of it, 1.5 pulse widths before it: both are kept, so no echo stands alone
     assert strongest_alone(individual((2000.0, 20.0), (800.0, 20.0 + 1.5 * FWHM)), 2, 0.0, 61.0, FWHM, noise, p) == -1
-    # 40% of it but half a pulse width away: too close, filtered against the strong one
+    # 40% of it but half a pulse width away: too close, not weak (a piece of a broadened return): the full path
     assert strongest_alone(individual((800.0, 20.0 - 0.5 * FWHM), (2000.0, 20.0)), 2, 0.0, 61.0, FWHM, noise,
+                           p) == -1
+    # 4% of it and half a pulse width away: weak
+    assert strongest_alone(individual((80.0, 20.0 - 0.5 * FWHM), (2000.0, 20.0)), 2, 0.0, 61.0, FWHM, noise,
                            p) == 1
     # a pulse of one candidate has nothing to set aside
     assert strongest_alone(individual((2000.0, 20.0)), 1, 0.0, 61.0, FWHM, noise, p) == -1
