@@ -5,8 +5,9 @@
 One thread each, after compilation, the fastest of 3 runs, Sylva (PyPI sylva-rs, Rust Gaussian LM,
 RAYON_NUM_THREADS=1) beside us in the same process:
 - a RIEGL-like 16-bit flight (write_riegl_like: the RIEGL response, 16-bit samples, 62-sample windows, strong
-  echoes, a pulse-to-pulse afterpulse, ~0.95 single-return pulses, as a RiPROCESS LAS 1.4 export holds): pulses/s of the default and `fast`, and where the
-  engine's work goes (echoes proposed, fitted, dropped and kept a pulse, model evaluations a pulse);
+  echoes, a pulse-to-pulse afterpulse, grass on the open ground, ~0.95 single-return pulses, as a RiPROCESS LAS 1.4
+  export holds): pulses/s of the default and `fast` (with and without the strong-echo fit), and where the engine's
+  work goes (echoes proposed, fitted, dropped and kept a pulse, model evaluations a pulse);
 - RIEGL Q680 (riegl_example3.pls): ghost echoes (a kept echo 7-14 ns behind a kept
   echo of its pulse at least 12x stronger: the afterpulse fitted as an echo),
   echoes per pulse, pulses/s of the default and `fast`, with echoes of the measured
@@ -114,8 +115,8 @@ def write_riegl_like(path: Path, n_pulses: int = 5000) -> Path:
 
 
 def engine_work(result: BatchDecomposition) -> str:
-    """Echoes a pulse proposed by the initial estimate, fitted, dropped by the selection and kept by the
-    filter, and model evaluations (Jacobians) a pulse."""
+    """Echoes a pulse proposed by the initial estimate, fitted, dropped (by the selection, or set aside unfitted
+    beside a strong echo: fwcore.engine.strong_echo) and kept by the filter, and model evaluations a pulse."""
     n = len(result)
     return (f"{result.n_echoes_initial.sum() / n:5.2f} {result.per_waveform['n_echoes'].sum() / n:6.2f} "
             f"{result.n_echoes_dropped.sum() / n:7.2f} {(result.reject == 0).sum() / n:5.2f} "

@@ -6,10 +6,11 @@ above the ground, a rising edge slower than the response) as weak candidates. Th
 jointly (LM crawls along the valley where a strong echo and a weak one beside it trade amplitude), tries to drop
 each by a refit, and refits the raw samples where they fail the noise model: a dozen Jacobians a pulse for an echo
 the filter then keeps alone. Here, where the filter would call every candidate but the strongest weak (under 5% of
-it: not a piece of a broadened return, which NEON's forest peels as narrow echoes a few tens of % strong), LM (Gauss-Newton steps from the peak's parabola, where the estimate placed it) fits the strongest
-echo alone on the tabulated response, and the candidates are set aside unfitted. The engine's selection then
-looks at that fit's residual as after any fit: its add step puts back an echo where the residual holds one the
-filter would keep; and the raw polish runs only where the raw samples still fail the noise model. A pulse of one
+it: not a piece of a broadened return, which NEON's forest peels as narrow echoes a few tens of % strong) and the
+strongest starts narrow (BROADEST_START), LM (Gauss-Newton steps from the peak's parabola, where the estimate
+placed it) fits the strongest echo alone on the tabulated response, and the candidates are set aside unfitted.
+The engine's selection then looks at that fit's residual as after any fit: its add step puts back an echo where
+the residual holds one the filter would keep; and the raw polish runs only where the raw samples still fail the noise model. A pulse of one
 candidate, or of two the filter would keep, takes the full path as before (the same bits).
 """
 
@@ -56,8 +57,9 @@ def strongest_alone(x, n_echoes, first, last, pulse_fwhm, noise, p):
 def strong_echo_fit(wanted, p, shape, x0, lower, upper, n_echoes, times, fit_target, raw, weights, first, last,
                     pulse_fwhm, noise):
     """The strongest echo of the initial individual x0 fitted alone, where `wanted`, the shape is tabulated, the
-    echo stands alone (strongest_alone) and starts at most BROADEST_START x the response's width. Returns (the individual of the background and that echo, its lower and
-    upper bounds, Jacobians evaluated, whether it was fitted). Where it was not, the caller runs the full path."""
+    echo stands alone (strongest_alone) and starts at most BROADEST_START x the response's width. Returns (the
+    individual of the background and that echo, its lower and upper bounds, Jacobians evaluated, whether it was
+    fitted). Where it was not, the caller runs the full path."""
     d = 1 + PARAMS_PER_ECHO
     x = np.empty(d)
     x_lower = np.empty(d)
