@@ -10,8 +10,9 @@ it: not a piece of a broadened return, which NEON's forest peels as narrow echoe
 strongest starts narrow (BROADEST_START), LM (Gauss-Newton steps from the peak's parabola, where the estimate
 placed it) fits the strongest echo alone on the tabulated response, and the candidates are set aside unfitted.
 The engine's selection then looks at that fit's residual as after any fit: its add step puts back an echo where
-the residual holds one the filter would keep; and the raw polish runs only where the raw samples still fail the noise model. A pulse of one
-candidate, or of two the filter would keep, takes the full path as before (the same bits).
+the residual holds one the filter would keep; and the raw polish runs only where the raw samples still fail the
+noise model. A pulse of one candidate, or of two the filter would keep, takes the full path as before (the same
+bits).
 """
 
 from __future__ import annotations
