@@ -244,6 +244,13 @@ class DecompositionConfig:
     # information criterion under the noise model, with warm-started LM refits.
     select_echoes: bool = setting(True, "model-order selection: drop and add echoes by the BIC with LM refits "
                                   "(default on)", option=True, kernel=True, refit=True)
+    # A pulse of one strong echo on the tabulated response (every other candidate the filter would drop against
+    # it): LM fits that echo alone, and the fit stands where the raw samples pass the noise model (chi^2 per
+    # degree of freedom at most raw_polish_gate); elsewhere the full path runs as before
+    # (fwcore.engine.strong_echo). The selection and the raw polish then have nothing to ask.
+    strong_echo_fit: bool = setting(True, "a pulse of one strong echo (the others would be filtered) is fitted "
+                                    "alone where that passes the noise model (default on)", option=True,
+                                    kernel=True)
     # echoes the selection may add per waveform
     max_added_echoes: int = setting(2, kernel=True, within="[0, inf)", refit=(0, 8))
     # A waveform of more echoes than this refits a candidate locally (fwcore.engine.selection.local_refit: the

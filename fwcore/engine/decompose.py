@@ -22,7 +22,7 @@ from numba import njit
 
 from fwcore._jit import JIT
 from fwcore.engine.bounds import parameter_bounds
-from fwcore.engine.config import LOCAL_NONE, OPT_NONE, DecompositionConfig, Model, Optimizer
+from fwcore.engine.config import LOCAL_LM, LOCAL_NONE, MSG_CONVERGED, OPT_NONE, DecompositionConfig, Model, Optimizer
 from fwcore.engine.filter import mark_spurious
 from fwcore.instrument.pulse import SystemPulse
 from fwcore.instrument.shape import echo_shape
@@ -35,6 +35,7 @@ from fwcore.engine.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_
                             BatchDecomposition, Decomposition, WaveformBatch)
 from fwcore.engine.noise_model import add_shot_noise, noise_variance
 from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes
+from fwcore.engine.strong_echo import strong_echo_fit
 
 _LN2 = math.log(2.0)
 _FWHM_PER_SIGMA = 2.0 * SQRT_2LN2
@@ -151,6 +152,30 @@ def _raw_polish(best, n_echoes, times, shape, raw, weights, lower, local_upper, 
 
 
 @njit(**JIT)
+def _select_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times, fit_target, raw, signal, variance,
+                   weights, first, last, pulse_sigma, pulse_fwhm, noise):
+    """Model-order selection after the optimizer (fwcore.engine.selection), under the noise model with its
+    Poisson-like term where p.signal_dependent_noise. Returns (best, lower, upper, n_echoes, weights, dropped,
+    added, Jacobians)."""
+    nfev = 0
+    if p.local == LOCAL_NONE:  # a population's best is not at the least-squares optimum the refits compare with
+        _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, upper,
+                                         p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance, p.lm_predicted_stop)
+        nfev += used
+    if p.signal_dependent_noise:
+        add_shot_noise(best, n_echoes, times, shape, raw, signal, variance)
+        weights = 1.0 / np.sqrt(variance)
+    best, lower, upper, n_echoes, dropped, used = drop_unneeded_echoes(
+        p, shape, best, lower, upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm, noise,
+        samples.size)
+    nfev += used
+    best, lower, upper, n_echoes, added, used = add_missing_echoes(
+        p, shape, best, lower, upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,
+        pulse_sigma, noise)
+    return best, lower, upper, n_echoes, weights, dropped, added, nfev + used
+
+
+@njit(**JIT)
 def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, shape, out, echoes):
     """One waveform end to end into its result record `out` and echo records `echoes`."""
     n = samples.size
@@ -181,34 +206,33 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
     parameter_bounds(background, noise, amp0[:n_echoes], pos0[:n_echoes], sig0[:n_echoes], smoothed, first, last,
                      p.alpha_fixed, p.alpha_min, p.alpha_max, shape, scale, x0, lower, upper, local_upper)
 
-    if p.own_echoes:  # the patent's GA and deconvolution choose their echoes themselves
+    # LM's methods with the selection (the default's lm-mde, fast's lm) may fit a strong echo alone
+    alone, alone_lower, alone_upper, nfev, strong = strong_echo_fit(
+        p.strong_echo_fit and p.select_echoes and p.local == LOCAL_LM and (p.search_where_local_fails or not p.search),
+        p, shape, x0, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm, noise)
+    if strong:  # nothing for the optimizer to do
+        best, nit, message = alone, 0 if p.search else nfev, MSG_CONVERGED
+    elif p.own_echoes:  # the patent's GA and deconvolution choose their echoes themselves
         best, n_echoes, n_initial, nfev, nit, message = find_own_echoes(
             p, shape, samples, valid, smoothed, background, noise, first, last, times, fit_target, raw, weights,
             pulse_sigma, seed)
     else:
         eps = 0.02 * max(noise, scale)  # truncation adds < 2% of the noise per sample to the fitness
         fit_samples = smoothed if p.fit_denoised else samples
+        spent = nfev
         best, nfev, nit, message = run_optimizer(p, shape, x0, lower, upper, local_upper, n_echoes, fit_samples, valid,
                                                  times, fit_target, raw, signal, variance, noise, eps, seed)
+        nfev += spent  # the strong echo's fit that did not stand
 
     dropped = 0
     added = 0
+    if strong:  # the candidates beside it set aside unfitted; the selection may still add what the residual holds
+        lower, local_upper, dropped, n_echoes = alone_lower, alone_upper, n_echoes - 1, 1
     if p.select_echoes and p.method != OPT_NONE and not p.own_echoes:
-        if p.local == LOCAL_NONE:  # a population's best is not at the least-squares optimum the refits compare with
-            _, used, _ = levenberg_marquardt(best, n_echoes, times, shape, fit_target, weights, lower, local_upper,
-                                             p.lm_iterations, p.lm_tolerance, p.lm_chi2_tolerance,
-                                             p.lm_predicted_stop)
-            nfev += used
-        if p.signal_dependent_noise:
-            add_shot_noise(best, n_echoes, times, shape, raw, signal, variance)
-            weights = 1.0 / np.sqrt(variance)
-        best, lower, local_upper, n_echoes, dropped, used = drop_unneeded_echoes(
-            p, shape, best, lower, local_upper, n_echoes, times, fit_target, raw, weights, first, last, pulse_fwhm,
-            noise, n)
-        nfev += used
-        best, lower, local_upper, n_echoes, added, used = add_missing_echoes(
-            p, shape, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, weights, first, last,
-            pulse_sigma, noise)
+        best, lower, local_upper, n_echoes, weights, dropped_here, added, used = _select_echoes(
+            p, shape, best, lower, local_upper, n_echoes, samples, valid, times, fit_target, raw, signal, variance,
+            weights, first, last, pulse_sigma, pulse_fwhm, noise)
+        dropped += dropped_here
         nfev += used
 
     if p.raw_polish and p.fit_denoised and n_echoes > 0 and p.method != OPT_NONE and not p.own_echoes:

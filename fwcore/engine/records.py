@@ -87,7 +87,7 @@ class Decomposition:
     nit: int  # the optimizer's generations or iterations
     message: str  # how the optimizer ended (MESSAGES)
     n_echoes_initial: int
-    n_echoes_dropped: int  # by the model-order selection
+    n_echoes_dropped: int  # by the model-order selection, or set aside unfitted beside a strong echo (strong_echo)
     n_echoes_added: int
     amplitude: np.ndarray
     position: np.ndarray

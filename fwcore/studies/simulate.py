@@ -99,6 +99,11 @@ class SceneConfig:
     roof_fraction: float = 0.12
     roof_height_m: tuple[float, float] = (4.0, 12.0)
     weak_echo_fraction: float = 0.15  # vegetation layers near the noise floor
+    # grass and litter on open ground: a weak surface just above the ground on this share of its pulses
+    # (fwcore.studies.simulate._ground_cover), of this share of the ground's amplitude, this high above it
+    ground_cover_fraction: float = 0.0
+    ground_cover_share: tuple[float, float] = (0.03, 0.1)
+    ground_cover_height_m: tuple[float, float] = (0.15, 0.45)
     start_gps_time: float = 400_000.0
     # radiometry: reflectances and the radar equation's energies (otherwise amplitudes are drawn at random)
     radiometry: bool = False
@@ -255,6 +260,8 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
                           (rng_range, amplitude, width, alpha, kind, count))
     amplitude[~tree & ~edge, 0] = ground_amplitude[~tree & ~edge]
     amplitude[edge, 0] = rng.uniform(40, 200, edge.sum()) * sensor.amplitude_scale
+    if scene.ground_cover_fraction > 0.0:  # drawn only when asked: a scene without it keeps its bytes
+        _ground_cover(rng, scene, ~tree & ~roof, ground_range, angle, (rng_range, amplitude, width, alpha, kind, count))
     reflectance = np.full((n, MAX_ECHOES), np.nan)
     incidence = np.full((n, MAX_ECHOES), np.nan)
     if scene.radiometry:
@@ -265,6 +272,26 @@ def _scene_echoes(first: int, n: int, scene: SceneConfig, sensor: SensorConfig, 
     take = lambda a: np.take_along_axis(a, order, axis=1)  # noqa: E731
     return (gps, angle, sensor_xyz, beam, count, take(rng_range), take(amplitude), take(width), take(alpha),
             take(kind), take(reflectance), take(incidence))
+
+
+def _ground_cover(rng: np.random.Generator, scene: SceneConfig, open_ground: np.ndarray, ground_range: np.ndarray,
+                  angle: np.ndarray, echoes) -> None:
+    """Grass and litter on open ground: on scene.ground_cover_fraction of its pulses a weak surface
+    (scene.ground_cover_share of the ground's amplitude) scene.ground_cover_height_m above the ground, under one
+    pulse width from it, added to echoes = (range, amplitude, width, alpha, kind, count) in place."""
+    rng_range, amplitude, width, alpha, kind, count = echoes
+    n = open_ground.size
+    on = open_ground & (rng.random(n) < scene.ground_cover_fraction) & (count < MAX_ECHOES)
+    height = rng.uniform(*scene.ground_cover_height_m, n)
+    share = rng.uniform(*scene.ground_cover_share, n)
+    rows = np.flatnonzero(on)
+    k = count[rows]
+    rng_range[rows, k] = ground_range[rows] - height[rows] / np.cos(angle[rows])
+    amplitude[rows, k] = share[rows] * amplitude[rows, 0]
+    width[rows, k] = rng.uniform(1.0, 1.3, rows.size)
+    alpha[rows, k] = rng.uniform(1.3, 2.0, rows.size)
+    kind[rows, k] = 1
+    count[rows] += 1
 
 
 def _radar_echoes(rng, scene, sensor, hit, beam, angle, rng_range, width, alpha, kind, count, tree, edge, layers,

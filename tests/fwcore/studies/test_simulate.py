@@ -121,3 +121,24 @@ def test_a_riegl_export_like_sensor_scales_its_echoes_and_varies_each_pulses_aft
     assert behind.max() <= 1.0 + 0.01 and behind.max() > 0.8 and np.median(behind) > 0.2
     # elsewhere (well before each echo) the samples agree to the quantisation
     assert np.abs(diff[:, :5]).max() <= 1.0
+
+
+def test_grass_on_open_ground_puts_a_weak_surface_just_above_the_ground_on_its_share_of_pulses():
+    scene = SceneConfig(canopy_cover=0.0, roof_fraction=0.0, ground_cover_fraction=0.7,
+                        ground_cover_share=(0.03, 0.1), ground_cover_height_m=(0.15, 0.45))
+    flight = simulate_flight(2000, SensorConfig(), scene, seed=3)
+    truth = flight.truth
+    ids, counts = np.unique(truth["pulse_id"], return_counts=True)
+    assert counts.max() == 2 and abs((counts == 2).mean() - 0.7) < 0.03
+    grass = truth["surface"] == "vegetation"
+    ground = truth["surface"] == "ground"
+    by_pulse = {pid: i for i, pid in enumerate(truth["pulse_id"][ground])}
+    below = np.array([by_pulse[pid] for pid in truth["pulse_id"][grass]])
+    share = truth["amplitude"][grass] / truth["amplitude"][ground][below]
+    assert share.min() >= 0.03 and share.max() <= 0.1
+    above_m = (truth["time_ps"][ground][below] - truth["time_ps"][grass]) * 299792458.0e-12 / 2.0
+    cos20 = np.cos(np.radians(20.0))  # the scan's widest angle stretches the range between them
+    assert above_m.min() >= 0.15 - 1e-9 and above_m.max() <= 0.45 / cos20 + 1e-9
+    # without it the scene is the one it was: one surface a pulse
+    plain = simulate_flight(2000, SensorConfig(), dataclasses.replace(scene, ground_cover_fraction=0.0), seed=3)
+    assert np.unique(plain.truth["pulse_id"], return_counts=True)[1].max() == 1
