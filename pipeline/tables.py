@@ -164,7 +164,7 @@ COLUMNS = {c.name: c for c in (
     Column("rmse", F64, "DN", "root mean square residual against the raw (valid) samples"),
     Column("r2", F64, "1", "coefficient of determination against the raw (valid) samples"),
     Column("n_echoes_initial", I32, "", "echoes of the initial estimate"),
-    Column("n_echoes_dropped", I32, "", "echoes the model-order selection dropped"),
+    Column("n_echoes_dropped", I32, "", "initial echoes the model-order selection dropped, or set aside unfitted beside one strong echo (strong_echo_fit)"),
     Column("n_echoes_added", I32, "", "echoes the model-order selection added"),
     Column("n_echoes", I32, "", "echoes fitted"),
     Column("n_echoes_kept", I32, "", "echoes kept"),
