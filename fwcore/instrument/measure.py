@@ -52,11 +52,15 @@ RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range of
 # models' held-out errors differ by 20-70%, far beyond what 200 waveforms leave uncertain
 MODEL_PULSES = 200
 # ... taken a block at a time, and the choice ends at the first block from MODEL_MIN_PULSES on where the two
-# models' paired held-out misses differ by DECISIVE_SE standard errors: a file whose models differ plainly (every
-# shared file's) is judged on 50 waveforms, whatever its waveforms' length; a close call on all 200
+# models' paired held-out misses differ by DECISIVE_SE standard errors (every shared file's models differ plainly:
+# judged on 50 waveforms, whatever their length), or where they surely differ by less than EQUIVALENT of the miss
+# (their difference and EQUIVALENT_SE standard errors within it: either model predicts the samples as well; GEDI
+# over simulated tall canopy, 3% apart, stops at 75); else on all MODEL_PULSES
 MODEL_BLOCK = 25
 MODEL_MIN_PULSES = 50
 DECISIVE_SE = 4.0
+EQUIVALENT = 0.05
+EQUIVALENT_SE = 2.0
 # GEDI's transmitted pulses all qualify as strong single returns: the response's median per bin is settled long
 # before RESPONSE_PULSES of them, whose noise and background cost 0.7 ms each
 TRANSMITTED_PULSES = 500
@@ -228,20 +232,23 @@ def _waveforms(batch: WaveformBatch, lo: int, hi: int) -> WaveformBatch:
                          None if batch.noise_floor is None else batch.noise_floor[lo:hi])
 
 
-def decisive(system: np.ndarray, generalized: np.ndarray, se: float = DECISIVE_SE) -> bool:
-    """Whether the paired held-out misses of the waveforms both models decomposed differ by `se` standard
-    errors of their mean difference (a difference without spread is decisive)."""
+def settled(system: np.ndarray, generalized: np.ndarray) -> bool:
+    """Whether the paired held-out misses of the waveforms both models decomposed settle the choice: their mean
+    difference beyond DECISIVE_SE standard errors (one model is better), or within EQUIVALENT of the mean miss
+    with EQUIVALENT_SE standard errors added (the two are as good)."""
     both = np.isfinite(system) & np.isfinite(generalized)
     d = system[both] - generalized[both]
     if d.size < 2:
         return False
-    return bool(abs(d.mean()) > se * d.std(ddof=1) / np.sqrt(d.size))
+    se = d.std(ddof=1) / np.sqrt(d.size)
+    level = 0.5 * (system[both].mean() + generalized[both].mean())
+    return bool(abs(d.mean()) > DECISIVE_SE * se or abs(d.mean()) + EQUIVALENT_SE * se < EQUIVALENT * level)
 
 
 def compare_models(candidates: dict[Model, SystemPulse], batch: WaveformBatch, config: DecompositionConfig
                    ) -> tuple[dict[Model, float], int]:
     """Each model's mean held-out miss over the waveforms it decomposed, and how many waveforms judged them:
-    blocks of MODEL_BLOCK from the batch's first, until the difference is decisive from MODEL_MIN_PULSES on
+    blocks of MODEL_BLOCK from the batch's first, until the difference is settled from MODEL_MIN_PULSES on
     (deterministic: the blocks and the test depend on the waveforms only), else the whole batch."""
     misses: dict[Model, list[np.ndarray]] = {model: [] for model in candidates}
     n, used = len(batch), 0
@@ -250,8 +257,8 @@ def compare_models(candidates: dict[Model, SystemPulse], batch: WaveformBatch, c
         for model, pulse in candidates.items():
             misses[model].append(held_out_misses(block, config.replace(model=model), pulse)[:, 0])
         used += len(block)
-        if used >= MODEL_MIN_PULSES and decisive(np.concatenate(misses[Model.SYSTEM]),
-                                                 np.concatenate(misses[Model.GENERALIZED])):
+        if used >= MODEL_MIN_PULSES and settled(np.concatenate(misses[Model.SYSTEM]),
+                                                np.concatenate(misses[Model.GENERALIZED])):
             break
     means = {}
     for model, parts in misses.items():
