@@ -344,10 +344,12 @@ def _head_records(pulses: PulseBatch, records: int, seed: int) -> WaveformBatch:
     the pulses whose first point is among them; PulseWaves, whose records are pulses: the first ones)."""
     has_points = pulses.return_offsets[-1] > 0
     n = int(np.searchsorted(pulses.return_offsets[:-1], records)) if has_points else min(records, len(pulses))
-    every = pulse_waveforms(pulses, seed)
-    end = every.offsets[n]
-    return WaveformBatch(every.samples[:end], every.valid[:end], every.offsets[:n + 1], every.sample_spacing_ps[:n],
-                         every.seeds[:n], None if every.noise_floor is None else every.noise_floor[:n])
+    # the first n pulses' waveforms only (each pulse's window and seed are its own): not the whole head's
+    cut = {name: getattr(pulses, name)[:n] for name in ("pulse_id", "sample_spacing_ps", "noise_mean", "noise_sd",
+                                                         "channel", "segment") if getattr(pulses, name) is not None}
+    head = dataclasses.replace(pulses, samples=pulses.samples[:pulses.sample_offsets[n]],
+                               sample_offsets=pulses.sample_offsets[:n + 1], **cut)
+    return pulse_waveforms(head, seed)
 
 
 def _file_width(pulses: PulseBatch | None, name: str) -> tuple[float, str]:
