@@ -91,8 +91,11 @@ def lvis_pulse_ids(lfid: np.ndarray, shot: np.ndarray, file_lfid: np.ndarray) ->
 
 def plan_lvis_ranges(path: str | Path, points_per_range: int = 10_000, opened: LvisFile | None = None
                      ) -> list[PointRange]:
+    """Ranges of at most `points_per_range` shots, of equal size (to a shot): a long waveform's range is minutes
+    of work, so 6,000 shots at 5,000 a range are two of 3,000, not 5,000 and 1,000 that leave a worker idle."""
     lvis = opened or open_lvis(path)
-    step = max(1, points_per_range)
+    count = -(-lvis.point_count // max(1, points_per_range))  # how many ranges
+    step = max(1, -(-lvis.point_count // max(count, 1)))
     return [PointRange(str(path), s, min(s + step, lvis.point_count), n_pulses=min(s + step, lvis.point_count) - s)
             for s in range(0, lvis.point_count, step)]
 

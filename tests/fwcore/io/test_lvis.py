@@ -77,3 +77,13 @@ def test_lfids_past_2_31_give_positive_unique_ids_in_every_range(tmp_path):
     assert whole.pulse_id.tolist() == [(1 << 32) + s for s in (5, 6, 7, 8)] + [5, 6, 7, 8]
     ranged = np.concatenate([read_pulses(r).pulse_id for r in plan_point_ranges(path, 3)])
     assert ranged.tolist() == whole.pulse_id.tolist()
+
+
+def test_ranges_are_of_equal_size_within_the_limit(tmp_path):
+    """6,000 shots at 5,000 a range: two of 3,000 (not 5,000 and 1,000: one worker idle for most of the run);
+    8 at 3: 3, 3, 2; every shot in exactly one range."""
+    path = tmp_path / "LVIS1B_ranges.h5"
+    write_lvis(path, 8, samples=64, tx_samples=16)
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 3)] == [(0, 3), (3, 6), (6, 8)]
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 5)] == [(0, 4), (4, 8)]
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 8)] == [(0, 8)]
