@@ -1,14 +1,15 @@
 """Long forest waveforms at survey speed: `fwl run` with defaults on LVIS and GEDI files of tall canopy.
 
     python bench/bench_long.py [--lvis L1B.h5] [--lvis-shots 6000] [--gedi-l1b L1B.h5]
-        [--savanna-shots 60000] [--tall-shots 12000] [--only lvis,tall,savanna] [--workdir DIR]
+        [--savanna-shots 15000,60000] [--tall-shots 12000] [--only lvis,tall,savanna] [--workdir DIR]
 
 Builds, in NASA's layouts (h5py), (1) a real LVIS L1B file of tropical forest (the shared Mondah shots) repeated
 to `lvis-shots` shots, (2) the bundled GEDI L1B's real beams repeated to `savanna-shots` shots, (3) a GEDI granule
 of tall forest: the bundled granule's shots and transmitted pulses repeated to `tall-shots`, each received
 waveform replaced by a simulated canopy of 15-60 m in 5-15 layers over the ground (1000-1400 samples, GEDI's
 pulse); then runs `fwl run` on each (DirectRunner, 2 workers, defaults) and prints shots/s a core end to end, the
-plan's seconds (the system pulse's measurement and the model choice), the engine's model evaluations a shot and
+plan's seconds (the system pulse's measurement and the model choice), the workers' stage split (their timing
+lines: plan, read, decompose, metrics, biomass, tables, sinks, assembly), the engine's model evaluations a shot and
 the run's peak RSS.
 """
 
@@ -134,6 +135,7 @@ def run_fwl(path: Path, work: Path, model: str = "auto") -> dict:
     shots/s a core, the run's stage timing, model evaluations a shot, peak RSS."""
     from fwcore.engine.config import DecompositionConfig
     from pipeline.run import run
+    from pipeline.timing import read_timings
 
     out = work / f"run_{path.stem}_{model}"
     with PeakMemory() as memory:
@@ -142,12 +144,16 @@ def run_fwl(path: Path, work: Path, model: str = "auto") -> dict:
             watch=False)
         seconds = time.perf_counter() - start
     summary = json.loads((out / "run.json").read_text())
+    stages: dict[str, float] = {}  # the workers' split (pipeline.timing): the plan, each range's stages, assembly
+    for line in read_timings(out / "logs"):
+        for name, value in line["seconds"].items():
+            stages[name] = round(stages.get(name, 0.0) + value, 2)
     counts = summary.get("counts", {})
     shots = counts.get("pulses_read") or counts.get("pulses")
     timing = summary.get("timing", {})
     return {"file": path.name, "model": model, "shots": shots, "seconds": round(seconds, 1),
             "shots_per_s_core": round(shots / seconds / 2, 1), "timing": timing,
-            "nfev_per_shot": summary.get("engine", {}).get("nfev_per_pulse"),
+            "stages": stages, "nfev_per_shot": summary.get("engine", {}).get("nfev_per_pulse"),
             "peak_rss_mib": round(memory.peak / 2**20)}
 
 
@@ -156,7 +162,8 @@ def main() -> None:
     parser.add_argument("--lvis", type=Path, default=None, help="an LVIS L1B of tropical forest")
     parser.add_argument("--lvis-shots", type=int, default=6000)
     parser.add_argument("--gedi-l1b", type=Path, default=GEDI_L1B)
-    parser.add_argument("--savanna-shots", type=int, default=60000)
+    parser.add_argument("--savanna-shots", default="15000,60000",
+                        help="comma-separated sizes: memory is flat when 60,000's peak is within 1.25x of 15,000's")
     parser.add_argument("--tall-shots", type=int, default=12000)
     parser.add_argument("--only", default="lvis,tall,savanna")
     parser.add_argument("--workdir", type=Path, default=None)
@@ -173,8 +180,9 @@ def main() -> None:
         files.append(work / "GEDI01_B_tall_repeated.h5")
         repeat_gedi(args.gedi_l1b, files[-1], args.tall_shots, tall=True)
     if "savanna" in only:
-        files.append(work / "GEDI01_B_savanna_repeated.h5")
-        repeat_gedi(args.gedi_l1b, files[-1], args.savanna_shots, tall=False)
+        for shots in map(int, args.savanna_shots.split(",")):
+            files.append(work / f"GEDI01_B_savanna_{shots}.h5")
+            repeat_gedi(args.gedi_l1b, files[-1], shots, tall=False)
     for path in files:
         print(json.dumps(run_fwl(path, work, args.model)), flush=True)
 

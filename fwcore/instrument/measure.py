@@ -51,6 +51,19 @@ RANGE_OFFSET_PULSES = 300  # single-return pulses that measure a file's range of
 # waveforms that choose the echo model under --model auto: on the shared Leica, RIEGL and NEON files the two
 # models' held-out errors differ by 20-70%, far beyond what 200 waveforms leave uncertain
 MODEL_PULSES = 200
+# ... taken a block at a time, and the choice ends at the first block from MODEL_MIN_PULSES on where the two
+# models' paired held-out misses differ by DECISIVE_SE standard errors (every shared file's models differ plainly:
+# judged on 50 waveforms, whatever their length), or where they surely differ by less than EQUIVALENT of the miss
+# (their difference and EQUIVALENT_SE standard errors within it: either model predicts the samples as well; GEDI
+# over simulated tall canopy, 3% apart, stops at 75); else on all MODEL_PULSES
+MODEL_BLOCK = 25
+MODEL_MIN_PULSES = 50
+DECISIVE_SE = 4.0
+EQUIVALENT = 0.05
+EQUIVALENT_SE = 2.0
+# GEDI's transmitted pulses all qualify as strong single returns: the response's median per bin is settled long
+# before RESPONSE_PULSES of them, whose noise and background cost 0.7 ms each
+TRANSMITTED_PULSES = 500
 # every fifth valid sample is held out of the fits that judge the models: half the others keep both
 # neighbours, where the engine measures a quantised digitizer's noise (every third leaves it none)
 HELD_OUT_EVERY = 5
@@ -161,8 +174,8 @@ def file_response(pulses) -> SystemResponse | None:
         # GEDI records each shot's transmitted pulse, which its returns are made of (PulseWaves' outgoing
         # waveforms are the system's own monitor channel, not measured here as the response)
         spacing = float(np.median(pulses.outgoing_spacing_ps))
-        response = response_of_waveforms([pulses.outgoing_samples(i) for i in range(len(pulses))], spacing,
-                                         "transmitted waveforms")
+        head = range(min(len(pulses), TRANSMITTED_PULSES))
+        response = response_of_waveforms([pulses.outgoing_samples(i) for i in head], spacing, "transmitted waveforms")
         if response is not None:
             return response
     single = np.flatnonzero(np.diff(pulses.return_offsets) == 1)
@@ -189,33 +202,86 @@ def held_out_errors(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
     """How well a decomposition predicts samples it did not see: every `every`-th valid sample of each
     waveform held out, the rest decomposed under `config` with `pulse`; (mean |model - sample| at the held-out
     samples, the same at the fitted ones), digitizer units, averaged over the decomposed waveforms."""
+    errors = held_out_misses(batch, config, pulse, every)
+    errors = errors[np.isfinite(errors[:, 0])]
+    return tuple(errors.mean(axis=0)) if errors.size else (np.inf, np.inf)
+
+
+def held_out_misses(batch: WaveformBatch, config: DecompositionConfig, pulse: SystemPulse,
+                    every: int = HELD_OUT_EVERY) -> np.ndarray:
+    """Per waveform of `batch` (held_out_errors' fits): (mean |model - sample| at its held-out samples, the same
+    at its fitted ones), NaN for a waveform not decomposed."""
     held = np.zeros(batch.valid.size, dtype=bool)
     for lo, hi in zip(batch.offsets[:-1], batch.offsets[1:]):
         held[lo + np.flatnonzero(batch.valid[lo:hi])[1::every]] = True
     fitted = batch.valid & ~held
     result = decompose_batch(dataclasses.replace(batch, valid=fitted), config, pulse, threads=1)
-    errors = []
+    errors = np.full((len(result), 2), np.nan)
     for i in np.flatnonzero(result.status == 0):
         lo, hi = batch.offsets[i], batch.offsets[i + 1]
         miss = np.abs(result.waveform(int(i)).model(np.arange(hi - lo)) - batch.samples[lo:hi])
-        errors.append((miss[held[lo:hi]].mean(), miss[fitted[lo:hi]].mean()))
-    return tuple(np.mean(errors, axis=0)) if errors else (np.inf, np.inf)
+        errors[i] = miss[held[lo:hi]].mean(), miss[fitted[lo:hi]].mean()
+    return errors
+
+
+def _waveforms(batch: WaveformBatch, lo: int, hi: int) -> WaveformBatch:
+    """Waveforms lo..hi of a batch as a batch of their own."""
+    a, b = batch.offsets[lo], batch.offsets[hi]
+    return WaveformBatch(batch.samples[a:b], batch.valid[a:b], batch.offsets[lo:hi + 1] - a,
+                         batch.sample_spacing_ps[lo:hi], batch.seeds[lo:hi],
+                         None if batch.noise_floor is None else batch.noise_floor[lo:hi])
+
+
+def settled(system: np.ndarray, generalized: np.ndarray) -> bool:
+    """Whether the paired held-out misses of the waveforms both models decomposed settle the choice: their mean
+    difference beyond DECISIVE_SE standard errors (one model is better), or within EQUIVALENT of the mean miss
+    with EQUIVALENT_SE standard errors added (the two are as good)."""
+    both = np.isfinite(system) & np.isfinite(generalized)
+    d = system[both] - generalized[both]
+    if d.size < 2:
+        return False
+    se = d.std(ddof=1) / np.sqrt(d.size)
+    level = 0.5 * (system[both].mean() + generalized[both].mean())
+    return bool(abs(d.mean()) > DECISIVE_SE * se or abs(d.mean()) + EQUIVALENT_SE * se < EQUIVALENT * level)
+
+
+def compare_models(candidates: dict[Model, SystemPulse], batch: WaveformBatch, config: DecompositionConfig
+                   ) -> tuple[dict[Model, float], int]:
+    """Each model's mean held-out miss over the waveforms it decomposed, and how many waveforms judged them:
+    blocks of MODEL_BLOCK from the batch's first, until the difference is settled from MODEL_MIN_PULSES on
+    (deterministic: the blocks and the test depend on the waveforms only), else the whole batch."""
+    misses: dict[Model, list[np.ndarray]] = {model: [] for model in candidates}
+    n, used = len(batch), 0
+    while used < n:
+        block = _waveforms(batch, used, min(used + MODEL_BLOCK, n))
+        for model, pulse in candidates.items():
+            misses[model].append(held_out_misses(block, config.replace(model=model), pulse)[:, 0])
+        used += len(block)
+        if used >= MODEL_MIN_PULSES and settled(np.concatenate(misses[Model.SYSTEM]),
+                                                np.concatenate(misses[Model.GENERALIZED])):
+            break
+    means = {}
+    for model, parts in misses.items():
+        found = np.concatenate(parts)
+        found = found[np.isfinite(found)]
+        means[model] = float(found.mean()) if found.size else np.inf
+    return means, used
 
 
 def choose_system_pulse(candidates: dict[Model, SystemPulse], batch: WaveformBatch,
                         config: DecompositionConfig) -> SystemPulse:
     """`--model auto`: of a file's system pulses measured for the system response and for the generalized
     Gaussian, the one whose echoes predict held-out samples of its first waveforms (`batch`) more closely
-    (held_out_errors under the run's settings); a tie, or no response measured, keeps the generalized
-    Gaussian, the method's model. The chosen pulse says which and why."""
+    (held_out_errors under the run's settings, on as many of them as make the difference decisive:
+    compare_models); a tie, or no response measured, keeps the generalized Gaussian, the method's model. The
+    chosen pulse says which and why."""
     shaped, generalized = candidates[Model.SYSTEM], candidates[Model.GENERALIZED]
     if shaped.response is None:
         return dataclasses.replace(generalized, model=Model.GENERALIZED.value,
                                    model_choice="generalized: no system response measured")
-    errors = {model: held_out_errors(batch, config.replace(model=model), pulse)[0]
-              for model, pulse in candidates.items()}
+    errors, used = compare_models(candidates, batch, config)
     model = Model.SYSTEM if errors[Model.SYSTEM] < errors[Model.GENERALIZED] else Model.GENERALIZED
-    why = (f"{model.value}: at held-out samples of {len(batch)} waveforms, echoes of the system response "
+    why = (f"{model.value}: at held-out samples of {used} waveforms, echoes of the system response "
            f"({shaped.response_source}) miss by {errors[Model.SYSTEM]:.3f}, generalized Gaussians by "
            f"{errors[Model.GENERALIZED]:.3f}")
     LOG.info("--model auto: %s", why)
@@ -278,10 +344,12 @@ def _head_records(pulses: PulseBatch, records: int, seed: int) -> WaveformBatch:
     the pulses whose first point is among them; PulseWaves, whose records are pulses: the first ones)."""
     has_points = pulses.return_offsets[-1] > 0
     n = int(np.searchsorted(pulses.return_offsets[:-1], records)) if has_points else min(records, len(pulses))
-    every = pulse_waveforms(pulses, seed)
-    end = every.offsets[n]
-    return WaveformBatch(every.samples[:end], every.valid[:end], every.offsets[:n + 1], every.sample_spacing_ps[:n],
-                         every.seeds[:n], None if every.noise_floor is None else every.noise_floor[:n])
+    # the first n pulses' waveforms only (each pulse's window and seed are its own): not the whole head's
+    cut = {name: getattr(pulses, name)[:n] for name in ("pulse_id", "sample_spacing_ps", "noise_mean", "noise_sd",
+                                                         "channel", "segment") if getattr(pulses, name) is not None}
+    head = dataclasses.replace(pulses, samples=pulses.samples[:pulses.sample_offsets[n]],
+                               sample_offsets=pulses.sample_offsets[:n + 1], **cut)
+    return pulse_waveforms(head, seed)
 
 
 def _file_width(pulses: PulseBatch | None, name: str) -> tuple[float, str]:

@@ -60,9 +60,8 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
     base = np.interp(t, t_resp, response.response, left=0.0, right=0.0)
     # FWHM as a function of the broadening sigma b, on a fine b grid, inverted for each row's width
     b_grid = np.arange(0.0, 1.5 * max(widest, step) + s_min / 32.0, s_min / 64.0)  # fixed steps, like the rows
-    broadened = [_broaden(base, b / step) for b in b_grid]
-    fwhms = np.array([half_height_width(t, r) for r in broadened])
     targets = np.linspace(s_min, s_max, n_rows) * _FWHM_PER_SIGMA
+    fwhms = _broadened_fwhms(t, base, b_grid / step, targets[-1])
     rows = np.empty((n_rows, t.size))
     for w, f in enumerate(targets):
         b = float(np.interp(f, fwhms, b_grid))
@@ -82,6 +81,19 @@ def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: fl
     half_widths = np.array([(crest - left) * step, (right - crest) * step])
     return EchoShape(True, rows, slopes, areas, support, peak_offsets, half_widths, step, float(-lo), s_min,
                      s_min * ROW_STEP)
+
+
+def _broadened_fwhms(t: np.ndarray, base: np.ndarray, sigmas_steps: np.ndarray, widest_fwhm: float) -> np.ndarray:
+    """The FWHM of `base` broadened by each of `sigmas_steps` (increasing), measured up to the first past
+    `widest_fwhm` and infinite beyond: past its first few steps a wider Gaussian only widens the response, so the
+    broadenings beyond bracket no row and compare alike in interpolation's search (the grid's length kept: the
+    rows' widths come out the same to the bit), and their convolutions, the widest and half the cost, are skipped."""
+    fwhms = np.full(sigmas_steps.size, np.inf)
+    for k, sigma in enumerate(sigmas_steps):
+        fwhms[k] = half_height_width(t, _broaden(base, sigma))
+        if fwhms[k] > widest_fwhm:
+            break
+    return fwhms
 
 
 def _broaden(values: np.ndarray, sigma_steps: float) -> np.ndarray:

@@ -11,6 +11,8 @@ are taken back to -180..180. A shot whose receive samples or positions are not f
 from __future__ import annotations
 
 import dataclasses
+import functools
+import os
 import re
 from pathlib import Path
 
@@ -60,10 +62,40 @@ def open_lvis(path: str | Path) -> LvisFile:
     return LvisFile(str(path), n, last, wgs84_3d_wkt())
 
 
+def file_lfids(path: str | Path) -> np.ndarray:
+    """The distinct LFIDs of a whole file, sorted (int64): a shot's pulse id numbers its LFID by its rank here
+    (lvis_pulse_ids). Read once a process per version of the file."""
+    stat = os.stat(path)
+    return _file_lfids(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def _file_lfids(path: str, _mtime_ns: int, _size: int) -> np.ndarray:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        if "LFID" not in f:
+            return np.zeros(1, np.int64)
+        return np.unique(np.asarray(f["LFID"][:]).astype(np.int64))
+
+
+def lvis_pulse_ids(lfid: np.ndarray, shot: np.ndarray, file_lfid: np.ndarray) -> np.ndarray:
+    """Each shot's pulse id: the rank of its LFID among the file's (file_lfids) in the high 32 bits, its SHOTNUMBER
+    in the low 32. LFID and SHOTNUMBER are each an unsigned 32-bit integer (LVIS's data dictionary): packed as they
+    are they need 64 bits, and an LFID of 2^31 or more (the shared AfriSAR files hold 1,657,455,141) would overflow int64 into a
+    negative id. A file holds far fewer than 2^31 LFIDs, so the rank never does; the id is unique in the file and
+    the same in every range; the `lfid` and `shot_number` columns keep the mission's own numbers."""
+    rank = np.searchsorted(file_lfid, lfid).astype(np.int64)
+    return (rank << 32) | (np.asarray(shot, dtype=np.int64) & 0xFFFFFFFF)
+
+
 def plan_lvis_ranges(path: str | Path, points_per_range: int = 10_000, opened: LvisFile | None = None
                      ) -> list[PointRange]:
+    """Ranges of at most `points_per_range` shots, of equal size (to a shot): a long waveform's range is minutes
+    of work, so 6,000 shots at 5,000 a range are two of 3,000, not 5,000 and 1,000 that leave a worker idle."""
     lvis = opened or open_lvis(path)
-    step = max(1, points_per_range)
+    count = -(-lvis.point_count // max(1, points_per_range))  # how many ranges
+    step = max(1, -(-lvis.point_count // max(count, 1)))
     return [PointRange(str(path), s, min(s + step, lvis.point_count), n_pulses=min(s + step, lvis.point_count) - s)
             for s in range(0, lvis.point_count, step)]
 
@@ -92,7 +124,8 @@ def read_lvis(point_range: PointRange | str | Path, opened: LvisFile | None = No
         noise_mean = f["SIGMEAN"][lo:hi].astype(np.float64) if "SIGMEAN" in f else None
     for position in (first, last):  # 0..360 east to -180..180
         position[:, 0] = np.where(position[:, 0] > 180.0, position[:, 0] - 360.0, position[:, 0])
-    pulse_id = (file_id << 32) | shot  # SHOTNUMBER restarts in each LVIS file (LFID)
+    # SHOTNUMBER restarts in each LVIS file (LFID): the id packs the LFID's rank in the file with it
+    pulse_id = lvis_pulse_ids(file_id, shot, file_lfids(point_range.path))
     located = np.isfinite(first).all(axis=1) & np.isfinite(last).all(axis=1)
     finite = np.isfinite(rx).all(axis=1)
     reasons = np.where(~finite, NOT_FINITE, np.where(~located, NO_GEOLOCATION, ""))

@@ -88,7 +88,7 @@ def test_the_mondah_file_keeps_its_ids(tmp_path):
     with h5py.File(path, "r") as f:
         lfid, shot, z0 = f["LFID"][:].astype(int), f["SHOTNUMBER"][:].astype(int), f["Z0"][:]
     assert pulses.lfid.tolist() == lfid.tolist() and pulses.shot_number.tolist() == shot.tolist()
-    assert (pulses.pulse_id.to_numpy() == (lfid.astype(np.int64) << 32) + shot).all()
+    assert (pulses.pulse_id.to_numpy() == shot).all()  # one LFID in the file: its rank 0 in the high bits
     assert (pulses.metrics_reason == "").all()
     # tropical forest: the top above the ground by tens of metres, both inside the waveform's 153 m
     assert (pulses.top_z.to_numpy() < z0[np.argsort(shot)]).all()

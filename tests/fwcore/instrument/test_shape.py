@@ -55,3 +55,31 @@ def test_an_echo_sits_at_its_response_lobes_centroid(leica_response):
     assert np.sum(t[inside] * echo[inside]) / np.sum(echo[inside]) == pytest.approx(0.0, abs=0.02)
     # and the shape says where the echo peaks
     assert t[np.argmax(echo)] == pytest.approx(table_peak_offset(shape, shape.s_min), abs=2 * shape.step)
+
+
+def test_the_table_measures_widths_only_up_to_the_widest_row_and_gives_the_same_rows(monkeypatch, leica_dir):
+    """The broadened FWHMs measured up to the first past the widest row (the grid beyond infinite) give Leica's
+    measured response the same table, array for array, as measuring the whole grid; and the grid's widest third
+    is never convolved."""
+    import fwcore.instrument.shape as shape_module
+    from fwcore.instrument.measure import measure_input_response
+    from fwcore.instrument.peak import half_height_width
+
+    response = measure_input_response(leica_dir / "leica_a.las")
+    measured = []
+    spy = shape_module._broadened_fwhms
+
+    def counted(t, base, sigmas, widest):
+        found = spy(t, base, sigmas, widest)
+        measured.append((np.isfinite(found).sum(), sigmas.size))
+        return found
+
+    monkeypatch.setattr(shape_module, "_broadened_fwhms", counted)
+    fast = echo_shape.__wrapped__(response, 1000.0, 4.0)
+    monkeypatch.setattr(shape_module, "_broadened_fwhms", lambda t, base, sigmas, widest: np.array(
+        [half_height_width(t, shape_module._broaden(base, s)) for s in sigmas]))
+    whole = echo_shape.__wrapped__(response, 1000.0, 4.0)
+    for name in ("rows", "slopes", "areas", "support", "peak_offsets", "half_widths"):
+        assert np.array_equal(getattr(fast, name), getattr(whole, name)), name
+    (done, grid), = measured
+    assert done < 0.75 * grid

@@ -8,7 +8,7 @@ STEP_M = 0.15  # 1 ns of two-way travel at nadir
 
 
 def write_lvis(path, shots: int, samples: int = 1024, tx_samples: int = 128, seed: int = 0, east_of_180=False,
-               with_sigmean=True, bad_shot: int | None = None) -> dict:
+               with_sigmean=True, bad_shot: int | None = None, lfid=1411500, shot_number=None) -> dict:
     """A file of `shots` shots; the truth per shot (ground sample, canopy top sample) is returned."""
     rng = np.random.default_rng(seed)
     x = np.arange(samples, dtype=np.float64)
@@ -24,8 +24,8 @@ def write_lvis(path, shots: int, samples: int = 1024, tx_samples: int = 128, see
     lon = (-105.5 + np.arange(shots) * 1e-4) % 360 if east_of_180 else -105.5 + np.arange(shots) * 1e-4
     last = samples - 1
     with h5py.File(path, "w") as f:
-        f["LFID"] = np.full(shots, 1411500, np.uint32)
-        f["SHOTNUMBER"] = np.arange(1000, 1000 + shots, dtype=np.uint32)
+        f["LFID"] = np.broadcast_to(np.asarray(lfid, np.uint32), (shots,))
+        f["SHOTNUMBER"] = (np.arange(1000, 1000 + shots) if shot_number is None else shot_number).astype(np.uint32)
         f["TIME"] = 50000.0 + np.arange(shots) * 1e-3
         f["LON0"], f["LAT0"], f["Z0"] = lon, np.full(shots, 40.0), z0
         f[f"LON{last}"], f[f"LAT{last}"], f[f"Z{last}"] = lon, np.full(shots, 40.0), z0 - last * STEP_M

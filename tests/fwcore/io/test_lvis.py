@@ -52,7 +52,7 @@ def test_an_hdf5_without_the_layout_names_what_is_missing(tmp_path):
                                              ("lvis_level1_clip_shared.h5", 9427649)])
 def test_real_files_carry_their_lfid_and_shot_number(name, first_shot):
     """AfriSAR 2016, Mondah (Gabon): the file's own uint32 LFID and SHOTNUMBER, and rLVIS's float64 rewrite of the
-    same flight; the pulse id packs both (LFID in the high 32 bits: shot numbers restart in each LVIS file)."""
+    same flight; the pulse id packs the shot number with its LFID's rank in the file (one LFID here: rank 0)."""
     import h5py
 
     path = Path(__file__).resolve().parents[3] / "examples" / "data" / "lvis" / name
@@ -62,6 +62,28 @@ def test_real_files_carry_their_lfid_and_shot_number(name, first_shot):
     assert pulses.lfid.dtype == np.int64 and pulses.shot_number.dtype == np.int64
     assert pulses.lfid.tolist() == [1657455141] * len(shot) and pulses.lfid.tolist() == lfid.astype(int).tolist()
     assert pulses.shot_number[0] == first_shot and pulses.shot_number.tolist() == shot.astype(int).tolist()
-    assert ((pulses.pulse_id >> 32) == pulses.lfid).all()
-    assert ((pulses.pulse_id & 0xFFFFFFFF) == pulses.shot_number).all()
-    assert pulses.pulse_id[0] == 1657455141 * 2**32 + first_shot
+    assert (pulses.pulse_id == pulses.shot_number).all() and pulses.pulse_id[0] == first_shot
+
+
+def test_lfids_past_2_31_give_positive_unique_ids_in_every_range(tmp_path):
+    """LFID and SHOTNUMBER are each uint32: LFID << 32 | shot overflows int64 from LFID 2^31. Two LFIDs past it
+    (uint32's largest among them), the same shot numbers under both, read whole and in ranges of 3: every id
+    positive and unique, the LFID's rank in the file (sorted) in the high 32 bits, the same in every range."""
+    path = tmp_path / "LVIS1B_lfids.h5"
+    lfid = np.array([2**32 - 1] * 4 + [2_259_812_001] * 4)
+    write_lvis(path, 8, lfid=lfid, shot_number=np.r_[np.arange(5, 9), np.arange(5, 9)])
+    whole = read_pulses(path)
+    assert whole.lfid.tolist() == lfid.tolist() and whole.shot_number.tolist() == [5, 6, 7, 8] * 2
+    assert whole.pulse_id.tolist() == [(1 << 32) + s for s in (5, 6, 7, 8)] + [5, 6, 7, 8]
+    ranged = np.concatenate([read_pulses(r).pulse_id for r in plan_point_ranges(path, 3)])
+    assert ranged.tolist() == whole.pulse_id.tolist()
+
+
+def test_ranges_are_of_equal_size_within_the_limit(tmp_path):
+    """6,000 shots at 5,000 a range: two of 3,000 (not 5,000 and 1,000: one worker idle for most of the run);
+    8 at 3: 3, 3, 2; every shot in exactly one range."""
+    path = tmp_path / "LVIS1B_ranges.h5"
+    write_lvis(path, 8, samples=64, tx_samples=16)
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 3)] == [(0, 3), (3, 6), (6, 8)]
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 5)] == [(0, 4), (4, 8)]
+    assert [(r.start, r.stop) for r in plan_point_ranges(path, 8)] == [(0, 8)]
