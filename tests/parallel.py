@@ -3,8 +3,8 @@
 - The engine's kernel (fwcore.engine.decompose, most of a cold session's compile time) compiles once, in a
   background process the controller starts before the workers: numba's cache then serves the workers, the Beam
   and `fwl` processes the tests start, and the Dask workers. Until it is done, a worker that is about to compile
-  a kernel or start a process waits for it (a shared lock the background process holds), while tests that need
-  neither run; without the wait both workers and every process they start compiled the same kernel at once.
+  a kernel or start a Python process waits for it (a shared lock the background process holds), while tests that
+  need neither run; without the wait both workers and every process they start compiled the same kernel at once.
 - Test files that share a session fixture are one unit of `--dist loadfile` (SHARED_SESSION): the fixture is
   then made on one worker, not on each.
 """
@@ -75,8 +75,16 @@ def _wait_for_kernels() -> None:
         _waited = True
 
 
+def _runs_python(args) -> bool:
+    """Whether a command is this environment's Python or one of its scripts (fwl, dask): a process that may compile
+    kernels. Others (ldconfig for ctypes, chromium, git) never wait."""
+    program = Path(args if isinstance(args, (str, bytes, os.PathLike)) else args[0])
+    program = Path(os.fsdecode(program))
+    return program == Path(sys.executable) or program.parent == Path(sys.executable).parent
+
+
 def wait_before_compiling_or_starting() -> None:
-    """In a worker: numba compiles and new processes (subprocess.Popen) wait for the background compile first."""
+    """In a worker: numba compiles and new Python processes (subprocess.Popen) wait for the background compile."""
     from numba.core.dispatcher import Dispatcher
 
     compile_ = Dispatcher.compile
@@ -86,9 +94,10 @@ def wait_before_compiling_or_starting() -> None:
         return compile_(self, sig)
 
     class PopenAfterWarmUp(subprocess.Popen):
-        def __init__(self, *args, **kwargs):
-            _wait_for_kernels()
-            super().__init__(*args, **kwargs)
+        def __init__(self, args, *rest, **kwargs):
+            if _runs_python(args):
+                _wait_for_kernels()
+            super().__init__(args, *rest, **kwargs)
 
     Dispatcher.compile = compile_after_warm_up
     subprocess.Popen = PopenAfterWarmUp
