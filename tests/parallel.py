@@ -3,8 +3,9 @@
 - The engine's kernel (fwcore.engine.decompose, most of a cold session's compile time) compiles once, in a
   background process the controller starts before the workers: numba's cache then serves the workers, the Beam
   and `fwl` processes the tests start, and the Dask workers. Until it is done, a worker that is about to compile
-  a kernel or start a Python process waits for it (a shared lock the background process holds), while tests that
-  need neither run; without the wait both workers and every process they start compiled the same kernel at once.
+  that kernel or start a Python process waits for it (a shared lock the background process holds), while tests
+  that need neither run (other kernels, small, compile where they are needed); without the wait both workers
+  and every process they start compiled the same kernel at once.
 - Test files that share a session fixture are one unit of `--dist loadfile` (SHARED_SESSION): the fixture is
   then made on one worker, not on each.
 """
@@ -21,6 +22,7 @@ from pathlib import Path
 from xdist.scheduler import LoadFileScheduling
 
 LOCK_ENV = "FWL_TEST_KERNELS_LOCK"
+WARMED = "fwcore.engine.decompose"  # the module of the kernels the background process compiles
 WARM_UP = ("from fwcore.engine.config import DecompositionConfig; from pipeline.stages import warm_up; "
            "warm_up(DecompositionConfig())")
 
@@ -84,13 +86,15 @@ def _runs_python(args) -> bool:
 
 
 def wait_before_compiling_or_starting() -> None:
-    """In a worker: numba compiles and new Python processes (subprocess.Popen) wait for the background compile."""
+    """In a worker: compiling WARMED's kernels and starting a Python process (subprocess.Popen) wait for the
+    background compile."""
     from numba.core.dispatcher import Dispatcher
 
     compile_ = Dispatcher.compile
 
     def compile_after_warm_up(self, sig):
-        _wait_for_kernels()
+        if self.py_func.__module__ == WARMED:  # other kernels are small: waiting would cost more than compiling
+            _wait_for_kernels()
         return compile_(self, sig)
 
     class PopenAfterWarmUp(subprocess.Popen):
