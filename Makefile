@@ -16,7 +16,7 @@ run: $(STAMP)
 	$(BIN)/fwl run --output out/run --points-per-range 300
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two processes, a test module each: the numba compile and Beam runs overlap
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two processes, a test module each; the engine compiles once (tests/parallel.py)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py

@@ -1,9 +1,14 @@
+import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests import parallel
+
+KERNELS = pytest.StashKey[subprocess.Popen]()
 DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
 
 
@@ -40,3 +45,29 @@ def leica_copy(tmp_path, leica_dir) -> Path:
     for suffix in (".las", ".wdp"):
         shutil.copy(leica_dir / f"leica_a{suffix}", tmp_path / f"leica_a{suffix}")
     return tmp_path / "leica_a.las"
+
+
+def _controller_of_workers(config) -> bool:
+    return not hasattr(config, "workerinput") and bool(config.getoption("numprocesses", None))
+
+
+def pytest_configure(config):
+    """Under xdist (`make test`): the controller starts the kernels' one compile, the workers wait for it before
+    compiling or starting a process (tests/parallel.py)."""
+    if _controller_of_workers(config):
+        config.stash[KERNELS] = parallel.start_kernels(config.rootpath)
+    elif hasattr(config, "workerinput") and parallel.LOCK_ENV in os.environ:
+        parallel.wait_before_compiling_or_starting()
+
+
+def pytest_unconfigure(config):
+    if KERNELS in config.stash:
+        parallel.stop_kernels(config.stash[KERNELS])
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """--dist loadfile with the files that share a session fixture on one worker (tests/parallel.py)."""
+    if config.getvalue("dist") == "loadfile":
+        return parallel.SharedSessionScheduling(config, log)
+    return None
