@@ -67,12 +67,18 @@ class CellStatistics:
     def add(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, **values: np.ndarray) -> None:
         cell = self.grid.index(x, y)
         inside = cell >= 0
-        cell, z = cell[inside], np.asarray(z, float)[inside]
+        self.add_cells(cell[inside], np.asarray(z, float)[inside],
+                       **{name: np.asarray(v, float)[inside] for name, v in values.items()})
+
+    def add_cells(self, cell: np.ndarray, z: np.ndarray, **values: np.ndarray) -> None:
+        """A batch of echoes by their cell (row * width + column, all in the grid): a tile's cells, counted by the
+        whole grid's rule, add as the whole grid's would."""
+        z = np.asarray(z, float)
         self.count += np.bincount(cell, minlength=self.grid.cells)
         np.maximum.at(self.highest, cell, z)
         np.minimum.at(self.lowest, cell, z)
         for name, v in values.items():
-            v = np.asarray(v, float)[inside]
+            v = np.asarray(v, float)
             found = ~np.isnan(v)
             self.sums[name] += np.bincount(cell[found], weights=v[found], minlength=self.grid.cells)
             self.counts[name] += np.bincount(cell[found], minlength=self.grid.cells)
@@ -107,11 +113,13 @@ class HeightProfile:
     def add(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, value: np.ndarray) -> None:
         cell = self.grid.index(x, y)
         inside = cell >= 0
-        cell = cell[inside]
-        height = np.asarray(z, float)[inside] - self.lowest[cell]
+        self.add_cells(cell[inside], np.asarray(z, float)[inside], np.asarray(value, float)[inside])
+
+    def add_cells(self, cell: np.ndarray, z: np.ndarray, value: np.ndarray) -> None:
+        """Echoes by their cell (row * width + column, all in the grid), as CellStatistics.add_cells."""
+        height = np.asarray(z, float) - self.lowest[cell]
         k = np.clip(np.floor(height / self.bin_height), 0, self.bins - 1).astype(np.int64)
-        value = np.nan_to_num(np.asarray(value, float)[inside])
-        np.add.at(self.sums, (cell, k), value)
+        np.add.at(self.sums, (cell, k), np.nan_to_num(np.asarray(value, float)))
 
     def edges(self) -> list[tuple[float, float]]:
         """Each bin's (from, to) height above the lowest echo, metres; the last is open above."""

@@ -5,16 +5,17 @@ vegetation by height, 7 low noise, 1 otherwise) with its height above the terrai
 Tile by tile with an overlap (fwcore.terrain.tiles), so that a survey of any size streams, the tiles on the
 runner's workers as `fwl run`'s ranges are (pipeline.tiled):
 
-    1. the driver: the kept echoes, a record batch at a time, appended to the spill file of each tile whose core
-       or margin holds them (under the run's .classify/ folder, removed at the end)
-    2. the workers, a tile each (classify_tile): the ground filter, roofs and heights over its core and margin;
-       its core's echoes' results by their row in the table into the tile's result file, then its mark
-    3. the driver gathers the results; the workers, a file each (write_file_columns), write them into each echo
-       file's two columns (atomically: a file is old or new, never half)
+    1. the driver: each tile's task names the echo table's row groups whose bounds (Parquet statistics) meet its
+       core and margin; no echo is read in the driver
+    2. the workers, a tile each (classify_tile): its kept echoes read from those row groups, the ground filter,
+       roofs and heights over its core and margin; its core's echoes' results by their row in the table into the
+       tile's result file (under the run's .classify/ folder, removed at the end), then its mark
+    3. the workers, a file each (write_file_columns): the results of the tiles that read the file, into its two
+       columns (atomically: a file is old or new, never half)
     4. the run's LAS and COPC files rewritten with the classes (pipeline.classes_las)
 
-An interrupted call leaves .classify/ behind: `resume` (--resume) keeps its spill and the tiles with a mark.
-Memory: one tile's echoes a worker, plus five bytes per echo of the survey in the driver for step 3.
+An interrupted call leaves .classify/ behind: `resume` (--resume) keeps the tiles and files with a mark.
+Memory: one tile's echoes a worker, or one echo file; the driver holds no echo.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import functools
 import json
 import shutil
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -36,14 +36,14 @@ from fwcore.terrain.classes import asprs_classes
 from fwcore.terrain.ground import GroundConfig
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tile_terrain, tiles_over
 from pipeline.classes_las import classify_point_clouds
-from pipeline.echo_table import BATCH_ROWS, echo_bounds, echo_files
+from pipeline.echo_table import echo_bounds, echo_files
 from pipeline.outputs import read_run
 from pipeline.tables import COLUMNS
-from pipeline.tiled import (IN_PROCESS_ECHOES, FileTask, TileTask, mark_tile, read_spill, result_path, run_tiles,
-                            spill, spilled_echoes, start_spill, tile_is_done, tile_results)
+from pipeline.tiled import (IN_PROCESS_ECHOES, FileTask, TileTask, mark_tile, read_tile, result_path, run_tiles,
+                            start_spill, table_bounds, table_parts, tile_results, tile_tasks)
 
 SPILL_DIR = ".classify"
-SPILL_COLUMNS = ("row", "x", "y", "z", "pulse_id", "echo_index")
+TILE_COLUMNS = ("x", "y", "z", "pulse_id", "echo_index")
 DEFAULT_CELL_M = 1.0  # the tiles' cells (a tile is a whole number of them)
 
 
@@ -70,25 +70,11 @@ def is_classified(run_dir: str | Path) -> bool:
     return kept.num_rows == 0 or kept.column("classification").null_count < kept.num_rows
 
 
-def _kept_batches(files: list[Path], columns: list[str]) -> Iterator[dict[str, np.ndarray]]:
-    """The kept and placed rows' columns with their "row" (in the whole table), a record batch at a time."""
-    first = 0
-    for f in files:
-        for batch in pq.ParquetFile(f).iter_batches(batch_size=BATCH_ROWS, columns=[*columns, "kept"]):
-            x, y = batch.column("x").to_numpy(zero_copy_only=False), batch.column("y").to_numpy(zero_copy_only=False)
-            kept = np.asarray(pc.fill_null(batch.column("kept"), False)) & np.isfinite(x) & np.isfinite(y)
-            rows = np.flatnonzero(kept)
-            if rows.size:
-                values = {c: batch.column(c).to_numpy(zero_copy_only=False)[rows] for c in columns}
-                values["row"] = rows + first
-                yield values
-            first += batch.num_rows
-
-
 def classify_tile(task: TileTask, config: GroundConfig) -> None:
-    """A tile's work, on a worker: the ground filter, roofs and heights over its spilled echoes (core and
-    margin); its core's results by their row in the table into its result file, then its mark."""
-    e = read_spill(task)
+    """A tile's work, on a worker: the ground filter, roofs and heights over its echoes (core and margin, read
+    from the echo table's row groups that meet them); its core's results by their row in the table into its
+    result file, a row group per echo file (a file's task reads its own), then its mark."""
+    e = read_tile(task, TILE_COLUMNS)
     if e:
         t = task.tile
         result = tile_terrain(t, e["x"], e["y"], e["z"], e["pulse_id"], e["echo_index"], config)
@@ -96,7 +82,12 @@ def classify_tile(task: TileTask, config: GroundConfig) -> None:
         table = pa.table({"row": e["row"][core], "ground": result.ground[core], "building": result.building[core],
                           "noise": result.noise[core], "height": result.height[core].astype(np.float32)})
         tmp = result_path(task).with_suffix(".tmp")
-        pq.write_table(table, tmp)
+        rows = table.column("row").to_numpy()
+        with pq.ParquetWriter(tmp, table.schema) as writer:
+            for s in task.sources:  # the rows are in the table's order: each file's a slice
+                lo, hi = np.searchsorted(rows, [s.first, s.first + s.rows])
+                if hi > lo:
+                    writer.write_table(table.slice(lo, hi - lo))
         tmp.replace(result_path(task))
     mark_tile(task)
 
@@ -109,63 +100,59 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
     run_dir = Path(run_dir)
     read_run(run_dir)  # a folder that is not a finished run is refused here
     files = echo_files(run_dir)
-    bounds = echo_bounds(files)
+    parts = table_parts(files)
+    bounds = table_bounds(parts) or echo_bounds(files)
     if bounds is None:
         raise ValueError(f"{run_dir}: the run kept no echo with coordinates: nothing to classify")
     grid = Grid.covering(*bounds, DEFAULT_CELL_M)
-    spill_dir = run_dir / SPILL_DIR
-    tasks = [TileTask(str(spill_dir), k, t) for k, t in enumerate(tiles_over(grid, tile, overlap))]
+    work = run_dir / SPILL_DIR
+    tasks = tile_tasks(work, tiles_over(grid, tile, overlap), parts)
     settings = {"tile_m": tile, "overlap_m": overlap, "config": dataclasses.asdict(config),
-                "echo_files": [[f.name, f.stat().st_size] for f in files]}
-    if not start_spill(spill_dir, settings, resume):
-        spill(_kept_batches(files, [c for c in SPILL_COLUMNS if c != "row"]), tasks, SPILL_COLUMNS)
-    run_tiles(functools.partial(classify_tile, config=config), tasks, beam_args,
-              small=spilled_echoes(spill_dir) <= IN_PROCESS_ECHOES)
-    rows = sum(pq.ParquetFile(f).metadata.num_rows for f in files)
-    ground, building, noise = np.zeros(rows, bool), np.zeros(rows, bool), np.zeros(rows, bool)
-    height = np.full(rows, np.nan, np.float32)
-    for _, path in tile_results(tasks):
-        table = pq.read_table(path)
-        r = {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
-        ground[r["row"]], building[r["row"]], noise[r["row"]] = r["ground"], r["building"], r["noise"]
-        height[r["row"]] = r["height"]
-    codes = asprs_classes(height, ground, building, noise)
-    by_class = _write_columns(files, codes, height, spill_dir, beam_args)
-    del ground, building, noise, height, codes
-    matched = classify_point_clouds(run_dir, files, spill_dir)
-    shutil.rmtree(spill_dir, ignore_errors=True)  # kept until here: an interrupted call resumes from it
+                "echo_files": [[str(p.path.name), p.rows] for p in parts]}  # rows: a rewritten file keeps them
+    start_spill(work, settings, resume)
+    rows = sum(p.rows for p in parts)
+    run_tiles(functools.partial(classify_tile, config=config), tasks, beam_args, small=rows <= IN_PROCESS_ECHOES)
+    readers: dict[str, list[int]] = {}
+    for t in tasks:
+        for s in t.sources:
+            readers.setdefault(s.path, []).append(t.index)
+    file_tasks = [FileTask(str(work), i, str(p.path), p.first, tuple(readers.get(str(p.path), ())))
+                  for i, p in enumerate(parts)]
+    run_tiles(write_file_columns, file_tasks, beam_args, small=rows <= IN_PROCESS_ECHOES)
+    by_class: dict[int, int] = {}
+    for _, path in tile_results(file_tasks, ".json"):
+        for code, count in json.loads(path.read_text()).items():
+            by_class[int(code)] = by_class.get(int(code), 0) + count
+    matched = classify_point_clouds(run_dir, files, work)
+    shutil.rmtree(work, ignore_errors=True)  # kept until here: an interrupted call resumes from it
     return Classified(int(sum(by_class.values())), by_class, len(tasks), tile, overlap, sum(matched.values()))
 
 
-def _write_columns(files: list[Path], codes: np.ndarray, height: np.ndarray, folder: Path,
-                   beam_args: list[str] | None) -> dict[int, int]:
-    """Step 3: each file's slice of the classes and heights into the work folder, then each file rewritten
-    with them on a worker (write_file_columns); the kept echoes by class."""
-    tasks, first = [], 0
-    for i, f in enumerate(files):
-        n = pq.ParquetFile(f).metadata.num_rows
-        task = FileTask(str(folder), i, str(f))
-        if not tile_is_done(task):
-            np.savez(result_path(task, ".classes.npz"), codes=codes[first:first + n], height=height[first:first + n])
-        tasks.append(task)
-        first += n
-    run_tiles(write_file_columns, tasks, beam_args, small=first <= IN_PROCESS_ECHOES)
-    by_class: dict[int, int] = {}
-    for _, path in tile_results(tasks, ".json"):
-        for code, count in json.loads(path.read_text()).items():
-            by_class[int(code)] = by_class.get(int(code), 0) + count
-    return by_class
+def file_classes(task: FileTask, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """A file's classes and heights (rows long; class 1 and NaN where no tile's core has the echo), from the
+    results of the tiles that read it."""
+    ground, building, noise = np.zeros(rows, bool), np.zeros(rows, bool), np.zeros(rows, bool)
+    height = np.full(rows, np.nan, np.float32)
+    for k in task.tiles:
+        path = result_path(TileTask(task.folder, k, None))
+        if not path.exists():
+            continue
+        table = pq.read_table(path, filters=[("row", ">=", task.first), ("row", "<", task.first + rows)])
+        r = {c: table.column(c).to_numpy() for c in table.column_names}
+        at = r["row"] - task.first
+        ground[at], building[at], noise[at], height[at] = r["ground"], r["building"], r["noise"], r["height"]
+    return asprs_classes(height, ground, building, noise), height
 
 
 def write_file_columns(task: FileTask) -> None:
     """A file's work, on a worker: its classification and height columns (null where not kept or not placed)
-    written, atomically; its kept echoes by class into its result; then its mark."""
+    from the results of the tiles that read it, written atomically; its kept echoes by class into its result;
+    then its mark."""
     f = Path(task.path)
-    with np.load(result_path(task, ".classes.npz")) as given:
-        c, h = given["codes"], given["height"]
     pf = pq.ParquetFile(f)
     table = pf.read()
     n = table.num_rows
+    c, h = file_classes(task, n)
     kept = (np.asarray(pc.fill_null(table.column("kept"), False))
             & np.isfinite(table.column("x").to_numpy(zero_copy_only=False))
             & np.isfinite(table.column("y").to_numpy(zero_copy_only=False)))

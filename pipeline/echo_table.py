@@ -76,3 +76,20 @@ def kept_batches(files: list[Path], columns: list[str]) -> Iterator[dict[str, np
             kept = batch.filter(pc.fill_null(keep, False))  # null coordinates: not placed, not mapped
             if kept.num_rows:
                 yield {c: kept.column(c).to_numpy(zero_copy_only=False) for c in columns}
+
+
+def column_max(files: list[Path], column: str, default: float) -> float:
+    """The largest finite value of a column over the kept, placed echoes (fwl classify leaves the others null),
+    from the row groups' statistics, which leave out nulls and NaN; a file without them is read. `default`
+    where there is none."""
+    found = []
+    for f in files:
+        meta = pq.ParquetFile(f).metadata
+        names = [meta.schema.column(i).name for i in range(meta.num_columns)]
+        stats = [meta.row_group(g).column(names.index(column)).statistics for g in range(meta.num_row_groups)]
+        if any(s is None for s in stats):
+            found += [float(np.nanmax(b[column])) for b in kept_batches([f], ["x", "y", column])
+                      if np.isfinite(b[column]).any()]
+        else:
+            found += [float(s.max) for s in stats if s.has_min_max]
+    return max(found, default=default)

@@ -14,9 +14,10 @@ over each cell's echoes, fwcore.metrics.canopy).
     pavd.tif   plant area volume density, a band a bin of --bin-height above the terrain
     rh98.tif, rh50.tif  the height above the terrain under which 98 % / 50 % of the cell's echo energy lies
 
-Tile by tile on the runner's workers (pipeline.tiled): the driver spills the kept echoes into each tile's file
-(core and margin) under the run's .forest-maps/ folder; each tile's maps are computed from its file alone
-(forest_tile: a plain function), and the driver pastes each tile's core windows into the maps.
+Tile by tile on the runner's workers (pipeline.tiled): each tile's task reads its kept echoes (core and margin)
+from the echo table's row groups whose bounds meet them, computes its maps and fwl grid's statistics and profile
+(forest_tile: a plain function) into its result under the run's .forest-maps/ folder, and the driver pastes each
+tile's core windows into the maps. No echo is read in the driver.
 Memory: a tile's echoes a worker; the maps in the driver (a float per cell per map, the PAVD's bins per cell).
 """
 
@@ -27,10 +28,11 @@ import functools
 import math
 import shutil
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from fwcore.grid import Grid
+from fwcore.grid import CellStatistics, Grid, HeightProfile
 from fwcore.metrics.canopy import gap_probability, plant_area_index
 from fwcore.terrain.beams import beam_positions, interception_height, range_normalised
 from fwcore.terrain.canopy_height import echo_tops
@@ -38,9 +40,9 @@ from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
 from fwcore.terrain.profile import cover_and_pai, plant_area_density, relative_heights
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tiles_over
-from pipeline.echo_table import kept_batches
-from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_spill, result_path, run_tiles, spill,
-                            spilled_echoes, start_spill, tile_results)
+from pipeline.echo_table import column_max
+from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_tile, result_path, run_tiles, start_spill,
+                            table_parts, tile_results, tile_tasks)
 
 SPILL_DIR = ".forest-maps"
 PROFILE_TOP_M = 80.0  # the profiles' bins reach the tallest echo, at most this far above the terrain
@@ -48,6 +50,7 @@ MAP_COLUMNS = ("x", "y", "z", "classification", "height", "energy", "fwhm_ps", "
 FLOAT32 = ("chm", "cover", "pai", "pai_corrected", "rh98", "rh50")  # as the maps are written
 SUB_CELL_M = 1.0  # the clumping correction's sub-cells
 MIN_SUB_PULSES = 4  # pulses a sub-cell needs for its own gap probability
+STATISTICS = ("reflectance", "amplitude")  # fwl grid's means per cell (pipeline.grid), beside its counts and heights
 
 
 def run_system_fwhm_ps(run_dir: Path) -> float:
@@ -82,12 +85,14 @@ def _cells(task: TileTask, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np
 
 
 def forest_tile(task: TileTask, settings: ForestSettings) -> None:
-    """A tile's forest maps, on a worker, from its spilled echoes (core and margin: the terrain's triangulation
-    reaches past the core's edge), into its result file (the core's windows of each map), then its mark."""
-    e = read_spill(task)
+    """A tile's forest maps, on a worker, from its echoes (core and margin: the terrain's triangulation reaches
+    past the core's edge) read from the echo table's row groups that meet them, into its result file (the core's
+    windows of each map, and of fwl grid's statistics and profile: tile_statistics), then its mark."""
+    e = read_tile(task, (*MAP_COLUMNS, *STATISTICS))
     if e:
         tmp = result_path(task, ".tmp.npz")
-        np.savez(tmp, **tile_forest_maps(task, e, settings))
+        np.savez(tmp, **tile_forest_maps(task, {c: e[c] for c in MAP_COLUMNS}, settings),
+                 **tile_statistics(task, e, settings.bin_height))
         tmp.replace(result_path(task, ".npz"))
     mark_tile(task)
 
@@ -172,33 +177,74 @@ def clumping_corrected_pai(x: np.ndarray, y: np.ndarray, c: np.ndarray, pulse: n
     return np.where(enough, sub_pai.mean(axis=1), np.nan)
 
 
+def tile_statistics(task: TileTask, e: dict[str, np.ndarray], bin_height: float) -> dict[str, np.ndarray]:
+    """fwl grid's statistics (fwcore.grid.CellStatistics) and energy profile over the tile's core cells, from its
+    echoes in the table's order: each record batch ("batch") adds as the driver's stream of the table would, so
+    that the pasted tiles are that stream's maps to the bit. The profile has the bins of the tile's tallest cell."""
+    t = task.tile
+    core, c = _cells(task, e["x"], e["y"])
+    cells = Grid(0.0, 0.0, t.grid.cell, t.col1 - t.col0, t.row1 - t.row0)  # the core's cells, counted by c
+    stats = CellStatistics(cells, STATISTICS)
+    z, batch = e["z"][core], e["batch"][core]
+    values = {k: e[k][core] for k in STATISTICS}
+    edges = [0, *(np.flatnonzero(np.diff(batch)) + 1), batch.size]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        stats.add_cells(c[lo:hi], z[lo:hi], **{k: v[lo:hi] for k, v in values.items()})
+    highest, lowest = stats.heights()
+    profile = HeightProfile(cells, lowest, bin_height, HeightProfile.bins_for(highest, lowest, bin_height))
+    profile.add_cells(c, z, e["energy"][core])
+    return {"count": stats.count, "highest": stats.highest, "lowest": stats.lowest, "profile": profile.sums,
+            **{f"sum_{k}": stats.sums[k] for k in STATISTICS}, **{f"n_{k}": stats.counts[k] for k in STATISTICS}}
+
+
+class ForestMaps(NamedTuple):
+    """forest_maps' result: the maps as pipeline.grid writes them, and its statistics and profile of every echo."""
+
+    maps: dict
+    statistics: CellStatistics
+    profile: HeightProfile
+
+
 def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float, z_unit: str,
                 energy_unit: str, beam_args: list[str] | None = None, resume: bool = False,
-                tile: float = DEFAULT_TILE_M, overlap: float = DEFAULT_OVERLAP_M) -> dict:
-    """The maps of the module: name -> (bands, dtype, nodata, descriptions), as pipeline.grid writes them; the
-    tiles on the runner `beam_args` names (pipeline.tiled), `resume` keeping those an interrupted call finished."""
-    tallest = max((float(np.nanmax(b["height"])) for b in kept_batches(files, ["x", "y", "height"])
-                   if np.isfinite(b["height"]).any()), default=0.0)
+                tile: float = DEFAULT_TILE_M, overlap: float = DEFAULT_OVERLAP_M) -> ForestMaps:
+    """The maps of the module: name -> (bands, dtype, nodata, descriptions), as pipeline.grid writes them, with
+    fwl grid's statistics and profile, assembled from the tiles' (no echo is read in the driver); the tiles on
+    the runner `beam_args` names (pipeline.tiled), `resume` keeping those an interrupted call finished."""
+    tallest = column_max(files, "height", default=0.0)
     bins = int(math.ceil(min(max(tallest, 0.0), PROFILE_TOP_M) / bin_height)) + 2  # the tallest echo's, the ground's
     settings = ForestSettings(grid, bins, bin_height, run_system_fwhm_ps(run_dir))
     folder = run_dir / SPILL_DIR
-    tasks = [TileTask(str(folder), k, t) for k, t in enumerate(tiles_over(grid, tile, overlap))]
-    if not start_spill(folder, {"settings": repr(settings), "tile_m": tile, "overlap_m": overlap,
-                                "echo_files": [[f.name, f.stat().st_size] for f in files]}, resume):
-        spill(kept_batches(files, list(MAP_COLUMNS)), tasks, MAP_COLUMNS)
+    parts = table_parts(files)
+    tasks = tile_tasks(folder, tiles_over(grid, tile, overlap), parts)
+    start_spill(folder, {"settings": repr(settings), "tile_m": tile, "overlap_m": overlap,
+                         "echo_files": [[f.name, f.stat().st_size] for f in files]}, resume)
     run_tiles(functools.partial(forest_tile, settings=settings), tasks, beam_args,
-              small=spilled_echoes(folder) <= IN_PROCESS_ECHOES)
+              small=sum(p.rows for p in parts) <= IN_PROCESS_ECHOES)
     maps = {name: np.full((grid.height, grid.width), np.nan, np.float32 if name in FLOAT32 else np.float64)
             for name in ("dtm", "dsm", "chm", "cover", "pai", "pai_corrected", "rh98", "rh50")}
     pavd = np.full((bins - 1, grid.height, grid.width), np.nan, np.float32)
+    stats = CellStatistics(grid, STATISTICS)
+    counted = {"count": stats.count, "highest": stats.highest, "lowest": stats.lowest,
+               **{f"sum_{k}": stats.sums[k] for k in STATISTICS}, **{f"n_{k}": stats.counts[k] for k in STATISTICS}}
     for t, path in tile_results(tasks, ".npz"):
         window = (slice(t.tile.row0, t.tile.row1), slice(t.tile.col0, t.tile.col1))
         with np.load(path) as part:
             for name, values in maps.items():
                 values[window] = part[name]
             pavd[(slice(None), *window)] = np.moveaxis(part["pavd"], -1, 0)
+            for name, values in counted.items():
+                grid.raster(values)[window] = part[name].reshape(t.tile.row1 - t.tile.row0, -1)
+    highest, lowest = stats.heights()
+    profile = HeightProfile(grid, lowest, bin_height, HeightProfile.bins_for(highest, lowest, bin_height))
+    sums = profile.sums.reshape(grid.height, grid.width, profile.bins)
+    for t, path in tile_results(tasks, ".npz"):
+        with np.load(path) as part:
+            shape = (t.tile.row1 - t.tile.row0, t.tile.col1 - t.tile.col0)
+            tile_profile = part["profile"].reshape(*shape, -1)  # the tile's bins: its cells' echoes are all below
+            sums[t.tile.row0:t.tile.row1, t.tile.col0:t.tile.col1, :tile_profile.shape[-1]] = tile_profile
     shutil.rmtree(folder, ignore_errors=True)  # kept until here: an interrupted call resumes from it
-    return _described(maps, pavd, bin_height, z_unit)
+    return ForestMaps(_described(maps, pavd, bin_height, z_unit), stats, profile)
 
 
 def _described(maps: dict[str, np.ndarray], pavd: np.ndarray, bin_height: float, z_unit: str) -> dict:

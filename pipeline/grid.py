@@ -17,7 +17,8 @@ by default in the run's own grid/ folder (where `fwl view` finds them; a new run
 
 The echo table is read a record batch at a time (pyarrow), twice: the statistics, then the profile (its heights
 are above each cell's lowest echo, known after the first pass). Only the grids are held: memory grows with
-the cells and bins, not with the echoes.
+the cells and bins, not with the echoes. Where the forest's maps are made, their tiles make the statistics and
+profile too, on the workers (pipeline.forest_maps.tile_statistics), and the driver reads no echo.
 """
 
 from __future__ import annotations
@@ -117,7 +118,7 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
     grid = Grid.covering(*bounds, cell)
     HeightProfile(grid, np.zeros(0), bin_height, 1)  # the bin height checked before the folder is touched
     claim_output(output)
-    forest = {}
+    forest, stats, profile = {}, None, None
     from pipeline.classify import classify_run, is_classified
 
     if classify and not is_classified(run_dir):
@@ -126,13 +127,14 @@ def grid_run(run_dir: str | Path, cell: float, output: str | Path | None = None,
         from pipeline.forest_maps import forest_maps
 
         files = echo_files(run_dir)
-        forest = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit, COLUMNS["energy"].unit,
-                             beam_args, resume)
+        forest, stats, profile = forest_maps(files, grid, run_dir, bin_height, COLUMNS["z"].unit,
+                                             COLUMNS["energy"].unit, beam_args, resume)  # the statistics, tile by tile
     elif large_footprint_run(run_dir):  # GEDI, LVIS: each shot is a footprint's sample of the forest
         forest = shot_metric_maps(run_dir, grid)
     forest = {**forest, **biomass_maps(run_dir, grid)}  # agbd.tif, footprints_agbd.tif where predicted
-    stats = _statistics(files, grid)
-    profile = _profile(files, grid, stats, bin_height)
+    if stats is None:  # not classified: no tiles; the statistics a stream of the table
+        stats = _statistics(files, grid)
+        profile = _profile(files, grid, stats, bin_height)
     return _write_maps(output, run_dir, grid, wkt, stats, profile, bool(crs), forest)
 
 

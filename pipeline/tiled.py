@@ -3,7 +3,10 @@ survey cut into tiles with their overlap (fwcore.terrain.tiles), each tile's wor
 worker, as a range's is in `fwl run`.
 
     start_spill(folder, settings, resume)   the command's work folder: kept for --resume when its settings match
-    spill(batches, tiles, folder, columns)  the driver streams the echoes once into each tile's file (core and margin)
+    table_parts(files)                      the echo table's files and their row groups' x, y bounds (statistics only)
+    tile_tasks(folder, tiles, parts)        a task a tile, naming the row groups its core and margin meet
+    read_tile(task, columns)                on a worker: the tile's kept echoes (core and margin) from those row groups
+    spill(batches, tiles, folder, columns)  the driver streams the echoes once into each tile's file (fwl footprints)
     run_tiles(work, tasks, beam_args, small)  the job: each task without its mark run on a worker; `work(task)` writes
                                             the task's result (result_path) and then its mark (mark_tile)
     tile_results(tasks)                     the results, in task order, as the driver assembles them
@@ -17,6 +20,7 @@ the driver's process, one Dask partition a tile.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -24,6 +28,7 @@ from typing import Callable, Iterable, Iterator, NamedTuple
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.terrain.tiles import Tile
@@ -33,12 +38,24 @@ SPILLED = "spilled.json"  # written once every tile's echoes are spilled
 IN_PROCESS_ECHOES = 300_000  # a job over this many echoes or fewer runs in the driver's process (no runner given)
 
 
+class Source(NamedTuple):
+    """A file of the echo table a tile reads: its path, its first row in the whole table, its rows, and the row
+    groups whose echoes' bounds meet the tile's core and margin."""
+
+    path: str
+    first: int
+    rows: int
+    groups: tuple[int, ...]
+
+
 class TileTask(NamedTuple):
-    """One tile's work: its number, the tile, and the command's work folder (a path: workers share the disk)."""
+    """One tile's work: its number, the tile, the command's work folder (a path: workers share the disk), and the
+    echo table's row groups it reads (none: its echoes were spilled, read_spill)."""
 
     folder: str
     index: int
     tile: Tile
+    sources: tuple[Source, ...] = ()
 
     @property
     def name(self) -> str:
@@ -46,11 +63,14 @@ class TileTask(NamedTuple):
 
 
 class FileTask(NamedTuple):
-    """One file's share of an assembly (fwl classify: the classes into an echo file), as a tile's."""
+    """One file's share of an assembly (fwl classify: the classes into an echo file), as a tile's: the file, its
+    first row in the table, and the tiles that read it (whose results hold its rows)."""
 
     folder: str
     index: int
     path: str
+    first: int = 0
+    tiles: tuple[int, ...] = ()
 
     @property
     def name(self) -> str:
@@ -93,6 +113,97 @@ def start_spill(folder: Path, settings: dict, resume: bool) -> bool:
     folder.mkdir(parents=True)
     (folder / SETTINGS).write_text(json.dumps(settings, sort_keys=True) + "\n")
     return False
+
+
+@dataclasses.dataclass(frozen=True)
+class TablePart:
+    """A file of the echo table: its rows, and each row group's first row and x, y bounds (xmin, ymin, xmax,
+    ymax; infinite where the file has no statistics, so that every tile reads it)."""
+
+    path: Path
+    first: int
+    rows: int
+    group_rows: np.ndarray
+    boxes: np.ndarray
+
+
+def table_parts(files: list[Path]) -> list[TablePart]:
+    """The echo table's files with their row groups' bounds, from the Parquet statistics (no rows read)."""
+    parts, first = [], 0
+    for f in files:
+        meta = pq.ParquetFile(f).metadata
+        names = [meta.schema.column(i).name for i in range(meta.num_columns)]
+        boxes = np.tile([-np.inf, -np.inf, np.inf, np.inf], (meta.num_row_groups, 1))
+        for g in range(meta.num_row_groups):
+            group = meta.row_group(g)
+            stats = [group.column(names.index(n)).statistics for n in ("x", "y")]
+            if all(s is not None and s.has_min_max for s in stats):
+                boxes[g] = (stats[0].min, stats[1].min, stats[0].max, stats[1].max)
+            elif group.num_rows and all(s is not None and s.null_count == group.num_rows for s in stats):
+                boxes[g] = (np.inf, np.inf, -np.inf, -np.inf)  # no coordinates: no tile's
+        group_rows = np.array([meta.row_group(g).num_rows for g in range(meta.num_row_groups)], np.int64)
+        parts.append(TablePart(f, first, meta.num_rows, group_rows, boxes))
+        first += meta.num_rows
+    return parts
+
+
+def table_bounds(parts: list[TablePart]) -> tuple[float, float, float, float] | None:
+    """The echoes' x, y bounds from the parts' statistics; None where a file has none (read them) or no echoes."""
+    boxes = [p.boxes for p in parts if p.boxes.size]
+    if not boxes:
+        return None
+    b = np.concatenate(boxes)
+    b = b[b[:, 0] <= b[:, 2]]
+    if not b.size or not np.isfinite(b).all():
+        return None
+    return float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())
+
+
+def tile_tasks(folder: Path, tiles: list[Tile], parts: list[TablePart]) -> list[TileTask]:
+    """A task a tile, with the row groups whose bounds meet its core and margin (closed boxes: an echo on an
+    edge is read)."""
+    tasks = []
+    for k, t in enumerate(tiles):
+        xmin, ymin, xmax, ymax = t.buffered
+        sources = []
+        for p in parts:
+            b = p.boxes
+            meet = np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
+            if meet.size:
+                sources.append(Source(str(p.path), p.first, p.rows, tuple(int(g) for g in meet)))
+        tasks.append(TileTask(str(folder), k, t, tuple(sources)))
+    return tasks
+
+
+def read_tile(task: TileTask, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """A tile's kept, placed echoes in its core and margin, read from its row groups in the table's order, by
+    column, with "row" (in the whole table) and "batch" (the first row of the record batch of BATCH_ROWS of its
+    file that a stream of the table, pipeline.echo_table's, reads it in: sums by batch add as the stream's do);
+    empty when none."""
+    from pipeline.echo_table import BATCH_ROWS
+
+    out: dict[str, list[np.ndarray]] = {c: [] for c in (*columns, "row", "batch")}
+    wanted = list(dict.fromkeys([*columns, "x", "y", "kept"]))
+    for s in task.sources:
+        pf = pq.ParquetFile(s.path)
+        starts = np.concatenate([[0], np.cumsum([pf.metadata.row_group(g).num_rows
+                                                 for g in range(pf.metadata.num_row_groups)])])
+        for g in s.groups:
+            table = pf.read_row_group(g, columns=wanted)
+            x, y = table.column("x").to_numpy(), table.column("y").to_numpy()
+            keep = (np.asarray(pc.fill_null(table.column("kept"), False)) & np.isfinite(x) & np.isfinite(y)
+                    & task.tile.in_buffered(x, y))
+            rows = np.flatnonzero(keep)
+            if not rows.size:
+                continue
+            for c in columns:
+                out[c].append(table.column(c).to_numpy()[rows])
+            in_file = starts[g] + rows
+            out["row"].append(s.first + in_file)
+            out["batch"].append(s.first + in_file // BATCH_ROWS * BATCH_ROWS)  # the batch's first row
+    if not out["row"]:
+        return {}
+    return {c: np.concatenate(v) for c, v in out.items()}
 
 
 def spill(batches: Iterable[dict[str, np.ndarray]], tasks: list[TileTask], columns: tuple[str, ...]) -> int:

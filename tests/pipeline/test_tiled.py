@@ -1,5 +1,6 @@
-"""The maps' tiles on the runners: the spill puts each echo in every tile whose core or margin holds it; a resumed
-job redoes only the tiles without their mark; and the forest's maps and classes are the same, byte for byte, on
+"""The maps' tiles on the runners: the spill puts each echo in every tile whose core or margin holds it, and a
+tile's task reads the same echoes from the echo table's row groups; a resumed job redoes only the tiles without
+their mark; and the forest's maps and classes are the same, byte for byte, on
 the DirectRunner with one and two workers and on a Dask cluster."""
 
 import functools
@@ -7,6 +8,7 @@ import json
 import shutil
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import rasterio
@@ -14,8 +16,8 @@ import rasterio
 from fwcore.grid import Grid
 from fwcore.terrain.tiles import tiles_over
 from pipeline.cli import main
-from pipeline.tiled import (TileTask, mark_tile, read_spill, result_path, run_tiles, spill, start_spill, tile_is_done,
-                            tile_results)
+from pipeline.tiled import (TileTask, mark_tile, read_spill, read_tile, result_path, run_tiles, spill, start_spill,
+                            table_bounds, table_parts, tile_is_done, tile_results, tile_tasks)
 
 IN_PROCESS = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
 
@@ -51,6 +53,33 @@ def test_the_spill_gives_each_tile_its_core_and_margin(tmp_path):
     # the same settings resume the spill; others start it anew
     assert start_spill(tmp_path, {"a": 1}, resume=True)
     assert not start_spill(tmp_path, {"a": 2}, resume=True) and not read_spill(tasks[0])
+
+
+def test_a_tile_reads_its_core_and_margin_from_the_row_groups_that_meet_them(tmp_path):
+    rng = np.random.default_rng(5)
+    grid = Grid(0.0, 40.0, 1.0, 40, 40)
+    x, y, z = np.sort(rng.uniform(0, 40, 3000)), rng.uniform(0, 40, 3000), rng.normal(100, 5, 3000)
+    kept = rng.random(3000) > 0.1
+    x[7] = np.nan  # not placed: no tile's
+    files = []
+    for k, lo in enumerate(range(0, 3000, 1000)):  # three files of four row groups, sorted along x
+        files.append(tmp_path / f"part-{k}.parquet")
+        pq.write_table(pa.table({"x": x[lo:lo + 1000], "y": y[lo:lo + 1000], "z": z[lo:lo + 1000],
+                                 "kept": kept[lo:lo + 1000]}), files[-1], row_group_size=250)
+    parts = table_parts(files)
+    assert [p.first for p in parts] == [0, 1000, 2000] and parts[0].boxes.shape == (4, 4)
+    assert table_bounds(parts) == (np.nanmin(x), y.min(), np.nanmax(x), y.max())
+    tasks = tile_tasks(tmp_path, tiles_over(grid, 20.0, 5.0), parts)
+    groups = [sum(len(s.groups) for s in t.sources) for t in tasks]
+    assert 0 < min(groups) and max(groups) < 12  # a tile reads the row groups near it, not all twelve
+    for t in tasks:
+        e = read_tile(t, ("x", "z"))
+        xmin, ymin, xmax, ymax = t.tile.buffered
+        inside = kept & (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
+        np.testing.assert_array_equal(e["row"], np.flatnonzero(inside))  # in the table's order
+        np.testing.assert_array_equal(e["z"], z[inside])
+        np.testing.assert_array_equal(e["batch"], e["row"] // 1000 * 1000)  # a small file: one batch, its first row
+        assert set(e) == {"x", "z", "row", "batch"}
 
 
 def test_a_resumed_job_redoes_only_the_tiles_without_their_mark(tmp_path):
