@@ -50,3 +50,21 @@ def test_the_profile_bins_energy_by_height_above_the_cells_lowest_echo():
                 np.array([1.0, 2.0, 4.0, 8.0, np.nan]))
     np.testing.assert_array_equal(profile.sums, [[5.0, 0.0, 2.0], [8.0, 0.0, 0.0]])
     assert profile.edges() == [(0.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
+
+
+def test_echoes_added_by_their_cell_add_as_by_their_coordinates():
+    rng = np.random.default_rng(8)
+    grid = Grid.covering(0, 0, 9.9, 5.9, 1.0)
+    x, y, z = rng.uniform(0, 10, 500), rng.uniform(0, 6, 500), rng.normal(50, 10, 500)
+    value = np.where(rng.random(500) < 0.1, np.nan, rng.uniform(0, 1, 500))
+    by_xy, by_cell = CellStatistics(grid, ("v",)), CellStatistics(grid, ("v",))
+    by_xy.add(x, y, z, v=value)
+    by_cell.add_cells(grid.index(x, y), z, v=value)
+    for name in ("count", "highest", "lowest"):
+        assert getattr(by_xy, name).tobytes() == getattr(by_cell, name).tobytes()
+    assert by_xy.sums["v"].tobytes() == by_cell.sums["v"].tobytes() and (by_cell.counts["v"] > 0).sum() > 50
+    lowest = by_xy.heights()[1]
+    profile_xy, profile_cell = HeightProfile(grid, lowest, 2.0, 30), HeightProfile(grid, lowest, 2.0, 30)
+    profile_xy.add(x, y, z, value)
+    profile_cell.add_cells(grid.index(x, y), z, value)
+    assert profile_xy.sums.tobytes() == profile_cell.sums.tobytes() and profile_cell.sums.sum() > 0

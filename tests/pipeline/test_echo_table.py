@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pyproj
 import pytest
 
-from pipeline.echo_table import echo_bounds, echo_files, kept_batches, run_crs_wkt
+from pipeline.echo_table import column_max, echo_bounds, echo_files, kept_batches, run_crs_wkt
 from pipeline.tables import geo_metadata
 
 X = np.array([5.0, -2.0, np.nan, 7.5, 3.0])
@@ -39,6 +39,23 @@ def test_the_kept_placed_echoes_come_by_batch_and_the_bounds_agree(tmp_path):
 def test_bounds_without_statistics_are_read_from_the_kept_rows(tmp_path):
     _table(tmp_path, "a.parquet", X, Y, KEPT, statistics=False)
     assert echo_bounds(echo_files(tmp_path)) == (-2.0, 1.0, 5.0, 4.0)
+
+
+def test_a_columns_largest_value_from_the_statistics_or_the_kept_rows(tmp_path):
+    for statistics, folder in ((True, tmp_path / "stats"), (False, tmp_path / "read")):
+        _table(folder, "a.parquet", X, Y, KEPT, statistics=statistics)
+        _table(folder, "b.parquet", [10.0, 0.0], [20.0, -1.0], [False, True], statistics=statistics)
+        for f in echo_files(folder):  # fwl classify's height: null where not kept and placed, NaN where unknown
+            t = pq.read_table(f)
+            kept = np.asarray(t.column("kept").fill_null(False)) & np.isfinite(t.column("x").to_numpy(False)) & \
+                np.isfinite(t.column("y").to_numpy(False))
+            h = np.array([3.0, np.nan, 9.0, 4.0, 2.0])[:t.num_rows] + (f.name == "b.parquet")
+            pq.write_table(t.append_column("height", pa.array(h, mask=~kept)), f, write_statistics=statistics)
+        assert column_max(echo_files(folder), "height", default=0.0) == 3.0  # b.parquet's 4.0 is not kept
+    _table(tmp_path / "none", "a.parquet", [1.0], [1.0], [False])
+    f = echo_files(tmp_path / "none")[0]
+    pq.write_table(pq.read_table(f).append_column("height", pa.array([np.nan])), f)
+    assert column_max([f], "height", default=0.0) == 0.0
 
 
 def test_a_run_without_an_echo_table_is_refused(tmp_path):

@@ -1,14 +1,22 @@
-"""fwl grid's forest maps on a classified simulated forest, against the scene's truth rasters."""
+"""fwl grid's forest maps on a classified simulated forest, against the scene's truth rasters; the tiles' share of
+fwl grid's statistics, the same to the bit as a stream of the table."""
 
 import json
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import rasterio
 
 from fwcore.studies.forest_evaluate import Raster, block_mean, canopy_accuracy, terrain_accuracy
 from fwcore.studies.forest_truth import TRUTH_RASTERS, truth_raster_path
+from fwcore.grid import CellStatistics, Grid, HeightProfile
+from fwcore.terrain.tiles import tiles_over
+from pipeline import echo_table
 from pipeline.cli import main
+from pipeline.forest_maps import STATISTICS, tile_statistics
+from pipeline.tiled import read_tile, table_parts, tile_tasks
 
 FOREST_MAPS = ["chm.tif", "cover.tif", "dsm.tif", "dtm.tif", "pai.tif", "pai_corrected.tif", "pavd.tif", "rh50.tif",
                "rh98.tif"]
@@ -18,6 +26,39 @@ def _read(path, band=1):
     with rasterio.open(path) as src:
         t = src.transform
         return Raster(src.read(band).astype(float), t.c, t.f, t.a)
+
+
+def test_the_tiles_statistics_are_a_stream_of_the_tables_to_the_bit(tmp_path, monkeypatch):
+    monkeypatch.setattr(echo_table, "BATCH_ROWS", 256)  # record batches across the row groups of 150 rows
+    rng = np.random.default_rng(12)
+    n = 1400
+    e = {"x": np.sort(rng.uniform(0, 50, n)), "y": rng.uniform(0, 30, n), "z": rng.normal(300, 8, n),
+         "energy": rng.uniform(1e4, 1e6, n), "amplitude": rng.uniform(0, 200, n),
+         "reflectance": np.where(rng.random(n) < 0.3, np.nan, rng.uniform(0, 1, n)), "kept": rng.random(n) > 0.1}
+    files = [tmp_path / "a.parquet", tmp_path / "b.parquet"]
+    for f, part in zip(files, (slice(0, 700), slice(700, n))):
+        pq.write_table(pa.table({k: v[part] for k, v in e.items()}), f, row_group_size=150)
+    grid = Grid.covering(0, 0, 50, 30, 1.0)
+    stream = CellStatistics(grid, STATISTICS)
+    for b in echo_table.kept_batches(files, ["x", "y", "z", *STATISTICS]):
+        stream.add(b["x"], b["y"], b["z"], **{k: b[k] for k in STATISTICS})
+    highest, lowest = stream.heights()
+    profile = HeightProfile(grid, lowest, 1.0, HeightProfile.bins_for(highest, lowest, 1.0))
+    for b in echo_table.kept_batches(files, ["x", "y", "z", "energy"]):
+        profile.add(b["x"], b["y"], b["z"], b["energy"])
+    pasted = {k: np.zeros((grid.height, grid.width)) for k in ("count", "sum_amplitude", "sum_reflectance")}
+    sums = np.zeros((grid.height, grid.width, profile.bins))
+    for task in tile_tasks(tmp_path, tiles_over(grid, 10.0, 2.0), table_parts(files)):
+        t = tile_statistics(task, read_tile(task, ("x", "y", "z", "energy", *STATISTICS)), 1.0)
+        shape = (task.tile.row1 - task.tile.row0, task.tile.col1 - task.tile.col0)
+        for k in pasted:
+            pasted[k][task.tile.row0:task.tile.row1, task.tile.col0:task.tile.col1] = t[k].reshape(shape)
+        tile_profile = t["profile"].reshape(*shape, -1)
+        sums[task.tile.row0:task.tile.row1, task.tile.col0:task.tile.col1, :tile_profile.shape[-1]] = tile_profile
+    np.testing.assert_array_equal(pasted["count"].ravel(), stream.count)
+    for k in STATISTICS:
+        assert pasted[f"sum_{k}"].ravel().tobytes() == stream.sums[k].tobytes()
+    assert sums.reshape(-1, profile.bins).tobytes() == profile.sums.tobytes() and profile.bins > 3
 
 
 @pytest.fixture(scope="module")
