@@ -110,15 +110,14 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
     settings = {"tile_m": tile, "overlap_m": overlap, "config": dataclasses.asdict(config),
                 "echo_files": [[str(p.path.name), p.rows] for p in parts]}  # rows: a rewritten file keeps them
     start_spill(work, settings, resume)
-    rows = sum(p.rows for p in parts)
-    run_tiles(functools.partial(classify_tile, config=config), tasks, beam_args, small=rows <= IN_PROCESS_ECHOES)
     readers: dict[str, list[int]] = {}
     for t in tasks:
         for s in t.sources:
             readers.setdefault(s.path, []).append(t.index)
     file_tasks = [FileTask(str(work), i, str(p.path), p.first, tuple(readers.get(str(p.path), ())))
                   for i, p in enumerate(parts)]
-    run_tiles(write_file_columns, file_tasks, beam_args, small=rows <= IN_PROCESS_ECHOES)
+    run_tiles(functools.partial(classify_tile, config=config), tasks, beam_args,  # one job: the tiles, then the files
+              small=sum(p.rows for p in parts) <= IN_PROCESS_ECHOES, then=(write_file_columns, file_tasks))
     by_class: dict[int, int] = {}
     for _, path in tile_results(file_tasks, ".json"):
         for code, count in json.loads(path.read_text()).items():

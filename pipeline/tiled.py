@@ -56,6 +56,7 @@ class TileTask(NamedTuple):
     index: int
     tile: Tile
     sources: tuple[Source, ...] = ()
+    weight: float = 0.0  # the echoes it reads, about: the job deals the tiles to the workers by it
 
     @property
     def name(self) -> str:
@@ -165,14 +166,25 @@ def tile_tasks(folder: Path, tiles: list[Tile], parts: list[TablePart]) -> list[
     tasks = []
     for k, t in enumerate(tiles):
         xmin, ymin, xmax, ymax = t.buffered
-        sources = []
+        sources, weight = [], 0.0
         for p in parts:
             b = p.boxes
             meet = np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
             if meet.size:
                 sources.append(Source(str(p.path), p.first, p.rows, tuple(int(g) for g in meet)))
-        tasks.append(TileTask(str(folder), k, t, tuple(sources)))
+                weight += float(np.sum(p.group_rows[meet] * _share(b[meet], t.buffered)))
+        tasks.append(TileTask(str(folder), k, t, tuple(sources), weight))
     return tasks
+
+
+def _share(boxes: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray:
+    """The share of each row group's box inside `box` (1 where a box has no area or no bounds)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.minimum(boxes[:, 2], box[2]) - np.maximum(boxes[:, 0], box[0])
+        h = np.minimum(boxes[:, 3], box[3]) - np.maximum(boxes[:, 1], box[1])
+        area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+        share = np.clip(w, 0, None) * np.clip(h, 0, None) / area
+    return np.where(np.isfinite(share) & (area > 0), share, 1.0)
 
 
 def read_tile(task: TileTask, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -249,32 +261,69 @@ def read_spill(task: TileTask) -> dict[str, np.ndarray]:
 
 
 def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args: list[str] | None,
-              small: bool) -> int:
+              small: bool, then: tuple[Callable, list[FileTask]] | None = None) -> int:
     """The tiles' job on the runner `beam_args` name (pipeline.options: the DirectRunner with 2 workers when none):
     `work(task)` for each task without its mark; `small` lets the default runner keep the job in the driver's
-    process. The tasks run."""
+    process. `then` (work, file tasks): in the same job, each file's task once every tile that reads it (its
+    `tiles`) has ended. The tasks run."""
     import apache_beam as beam
+    from apache_beam.options.pipeline_options import DirectOptions
 
     from pipeline.options import check_beam_args, runner_given
     from pipeline.run import Jobs
 
     todo = [t for t in tasks if not tile_is_done(t)]
-    if not todo:
+    later = [t for t in (then[1] if then else []) if not tile_is_done(t)]
+    if not todo and not later:
         return 0
     options = check_beam_args(list(beam_args or []))
     jobs = Jobs(options, small_in_process=not runner_given(list(beam_args or [])))
-    jobs.run(len(todo), lambda p: (p | "Tiles" >> beam.Create(todo) | "Spread" >> beam.Reshuffle()
-                                   | "TileWork" >> beam.Map(_run_one, work)), small)
-    missing = [t.index for t in todo if not tile_is_done(t)]
+    workers = 1 if jobs.dask else max(int(options.view_as(DirectOptions).direct_num_workers or 1), 1)
+    todo = balanced_order(todo, workers)
+
+    def build(p):
+        done = []
+        if todo:  # Create keeps the order, and so the shares Reshuffle deals the workers (balanced_order)
+            done = (p | "Tiles" >> beam.Create(todo, reshuffle=False) | "Spread" >> beam.Reshuffle()
+                    | "TileWork" >> beam.Map(_run_one, work))
+        if later:
+            readers = {t.index: [f.index for f in later if t.index in f.tiles] for t in todo}
+            files = p | "Files" >> beam.Create([(f.index, f) for f in later], reshuffle=False)
+            groups = {"file": files}
+            if todo:
+                groups["after"] = done | "Feeds" >> beam.FlatMap(_fed, readers)
+            (groups | "AfterTiles" >> beam.CoGroupByKey() | "FileTasks" >> beam.FlatMap(_file_task)
+             | "SpreadFiles" >> beam.Reshuffle() | "FileWork" >> beam.Map(_run_one, then[0]))
+
+    jobs.run(len(todo) + len(later), build, small)
+    missing = [t.name for t in [*todo, *later] if not tile_is_done(t)]
     if missing:  # a worker that ended without its mark: nothing of the tile is trusted
-        raise RuntimeError(f"{tasks[0].folder}: tiles {missing[:5]} ended without their result; run again with "
-                           f"--resume")
-    return len(todo)
+        raise RuntimeError(f"{(todo or later)[0].folder}: {', '.join(missing[:5])} ended without their result; run "
+                           f"again with --resume")
+    return len(todo) + len(later)
+
+
+def balanced_order(tasks: list, workers: int) -> list:
+    """The tasks, heaviest first (their `weight`, where they have one), dealt in a snake over `workers` (0, 1, 1,
+    0, 0, 1, ...): the DirectRunner deals a Reshuffle's elements in turn, so each worker's share weighs about
+    the same; a runner that hands out tasks as workers free up (Dask) gets the heaviest first."""
+    order = sorted(tasks, key=lambda t: -getattr(t, "weight", 0.0))
+    rows = [order[i:i + workers] for i in range(0, len(order), workers)]
+    return [t for j, row in enumerate(rows) for t in (row[::-1] if j % 2 else row)]
 
 
 def _run_one(task: TileTask | FileTask, work: Callable) -> int:
     work(task)
     return task.index
+
+
+def _fed(tile: int, readers: dict[int, list[int]]) -> list[tuple[int, None]]:
+    """A tile's end, to the files it read: their tasks wait for it."""
+    return [(f, None) for f in readers.get(tile, ())]
+
+
+def _file_task(grouped: tuple[int, dict]) -> list[FileTask]:
+    return list(grouped[1]["file"])
 
 
 def tile_results(tasks: list, suffix: str = ".parquet") -> Iterator[tuple[TileTask | FileTask, Path]]:
