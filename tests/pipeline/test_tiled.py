@@ -16,8 +16,9 @@ import rasterio
 from fwcore.grid import Grid
 from fwcore.terrain.tiles import tiles_over
 from pipeline.cli import main
-from pipeline.tiled import (TileTask, mark_tile, read_spill, read_tile, result_path, run_tiles, spill, start_spill,
-                            table_bounds, table_parts, tile_is_done, tile_results, tile_tasks)
+from pipeline.tiled import (FileTask, TileTask, balanced_order, mark_tile, read_spill, read_tile, result_path,
+                            run_tiles, spill, start_spill, table_bounds, table_parts, tile_is_done, tile_results,
+                            tile_tasks)
 
 IN_PROCESS = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
 
@@ -102,6 +103,44 @@ def test_a_resumed_job_redoes_only_the_tiles_without_their_mark(tmp_path):
         core = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
         assert sums[t.index] == pytest.approx(z[core].sum())
     assert run_tiles(_sum_core, tasks, IN_PROCESS, small=True) == 0  # all done: no job
+
+
+def _after_its_tiles(task, calls):
+    """A file's work: the tiles it waits for have all ended (their marks) when it runs."""
+    assert all(tile_is_done(TileTask(task.folder, k, None)) for k in task.tiles), task
+    result_path(task, ".json").write_text(json.dumps(sorted(task.tiles)))
+    with open(calls, "a") as f:
+        f.write(f"{task.name}\n")
+    mark_tile(task)
+
+
+def test_the_files_tasks_run_in_the_same_job_once_their_tiles_have_ended(tmp_path):
+    tasks, x, y, z = _tasks(tmp_path, np.random.default_rng(6))
+    start_spill(tmp_path, {}, resume=False)
+    spill([{"x": x, "y": y, "z": z}], tasks, ("x", "y", "z"))
+    files = [FileTask(str(tmp_path), k, f"file-{k}", tiles=(k, (k + 1) % len(tasks))) for k in range(len(tasks))]
+    calls = tmp_path / "calls.txt"
+    job = functools.partial(_sum_core, calls=calls)
+    assert run_tiles(job, tasks, IN_PROCESS, small=True, then=(functools.partial(_after_its_tiles, calls=calls),
+                                                               files)) == 2 * len(tasks)
+    assert [json.loads(p.read_text()) for _, p in tile_results(files, ".json")] == [
+        sorted(f.tiles) for f in files]
+    # resumed with the files left to do: they run, and no tile again
+    for f in files[:2]:
+        (tmp_path / f"{f.name}.done").unlink()
+    calls.unlink()
+    assert run_tiles(job, tasks, IN_PROCESS, small=True, then=(functools.partial(_after_its_tiles, calls=calls),
+                                                               files)) == 2
+    assert sorted(calls.read_text().split()) == ["file-00000", "file-00001"]
+
+
+def test_the_tiles_are_dealt_heaviest_first_in_a_snake():
+    tasks = [TileTask("", k, None, (), w) for k, w in enumerate([1.0, 9.0, 4.0, 8.0, 2.0, 7.0])]
+    order = balanced_order(tasks, 2)
+    assert [t.weight for t in order] == [9.0, 8.0, 4.0, 7.0, 2.0, 1.0]
+    shares = [sum(t.weight for t in order[b::2]) for b in (0, 1)]
+    assert shares == [15.0, 16.0]  # 9 + 4 + 2 against 8 + 7 + 1 (in turn without the snake: 9 + 7 + 2, 8 + 4 + 1)
+    assert [t.weight for t in balanced_order(tasks, 1)] == [9.0, 8.0, 7.0, 4.0, 2.0, 1.0]
 
 
 def _maps_and_classes(run, out, runner_args):
