@@ -1,18 +1,22 @@
 """The maps on the runners: `fwl classify` then `fwl grid` (the forest's maps) of a synthetic run, timed on the
 DirectRunner with 1 and 2 workers and on a local Dask cluster of 2 workers, at two sizes.
 
-    python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR]
+    python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR] [--runners direct-1,dask-2]
+                                [--source DIR]
 
 The run is bench_grid.py's (echoes/ parts of every column along a 300 m swath, canopy up to 30 m). Each runner
 gets its own copy of the run (fwl classify writes into it); each command runs in a fresh process, its wall time
 start-up included. Peak memory is the largest sum of RSS over this process and all its children (the command,
 Beam's workers, the Dask cluster's workers), sampled every 0.2 s. At the end the maps of every runner are
-compared pixel for pixel (every band of every COG) and the classes column for column.
+compared pixel for pixel (every band of every COG) and the classes column for column, with the first runner's.
+`--source DIR` takes the run from DIR (written there first, and kept, where DIR does not exist): a large run
+written once, outside the benchmark's lock. The load average (1 minute) is read as each runner ends.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import shutil
 import subprocess
 import sys
@@ -20,7 +24,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -36,21 +39,26 @@ def fwl(*args: str) -> float:
     return time.perf_counter() - start
 
 
-def maps_of(folder: Path) -> dict[str, bytes]:
+def maps_of(folder: Path) -> dict[str, str]:
+    """Each map's pixels, every band, as a digest: a run's maps compared with another's without holding them."""
     import rasterio
 
     out = {}
     for tif in sorted(folder.glob("*.tif")):
         with rasterio.open(tif) as src:
-            out[tif.name] = src.read().tobytes()
+            pixels = src.read()
+            out[tif.name] = hashlib.sha256(pixels.tobytes()).hexdigest() if pixels.size else ""
     return out
 
 
-def classes_of(run: Path) -> bytes:
+def classes_of(run: Path) -> str:
+    """The echo table's classes and heights, file by file, as a digest."""
     import pyarrow.parquet as pq
 
-    return b"".join(pq.read_table(f, columns=["classification", "height"]).to_pandas().to_numpy(float).tobytes()
-                    for f in sorted((run / "echoes").glob("*.parquet")))
+    digest = hashlib.sha256()
+    for f in sorted((run / "echoes").glob("*.parquet")):
+        digest.update(pq.read_table(f, columns=["classification", "height"]).to_pandas().to_numpy(float).tobytes())
+    return digest.hexdigest()
 
 
 def one(source: Path, work: Path, name: str, cell: float, runner: list[str]) -> dict:
@@ -64,38 +72,49 @@ def one(source: Path, work: Path, name: str, cell: float, runner: list[str]) -> 
             "classes": classes_of(run)}
 
 
+RUNNERS = {"direct-1": ["--direct_num_workers=1", "--direct_running_mode=multi_processing"],
+           "direct-2": ["--direct_num_workers=2", "--direct_running_mode=multi_processing"], "dask-2": None}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", default="2000000,20000000")
     parser.add_argument("--cell", type=float, default=5.0)
     parser.add_argument("--workdir")
+    parser.add_argument("--runners", default=",".join(RUNNERS))
+    parser.add_argument("--source", help="the run (one size): written here first where it does not exist; kept")
     args = parser.parse_args()
-    print("| echoes | runner | classify s | grid s | total s | speed-up | peak MiB | maps as direct-1 |")
-    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | --- |", flush=True)
+    names = args.runners.split(",")
+    print(f"| echoes | runner | classify s | grid s | total s | speed-up | peak MiB | maps as {names[0]} | load |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | --- | ---: |", flush=True)
     for size in (int(s) for s in args.sizes.split(",")):
         with tempfile.TemporaryDirectory(dir=args.workdir) as work:
             work = Path(work)
-            write_run(work / "source", size)
-            fwl("grid", str(work / "source"), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
+            source = Path(args.source) if args.source else work / "source"
+            if not source.exists():
+                write_run(source, size)
+            fwl("grid", str(source), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
             results = {}
-            for name, runner in (("direct-1", ["--direct_num_workers=1", "--direct_running_mode=multi_processing"]),
-                                 ("direct-2", ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]),
-                                 ("dask-2", None)):
+            for name in names:
+                runner = RUNNERS[name]
                 if runner is None:
                     from distributed import LocalCluster
 
                     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       dashboard_address=None) as cluster:
-                        results[name] = one(work / "source", work, name, args.cell,
+                        results[name] = one(source, work, name, args.cell,
                                             [f"--runner={DASK}", f"--dask_client_address={cluster.scheduler_address}"])
                 else:
-                    results[name] = one(work / "source", work, name, args.cell, runner)
-                r, base = results[name], results["direct-1"]
+                    results[name] = one(source, work, name, args.cell, runner)
+                load = float(Path("/proc/loadavg").read_text().split()[0])
+                r, first = results[name], results[names[0]]
                 total = r["classify"] + r["grid"]
-                same = r["maps"] == base["maps"] and r["classes"] == base["classes"] and np.all(
-                    [len(v) for v in r["maps"].values()])
-                print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | "
-                      f"{(base['classify'] + base['grid']) / total:.2f} | {r['peak']:.0f} | {same} |", flush=True)
+                speed = (f"{(results['direct-1']['classify'] + results['direct-1']['grid']) / total:.2f}"
+                         if "direct-1" in results else "-")
+                same = r["maps"] == first["maps"] and r["classes"] == first["classes"] and all(r["maps"].values())
+                print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | {speed} | "
+                      f"{r['peak']:.0f} | {same} | {load:.1f} |", flush=True)
+                shutil.rmtree(work / name)  # a copy of the run a runner: only one on the disk at a time
 
 
 if __name__ == "__main__":
