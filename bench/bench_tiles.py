@@ -2,7 +2,7 @@
 DirectRunner with 1 and 2 workers and on a local Dask cluster of 2 workers, at two sizes.
 
     python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR] [--runners direct-1,dask-2]
-                                [--source DIR]
+                                [--source DIR] [--no-warm]
 
 The run is bench_grid.py's (echoes/ parts of every column along a 300 m swath, canopy up to 30 m). Each runner
 gets its own copy of the run (fwl classify writes into it); each command runs in a fresh process, its wall time
@@ -83,6 +83,7 @@ def main() -> None:
     parser.add_argument("--workdir")
     parser.add_argument("--runners", default=",".join(RUNNERS))
     parser.add_argument("--source", help="the run (one size): written here first where it does not exist; kept")
+    parser.add_argument("--no-warm", action="store_true", help="no first fwl grid (numba's caches already written)")
     args = parser.parse_args()
     names = args.runners.split(",")
     print(f"| echoes | runner | classify s | grid s | total s | speed-up | peak MiB | maps as {names[0]} | load |")
@@ -93,7 +94,8 @@ def main() -> None:
             source = Path(args.source) if args.source else work / "source"
             if not source.exists():
                 write_run(source, size)
-            fwl("grid", str(source), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
+            if not args.no_warm:
+                fwl("grid", str(source), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
             results = {}
             for name in names:
                 runner = RUNNERS[name]

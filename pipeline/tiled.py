@@ -163,16 +163,20 @@ def table_bounds(parts: list[TablePart]) -> tuple[float, float, float, float] | 
 def tile_tasks(folder: Path, tiles: list[Tile], parts: list[TablePart]) -> list[TileTask]:
     """A task a tile, with the row groups whose bounds meet its core and margin (closed boxes: an echo on an
     edge is read)."""
+    boxes = np.concatenate([p.boxes for p in parts]) if parts else np.zeros((0, 4))
+    rows = np.concatenate([p.group_rows for p in parts]) if parts else np.zeros(0, np.int64)
+    part = np.repeat(np.arange(len(parts)), [len(p.group_rows) for p in parts])
+    group = np.concatenate([np.arange(len(p.group_rows)) for p in parts]) if parts else np.zeros(0, np.int64)
     tasks = []
     for k, t in enumerate(tiles):
         xmin, ymin, xmax, ymax = t.buffered
-        sources, weight = [], 0.0
-        for p in parts:
-            b = p.boxes
-            meet = np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
-            if meet.size:
-                sources.append(Source(str(p.path), p.first, p.rows, tuple(int(g) for g in meet)))
-                weight += float(np.sum(p.group_rows[meet] * _share(b[meet], t.buffered)))
+        meet = np.flatnonzero((boxes[:, 0] <= xmax) & (boxes[:, 2] >= xmin) & (boxes[:, 1] <= ymax)
+                              & (boxes[:, 3] >= ymin))
+        sources = []
+        for i in np.unique(part[meet]):  # in the table's order
+            p = parts[i]
+            sources.append(Source(str(p.path), p.first, p.rows, tuple(int(g) for g in group[meet][part[meet] == i])))
+        weight = float(np.sum(rows[meet] * _share(boxes[meet], t.buffered)))
         tasks.append(TileTask(str(folder), k, t, tuple(sources), weight))
     return tasks
 
@@ -287,7 +291,10 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
             done = (p | "Tiles" >> beam.Create(todo, reshuffle=False) | "Spread" >> beam.Reshuffle()
                     | "TileWork" >> beam.Map(_run_one, work))
         if later:
-            readers = {t.index: [f.index for f in later if t.index in f.tiles] for t in todo}
+            readers: dict[int, list[int]] = {}
+            for f in later:
+                for k in f.tiles:
+                    readers.setdefault(k, []).append(f.index)
             files = p | "Files" >> beam.Create([(f.index, f) for f in later], reshuffle=False)
             groups = {"file": files}
             if todo:
