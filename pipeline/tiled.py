@@ -7,8 +7,9 @@ worker, as a range's is in `fwl run`.
     tile_tasks(folder, tiles, parts)        a task a tile, naming the row groups its core and margin meet
     read_tile(task, columns)                on a worker: the tile's kept echoes (core and margin) from those row groups
     spill(batches, tiles, folder, columns)  the driver streams the echoes once into each tile's file (fwl footprints)
-    run_tiles(work, tasks, beam_args, small)  the job: each task without its mark run on a worker; `work(task)` writes
-                                            the task's result (result_path) and then its mark (mark_tile)
+    run_tiles(work, tasks, beam_args, small, then)  the job: each task without its mark run on a worker; `work(task)`
+                                            writes the task's result (result_path) and then its mark (mark_tile);
+                                            `then`: the files' tasks, each after the tiles that read its file
     tile_results(tasks)                     the results, in task order, as the driver assembles them
     FileTask                                a file's share of the assembly, run on the workers as a tile's
 
