@@ -2,7 +2,7 @@
 DirectRunner with 1 and 2 workers and on a local Dask cluster of 2 workers, at two sizes.
 
     python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR] [--runners direct-1,dask-2]
-                                [--source DIR] [--no-warm]
+                                [--source DIR] [--no-warm] [--repeats 3]
 
 The run is bench_grid.py's (echoes/ parts of every column along a 300 m swath, canopy up to 30 m). Each runner
 gets its own copy of the run (fwl classify writes into it); each command runs in a fresh process, its wall time
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -84,6 +85,7 @@ def main() -> None:
     parser.add_argument("--runners", default=",".join(RUNNERS))
     parser.add_argument("--source", help="the run (one size): written here first where it does not exist; kept")
     parser.add_argument("--no-warm", action="store_true", help="no first fwl grid (numba's caches already written)")
+    parser.add_argument("--repeats", type=int, default=1, help="the runners in turn this many times; then medians")
     args = parser.parse_args()
     names = args.runners.split(",")
     print(f"| echoes | runner | classify s | grid s | total s | speed-up | peak MiB | maps as {names[0]} | load |")
@@ -96,28 +98,40 @@ def main() -> None:
                 write_run(source, size)
             if not args.no_warm:
                 fwl("grid", str(source), "--cell", "50", "--output", str(work / "warm"), "--crs", "EPSG:25832")
-            results = {}
-            for name in names:
-                runner = RUNNERS[name]
-                if runner is None:
-                    from distributed import LocalCluster
+            runs: dict[str, list[dict]] = {name: [] for name in names}
+            for _ in range(args.repeats):  # the runners in turn: a change of the machine's load falls on each
+                for name in names:
+                    runner = RUNNERS[name]
+                    if runner is None:
+                        from distributed import LocalCluster
 
-                    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                      dashboard_address=None) as cluster:
-                        results[name] = one(source, work, name, args.cell,
-                                            [f"--runner={DASK}", f"--dask_client_address={cluster.scheduler_address}"])
-                else:
-                    results[name] = one(source, work, name, args.cell, runner)
-                load = float(Path("/proc/loadavg").read_text().split()[0])
-                r, first = results[name], results[names[0]]
-                total = r["classify"] + r["grid"]
-                speed = (f"{(results['direct-1']['classify'] + results['direct-1']['grid']) / total:.2f}"
-                         if "direct-1" in results else "-")
-                same = r["maps"] == first["maps"] and r["classes"] == first["classes"] and all(r["maps"].values())
-                print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | {speed} | "
-                      f"{r['peak']:.0f} | {same} | {load:.1f} |", flush=True)
-                shutil.rmtree(work / name)  # a copy of the run a runner: only one on the disk at a time
+                        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                          dashboard_address=None) as cluster:
+                            r = one(source, work, name, args.cell,
+                                    [f"--runner={DASK}", f"--dask_client_address={cluster.scheduler_address}"])
+                    else:
+                        r = one(source, work, name, args.cell, runner)
+                    r["load"] = float(Path("/proc/loadavg").read_text().split()[0])
+                    runs[name].append(r)
+                    _row(size, name, r, runs, names[0])
+                    shutil.rmtree(work / name)  # a copy of the run a runner: only one on the disk at a time
+            if args.repeats > 1:
+                medians = {name: {k: statistics.median(r[k] for r in rs) for k in ("classify", "grid", "peak", "load")}
+                               | {"maps": rs[0]["maps"], "classes": rs[0]["classes"], "median": True}
+                           for name, rs in runs.items()}
+                for name in names:
+                    _row(size, f"{name} (median of {args.repeats})", medians[name],
+                         {k: [v] for k, v in medians.items()}, names[0])
 
+
+def _row(size: int, name: str, r: dict, runs: dict[str, list[dict]], first: str) -> None:
+    """A run's row: its speed-up over direct-1's latest run (or its median), its maps against the first runner's."""
+    total = r["classify"] + r["grid"]
+    base = runs.get("direct-1", [])
+    speed = f"{(base[-1]['classify'] + base[-1]['grid']) / total:.2f}" if base else "-"
+    same = r["maps"] == runs[first][0]["maps"] and r["classes"] == runs[first][0]["classes"] and all(r["maps"].values())
+    print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | {speed} | "
+          f"{r['peak']:.0f} | {same} | {r['load']:.1f} |", flush=True)
 
 if __name__ == "__main__":
     main()
