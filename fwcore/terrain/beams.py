@@ -9,7 +9,16 @@ forests (fwcore.studies.forest) placing every pulse where its beam is at the can
 takes the 5 m cells' PAI from 21 % to 13 % (median relative error against the truth's effective PAI, the
 scene's own true echoes).
 
+Each pulse's own leaves say where its beam crossed the canopy better than the canopy's mean does: a beam that met
+a crown's top 25 m up and one that met an understorey at 6 m cross their cells 4 m apart at 12 degrees. A pulse
+with no vegetation echo (a gap's: all its energy reached the ground) crossed the canopy's level unhindered, and
+that is where its gap belongs: at the surrounding canopy's mean height, as its neighbours' beams, not at the
+ground, which a slanted beam reaches metres to the side.
+
     interception_height(height, energy, vegetation)   the canopy's energy-weighted mean height (m above terrain)
+    pulse_interception_heights(pulse, height, energy, vegetation, fallback)
+                                                      per echo, its pulse's own vegetation's mean height, or
+                                                      `fallback` where the pulse has no vegetation echo
     beam_positions(pulse, x, y, z, height, at)       each echo's pulse's point at `at` m above the terrain
     range_normalised(energy, range_m)                 energy x range^2: the echoes of one pulse on one scale
 
@@ -31,15 +40,35 @@ def interception_height(height: np.ndarray, energy: np.ndarray, vegetation: np.n
     return float(np.sum(h[ok] * e[ok]) / np.sum(e[ok])) if ok.any() else float("nan")
 
 
+def pulse_interception_heights(pulse: np.ndarray, height: np.ndarray, energy: np.ndarray, vegetation: np.ndarray,
+                               fallback: float) -> np.ndarray:
+    """Per echo, the energy-weighted mean height above the terrain of its pulse's vegetation echoes (those with
+    a finite height and a positive energy); `fallback` (the canopy's mean, interception_height) for the echoes
+    of a pulse that has none."""
+    height, energy = np.asarray(height, float), np.nan_to_num(np.asarray(energy, float))
+    if not height.size:
+        return np.empty(0)
+    _, owner = np.unique(np.asarray(pulse), return_inverse=True)
+    ok = np.asarray(vegetation, bool) & np.isfinite(height) & (energy > 0)
+    w = np.where(ok, energy, 0.0)
+    total = np.bincount(owner, weights=w)
+    moment = np.bincount(owner, weights=w * np.where(ok, height, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(total > 0, moment / total, fallback)
+    return mean[owner]
+
+
 def beam_positions(pulse: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray, height: np.ndarray,
-                   at: float, min_depth_m: float = MIN_DEPTH_M) -> tuple[np.ndarray, np.ndarray]:
-    """Per echo, the x, y of its pulse's beam `at` metres above the terrain under the pulse's lowest echo. A
-    beam's direction is its highest echo less its lowest where they are `min_depth_m` apart; a pulse with one
-    echo (a gap's, or a crown's that stopped it) takes the direction of the nearest pulse that has one (a scan's
-    neighbouring beams are parallel within a fraction of a degree). Echoes keep their own x, y where no pulse
-    has a direction, or `at` is not finite."""
+                   at: float | np.ndarray, min_depth_m: float = MIN_DEPTH_M) -> tuple[np.ndarray, np.ndarray]:
+    """Per echo, the x, y of its pulse's beam `at` metres above the terrain under the pulse's lowest echo: one
+    height for all, or per echo (the same for a pulse's echoes: its lowest echo's is taken). A beam's direction
+    is its highest echo less its lowest where they are `min_depth_m` apart; a pulse with one echo (a gap's, or a
+    crown's that stopped it) takes the direction of the nearest pulse that has one (a scan's neighbouring beams
+    are parallel within a fraction of a degree). Echoes keep their own x, y where no pulse has a direction, or
+    where their `at` is not finite."""
     x, y, z, height = (np.asarray(a, float) for a in (x, y, z, height))
-    if not x.size or not np.isfinite(at):
+    at = np.broadcast_to(np.asarray(at, float), x.shape)
+    if not x.size or not np.isfinite(at).any():
         return x.copy(), y.copy()
     _, owner = np.unique(np.asarray(pulse), return_inverse=True)
     lowest, highest = _extreme(owner, z), _extreme(owner, -z)
@@ -55,7 +84,7 @@ def beam_positions(pulse: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarra
         d[~has] = d[has][near]
     terrain = z[lowest] - height[lowest]
     with np.errstate(invalid="ignore", divide="ignore"):
-        s = (terrain + at - z[lowest]) / d[:, 2]
+        s = (terrain + at[lowest] - z[lowest]) / d[:, 2]
         px, py = x[lowest] + s * d[:, 0], y[lowest] + s * d[:, 1]
     ok = np.isfinite(px) & np.isfinite(py)
     return np.where(ok[owner], px[owner], x), np.where(ok[owner], py[owner], y)
