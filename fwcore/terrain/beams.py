@@ -12,13 +12,13 @@ scene's own true echoes).
 Each pulse's own leaves say where its beam crossed the canopy better than the canopy's mean does: a beam that met
 a crown's top 25 m up and one that met an understorey at 6 m cross their cells 4 m apart at 12 degrees. A pulse
 with no vegetation echo (a gap's: all its energy reached the ground) crossed the canopy's level unhindered, and
-that is where its gap belongs: at the surrounding canopy's mean height, as its neighbours' beams, not at the
-ground, which a slanted beam reaches metres to the side.
+that is where its gap belongs: at the height its neighbours' beams met the canopy, not at the ground, which a
+slanted beam reaches metres to the side (there the gaps of a 5 m cell sit beside its crowns' hits, and its PAI
+is 21 % off instead of 14 % on seed 5), nor at the mean of a 100 m tile's canopy.
 
-    interception_height(height, energy, vegetation)   the canopy's energy-weighted mean height (m above terrain)
-    pulse_interception_heights(pulse, height, energy, vegetation, fallback)
-                                                      per echo, its pulse's own vegetation's mean height, or
-                                                      `fallback` where the pulse has no vegetation echo
+    pulse_interception_heights(pulse, x, y, z, height, energy, vegetation)
+                                                      per echo, its pulse's own vegetation's mean height (m
+                                                      above the terrain); a gap's pulse, its neighbours'
     beam_positions(pulse, x, y, z, height, at)       each echo's pulse's point at `at` m above the terrain
     range_normalised(energy, range_m)                 energy x range^2: the echoes of one pulse on one scale
 
@@ -31,21 +31,18 @@ from __future__ import annotations
 import numpy as np
 
 MIN_DEPTH_M = 1.0  # a pulse's echoes this far apart in z give its beam's direction
+GAP_NEIGHBOURS = 8  # a gap's pulse crosses the canopy at these nearest leaf-hit pulses' mean height
 
 
-def interception_height(height: np.ndarray, energy: np.ndarray, vegetation: np.ndarray) -> float:
-    """The energy-weighted mean height of the vegetation echoes above the terrain; NaN without any."""
-    h, e = np.asarray(height, float)[vegetation], np.nan_to_num(np.asarray(energy, float)[vegetation])
-    ok = np.isfinite(h) & (e > 0)
-    return float(np.sum(h[ok] * e[ok]) / np.sum(e[ok])) if ok.any() else float("nan")
-
-
-def pulse_interception_heights(pulse: np.ndarray, height: np.ndarray, energy: np.ndarray, vegetation: np.ndarray,
-                               fallback: float) -> np.ndarray:
+def pulse_interception_heights(pulse: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray, height: np.ndarray,
+                               energy: np.ndarray, vegetation: np.ndarray,
+                               neighbours: int = GAP_NEIGHBOURS) -> np.ndarray:
     """Per echo, the energy-weighted mean height above the terrain of its pulse's vegetation echoes (those with
-    a finite height and a positive energy); `fallback` (the canopy's mean, interception_height) for the echoes
-    of a pulse that has none."""
-    height, energy = np.asarray(height, float), np.nan_to_num(np.asarray(energy, float))
+    a finite height and a positive energy). A pulse with none (a gap's) takes the mean of the `neighbours`
+    nearest pulses' that have some, nearest by where the beams end (their lowest echoes); NaN where no pulse
+    has a vegetation echo."""
+    x, y, z, height = (np.asarray(a, float) for a in (x, y, z, height))
+    energy = np.nan_to_num(np.asarray(energy, float))
     if not height.size:
         return np.empty(0)
     _, owner = np.unique(np.asarray(pulse), return_inverse=True)
@@ -53,9 +50,18 @@ def pulse_interception_heights(pulse: np.ndarray, height: np.ndarray, energy: np
     w = np.where(ok, energy, 0.0)
     total = np.bincount(owner, weights=w)
     moment = np.bincount(owner, weights=w * np.where(ok, height, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(total > 0, moment / total, fallback)
-    return mean[owner]
+    leaves = total > 0
+    at = np.full(total.size, np.nan)
+    at[leaves] = moment[leaves] / total[leaves]
+    if leaves.any() and not leaves.all():
+        from scipy.spatial import cKDTree
+
+        lowest = _extreme(owner, z)
+        ends = np.column_stack([x[lowest], y[lowest]])
+        k = min(int(neighbours), int(leaves.sum()))
+        _, near = cKDTree(ends[leaves]).query(ends[~leaves], k=k)
+        at[~leaves] = at[leaves][np.reshape(near, (-1, k))].mean(axis=1)
+    return at[owner]
 
 
 def beam_positions(pulse: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray, height: np.ndarray,
