@@ -167,7 +167,7 @@ def true_echo_maps(truth_file: Path, seed: int, pulses: int, like: "Raster", sys
 
 
 def main() -> None:
-    from fwcore.studies.forest_evaluate import Raster, canopy_accuracy, terrain_accuracy
+    from fwcore.studies.forest_evaluate import Raster, block_mean, canopy_accuracy, terrain_accuracy
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pulses", type=int, default=100_000)
@@ -200,6 +200,12 @@ def main() -> None:
 
     ours.update(canopy_accuracy(cover5, pai5, truth["pgap"], truth["pai"], truth["cover"],
                                 binary_erosion(seen5, iterations=2)))
+    # the clumping-corrected PAI (log-averaged over 1 m sub-cells) against the mean PAI, where it has a value
+    corrected, mean_pai = read_raster(g5 / "pai_corrected.tif"), block_mean(truth["pai"], pai5)
+    both = binary_erosion(seen5, iterations=2) & (mean_pai >= 0.5) & np.isfinite(corrected.values)
+    ratio = (corrected.values - mean_pai)[both] / mean_pai[both]
+    ours.update({"pai_corrected_median_relative_error": float(np.median(np.abs(ratio))),
+                 "pai_corrected_median_bias": float(np.median(ratio)), "pai_corrected_blocks": int(both.sum())})
     # the same maps from the scene's own true echoes, on the same cells: what the sampling allows
     truth_file = las.with_name(las.stem + ".truth.parquet")
     true1, true5 = (true_echo_maps(truth_file, args.seed, args.pulses, like) for like in (chm, pai5))
