@@ -11,7 +11,7 @@ within 10 m of the swath's edge are left out.
 
 "true_echoes": the same maps (pipeline.forest_maps.tile_forest_maps, tile by tile as `fwl grid` cuts them) from
 the scene's own true echoes (SIM.truth.parquet: their classes from the truth, heights above the true terrain,
-widths taken as the system pulse's), on the same cells: what the flight's sampling allows any decomposition.
+each at its centre), on the same cells: what the flight's sampling allows any decomposition.
 """
 
 from __future__ import annotations
