@@ -8,8 +8,9 @@ GEDI L1B's real (savanna) beams, a GEDI granule of simulated tall forest (bench_
 clip and the Mondah tropical-forest shots. Per file, after compilation, the fastest of 3 runs: shots/s a thread
 with the default and with the selection off, and with the default per CPU-second of the thread (`cpu`, the
 fastest of 5: other jobs' load on a shared machine slows the wall clock, not these), model evaluations (Jacobians)
-a shot, echoes dropped and added a shot, kept echoes a shot. `--save` writes every shot's kept echo positions; `--reference` reads such a file (another
-checkout's, run with its PYTHONPATH) and prints the share of its kept echoes this run keeps within 0.1 and 1 sample.
+a shot, echoes dropped and added a shot, kept echoes a shot. `--save` writes every shot's kept echo positions;
+`--reference` reads such a file (another checkout's, run with its PYTHONPATH) and prints the share of its kept echoes
+this run keeps within 0.1 and 1 sample.
 Run it under the benchmark lock, once per checkout, to compare two in one locked run.
 """
 
@@ -72,8 +73,8 @@ def main() -> None:
     reference = pickle.loads(args.reference.read_bytes()) if args.reference else {}
     saved = {}
     config = DecompositionConfig()
-    print(f"{'file':13} {'shots':>5} {'model':>11} {'shots/s':>8} {'cpu':>7} {'no select':>9} {'nfev/shot':>9} {'dropped':>7} "
-          f"{'added':>5} {'kept':>5} {'ref<0.1':>7} {'ref<1':>6}")
+    print(f"{'file':13} {'shots':>5} {'model':>11} {'shots/s':>8} {'cpu':>7} {'no select':>9} {'nfev/shot':>9} "
+          f"{'dropped':>7} {'added':>5} {'kept':>5} {'ref<0.1':>7} {'ref<1':>6}")
     for name, path in files.items():
         pulses = read_pulses(path)
         system = file_system_pulse(path, len(pulses), config)
@@ -91,8 +92,9 @@ def main() -> None:
         agree = ((f"{within(reference[name], kept, 0.1):7.3f} {within(reference[name], kept, 1.0):6.3f}")
                  if name in reference else f"{'-':>7} {'-':>6}")
         print(f"{name:13} {len(batch):5d} {system.echo_model(config.model).value:>11} {len(batch) / seconds:8.1f} "
-              f"{len(batch) / cpu:7.1f} {len(batch) / seconds_off:9.1f} {per['nfev'].mean():9.1f} {per['n_echoes_dropped'].mean():7.2f} "
-              f"{per['n_echoes_added'].mean():5.2f} {sum(k.size for k in kept) / len(batch):5.2f} {agree}", flush=True)
+              f"{len(batch) / cpu:7.1f} {len(batch) / seconds_off:9.1f} {per['nfev'].mean():9.1f} "
+              f"{per['n_echoes_dropped'].mean():7.2f} {per['n_echoes_added'].mean():5.2f} "
+              f"{sum(k.size for k in kept) / len(batch):5.2f} {agree}", flush=True)
     if args.save:
         args.save.write_bytes(pickle.dumps(saved))
 
