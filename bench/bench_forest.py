@@ -8,6 +8,10 @@ sylva.ground.classify_ground_csf, make_dtm, normalize_height, make_chm, on the s
 1 m on our grid's bounds. Ground F1: ours matches each kept echo to the truth's by pulse and time (1.5 ns);
 Sylva's echoes carry no pulse id, so each is matched to the nearest true echo within 0.5 m in space. Cells
 within 10 m of the swath's edge are left out.
+
+"true_echoes": the same maps (pipeline.forest_maps.tile_forest_maps, tile by tile as `fwl grid` cuts them) from
+the scene's own true echoes (SIM.truth.parquet: their classes from the truth, heights above the true terrain,
+each at its centre), on the same cells: what the flight's sampling allows any decomposition.
 """
 
 from __future__ import annotations
@@ -128,8 +132,42 @@ def footprint_accuracy(path: Path, seed: int, pulses: int) -> dict:
             "footprint_median_abs_dcover": float(np.nanmedian(np.abs(d_cover)))}
 
 
+def true_echo_maps(truth_file: Path, seed: int, pulses: int, like: "Raster", system_fwhm_ps: float = 0.0) -> dict:
+    """The forest maps (chm, cover, pai) the scene's own true echoes give on the grid of `like` (a map of ours)."""
+    import pyarrow.parquet as pq
+
+    from fwcore.grid import Grid
+    from fwcore.studies.forest import ForestConfig, draw_forest, flight_bounds, forest_flight_scene, terrain
+    from fwcore.studies.forest_evaluate import Raster
+    from fwcore.terrain.classes import BUILDING, GROUND, HIGH_VEGETATION, UNCLASSIFIED
+    from fwcore.terrain.tiles import tiles_over
+    from pipeline.forest_maps import ForestSettings, tile_forest_maps
+    from pipeline.tiled import TileTask
+
+    t = pq.read_table(truth_file, columns=["pulse_id", "x", "y", "z", "surface", "energy", "range_m"]).to_pydict()
+    e = {k: np.asarray(v) for k, v in t.items() if k != "surface"}
+    surface = np.asarray(t["surface"], object)
+    drawn = draw_forest(flight_bounds(pulses, forest_flight_scene()), ForestConfig(), seed)
+    e["height"] = e["z"] - terrain(e["x"], e["y"], drawn.config)
+    e["classification"] = np.select([surface == "ground", surface == "vegetation", surface == "roof"],
+                                    [GROUND, HIGH_VEGETATION, BUILDING], UNCLASSIFIED).astype(np.uint8)
+    e["fwhm_ps"] = np.full(e["x"].size, np.nan)  # each echo's centre: the CHM of the highest true echo
+    h, w = like.values.shape
+    grid = Grid(like.west, like.north, like.cell, w, h)
+    bins = int(np.ceil(np.nanmax(e["height"]))) + 2
+    settings = ForestSettings(grid, bins, 1.0, system_fwhm_ps)
+    out = {name: np.full((h, w), np.nan) for name in ("chm", "cover", "pai")}
+    for k, tile in enumerate(tiles_over(grid)):
+        inside = tile.in_buffered(e["x"], e["y"])
+        if inside.any():
+            maps = tile_forest_maps(TileTask("", k, tile), {c: v[inside] for c, v in e.items()}, settings)
+            for name, values in out.items():
+                values[tile.row0:tile.row1, tile.col0:tile.col1] = maps[name]
+    return {name: Raster(values, like.west, like.north, like.cell) for name, values in out.items()}
+
+
 def main() -> None:
-    from fwcore.studies.forest_evaluate import Raster, canopy_accuracy, terrain_accuracy
+    from fwcore.studies.forest_evaluate import Raster, block_mean, canopy_accuracy, terrain_accuracy
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pulses", type=int, default=100_000)
@@ -162,10 +200,25 @@ def main() -> None:
 
     ours.update(canopy_accuracy(cover5, pai5, truth["pgap"], truth["pai"], truth["cover"],
                                 binary_erosion(seen5, iterations=2)))
+    # the clumping-corrected PAI (log-averaged over 1 m sub-cells) against the mean PAI, where it has a value
+    corrected, mean_pai = read_raster(g5 / "pai_corrected.tif"), block_mean(truth["pai"], pai5)
+    both = binary_erosion(seen5, iterations=2) & (mean_pai >= 0.5) & np.isfinite(corrected.values)
+    ratio = (corrected.values - mean_pai)[both] / mean_pai[both]
+    ours.update({"pai_corrected_median_relative_error": float(np.median(np.abs(ratio))),
+                 "pai_corrected_median_bias": float(np.median(ratio)), "pai_corrected_blocks": int(both.sum())})
+    # the same maps from the scene's own true echoes, on the same cells: what the sampling allows
+    truth_file = las.with_name(las.stem + ".truth.parquet")
+    true1, true5 = (true_echo_maps(truth_file, args.seed, args.pulses, like) for like in (chm, pai5))
+    true_chm = Raster(np.where(np.isfinite(chm.values), true1["chm"].values, np.nan), chm.west, chm.north, chm.cell)
+    true_echoes = {"chm_rmse_canopy_m": terrain_accuracy(dtm, true_chm, truth["dtm"], truth["chm"],
+                                                         truth["roof"])["chm_rmse_canopy_m"],
+                   **canopy_accuracy(true5["cover"], true5["pai"], truth["pgap"], truth["pai"], truth["cover"],
+                                     binary_erosion(seen5, iterations=2))}
+    ours["chm_rmse_over_true_echoes"] = ours["chm_rmse_canopy_m"] / true_echoes["chm_rmse_canopy_m"]
     seconds["footprints"] = fwl("footprints", str(run), "--spacing", "10", "--output",
                                 str(work / f"footprints{args.seed}.parquet"))
     ours.update(footprint_accuracy(work / f"footprints{args.seed}.parquet", args.seed, args.pulses))
-    report = {"pulses": args.pulses, "seed": args.seed, "seconds": seconds, "fwlidar": ours}
+    report = {"pulses": args.pulses, "seed": args.seed, "seconds": seconds, "fwlidar": ours, "true_echoes": true_echoes}
     if not args.skip_sylva:
         cloud, decompose_s = sylva_cloud(las)
         report["sylva_decompose_s"] = decompose_s

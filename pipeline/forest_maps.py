@@ -34,7 +34,7 @@ import numpy as np
 
 from fwcore.grid import CellStatistics, Grid, HeightProfile
 from fwcore.metrics.canopy import gap_probability, plant_area_index
-from fwcore.terrain.beams import beam_positions, interception_height, range_normalised
+from fwcore.terrain.beams import beam_positions, pulse_interception_heights, range_normalised
 from fwcore.terrain.canopy_height import echo_tops
 from fwcore.terrain.classes import BUILDING, GROUND, VEGETATION
 from fwcore.terrain.dtm import interpolate
@@ -105,9 +105,11 @@ def tile_forest_maps(task: TileTask, e: dict[str, np.ndarray], s: ForestSettings
     ground = e["classification"] == GROUND
     cx, cy = t.centres()
     dtm = interpolate(e["x"][ground], e["y"][ground], e["z"][ground], cx, cy)
-    # a pulse's canopy and ground energies together, where its beam crosses the canopy (fwcore.terrain.beams)
+    # a pulse's canopy and ground energies together, where its beam crosses the canopy (fwcore.terrain.beams):
+    # at its own leaves' mean height; a gap's pulse at its neighbours'
     canopy_energy = np.nan_to_num(range_normalised(e["energy"], e["range_m"]))
-    at = interception_height(e["height"], canopy_energy, np.isin(e["classification"], VEGETATION))
+    at = pulse_interception_heights(e["pulse_id"], e["x"], e["y"], e["z"], e["height"], canopy_energy,
+                                    np.isin(e["classification"], VEGETATION))
     bx, by = beam_positions(e["pulse_id"], e["x"], e["y"], e["z"], e["height"], at)
     gap = _gap_sums(task, e, bx, by, canopy_energy, n, s)
     core, c = _cells(task, e["x"], e["y"])

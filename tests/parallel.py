@@ -69,9 +69,12 @@ def stop_kernels(proc: subprocess.Popen) -> None:
 _waited = False
 
 
-def _wait_for_kernels() -> None:
+def wait_for_kernels() -> None:
+    """Block until the background compile has ended; at once outside a parallel session. A fixture that starts a
+    process behind a deadline (the viewer's background job, behind an HTTP request's) waits here first, so the
+    compile's minutes do not count against that deadline."""
     global _waited
-    if not _waited:
+    if not _waited and LOCK_ENV in os.environ:
         with open(os.environ[LOCK_ENV]) as f:
             fcntl.flock(f, fcntl.LOCK_SH)  # free once the background compile has ended, however it ended
         _waited = True
@@ -94,13 +97,13 @@ def wait_before_compiling_or_starting() -> None:
 
     def compile_after_warm_up(self, sig):
         if self.py_func.__module__ == WARMED:  # other kernels are small: waiting would cost more than compiling
-            _wait_for_kernels()
+            wait_for_kernels()
         return compile_(self, sig)
 
     class PopenAfterWarmUp(subprocess.Popen):
         def __init__(self, args, *rest, **kwargs):
             if _runs_python(args):
-                _wait_for_kernels()
+                wait_for_kernels()
             super().__init__(args, *rest, **kwargs)
 
     Dispatcher.compile = compile_after_warm_up

@@ -54,13 +54,16 @@ class EchoShape(NamedTuple):
     origin: float  # grid index of t = 0, the echo's position (the centroid of the response's main lobe)
     s_min: float  # the equal-FWHM Gaussian sigma (samples) of row 0: the response's own
     s_step: float  # between rows
+    # the generalized Gaussian's tails: 0, an echo is evaluated where it is above 1e-12 of its amplitude; > 0 (long
+    # records, fwcore.engine.decompose.TAIL_FLOOR), where it is above this many counts too (at least 1e-3 of it)
+    tail_floor: float = 0.0
 
 
 def analytic_shape() -> EchoShape:
     """The generalized Gaussian's (and the Gaussian's) EchoShape: no table."""
     empty = np.zeros((1, 2))
     return EchoShape(False, empty, empty, np.zeros(1), np.zeros((1, 2), dtype=np.int64), np.zeros(1), np.ones(2), 1.0,
-                     0.0, 0.0, 1.0)
+                     0.0, 0.0, 1.0, 0.0)
 
 
 @njit(**JIT_INLINE)

@@ -111,6 +111,7 @@ def canopy_accuracy(cover: Raster, pai: Raster, truth_pgap: Raster, truth_pai: R
             # the PAI a gap probability means without clumping (-ln(mean Pgap) / G): what L2B's PAI estimates
             "pai_effective_median_relative_error": float(np.median(
                 np.abs(pai.values - effective)[dense] / effective[dense])),
+            "pai_effective_median_bias": float(np.median((pai.values - effective)[dense] / effective[dense])),
             "blocks": int(ok.sum()), "pai_blocks": int(dense.sum())}
 
 

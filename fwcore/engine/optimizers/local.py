@@ -32,6 +32,17 @@ from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
 _NEGLIGIBLE = 40.0  # ln2 z**p above this: the echo is below 1e-12 of its amplitude
+_LEAST_CUT = math.log(1e3)  # with a tail floor: an echo is evaluated at least where it is above 1e-3 of its amplitude
+
+
+@njit(**JIT_INLINE)
+def tail_cut(amplitude, tail_floor):
+    """ln2 z**p beyond which a generalized Gaussian echo of `amplitude` is left out of the model and its Jacobian:
+    below 1e-12 of it, and, where the shape has a tail floor (long records), below the floor (but not before
+    1e-3 of it: a weak echo keeps the columns it needs to grow). Without a floor, exactly _NEGLIGIBLE."""
+    if tail_floor > 0.0 and amplitude > 0.0:
+        return min(_NEGLIGIBLE, max(_LEAST_CUT, math.log(amplitude / tail_floor)))
+    return _NEGLIGIBLE
 
 
 @njit(**JIT)
@@ -58,8 +69,10 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
             continue
         h = s * _SQRT_2LN2
         p = alpha * alpha
-        # only the samples where the echo is above 1e-12 of its amplitude (times are ascending)
-        reach = h * (_NEGLIGIBLE / _LN2) ** (1.0 / p)
+        # only the samples where the echo is above 1e-12 of its amplitude (times are ascending), and above the
+        # shape's tail floor where it has one
+        cut = tail_cut(a, shape.tail_floor)
+        reach = h * (cut / _LN2) ** (1.0 / p)
         lo = searchsorted(times, u - reach)
         hi = searchsorted(times, u + reach, right=True)
         windows[k, 0] = lo
@@ -73,7 +86,7 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
                 continue
             lnz = math.log(z)
             zp = math.exp(p * lnz)
-            if _LN2 * zp > _NEGLIGIBLE:
+            if _LN2 * zp > cut:
                 continue
             e = math.exp(-_LN2 * zp)
             ae = a * e * _LN2
@@ -96,7 +109,7 @@ def squared_error(x, n_echoes, times, shape, target, weights):
             add_table_echo(shape, a, u, s, times, searchsorted(times, u - before),
                            searchsorted(times, u + after, right=True), model)
             continue
-        reach = s * _SQRT_2LN2 * (_NEGLIGIBLE / _LN2) ** (1.0 / (alpha * alpha))
+        reach = s * _SQRT_2LN2 * (tail_cut(a, shape.tail_floor) / _LN2) ** (1.0 / (alpha * alpha))
         for i in range(searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)):
             model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0

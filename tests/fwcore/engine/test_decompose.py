@@ -206,3 +206,20 @@ def test_spacings_equal_to_six_digits_share_one_echo_table_and_give_the_same_ech
     assert np.abs(varied.amplitude - exact.amplitude).max() < 1e-2 * exact.amplitude.max()
     for i in range(8):  # and each waveform's model is its own spacing's
         assert varied.waveform(i).model(t) == pytest.approx(exact.waveform(i).model(t), rel=1e-4, abs=1e-3)
+
+
+def test_a_long_records_echoes_are_those_of_its_window_decomposed_alone():
+    # on a long record (GEDI, LVIS) the generalized Gaussian's tails are cut at 1e-3 of the noise (TAIL_FLOOR): the
+    # fit of its signal window as a short record (exact tails) lands on the same echoes, not to the bit
+    position = np.array([300.0, 318.0, 345.0])
+    y = synthetic(np.array([90.0, 60.0, 150.0]), position, [PULSE_SIGMA] * 3, [1.2, 1.5, 1.3], noise=1.5, n=1024,
+                  seed=3)
+    valid = np.zeros(y.size, bool)
+    valid[250:400] = True
+    long = decompose_waveform(y, SPACING, seed=1, config=CONFIG, pulse=PULSE, valid=valid)
+    short = decompose_waveform(y[250:400], SPACING, seed=1, config=CONFIG, pulse=PULSE)
+    assert long.kept.sum() == short.kept.sum() == 3
+    np.testing.assert_allclose(long.position[long.kept], short.position[short.kept] + 250.0, atol=0.01)
+    np.testing.assert_allclose(long.amplitude[long.kept], short.amplitude[short.kept], rtol=1e-3)
+    assert not np.array_equal(long.position[long.kept], short.position[short.kept] + 250.0)
+    np.testing.assert_allclose(long.position[long.kept], position, atol=0.3)

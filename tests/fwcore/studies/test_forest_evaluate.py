@@ -27,3 +27,4 @@ def test_errors_by_hand():
     assert np.isclose(a["cover_median_abs_error"], 0.05) and np.isclose(a["cover_vs_crowns_median_abs_error"], 0.3)
     assert np.isclose(a["pai_median_relative_error"], 0.1)
     assert np.isclose(a["pai_effective_median_relative_error"], abs(2.2 + np.log(0.25) / 0.5) / (-np.log(0.25) / 0.5))
+    assert np.isclose(a["pai_effective_median_bias"], (2.2 + np.log(0.25) / 0.5) / (-np.log(0.25) / 0.5))  # -0.21

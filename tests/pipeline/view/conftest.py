@@ -13,6 +13,7 @@ import pytest
 
 from pipeline.view.jobs import Jobs
 from pipeline.view.server import make_server, serve_in_thread, url_of
+from tests.parallel import wait_for_kernels
 
 # a few ranges of a few pulses, the fast preset, Beam in-process: the run stays within seconds
 POINTS_PER_RANGE = 40
@@ -67,6 +68,7 @@ def decomposed_in_viewer(folder: Path, run_name: str, args: list[str], points_pe
     """A viewer over `folder` (one input), the input picked and its background job run to the end: the Viewed
     of its run `run_name`; the server stopped after."""
     runs = folder / "runs"
+    wait_for_kernels()  # the job's process would wait for the engine's compile inside the request's 120 s
     server = make_server([folder], port=0, runs_dir=runs, jobs=Jobs(runs, args, points_per_range))
     serve_in_thread(server)
     v = Viewed(url_of(server), folder, runs / run_name, "", "", [])

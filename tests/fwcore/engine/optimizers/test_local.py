@@ -191,3 +191,22 @@ def test_an_optimum_on_a_bound_is_scipys_bounded_one(fit):
     x, cost, _ = fit(start, 2, NOISY_T, y, lower, upper)
     assert x[1] == 100.0 and reference[1] == pytest.approx(100.0, abs=1e-9)
     assert_same_optimum(x, cost, reference, reference_cost, lower, upper)
+
+
+def test_a_tail_floor_cuts_an_echo_where_it_falls_below_the_floor_and_no_sooner():
+    from fwcore.engine.optimizers.local import tail_cut
+    assert tail_cut(100.0, 0.0) == 40.0  # no floor: 1e-12 of the amplitude, as always
+    assert tail_cut(100.0, 1e-3) == pytest.approx(math.log(1e5))
+    assert tail_cut(0.5, 1e-3) == pytest.approx(math.log(1e3))  # a weak echo keeps 1e-3 of itself
+    assert tail_cut(1e20, 1e-3) == 40.0
+    shape = analytic_shape()._replace(tail_floor=0.01)
+    t = np.arange(400.0)
+    x = np.array([5.0, 80.0, 200.0, 6.0, 1.0])  # alpha 1: a heavy-tailed echo, 1e-12 of it 400 samples away
+    exact, cut = np.empty(t.size), np.empty(t.size)
+    jac_exact, jac_cut = np.empty((t.size, 5)), np.empty((t.size, 5))
+    windows_exact, windows_cut = np.empty((1, 2), dtype=np.int64), np.empty((1, 2), dtype=np.int64)
+    model_and_jacobian(x, 1, t, analytic_shape(), exact, jac_exact, windows_exact)
+    model_and_jacobian(x, 1, t, shape, cut, jac_cut, windows_cut)
+    assert np.abs(cut - exact).max() <= 0.01  # what is left out is below the floor
+    assert np.array_equal(cut[cut != 5.0], exact[cut != 5.0])  # and where it is evaluated, exactly as before
+    assert list(windows_exact[0]) == [0, 400] and np.diff(windows_cut[0])[0] < 200  # 1e-4 of it, 92 samples away
