@@ -40,7 +40,7 @@ from pipeline.echo_table import echo_bounds, echo_files
 from pipeline.outputs import read_run
 from pipeline.tables import COLUMNS
 from pipeline.tiled import (IN_PROCESS_ECHOES, FileTask, TileTask, mark_tile, read_tile, result_path, run_tiles,
-                            start_spill, table_bounds, table_parts, tile_results, tile_tasks)
+                            start_work, table_bounds, table_parts, tile_results, tile_tasks)
 
 SPILL_DIR = ".classify"
 TILE_COLUMNS = ("x", "y", "z", "pulse_id", "echo_index")
@@ -109,7 +109,7 @@ def classify_run(run_dir: str | Path, tile: float = DEFAULT_TILE_M, overlap: flo
     tasks = tile_tasks(work, tiles_over(grid, tile, overlap), parts)
     settings = {"tile_m": tile, "overlap_m": overlap, "config": dataclasses.asdict(config),
                 "echo_files": [[str(p.path.name), p.rows] for p in parts]}  # rows: a rewritten file keeps them
-    start_spill(work, settings, resume)
+    start_work(work, settings, resume)
     readers: dict[str, list[int]] = {}
     for t in tasks:
         for s in t.sources:

@@ -41,7 +41,7 @@ from fwcore.terrain.dtm import interpolate
 from fwcore.terrain.profile import cover_and_pai, plant_area_density, relative_heights
 from fwcore.terrain.tiles import DEFAULT_OVERLAP_M, DEFAULT_TILE_M, tiles_over
 from pipeline.echo_table import column_max
-from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_tile, result_path, run_tiles, start_spill,
+from pipeline.tiled import (IN_PROCESS_ECHOES, TileTask, mark_tile, read_tile, result_path, run_tiles, start_work,
                             table_parts, tile_results, tile_tasks)
 
 SPILL_DIR = ".forest-maps"
@@ -219,7 +219,7 @@ def forest_maps(files: list[Path], grid: Grid, run_dir: Path, bin_height: float,
     folder = run_dir / SPILL_DIR
     parts = table_parts(files)
     tasks = tile_tasks(folder, tiles_over(grid, tile, overlap), parts)
-    start_spill(folder, {"settings": repr(settings), "tile_m": tile, "overlap_m": overlap,
+    start_work(folder, {"settings": repr(settings), "tile_m": tile, "overlap_m": overlap,
                          "echo_files": [[f.name, f.stat().st_size] for f in files]}, resume)
     run_tiles(functools.partial(forest_tile, settings=settings), tasks, beam_args,
               small=sum(p.rows for p in parts) <= IN_PROCESS_ECHOES)

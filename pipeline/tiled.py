@@ -3,6 +3,7 @@ survey cut into tiles with their overlap (fwcore.terrain.tiles), each tile's wor
 worker, as a range's is in `fwl run`.
 
     start_spill(folder, settings, resume)   the command's work folder: kept for --resume when its settings match
+    start_work(folder, settings, resume)    the same, for tiles that read the table (nothing to spill)
     table_parts(files)                      the echo table's files and their row groups' x, y bounds (statistics only)
     tile_tasks(folder, tiles, parts)        a task a tile, naming the row groups its core and margin meet
     read_tile(task, columns)                on a worker: the tile's kept echoes (core and margin) from those row groups
@@ -115,6 +116,15 @@ def start_spill(folder: Path, settings: dict, resume: bool) -> bool:
     folder.mkdir(parents=True)
     (folder / SETTINGS).write_text(json.dumps(settings, sort_keys=True) + "\n")
     return False
+
+
+def start_work(folder: Path, settings: dict, resume: bool) -> bool:
+    """start_spill's folder for tiles that read the echo table themselves: nothing to spill, so it is complete at
+    once, and a resumed command with the same settings keeps its tiles' marks."""
+    kept = start_spill(folder, settings, resume)
+    if not kept:
+        (folder / SPILLED).write_text(json.dumps({"echoes": None}) + "\n")
+    return kept
 
 
 @dataclasses.dataclass(frozen=True)

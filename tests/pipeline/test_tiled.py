@@ -17,8 +17,8 @@ from fwcore.grid import Grid
 from fwcore.terrain.tiles import tiles_over
 from pipeline.cli import main
 from pipeline.tiled import (FileTask, TileTask, balanced_order, mark_tile, read_spill, read_tile, result_path,
-                            run_tiles, spill, start_spill, table_bounds, table_parts, tile_is_done, tile_results,
-                            tile_tasks)
+                            run_tiles, spill, start_spill, start_work, table_bounds, table_parts, tile_is_done,
+                            tile_results, tile_tasks)
 
 IN_PROCESS = ["--direct_num_workers=1", "--direct_running_mode=in_memory"]
 
@@ -112,6 +112,16 @@ def _after_its_tiles(task, calls):
     with open(calls, "a") as f:
         f.write(f"{task.name}\n")
     mark_tile(task)
+
+
+def test_a_resumed_command_keeps_the_marks_of_tiles_that_read_the_table(tmp_path):
+    tasks, _, _, _ = _tasks(tmp_path, np.random.default_rng(7))
+    assert not start_work(tmp_path, {"a": 1}, resume=False)
+    mark_tile(tasks[3])
+    assert start_work(tmp_path, {"a": 1}, resume=True) and tile_is_done(tasks[3])
+    assert not start_work(tmp_path, {"a": 1}, resume=False) and not tile_is_done(tasks[3])  # no --resume: anew
+    mark_tile(tasks[3])
+    assert not start_work(tmp_path, {"a": 2}, resume=True) and not tile_is_done(tasks[3])  # other settings: anew
 
 
 def test_the_files_tasks_run_in_the_same_job_once_their_tiles_have_ended(tmp_path):
