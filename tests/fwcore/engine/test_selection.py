@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 
 from fwcore.engine.model import analytic_shape, model_of_individual, waveform_model
-from fwcore.engine.optimizers.local import levenberg_marquardt, model_and_jacobian, squared_error
 from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.engine.records import WaveformBatch
-from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes, predicted_drop_chi2
+from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes
 from tests.fwcore import naive
 
 PULSE_SIGMA = 3.0
@@ -39,37 +38,6 @@ def test_drop_decision_matches_a_scipy_refit(flank_amplitude, needed):
     without, with_ = naive.chi2_without_echo(start, 1, times, raw, sigma, lower, upper)
     assert (without - with_ > 3 * math.log(times.size)) == needed  # the reference's verdict
     assert (n == 2) == needed and dropped == (0 if needed else 1)
-
-
-def test_predicted_drop_chi2_is_one_gauss_newton_step_without_the_echo():
-    # three echoes, the middle one overlapping the first: the prediction from the full normal equations equals a
-    # least-squares step of the others' linearized model, and for the far echo (the others barely move) the refit
-    times = np.arange(300.0)
-    truth = np.array([10.0, 150.0, 80.0, 3.0, 1.4, 40.0, 88.0, 3.0, 1.4, 90.0, 200.0, 3.5, 1.5])
-    raw = model_of_individual(truth, times) + np.random.default_rng(3).normal(0, 1.0, times.size)
-    lower = np.array([0, 0, 60, 1, 1, 0, 60, 1, 1, 0, 180, 1, 1], float)
-    upper = np.array([20, 400, 100, 9, 2, 400, 100, 9, 2, 400, 220, 9, 2], float)
-    weights = np.full(times.size, 0.5)
-    shape = analytic_shape()
-    x = truth.copy()
-    levenberg_marquardt(x, 3, times, shape, raw, weights, lower, upper, 100, 1e-12)
-    with_all, predicted = predicted_drop_chi2(x, 3, times, shape, raw, weights, lower, upper)
-    chi2 = squared_error(x, 3, times, shape, raw, weights)
-    assert abs(with_all - chi2) < 1e-6 * chi2  # at the optimum the step with every echo gains nothing
-    m, d = times.size, x.size
-    model, jac = np.empty(m), np.empty((m, d))
-    model_and_jacobian(x, 3, times, shape, model, jac, np.zeros((3, 2), dtype=np.int64))
-    for k in range(3):
-        other = [j for j in range(d) if not 1 + 4 * k <= j < 5 + 4 * k]
-        without = model - x[1 + 4 * k] * jac[:, 1 + 4 * k]  # the model is linear in an echo's amplitude
-        a, b = weights[:, None] * jac[:, other], weights * (raw - without)
-        step = np.linalg.lstsq(a, b, rcond=None)[0]
-        assert predicted[k] == pytest.approx(np.sum((b - a @ step) ** 2), rel=1e-8)
-    far = np.delete(x, slice(9, 13))
-    levenberg_marquardt(far, 2, times, shape, raw, weights, np.delete(lower, slice(9, 13)),
-                        np.delete(upper, slice(9, 13)), 100, 1e-12)
-    refit = squared_error(far, 2, times, shape, raw, weights)
-    assert predicted[2] == pytest.approx(refit, rel=0.01) and predicted[2] - chi2 > 1000
 
 
 def test_the_same_pulses_under_two_seeds_keep_the_same_echoes():
