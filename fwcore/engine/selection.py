@@ -35,8 +35,7 @@ from fwcore.engine.bounds import echo_bounds
 from fwcore.engine.filter import KEPT, mark_spurious
 from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model, table_reach,
                                  table_peak_offset)
-from fwcore.engine.optimizers.local import (_normal_equations, _solve_damped, levenberg_marquardt,
-                                           model_and_jacobian, squared_error)
+from fwcore.engine.optimizers.local import levenberg_marquardt, squared_error
 from fwcore.engine.smoothing import gaussian_weights, smoothed_sample, smoothed_value, weighted_sums
 from fwcore._jit import searchsorted
 
@@ -54,10 +53,6 @@ LOCAL_MIN_SAMPLES = 512
 # 3 and 9 % of cases, after 6-30 more Jacobians); the others refit to convergence as before.
 SCREEN_ITERATIONS = 5
 SCREEN_MARGIN = 2.5
-# On such a waveform a drop candidate whose Gauss-Newton predicted chi^2 rise (the other echoes' one linear step
-# from the current fit, echo k's columns removed from the current normal equations) is PREDICT_MARGIN x the BIC's
-# price of an echo or more stays without any refit (docs/benchmarks.md, issue 58's fourth pass).
-PREDICT_MARGIN = 8.0
 
 
 
@@ -186,59 +181,6 @@ def _screened_refit(p, shape, x, n_echoes, start, stop, times, target, raw, weig
 
 
 @njit(**JIT)
-def predicted_drop_chi2(x, n_echoes, times, shape, raw, weights, lower, upper):
-    """(chi^2 on the raw samples at x, and for each echo k the chi^2 one Gauss-Newton step of the other parameters
-    predicts without it). The model is linear in an echo's amplitude A_k (its column is the echo's shape), so the
-    residual without echo k and its normal equations come from x's J^T W J and J^T W r alone: chi^2 without k at x
-    is chi^2 - 2 A_k g_k + A_k^2 H_kk, its gradient g_o - A_k H_ok, its Hessian H_oo (bounds ignored)."""
-    m, d = times.size, x.size
-    model = np.empty(m)
-    residual = np.empty(m)
-    jac = np.empty((m, d))
-    windows = np.zeros((n_echoes, 2), dtype=np.int64)
-    model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
-    chi2 = 0.0
-    for i in range(m):
-        residual[i] = weights[i] * (model[i] - raw[i])
-        chi2 += residual[i] * residual[i]
-    jtj = np.empty((d, d))
-    grad = np.empty(d)
-    _normal_equations(jac, residual, weights, windows, jtj, grad)
-    free = lower < upper
-    e = d - PARAMS_PER_ECHO
-    sub, sub_grad, sub_free = np.empty((e, e)), np.empty(e), np.empty(e, dtype=np.bool_)
-    step, factor = np.empty(e), np.empty((e, e))
-    other = np.empty(e, dtype=np.int64)
-    predicted = np.empty(n_echoes)
-    # the baseline: where x is not at the raw samples' optimum (LM fits the denoised ones), one step with every
-    # echo lowers chi^2 too; the rise is the difference of the two steps' predictions
-    full_step, full_factor = np.empty(d), np.empty((d, d))
-    with_all = chi2
-    if _solve_damped(jtj, grad, 0.0, free, full_step, full_factor):
-        for r in range(d):
-            with_all += grad[r] * full_step[r]
-    for k in range(n_echoes):
-        base = 1 + PARAMS_PER_ECHO * k
-        a = x[base]
-        q = 0
-        for j in range(d):
-            if j < base or j >= base + PARAMS_PER_ECHO:
-                other[q] = j
-                q += 1
-        for r in range(e):
-            sub_grad[r] = grad[other[r]] - a * jtj[other[r], base]
-            sub_free[r] = free[other[r]]
-            for c in range(e):
-                sub[r, c] = jtj[other[r], other[c]]
-        without = chi2 - 2.0 * a * grad[base] + a * a * jtj[base, base]
-        if _solve_damped(sub, sub_grad, 0.0, sub_free, step, factor):
-            for r in range(e):
-                without += sub_grad[r] * step[r]
-        predicted[k] = without
-    return with_all, predicted
-
-
-@njit(**JIT)
 def _joint_polish(p, shape, x, n_echoes, times, target, weights, lower, upper):
     """One LM refit of every echo after local refits were kept: the fit is joint again. Returns Jacobians."""
     _, used, _ = levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper, p.lm_iterations,
@@ -266,13 +208,7 @@ def drop_unneeded_echoes(p, shape, best, lower, upper, n_echoes, times, target, 
             chi2 = squared_error(best, n_echoes, times, shape, raw, weights)
         amplitude = best[1 + PARAMS_PER_ECHO * flagged]
         removed = False
-        predicted = np.empty(0)
-        if n_samples >= LOCAL_MIN_SAMPLES:  # one Jacobian a round: the candidates' predicted rises
-            _, predicted = predicted_drop_chi2(best, n_echoes, times, shape, raw, weights, lower, upper)
-            n_jacobians += 1
         for k in flagged[np.argsort(amplitude)]:
-            if n_samples >= LOCAL_MIN_SAMPLES and predicted[k] - chi2 >= PREDICT_MARGIN * penalty:
-                continue
             reduced = _without_echo(best, k)
             reduced_lower, reduced_upper = _without_echo(lower, k), _without_echo(upper, k)
             start, stop = echo_reach(best, k, shape)
