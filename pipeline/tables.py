@@ -457,7 +457,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "sigma_chauve": _null_where_nan(sigma_to_time_unit(result.sigma, result.alpha, spacing)),
         "alpha": _null_where_nan(result.alpha),
         "fwhm_ps": result.fwhm * spacing,
-        "pulse_width_ps": _null_where_nan(waveform_widths(pulses.samples, pulses.sample_offsets, result, model) * spacing),
+        "pulse_width_ps": _null_where_nan(
+            waveform_widths(pulses.samples, pulses.sample_offsets, result, model) * spacing),
         "energy": result.energy * spacing, **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
