@@ -72,6 +72,11 @@ def plan_path(output: str | Path, stem: str) -> Path:
     return Path(output) / PLANS / f"{stem}.json"
 
 
+def echo_tables_path(output: str | Path, stem: str) -> Path:
+    """The echo tables a file's plan made (fwcore.instrument.shape.echo_shapes_of), for the workers to take."""
+    return Path(output) / PLANS / f"{stem}.pickle"
+
+
 def part_paths(output: str | Path, task: ReadTask) -> dict[str, Path]:
     """A range's parts by what they hold: its two tables' parts, and its LAS and MCAP parts under parts/."""
     name, out = part_name(task.source.stem, task.start), Path(output)

@@ -451,7 +451,7 @@ def remove_input_outputs(folder: Path, stem: str, dirs: tuple[str, ...] = OUTPUT
     # <stem>.las, <stem>-<range>.parquet, <stem>-tile-<n>.parquet (fwl compact), ...: not <stem>.las.las, the file
     # of an input whose stem is <stem>.las
     own = re.compile(re.escape(stem) + rf"({RANGE_SUFFIX}|{TILE_SUFFIX}|{BUCKET_SUFFIX})?"
-                     + r"\.(parquet|las|laz|copc\.laz|mcap|json|fault)(\.tmp)?")
+                     + r"\.(parquet|las|laz|copc\.laz|mcap|json|fault|pickle)(\.tmp)?")
     gone = []
     for d in dirs:
         for p in sorted((folder / d).rglob("*")) if d != LOGS and (folder / d).is_dir() else []:

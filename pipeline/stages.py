@@ -35,7 +35,7 @@ from fwcore.io.writer import write_point_cloud
 from fwcore.plausibility import CELL_M, filter_under_ground
 from fwcore.pulses import decomposed_echoes, echo_positions, pulse_waveforms
 from fwcore.radiometry.equations import RadiometryConfig
-from fwcore.engine.records import STATUS_REASONS, WaveformBatch, model_samples
+from fwcore.engine.records import STATUS_REASONS, WaveformBatch, fitted_model
 from pipeline.forest_settings import ForestSettings
 from pipeline.copc import has_point_cloud_parts
 from pipeline.faults import READING, WRITING, MachineFault, machine_fault
@@ -115,13 +115,14 @@ def decompose_range(item: PulseRange, config: DecompositionConfig) -> tuple[Deco
     return DecomposedRange(item.task, item.pulses, config, result), rejected
 
 
-def waveform_views(pulses, result) -> dict[str, np.ndarray]:
-    """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing)."""
+def waveform_views(pulses, result, model: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """What the MCAP sink needs per pulse, as compact arrays (JSON is made one message at a time when writing);
+    `model` the fitted model at every sample where the caller has it (fitted_model)."""
     owner = result.echo_waveform
     spacing = pulses.sample_spacing_ps
     return {"pulse_id": pulses.pulse_id, "gps_time": pulses.gps_time, "sample_spacing_ps": spacing,
             "sample_offsets": pulses.sample_offsets, "raw": pulses.samples.astype(np.float32),
-            "model": model_samples(result, pulses.sample_offsets),
+            "model": (fitted_model(result, pulses.sample_offsets) if model is None else model).astype(np.float32),
             "echo_offsets": result.echo_offsets, "echo_time_ps": result.position * spacing[owner],
             "echo_amplitude": result.amplitude, "echo_fwhm_ps": result.fwhm * spacing[owner],
             "echo_reject": result.reject}
@@ -180,14 +181,16 @@ def geolocate_range(item: DecomposedRange, radiometry: RadiometryConfig, with_vi
     with laps("biomass"):
         biomass = range_biomass(item, metrics, algorithms, every, stratum)
     with laps("tables"):
+        model = fitted_model(result, pulses.sample_offsets)  # once, for the echoes' widths and the MCAP views
         echoes, table = pulse_tables(source.name, pulses, result, item.config, source.pulse, xyz,
-                                     result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass)
+                                     result.status == 0, columns, source.crs_wkt, metrics, algorithms, every, biomass,
+                                     model)
     with laps("cloud"):
         cloud = decomposed_echoes(pulses, result, xyz)
         kept = result.reject == 0
         cloud.update({name: values[kept] for name, values in columns.items()})
     with laps("mcap views"):
-        views = waveform_views(pulses, result) if with_views else None
+        views = waveform_views(pulses, result, model) if with_views else None
     return GeolocatedRange(item.task, echoes, table, cloud, views)
 
 

@@ -437,11 +437,12 @@ def _flag(values: np.ndarray | None, rows: np.ndarray) -> pa.Array:
 def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: DecompositionConfig,
                  pulse: SystemPulse, xyz: np.ndarray, ok: np.ndarray, radiometry: dict[str, np.ndarray] | None = None,
                  crs_wkt: str | None = None, metrics=None, algorithms: np.ndarray | None = None,
-                 every: dict | None = None, biomass=None) -> tuple[pa.Table, pa.Table]:
+                 every: dict | None = None, biomass=None, model: np.ndarray | None = None) -> tuple[pa.Table, pa.Table]:
     """Echo rows (kept and spurious, geolocated, with their radiometry) and pulse rows of the decomposed pulses
     `ok`, with their forest metrics (fwcore.metrics) and biomass (fwcore.metrics.biomass) where given; the geometry's CRS is `crs_wkt` (the run's,
     fwcore.io.formats.input_crs), else the input file's; GEDI: each shot's L2A `algorithms` and, with
-    --l2a-algorithms all, `every` algorithm's metrics."""
+    --l2a-algorithms all, `every` algorithm's metrics. `model`: the fitted model at every sample where the caller
+    has it (fwcore.engine.records.fitted_model; the echoes' widths are measured against it)."""
     from fwcore.engine.model import sigma_to_time_unit
     from fwcore.engine.waveform_width import waveform_widths
 
@@ -456,7 +457,8 @@ def pulse_tables(source_file: str, pulses, result: BatchDecomposition, config: D
         "sigma_chauve": _null_where_nan(sigma_to_time_unit(result.sigma, result.alpha, spacing)),
         "alpha": _null_where_nan(result.alpha),
         "fwhm_ps": result.fwhm * spacing,
-        "pulse_width_ps": _null_where_nan(waveform_widths(pulses.samples, pulses.sample_offsets, result) * spacing),
+        "pulse_width_ps": _null_where_nan(
+            waveform_widths(pulses.samples, pulses.sample_offsets, result, model) * spacing),
         "energy": result.energy * spacing, **_record_columns("echoes", result, owner), **_radiometry_columns(radiometry, owner.size),
         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], GEOMETRY_COLUMN: wkb_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),
         BBOX_COLUMN: bbox_points(xyz[:, 0], xyz[:, 1], xyz[:, 2]),

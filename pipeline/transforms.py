@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import pickle
 import time
 
 import apache_beam as beam
@@ -39,7 +40,7 @@ from pipeline.forest_settings import ForestSettings
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.handoff import await_ranges
 from pipeline.assemble import assemble_file
-from pipeline.layout import part_name, plan_path
+from pipeline.layout import echo_tables_path, part_name, plan_path
 from pipeline.logs import log_to_file
 from pipeline.marks import MARK_COUNTS, mark_range_done
 from pipeline.plan import InputToPlan, plan_input, planned_pulses
@@ -70,6 +71,7 @@ class RangeStages(beam.DoFn):
         self.settings = settings
         self.counters = {name: Metrics.counter(NAMESPACE, name) for name in self.COUNTERS}
         self.stopped: MachineFault | None = None  # a fault of this worker's output: its later ranges not tried
+        self.handed: set[str] = set()  # the files whose plan's echo tables this worker took
 
     def setup(self):
         log_to_file(self.settings.output)
@@ -82,6 +84,9 @@ class RangeStages(beam.DoFn):
     def process(self, task: ReadTask):
         if self.stopped is not None:  # this worker's output takes nothing: the range is not tried, nor marked
             return
+        if task.source.stem not in self.handed:
+            self.handed.add(task.source.stem)
+            _take_echo_tables(self.settings.output, task.source.stem, task.source.pulse)
         try:
             outcome = run_range(task, self.settings)  # a fault there is said in the worker's log by run_range
         except MachineFault as fault:
@@ -114,6 +119,28 @@ class RangeStages(beam.DoFn):
             handler.flush()
 
 
+def _write_echo_tables(output: str, stem: str, pulse) -> None:
+    """The echo tables the plan made of a file's response, for the workers (fwcore.instrument.shape)."""
+    from fwcore.instrument.shape import echo_shapes_of
+
+    tables = echo_shapes_of(pulse.echo_response())
+    if tables:
+        with open(echo_tables_path(output, stem), "wb") as f:
+            pickle.dump(tables, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _take_echo_tables(output: str, stem: str, pulse) -> None:
+    """The plan's echo tables of a file, handed to this process's echo_shape; where there are none (a resumed run's
+    older plan), the worker makes them as before."""
+    from fwcore.instrument.shape import hand_over_echo_shapes
+
+    path = echo_tables_path(output, stem)
+    if pulse.response is None or not path.is_file():
+        return
+    with open(path, "rb") as f:
+        hand_over_echo_shapes(pulse.echo_response(), pickle.load(f))
+
+
 # ---------------------------------------------------------------- the three jobs
 
 class PlanFile(beam.DoFn):
@@ -137,6 +164,8 @@ class PlanFile(beam.DoFn):
                 if plan.rejection:
                     write_file_rejection(self.output, plan.rejection)
                 write_json(plan_path(self.output, item.stem), plan.to_json())
+            if plan.source is not None and plan.source.pulse.response is not None:
+                _write_echo_tables(self.output, item.stem, plan.source.pulse)
         except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
             LOG.error("%s: stopped: %s", item.name, fault.said())
             note_fault(self.output, item.stem, fault)

@@ -166,8 +166,14 @@ class BatchDecomposition:
 
 
 def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:
-    """Each decomposed pulse's fitted model at its sample times, flat like the samples (0 where not decomposed):
-    one kernel call per echo shape (fwcore.engine.model.batch_model), no Python per pulse."""
+    """Each decomposed pulse's fitted model at its sample times, flat like the samples (0 where not decomposed),
+    as float32 (fitted_model's)."""
+    return fitted_model(result, sample_offsets).astype(np.float32)
+
+
+def fitted_model(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.ndarray:
+    """Each decomposed pulse's fitted model at its sample times, flat like the samples (0 where not decomposed),
+    float64: one kernel call per echo shape (fwcore.engine.model.batch_model), no Python per pulse."""
     model = np.zeros(int(sample_offsets[-1]), dtype=np.float64)
     ok = result.status == 0
     offsets = np.asarray(sample_offsets, dtype=np.int64)
@@ -178,4 +184,4 @@ def model_samples(result: BatchDecomposition, sample_offsets: np.ndarray) -> np.
         batch_model(np.flatnonzero(rows), offsets, echo_offsets, result.background.astype(np.float64),
                     result.amplitude, result.position, result.sigma, result.alpha,
                     shape if shape is not None else analytic_shape(), model)
-    return model.astype(np.float32)
+    return model

@@ -65,13 +65,16 @@ def _widths(rows, sample_offsets, echo_offsets, samples, model, amplitude, posit
             out[e] = _crossing(signal, k, half, 1) - _crossing(signal, k, half, -1)
 
 
-def waveform_widths(samples: np.ndarray, sample_offsets: np.ndarray, result: BatchDecomposition) -> np.ndarray:
+def waveform_widths(samples: np.ndarray, sample_offsets: np.ndarray, result: BatchDecomposition,
+                    model: np.ndarray | None = None) -> np.ndarray:
     """Per echo of `result`, its half-maximum width measured on the waveform (samples of each pulse's own spacing;
-    NaN for an echo of a pulse not decomposed or without a crossing: see the module)."""
+    NaN for an echo of a pulse not decomposed or without a crossing: see the module). `model`: the fitted model at
+    every sample (fwcore.engine.records.fitted_model) where the caller has it, else computed here."""
     offsets = np.asarray(sample_offsets, dtype=np.int64)
     echo_offsets = np.asarray(result.echo_offsets, dtype=np.int64)
     samples = np.asarray(samples, dtype=np.float64)
-    model = np.zeros(samples.size)
+    given = model is not None
+    model = np.ascontiguousarray(model, dtype=np.float64) if given else np.zeros(samples.size)
     out = np.full(result.amplitude.size, np.nan)
     ok = result.status == 0
     groups = ([(analytic_shape(), ok)] if result.shapes is None else
@@ -79,6 +82,7 @@ def waveform_widths(samples: np.ndarray, sample_offsets: np.ndarray, result: Bat
     args = (result.amplitude, result.position, result.sigma, result.alpha)
     for shape, rows in groups:
         rows = np.flatnonzero(rows)
-        batch_model(rows, offsets, echo_offsets, result.background.astype(np.float64), *args, shape, model)
+        if not given:  # the groups' rows are disjoint: each row's model is the same either way
+            batch_model(rows, offsets, echo_offsets, result.background.astype(np.float64), *args, shape, model)
         _widths(rows, offsets, echo_offsets, samples, model, *args, shape, out)
     return out

@@ -39,11 +39,43 @@ def lobe_centroid_ps(response: SystemResponse) -> float:
     return float(np.sum(response.times[first:last + 1] * lobe) / np.sum(lobe))
 
 
+# the tables this process made or was handed (the last few): a run's plan makes its file's table, then hands it
+# to the workers (echo_shapes_of, hand_over_echo_shapes), which would each spend 0.5 s making it again
+_MADE: dict[tuple, EchoShape] = {}
+_KEPT = 8
+
+
+def echo_shapes_of(response: SystemResponse) -> list[tuple[float, float, EchoShape]]:
+    """The echo tables of `response` this process made or was handed: (spacing_ps, max_width_factor, table)."""
+    return [(spacing, factor, shape) for (made, spacing, factor), shape in _MADE.items() if made == response]
+
+
+def hand_over_echo_shapes(response: SystemResponse, tables: list[tuple[float, float, EchoShape]]) -> None:
+    """Tables of `response` another process made (echo_shapes_of there): echo_shape gives them instead of making
+    them anew (the same arrays: the same echoes)."""
+    for spacing, factor, shape in tables:
+        _keep((response, float(spacing), float(factor)), shape)
+
+
+def _keep(key: tuple, shape: EchoShape) -> None:
+    _MADE[key] = shape
+    while len(_MADE) > _KEPT:
+        _MADE.pop(next(iter(_MADE)))
+
+
 @functools.lru_cache(maxsize=64)
 def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
     """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
     to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by
-    central differences."""
+    central differences; a table handed over (hand_over_echo_shapes) where there is one."""
+    key = (response, float(spacing_ps), float(max_width_factor))
+    if key not in _MADE:
+        _keep(key, _echo_table(response, spacing_ps, max_width_factor))
+    return _MADE[key]
+
+
+def _echo_table(response: SystemResponse, spacing_ps: float, max_width_factor: float) -> EchoShape:
+    """echo_shape's table, made."""
     step = 1.0 / TABLE_STEPS_PER_SAMPLE
     # the echo's position is the centroid of the response's main lobe, not its peak: a target's broadening
     # moves the peak of a skewed response (Leica's) but hardly the lobe's first moment, so a response measured

@@ -234,12 +234,16 @@ def _profile(canopy, ground, drop, denominator, cos_zenith, rossg, omega, step, 
         h = b * step
         value = 1.0
         if h < highest:
-            first = 0
-            for j in range(n):
-                if (ground - j) * drop <= h:
-                    first = j
-                    break
-            value = pgap[first]
+            # the first sample at or below the height: (ground - j) * drop falls with j (drop > 0, rounding is
+            # monotone), so a bisection finds the linear scan's sample, in log n steps instead of up to n a bin
+            lo, hi = 0, n
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if (ground - mid) * drop <= h:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            value = pgap[lo if lo < n else 0]
         value = min(max(value, 0.0), 1.0)
         cover_z[b] = cos_zenith * (1.0 - value)
         pai_z[b] = -math.log(value) * cos_zenith / (rossg * omega) if value > 0 else np.inf

@@ -75,11 +75,30 @@ def test_the_table_measures_widths_only_up_to_the_widest_row_and_gives_the_same_
         return found
 
     monkeypatch.setattr(shape_module, "_broadened_fwhms", counted)
-    fast = echo_shape.__wrapped__(response, 1000.0, 4.0)
+    fast = shape_module._echo_table(response, 1000.0, 4.0)
     monkeypatch.setattr(shape_module, "_broadened_fwhms", lambda t, base, sigmas, widest: np.array(
         [half_height_width(t, shape_module._broaden(base, s)) for s in sigmas]))
-    whole = echo_shape.__wrapped__(response, 1000.0, 4.0)
+    whole = shape_module._echo_table(response, 1000.0, 4.0)
     for name in ("rows", "slopes", "areas", "support", "peak_offsets", "half_widths"):
         assert np.array_equal(getattr(fast, name), getattr(whole, name)), name
     (done, grid), = measured
     assert done < 0.75 * grid
+
+
+def test_a_table_handed_over_is_the_one_echo_shape_gives(monkeypatch):
+    """A run's plan hands its file's echo table to the workers (pipeline.transforms): echo_shapes_of lists the tables
+    made here, and after hand_over_echo_shapes echo_shape gives the handed table without making one."""
+    import fwcore.instrument.shape as shape_module
+    from fwcore.instrument.shape import echo_shapes_of, hand_over_echo_shapes
+
+    response = gaussian_response(3300.0)
+    made = shape_module._echo_table(response, 1000.0, 3.5)
+    monkeypatch.setattr(shape_module, "_MADE", {})
+    assert echo_shapes_of(response) == []
+    hand_over_echo_shapes(response, [(1000.0, 3.5, made)])
+    monkeypatch.setattr(shape_module, "_echo_table", lambda *args: pytest.fail("made again"))
+    echo_shape.cache_clear()
+    assert echo_shape(response, 1000.0, 3.5) is made
+    assert [(s, f) for s, f, _ in echo_shapes_of(response)] == [(1000.0, 3.5)]
+    assert echo_shapes_of(gaussian_response(4000.0)) == []
+    echo_shape.cache_clear()

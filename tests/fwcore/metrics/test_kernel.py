@@ -48,3 +48,25 @@ def test_every_reason_for_null_metrics():
     k, r = _both(rising, np.array([0, 200]), np.array([100.0]), np.array([2.0]), np.array([50.0]), np.array([0.15]),
                  np.ones(1), np.array([[4.0, 0.1, 0.1, 0.01]]))
     assert k.reason == r.reason == [NO_GROUND]
+
+
+def test_the_profile_finds_the_scans_sample_at_every_height():
+    """_profile's bisection for each height bin's first sample at or below it: the linear scan's sample, heights
+    landing exactly on a sample included (drop 0.5 m, bins of 1 m), and bins above the waveform's top."""
+    from fwcore.metrics.kernel import _profile
+
+    rng = np.random.default_rng(3)
+    canopy = rng.uniform(0.0, 5.0, 300)
+    canopy[200:] = 0.0
+    for ground, drop, bins in ((210.0, 0.5, 150), (210.25, 0.15, 40), (37.5, 1.0, 60)):
+        cover, pai, pavd = np.empty(bins), np.empty(bins), np.empty(bins)
+        _profile(canopy, ground, drop, canopy.sum() * 1.3, 0.9, 0.5, 1.0, 1.0, cover, pai, pavd)
+        pgap = 1.0 - np.cumsum(canopy) / (canopy.sum() * 1.3)
+        expected = []
+        for h in np.arange(bins) * 1.0:
+            value = 1.0
+            if h < ground * drop:
+                value = pgap[next((j for j in range(canopy.size) if (ground - j) * drop <= h), 0)]
+            expected.append(0.9 * (1.0 - min(max(value, 0.0), 1.0)))
+        np.testing.assert_array_equal(cover, expected)
+        assert cover[0] > 0.0 and (cover[-1] == 0.0) == (bins * 1.0 >= ground * drop)
