@@ -125,8 +125,12 @@ def _write_echo_tables(output: str, stem: str, pulse) -> None:
 
     tables = echo_shapes_of(pulse.echo_response())
     if tables:
-        with open(echo_tables_path(output, stem), "wb") as f:
+        path = echo_tables_path(output, stem)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")  # a worker never reads half a file (a full disk stops here)
+        with open(tmp, "wb") as f:
             pickle.dump(tables, f, protocol=pickle.HIGHEST_PROTOCOL)
+        tmp.replace(path)
 
 
 def _take_echo_tables(output: str, stem: str, pulse) -> None:
@@ -163,9 +167,9 @@ class PlanFile(beam.DoFn):
             with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
                 if plan.rejection:
                     write_file_rejection(self.output, plan.rejection)
+                if plan.source is not None and plan.source.pulse.response is not None:  # before the plan: its
+                    _write_echo_tables(self.output, item.stem, plan.source.pulse)  # readers find them whole
                 write_json(plan_path(self.output, item.stem), plan.to_json())
-            if plan.source is not None and plan.source.pulse.response is not None:
-                _write_echo_tables(self.output, item.stem, plan.source.pulse)
         except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
             LOG.error("%s: stopped: %s", item.name, fault.said())
             note_fault(self.output, item.stem, fault)
