@@ -11,7 +11,6 @@ parameter means the same in every model.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -39,10 +38,10 @@ def lobe_centroid_ps(response: SystemResponse) -> float:
     return float(np.sum(response.times[first:last + 1] * lobe) / np.sum(lobe))
 
 
-# the tables this process made or was handed (the last few): a run's plan makes its file's table, then hands it
-# to the workers (echo_shapes_of, hand_over_echo_shapes), which would each spend 0.5 s making it again
+# the tables this process made or was handed (the last _KEPT: echo_shape's cache): a run's plan makes its file's
+# table, then hands it to the workers (echo_shapes_of, hand_over_echo_shapes), which would each spend 0.5 s making it
 _MADE: dict[tuple, EchoShape] = {}
-_KEPT = 8
+_KEPT = 64
 
 
 def echo_shapes_of(response: SystemResponse) -> list[tuple[float, float, EchoShape]]:
@@ -63,7 +62,6 @@ def _keep(key: tuple, shape: EchoShape) -> None:
         _MADE.pop(next(iter(_MADE)))
 
 
-@functools.lru_cache(maxsize=64)
 def echo_shape(response: SystemResponse, spacing_ps: float, max_width_factor: float = 3.0) -> EchoShape:
     """The response in samples of `spacing_ps`, broadened by Gaussians to rows whose FWHM runs from its own
     to max_width_factor x it (steps of ROW_STEP x its equal-FWHM sigma), each row's peak 1 and its slope by

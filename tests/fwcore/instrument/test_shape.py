@@ -97,8 +97,6 @@ def test_a_table_handed_over_is_the_one_echo_shape_gives(monkeypatch):
     assert echo_shapes_of(response) == []
     hand_over_echo_shapes(response, [(1000.0, 3.5, made)])
     monkeypatch.setattr(shape_module, "_echo_table", lambda *args: pytest.fail("made again"))
-    echo_shape.cache_clear()
     assert echo_shape(response, 1000.0, 3.5) is made
     assert [(s, f) for s, f, _ in echo_shapes_of(response)] == [(1000.0, 3.5)]
     assert echo_shapes_of(gaussian_response(4000.0)) == []
-    echo_shape.cache_clear()
