@@ -29,20 +29,27 @@ def relative_heights(sums: np.ndarray, bottom: float, bin_height: float, percent
     return np.where(total > 0, bottom + (k + np.clip(frac, 0.0, 1.0)) * bin_height, np.nan)
 
 
+ROUNDING = 1e-12  # a gap probability below this is the rounding of 1 - (canopy energy) / (all of it)
+
+
 def plant_area_density(canopy: np.ndarray, rv: np.ndarray, rg: np.ndarray, bin_height: float,
                        cos_zenith: float | np.ndarray = 1.0, rhov_rhog: float = RHOV_RHOG, rossg: float = ROSSG,
                        omega: float = OMEGA) -> np.ndarray:
     """PAVD (m2/m3) per bin, (cells, bins) from the ground up: the PAI above each bin's lower edge less the PAI
     above its upper edge, over the bin's height; the gap probability above a height is 1 - (the canopy energy
-    above it) / (rv + rhov/rhog rg). NaN where a cell has no energy."""
+    above it) / (rv + rhov/rhog rg). NaN where a cell has no energy; infinite in a bin below which no
+    ground was seen (saturated: the map leaves it out)."""
     canopy = np.asarray(canopy, float)
     rv, rg = np.asarray(rv, float), np.asarray(rg, float)
     above_lower = np.cumsum(canopy[:, ::-1], axis=1)[:, ::-1]  # canopy energy above each bin's lower edge
     above_upper = above_lower - canopy
     denominator = (rv + rhov_rhog * rg)[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
+        # a gap of the sums' rounding (1e-14 where no ground was seen) is none: its PAI is infinite, not 64
         pgap_lower = np.clip(1.0 - above_lower / denominator, 0.0, 1.0)
+        pgap_lower[pgap_lower < ROUNDING] = 0.0
         pgap_upper = np.clip(1.0 - above_upper / denominator, 0.0, 1.0)
+        pgap_upper[pgap_upper < ROUNDING] = 0.0
         pai_lower = plant_area_index(pgap_lower, np.asarray(cos_zenith)[..., None] if np.ndim(cos_zenith) else
                                      cos_zenith, rossg, omega)
         pai_upper = plant_area_index(pgap_upper, np.asarray(cos_zenith)[..., None] if np.ndim(cos_zenith) else
