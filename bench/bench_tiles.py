@@ -1,14 +1,15 @@
 """The maps on the runners: `fwl classify` then `fwl grid` (the forest's maps) of a synthetic run, timed on the
-DirectRunner with 1 and 2 workers and on a local Dask cluster of 2 workers, at two sizes.
+DirectRunner with 1 and 2 workers and on a local Dask cluster of 1 or 2 workers, at two sizes.
 
-    python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR] [--runners direct-1,dask-2]
-                                [--source DIR] [--no-warm] [--repeats 3]
+    python bench/bench_tiles.py [--sizes 2000000,20000000] [--cell 5] [--workdir DIR]
+                                [--runners direct-1,direct-2,dask-1,dask-2] [--source DIR] [--no-warm] [--repeats 3]
 
 The run is bench_grid.py's (echoes/ parts of every column along a 300 m swath, canopy up to 30 m). Each runner
 gets its own copy of the run (fwl classify writes into it); each command runs in a fresh process, its wall time
 start-up included. Peak memory is the largest sum of RSS over this process and all its children (the command,
 Beam's workers, the Dask cluster's workers), sampled every 0.2 s. At the end the maps of every runner are
 compared pixel for pixel (every band of every COG) and the classes column for column, with the first runner's.
+The speed-up is over the same runner with 1 worker where it ran (and over direct-1 beside it), else over direct-1.
 `--source DIR` takes the run from DIR (written there first, and kept, where DIR does not exist): a large run
 written once, outside the benchmark's lock. The load average (1 minute) is read as each runner ends.
 """
@@ -74,7 +75,8 @@ def one(source: Path, work: Path, name: str, cell: float, runner: list[str]) -> 
 
 
 RUNNERS = {"direct-1": ["--direct_num_workers=1", "--direct_running_mode=multi_processing"],
-           "direct-2": ["--direct_num_workers=2", "--direct_running_mode=multi_processing"], "dask-2": None}
+           "direct-2": ["--direct_num_workers=2", "--direct_running_mode=multi_processing"], "dask-1": None,
+           "dask-2": None}
 
 
 def main() -> None:
@@ -105,7 +107,7 @@ def main() -> None:
                     if runner is None:
                         from distributed import LocalCluster
 
-                        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                        with LocalCluster(n_workers=int(name.split("-")[1]), threads_per_worker=1, processes=True,
                                           dashboard_address=None) as cluster:
                             r = one(source, work, name, args.cell,
                                     [f"--runner={DASK}", f"--dask_client_address={cluster.scheduler_address}"])
@@ -125,10 +127,15 @@ def main() -> None:
 
 
 def _row(size: int, name: str, r: dict, runs: dict[str, list[dict]], first: str) -> None:
-    """A run's row: its speed-up over direct-1's latest run (or its median), its maps against the first runner's."""
+    """A run's row: its speed-up over the same runner's 1-worker run (its latest, or its median; direct-1's where
+    the runner had none), its maps against the first runner's."""
     total = r["classify"] + r["grid"]
-    base = runs.get("direct-1", [])
+    runner = name.split("-")[0]
+    base = runs.get(f"{runner}-1") or runs.get("direct-1", [])
     speed = f"{(base[-1]['classify'] + base[-1]['grid']) / total:.2f}" if base else "-"
+    if base and runs.get(f"{runner}-1") and runner != "direct" and runs.get("direct-1"):
+        d = runs["direct-1"][-1]
+        speed += f" ({(d['classify'] + d['grid']) / total:.2f} of direct-1)"
     same = r["maps"] == runs[first][0]["maps"] and r["classes"] == runs[first][0]["classes"] and all(r["maps"].values())
     print(f"| {size:,} | {name} | {r['classify']:.1f} | {r['grid']:.1f} | {total:.1f} | {speed} | "
           f"{r['peak']:.0f} | {same} | {r['load']:.1f} |", flush=True)
