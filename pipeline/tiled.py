@@ -34,6 +34,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from fwcore.terrain.tiles import Tile
+from pipeline.allocator import kept_memory
 
 SETTINGS = "settings.json"  # what the spill was made with: a resumed command reuses it only if they match
 SPILLED = "spilled.json"  # written once every tile's echoes are spilled
@@ -331,7 +332,8 @@ def balanced_order(tasks: list, workers: int) -> list:
 
 
 def _run_one(task: TileTask | FileTask, work: Callable) -> int:
-    work(task)
+    with kept_memory():  # a Dask worker's eager trimming faulted in every array's pages anew (pipeline.allocator)
+        work(task)
     return task.index
 
 

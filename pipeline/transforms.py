@@ -36,6 +36,7 @@ from apache_beam.metrics import Metrics
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
+from pipeline.allocator import kept_memory
 from pipeline.forest_settings import ForestSettings
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
 from pipeline.handoff import await_ranges
@@ -88,7 +89,8 @@ class RangeStages(beam.DoFn):
             self.handed.add(task.source.stem)
             _take_echo_tables(self.settings.output, task.source.stem, task.source.pulse)
         try:
-            outcome = run_range(task, self.settings)  # a fault there is said in the worker's log by run_range
+            with kept_memory():  # a Dask worker's eager trimming faulted in every array's pages anew
+                outcome = run_range(task, self.settings)  # a fault there is said in the worker's log by run_range
         except MachineFault as fault:
             self._stop(task, fault)
             return
@@ -161,7 +163,7 @@ class PlanFile(beam.DoFn):
         began = time.perf_counter()
         try:
             laps = Laps()
-            with laps("plan"):
+            with laps("plan"), kept_memory():
                 plan = plan_input(item, self.config, self.points_per_range, self.limit)
             log_timing("plan", item.name, laps)
             with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
@@ -249,7 +251,7 @@ def assemble_file_or_fault(item: tuple, output: str, laz: bool, formats: frozens
     """assemble.assemble_file; a fault of the machine noted for the driver (the parts stay for a resumed run)."""
     try:
         laps = Laps()
-        with raised_as_fault(WRITING, output, f"assembling {item[0]}"), laps("assemble"):
+        with raised_as_fault(WRITING, output, f"assembling {item[0]}"), laps("assemble"), kept_memory():
             stem = assemble_file(item, output, laz, formats)
         log_timing("assemble", item[0], laps, ranges=len(item[1]))
         return stem
