@@ -233,12 +233,12 @@ class _McapFile:
     """An MCAP writer with the /echoes and /waveform channels registered, and the points' CRS (OGC WKT) in a
     metadata record and the /echoes channel's metadata."""
 
-    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None):
+    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None, compressed: bool = True):
         from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-        from mcap.writer import Writer
+        from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
 
-        self.writer = Writer(f)
+        self.writer = Writer(f, compression=CompressionType.ZSTD if compressed else CompressionType.NONE)
         self.writer.start(profile="", library="fwlidar")
         meta = {"log_time": TIME_STAMP_UTC if adjusted_standard else TIME_STAMP_WEEK}
         crs = {CRS_METADATA: crs_wkt} if crs_wkt else {}
@@ -266,10 +266,11 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.nda
                adjusted_standard: bool, crs_wkt: str | None = None) -> Path:
     """One range's kept echoes as foxglove.PointCloud messages on /echoes and its pulses' raw waveforms, fitted
     models and echoes as fwlidar.Waveforms messages on /waveform, each message a batch of consecutive pulses,
-    in pulse order; their CRS as _McapFile says."""
+    in pulse order; their CRS as _McapFile says. Uncompressed: a part is read once, by assemble_mcap, which
+    compresses the file's chunks (zstd here cost a range 4 us a pulse, and assembly as much to undo it)."""
     tmp = temporary_path(path)
     with open(tmp, "wb") as f:
-        out = _McapFile(f, adjusted_standard, crs_wkt)
+        out = _McapFile(f, adjusted_standard, crs_wkt, compressed=False)
         pulse_of_echo = cloud["pulse_id"]
         if pulse_of_echo.size:
             starts = np.flatnonzero(np.r_[True, pulse_of_echo[1:] != pulse_of_echo[:-1]])
