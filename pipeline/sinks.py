@@ -41,12 +41,25 @@ def temporary_path(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
 
 
+def dictionary_columns(schema: pa.Schema) -> list[str]:
+    """The Parquet columns whose values repeat, dictionary-encoded: strings, integers (a pulse's id on each of its
+    echoes) and list values (RH truncated to cm). Not the plain floats, nor WKB, all but unique: pyarrow would build
+    their dictionaries and drop them, 40% of writing an echo part (docs/benchmarks.md, issue 60, third pass)."""
+    found = []
+    for field in schema:
+        if pa.types.is_string(field.type) or pa.types.is_integer(field.type):
+            found.append(field.name)
+        elif pa.types.is_list(field.type):
+            found.append(f"{field.name}.list.element")  # the leaf's path (pyarrow's compliant nested type)
+    return found
+
+
 def write_part(table: pa.Table, directory: Path, name: str, **write_options) -> Path:
     """One deterministic part file per range: reruns and retries overwrite, never duplicate (`write_options`:
-    pyarrow.parquet.write_table's)."""
+    pyarrow.parquet.write_table's; by default a dictionary for the dictionary_columns only)."""
     path = directory / f"{name}.parquet"
     tmp = temporary_path(path)
-    pq.write_table(table, tmp, **write_options)
+    pq.write_table(table, tmp, **{"use_dictionary": dictionary_columns(table.schema), **write_options})
     tmp.replace(path)
     return path
 

@@ -147,6 +147,23 @@ def test_a_range_part_is_written_uncompressed_and_its_assembled_file_compressed(
     np.testing.assert_array_equal(decode_waveforms(whole_messages[1][2])["pulse_id"], [5, -7, 9])
 
 
+def test_a_part_holds_dictionaries_only_for_the_columns_whose_values_repeat(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from pipeline.sinks import dictionary_columns, write_part
+
+    n = 500
+    table = pa.table({"reason": ["weak", ""] * (n // 2), "pulse_id": np.repeat(np.arange(n // 5), 5),
+                      "x": np.random.default_rng(3).normal(size=n),
+                      "rh": pa.array([[0.5, 1.25]] * n, pa.list_(pa.float32()))})
+    assert dictionary_columns(table.schema) == ["reason", "pulse_id", "rh.list.element"]
+    path = write_part(table, tmp_path, "part")
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    dictionary = {meta.column(i).path_in_schema: meta.column(i).has_dictionary_page for i in range(meta.num_columns)}
+    assert dictionary == {"reason": True, "pulse_id": True, "x": False, "rh.list.element": True}
+    assert pq.read_table(path).equals(table)
+
+
 def test_a_mistyped_option_fails_with_its_name(tmp_path, capsys):
     assert main(["run", "--generatoins", "5", "--output", str(tmp_path / "out")]) == 2
     assert "unknown option --generatoins (did you mean --generations?)" in capsys.readouterr().err
