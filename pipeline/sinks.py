@@ -246,12 +246,12 @@ class _McapFile:
     """An MCAP writer with the /echoes and /waveform channels registered, and the points' CRS (OGC WKT) in a
     metadata record and the /echoes channel's metadata."""
 
-    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None, compressed: bool = True):
+    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None, compression: str = "zstd"):
         from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
         from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
 
-        self.writer = Writer(f, compression=CompressionType.ZSTD if compressed else CompressionType.NONE)
+        self.writer = Writer(f, compression=CompressionType[compression.upper()])
         self.writer.start(profile="", library="fwlidar")
         meta = {"log_time": TIME_STAMP_UTC if adjusted_standard else TIME_STAMP_WEEK}
         crs = {CRS_METADATA: crs_wkt} if crs_wkt else {}
@@ -279,11 +279,12 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.nda
                adjusted_standard: bool, crs_wkt: str | None = None) -> Path:
     """One range's kept echoes as foxglove.PointCloud messages on /echoes and its pulses' raw waveforms, fitted
     models and echoes as fwlidar.Waveforms messages on /waveform, each message a batch of consecutive pulses,
-    in pulse order; their CRS as _McapFile says. Uncompressed: a part is read once, by assemble_mcap, which
-    compresses the file's chunks (zstd here cost a range 4 us a pulse, and assembly as much to undo it)."""
+    in pulse order; their CRS as _McapFile says. In LZ4, not zstd: a part is read once, by assemble_mcap, which
+    compresses the file's chunks with zstd; LZ4 compresses 4x and decompresses 4x faster, in 1.4x the bytes
+    (docs/benchmarks.md, issue 60, third pass), and keeps parts/ within 0.4 of the raw messages' size."""
     tmp = temporary_path(path)
     with open(tmp, "wb") as f:
-        out = _McapFile(f, adjusted_standard, crs_wkt, compressed=False)
+        out = _McapFile(f, adjusted_standard, crs_wkt, compression="lz4")
         pulse_of_echo = cloud["pulse_id"]
         if pulse_of_echo.size:
             starts = np.flatnonzero(np.r_[True, pulse_of_echo[1:] != pulse_of_echo[:-1]])

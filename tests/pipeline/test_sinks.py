@@ -124,7 +124,7 @@ def test_waveform_messages_round_trip_the_ranges_arrays():
     assert got["reject_reasons"] == list(REJECT_REASONS)
 
 
-def test_a_range_part_is_written_uncompressed_and_its_assembled_file_compressed(tmp_path):
+def test_a_range_part_is_written_in_lz4_and_its_assembled_file_in_zstd(tmp_path):
     # zstd once, in the file a user opens: the part is read once, by the assembly, and removed
     from mcap.reader import make_reader
     from pipeline.sinks import assemble_mcap, write_mcap
@@ -142,7 +142,7 @@ def test_a_range_part_is_written_uncompressed_and_its_assembled_file_compressed(
                     [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages()])
 
     (part_kinds, part_messages), (whole_kinds, whole_messages) = map(compressions_and_messages, (part, whole))
-    assert part_kinds == {""} and whole_kinds == {"zstd"}
+    assert part_kinds == {"lz4"} and whole_kinds == {"zstd"}
     assert [t for t, _, _ in whole_messages] == ["/echoes", "/waveform"] and whole_messages == part_messages
     np.testing.assert_array_equal(decode_waveforms(whole_messages[1][2])["pulse_id"], [5, -7, 9])
 
