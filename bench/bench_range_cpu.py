@@ -52,7 +52,8 @@ for r in range(repeats + 1):  # the first warms the caches: not counted
         best[stage] = min(best.get(stage, float("inf")), seconds)
 pulses = sum(len(pickle.loads(d).pulses) for d in decomposed)
 digests = {"echoes": table_digest(sorted((out / "echoes").glob("*.parquet"))),
-           "pulses": table_digest(sorted((out / "pulses").glob("*.parquet"))), "las": las_digest(sorted(out.rglob("*.las")))}
+           "pulses": table_digest(sorted((out / "pulses").glob("*.parquet"))),
+           "las": las_digest(sorted(out.rglob("*.las")))}
 print(json.dumps({"pulses": pulses, "seconds": best, "digests": digests}))
 """
 

@@ -41,7 +41,7 @@ EXTENT_SIGMAS = 3.0  # the energy's extent: 3 sigma beyond the lowest and the hi
 GRID_PER_SAMPLE = 4  # the cumulative energy's grid: a quarter of a sample, L2A's sub-bins
 REASONS = ("", NOT_DECOMPOSED, NO_AXIS, NO_ECHO)  # by the kernel's codes
 MEASURED, NOT_DECOMPOSED_CODE, NO_AXIS_CODE, NO_ECHO_CODE = range(4)
-# beyond these erfc is exactly 2.0 and 0.0 in float64 (from -5.87 and 27.23 on: tests/fwcore/metrics/test_echo_column.py)
+# beyond these erfc is exactly 2.0 and 0.0 in float64 (from -5.87 and 27.23 on; tested against libm)
 ERFC_TWO_BELOW, ERFC_ZERO_ABOVE = -6.0, 27.5
 
 
