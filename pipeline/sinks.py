@@ -41,12 +41,25 @@ def temporary_path(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
 
 
+def dictionary_columns(schema: pa.Schema) -> list[str]:
+    """The Parquet columns whose values repeat, dictionary-encoded: strings, integers (a pulse's id on each of its
+    echoes) and list values (RH truncated to cm). Not the plain floats, nor WKB, all but unique: pyarrow would build
+    their dictionaries and drop them, 40% of writing an echo part (docs/benchmarks.md, issue 60, third pass)."""
+    found = []
+    for field in schema:
+        if pa.types.is_string(field.type) or pa.types.is_integer(field.type):
+            found.append(field.name)
+        elif pa.types.is_list(field.type):
+            found.append(f"{field.name}.list.element")  # the leaf's path (pyarrow's compliant nested type)
+    return found
+
+
 def write_part(table: pa.Table, directory: Path, name: str, **write_options) -> Path:
     """One deterministic part file per range: reruns and retries overwrite, never duplicate (`write_options`:
-    pyarrow.parquet.write_table's)."""
+    pyarrow.parquet.write_table's; by default a dictionary for the dictionary_columns only)."""
     path = directory / f"{name}.parquet"
     tmp = temporary_path(path)
-    pq.write_table(table, tmp, **write_options)
+    pq.write_table(table, tmp, **{"use_dictionary": dictionary_columns(table.schema), **write_options})
     tmp.replace(path)
     return path
 
@@ -233,12 +246,12 @@ class _McapFile:
     """An MCAP writer with the /echoes and /waveform channels registered, and the points' CRS (OGC WKT) in a
     metadata record and the /echoes channel's metadata."""
 
-    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None):
+    def __init__(self, f, adjusted_standard: bool, crs_wkt: str | None = None, compression: str = "zstd"):
         from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-        from mcap.writer import Writer
+        from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
 
-        self.writer = Writer(f)
+        self.writer = Writer(f, compression=CompressionType[compression.upper()])
         self.writer.start(profile="", library="fwlidar")
         meta = {"log_time": TIME_STAMP_UTC if adjusted_standard else TIME_STAMP_WEEK}
         crs = {CRS_METADATA: crs_wkt} if crs_wkt else {}
@@ -266,10 +279,12 @@ def write_mcap(path: Path, cloud: dict[str, np.ndarray], views: dict[str, np.nda
                adjusted_standard: bool, crs_wkt: str | None = None) -> Path:
     """One range's kept echoes as foxglove.PointCloud messages on /echoes and its pulses' raw waveforms, fitted
     models and echoes as fwlidar.Waveforms messages on /waveform, each message a batch of consecutive pulses,
-    in pulse order; their CRS as _McapFile says."""
+    in pulse order; their CRS as _McapFile says. In LZ4, not zstd: a part is read once, by assemble_mcap, which
+    compresses the file's chunks with zstd; LZ4 compresses 4x and decompresses 4x faster, in 1.4x the bytes
+    (docs/benchmarks.md, issue 60, third pass), and keeps parts/ within 0.4 of the raw messages' size."""
     tmp = temporary_path(path)
     with open(tmp, "wb") as f:
-        out = _McapFile(f, adjusted_standard, crs_wkt)
+        out = _McapFile(f, adjusted_standard, crs_wkt, compression="lz4")
         pulse_of_echo = cloud["pulse_id"]
         if pulse_of_echo.size:
             starts = np.flatnonzero(np.r_[True, pulse_of_echo[1:] != pulse_of_echo[:-1]])

@@ -33,9 +33,15 @@ _WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "
 def _with_config(table: pa.Table, config: DecompositionConfig, pulse: SystemPulse,
                  extra: dict[bytes, bytes] | None = None) -> pa.Table:
     """The table with the method it was decomposed with (its model the file's) and the file's pulse."""
+    return table.replace_schema_metadata({**_method_metadata(config, pulse), **(extra or {})})
+
+
+@functools.lru_cache(maxsize=16)
+def _method_metadata(config: DecompositionConfig, pulse: SystemPulse) -> dict[bytes, bytes]:
+    # once per file, not twice a range: the pulse's response as JSON cost ~1 ms a table
     method = config.replace(model=pulse.echo_model(config.model))
-    return table.replace_schema_metadata({CONFIG_METADATA_KEY: json.dumps(method.to_dict()).encode(),
-                                          PULSE_METADATA_KEY: json.dumps(pulse.to_dict()).encode(), **(extra or {})})
+    return {CONFIG_METADATA_KEY: json.dumps(method.to_dict()).encode(),
+            PULSE_METADATA_KEY: json.dumps(pulse.to_dict()).encode()}
 
 
 @functools.lru_cache(maxsize=64)
@@ -260,6 +266,7 @@ _RENAMED = {"nfev": "model_evaluations"}  # record fields whose column name says
 RECORD_COLUMNS = {_RENAMED.get(f, f): f for f in WAVEFORM_FIELDS}
 
 
+@functools.cache
 def table_schema(table: str) -> pa.Schema:
     """A table's Arrow schema, each field with its unit and meaning."""
     return pa.schema([table_column(c).field for c in TABLES[table]])
@@ -307,7 +314,7 @@ def _record_columns(table: str, result: BatchDecomposition, rows: np.ndarray) ->
     for column in table_schema(table).names:
         field = RECORD_COLUMNS.get(column)
         if field in WAVEFORM_CODES:
-            columns[column] = np.array(WAVEFORM_CODES[field], dtype=object)[result.per_waveform[field][rows]].tolist()
+            columns[column] = _coded_strings(WAVEFORM_CODES[field], result.per_waveform[field][rows])
         elif field is not None:
             columns[column] = result.per_waveform[field][rows]
     return columns
@@ -320,7 +327,7 @@ def _echo_counts(result: BatchDecomposition, rows: np.ndarray) -> dict:
 
 def _kept(result: BatchDecomposition) -> dict:
     return {"kept": result.reject == 0,
-            "reject_reason": np.array(REJECT_REASONS, dtype=object)[result.reject].tolist()}
+            "reject_reason": _coded_strings(REJECT_REASONS, result.reject)}
 
 
 def _method(config: DecompositionConfig, pulse: SystemPulse, n: int) -> dict:
@@ -335,7 +342,12 @@ def _null_where_nan(values: np.ndarray) -> pa.Array:
 
 
 def _strings(value: str, n: int) -> pa.Array:
-    return pa.array([value] * n, pa.string())
+    return pa.repeat(pa.scalar(value, pa.string()), n)
+
+
+def _coded_strings(names, codes: np.ndarray) -> pa.Array:
+    """Each row's name by its code (a string column), taken in Arrow: no Python string a row."""
+    return pa.array(names, pa.string()).take(pa.array(np.asarray(codes)))
 
 
 RADIOMETRY_COLUMNS = ("range_m", "incidence_deg", "backscatter_cross_section_m2", "backscatter_coefficient",
@@ -349,7 +361,7 @@ def _radiometry_columns(radiometry: dict[str, np.ndarray] | None, n: int) -> dic
                       "reflectance_basis": np.full(n, "null: no range")}
     # NaN is null here: unavailable, not a number gone wrong
     return {**{c: _null_where_nan(radiometry[c]) for c in RADIOMETRY_COLUMNS},
-            **{c: np.asarray(radiometry[c], dtype=object).tolist() for c in ("radiometry", "reflectance_basis")}}
+            **{c: pa.array(np.asarray(radiometry[c]), pa.string()) for c in ("radiometry", "reflectance_basis")}}
 
 
 def _float_lists(values: np.ndarray, column: str) -> pa.Array:
@@ -370,7 +382,7 @@ def _forest_columns(metrics, rows: np.ndarray) -> dict:
                 "metrics_reason": _strings("not measured", n)}
     return {**{c: _null_where_nan(getattr(metrics, c)[rows]) for c in ("ground_z", "rv", "rg", "cover", "pai")},
             "rh": _float_lists(metrics.rh[rows], "rh"), "pavd_z": _float_lists(metrics.pavd_z[rows], "pavd_z"),
-            "metrics_reason": [metrics.reason[i] for i in rows]}
+            "metrics_reason": pa.array(metrics.reason, pa.string()).take(pa.array(rows))}
 
 
 def _biomass_columns(biomass, rows: np.ndarray) -> dict:

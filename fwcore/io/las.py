@@ -83,8 +83,9 @@ def _point_region_end(header, size: int) -> int:
     return min(ends)
 
 
-def open_waveform_file(path: str | Path) -> WaveformFile:
-    """Check a file and find its descriptors and packets; errors name the file and the problem."""
+def open_waveform_file(path: str | Path, read_evlrs: bool = True) -> WaveformFile:
+    """Check a file and find its descriptors and packets; errors name the file and the problem. `read_evlrs`
+    False: its EVLRs neither read nor checked (a planned range's file, checked whole by its plan)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
@@ -92,7 +93,7 @@ def open_waveform_file(path: str | Path) -> WaveformFile:
     if size == 0:
         raise WaveformFileError(f"{path}: empty file")
     try:
-        with laspy.open(path) as reader:
+        with laspy.open(path, read_evlrs=read_evlrs) as reader:
             header = reader.header
     except Exception as err:  # laspy raises several types for a damaged header
         message = f"{path}: not a readable LAS/LAZ file ({err})"
@@ -170,7 +171,8 @@ class PointRecords:
     def __init__(self, wf: WaveformFile):
         self.wf = wf
         try:
-            self.reader = laspy.open(wf.path)
+            # the EVLRs were read by open_waveform_file, if at all: LAS 1.4's hold the packets, megabytes each open
+            self.reader = laspy.open(wf.path, read_evlrs=False)
         except Exception as err:
             raise WaveformFileError(f"{wf.path}: not a readable LAS/LAZ file ({err})") from None
         self.data = None
@@ -267,7 +269,7 @@ def read_las_pulses(point_range: PointRange | str | Path, wf: WaveformFile | Non
         path = Path(point_range)
         wf = wf or open_waveform_file(path)
         point_range = PointRange(str(path), 0, wf.point_count, problems=wf.problems)
-    wf = wf or open_waveform_file(point_range.path)
+    wf = wf or open_waveform_file(point_range.path, read_evlrs=False)  # a planned range: its plan read them
     stop = min(point_range.stop, wf.point_count)
     extra = tuple(p for p in point_range.extra_points if p < wf.point_count)
     with PointRecords(wf) as source:

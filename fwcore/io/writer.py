@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import shutil
 import struct
@@ -55,12 +56,20 @@ def point_cloud_template(template: str | Path) -> dict:
         pw = open_pulsewaves(template)
         return {"scales": pw.header.scales, "offsets": pw.header.offsets, "wkt": pw.crs_wkt,
                 "system_identifier": pw.header.system_identifier, "geokeys": []}
+    stat = template.stat()
+    return dict(_las_template(str(template), stat.st_mtime_ns, stat.st_size))  # a copy: callers set "wkt"
+
+
+@functools.lru_cache(maxsize=16)
+def _las_template(template: str, mtime_ns: int, size: int) -> dict:
+    # once per file and version of it, not each range: its header with the EVLRs (the CRS may be one) is
+    # megabytes to read where LAS 1.4 keeps the packets in an EVLR
     with laspy.open(template) as reader:
         source = reader.header
     wkt, _ = las_crs_wkt(source)
-    geokeys = [v for v in source.vlrs if v.user_id.rstrip("\0") == "LASF_Projection"
-               and v.record_id in (34735, 34736, 34737)]
-    return {"scales": source.scales, "offsets": source.offsets, "wkt": wkt,
+    geokeys = tuple(v for v in source.vlrs if v.user_id.rstrip("\0") == "LASF_Projection"
+                    and v.record_id in (34735, 34736, 34737))
+    return {"scales": source.scales.copy(), "offsets": source.offsets.copy(), "wkt": wkt,
             "system_identifier": source.system_identifier, "geokeys": geokeys}
 
 

@@ -99,16 +99,21 @@ def test_waveform_schema_is_a_protobuf_any_reader_decodes():
     assert fields["reject_reasons"].type == descriptor_pb2.FieldDescriptorProto.TYPE_STRING
 
 
+def _views() -> dict[str, np.ndarray]:
+    """Three pulses' MCAP views (pipeline.stages.waveform_views' arrays), by hand."""
+    return {"pulse_id": np.array([5, -7, 9]), "gps_time": np.array([1.5, 2.25, 3.0]),
+            "sample_spacing_ps": np.array([1000.0, 1000.0, 500.0]), "sample_offsets": np.array([0, 3, 5, 9]),
+            "raw": np.arange(9, dtype=np.float32), "model": np.linspace(0, 1, 9).astype(np.float32),
+            "echo_offsets": np.array([0, 2, 2, 3]), "echo_time_ps": np.array([100.0, 2000.5, 7.0]),
+            "echo_amplitude": np.array([3.0, 4.0, 5.0]), "echo_fwhm_ps": np.array([4000.0, 4100.0, 4200.0]),
+            "echo_reject": np.array([0, 2, 0], dtype=np.int8)}
+
+
 def test_waveform_messages_round_trip_the_ranges_arrays():
     from fwcore.engine.filter import REJECT_REASONS
     from pipeline.sinks import _waveforms_message
 
-    views = {"pulse_id": np.array([5, -7, 9]), "gps_time": np.array([1.5, 2.25, 3.0]),
-             "sample_spacing_ps": np.array([1000.0, 1000.0, 500.0]), "sample_offsets": np.array([0, 3, 5, 9]),
-             "raw": np.arange(9, dtype=np.float32), "model": np.linspace(0, 1, 9).astype(np.float32),
-             "echo_offsets": np.array([0, 2, 2, 3]), "echo_time_ps": np.array([100.0, 2000.5, 7.0]),
-             "echo_amplitude": np.array([3.0, 4.0, 5.0]), "echo_fwhm_ps": np.array([4000.0, 4100.0, 4200.0]),
-             "echo_reject": np.array([0, 2, 0], dtype=np.int8)}
+    views = _views()
     got = decode_waveforms(_waveforms_message(views, 1, 3))  # the last two pulses: offsets from 0 again
     np.testing.assert_array_equal(got["pulse_id"], [-7, 9])
     np.testing.assert_array_equal(got["sample_offsets"], [0, 2, 6])
@@ -117,6 +122,46 @@ def test_waveform_messages_round_trip_the_ranges_arrays():
     np.testing.assert_array_equal(got["echo_time_ps"], [7.0])
     np.testing.assert_array_equal(got["echo_reject"], [0])
     assert got["reject_reasons"] == list(REJECT_REASONS)
+
+
+def test_a_range_part_is_written_in_lz4_and_its_assembled_file_in_zstd(tmp_path):
+    # zstd once, in the file a user opens: the part is read once, by the assembly, and removed
+    from mcap.reader import make_reader
+    from pipeline.sinks import assemble_mcap, write_mcap
+
+    cloud = {"pulse_id": np.array([5, 5, 9]), "gps_time": np.array([1.5, 1.5, 3.0]), "x": np.array([10.0, 10.5, 11.0]),
+             "y": np.array([20.0, 20.0, 21.0]), "z": np.array([5.0, 3.0, 1.0]), "amplitude": np.array([3.0, 4.0, 5.0]),
+             "echo_width": np.array([4.0, 4.1, 4.2]), "return_number": np.array([1, 2, 1])}
+    part = write_mcap(tmp_path / "part.mcap", cloud, _views(), adjusted_standard=False)
+    whole = assemble_mcap([part], tmp_path / "whole.mcap", adjusted_standard=False)
+
+    def compressions_and_messages(path):
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            return ({c.compression for c in reader.get_summary().chunk_indexes},
+                    [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages()])
+
+    (part_kinds, part_messages), (whole_kinds, whole_messages) = map(compressions_and_messages, (part, whole))
+    assert part_kinds == {"lz4"} and whole_kinds == {"zstd"}
+    assert [t for t, _, _ in whole_messages] == ["/echoes", "/waveform"] and whole_messages == part_messages
+    np.testing.assert_array_equal(decode_waveforms(whole_messages[1][2])["pulse_id"], [5, -7, 9])
+
+
+def test_a_part_holds_dictionaries_only_for_the_columns_whose_values_repeat(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from pipeline.sinks import dictionary_columns, write_part
+
+    n = 500
+    table = pa.table({"reason": ["weak", ""] * (n // 2), "pulse_id": np.repeat(np.arange(n // 5), 5),
+                      "x": np.random.default_rng(3).normal(size=n),
+                      "rh": pa.array([[0.5, 1.25]] * n, pa.list_(pa.float32()))})
+    assert dictionary_columns(table.schema) == ["reason", "pulse_id", "rh.list.element"]
+    path = write_part(table, tmp_path, "part")
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    dictionary = {meta.column(i).path_in_schema: meta.column(i).has_dictionary_page for i in range(meta.num_columns)}
+    assert dictionary == {"reason": True, "pulse_id": True, "x": False, "rh.list.element": True}
+    assert pq.read_table(path).equals(table)
 
 
 def test_a_mistyped_option_fails_with_its_name(tmp_path, capsys):

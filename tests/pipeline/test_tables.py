@@ -39,6 +39,15 @@ def leica_tables(leica_dir):
     return pulses, batch, result, config, echoes.to_pandas(), table.to_pandas()
 
 
+def test_string_columns_by_code_and_repeated_are_arrow_strings():
+    from pipeline.tables import _coded_strings, _strings
+
+    got = _coded_strings(("", "weak", "too_close"), np.array([2, 0, 1, 1], dtype=np.int8))
+    assert got.type == pa.string() and got.to_pylist() == ["too_close", "", "weak", "weak"]
+    assert _strings("lm", 3).to_pylist() == ["lm", "lm", "lm"] and _strings("lm", 0).type == pa.string()
+    assert len(_strings("lm", 0)) == 0 and _coded_strings(("a",), np.array([], dtype=np.int8)).to_pylist() == []
+
+
 def test_fit_error_is_the_sum_of_absolute_residuals_as_documented(leica_tables):
     pulses, batch, result, config, _, table = leica_tables
     sigma = smoothing_sigma_samples(config, nominal_pulse(5000.0), batch.sample_spacing_ps)

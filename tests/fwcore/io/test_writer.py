@@ -6,8 +6,8 @@ import pytest
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.io import read_pulses
-from fwcore.io.las import plan_las_ranges
-from fwcore.io.writer import WaveformLasWriter, write_point_cloud, write_waveform_las
+from fwcore.io.las import open_waveform_file, plan_las_ranges, read_las_pulses
+from fwcore.io.writer import WaveformLasWriter, point_cloud_template, write_point_cloud, write_waveform_las
 from fwcore.pulses import decomposed_echoes, pulse_waveforms
 from fwcore.instrument.measure import file_system_pulse
 from fwcore.instrument.pulse import nominal_pulse
@@ -53,6 +53,37 @@ def test_las14_internal_packets_with_several_descriptors_round_trip(tmp_path, le
     np.testing.assert_array_equal(back.samples, leica.samples)
     np.testing.assert_array_equal(back.return_number, leica.return_number)
     np.testing.assert_array_equal(back.return_location_ps, leica.return_location_ps.astype(np.float32))
+
+
+def test_planned_ranges_of_las14_internal_packets_read_without_the_evlrs(tmp_path, leica):
+    # LAS 1.4 keeps the packets in an EVLR: a range reads its points and packets without loading it
+    path = write_waveform_las(tmp_path / "c.las", leica, "las14-internal", 8)
+    whole = read_pulses(path)
+    parts = [read_las_pulses(r) for r in plan_las_ranges(path, 500)]
+    ids = np.concatenate([p.pulse_id for p in parts])
+    assert len(parts) == 3 and sorted(ids.tolist()) == sorted(whole.pulse_id.tolist())
+    assert sum(float(p.samples.sum()) for p in parts) == float(whole.samples.sum())
+    unread, read = open_waveform_file(path, read_evlrs=False), open_waveform_file(path)
+    assert unread == read  # every field: the EVLRs add nothing a range reads
+
+
+def _tiny_las(path, scale, n):
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.full(3, scale)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.arange(n, dtype=float), np.zeros(n), np.zeros(n)
+    las.write(path)
+
+
+def test_the_point_cloud_template_is_read_once_per_version_of_its_file(tmp_path):
+    path = tmp_path / "t.las"
+    _tiny_las(path, 0.01, 3)
+    first = point_cloud_template(path)
+    first["wkt"] = "changed by a caller"
+    again = point_cloud_template(path)
+    assert again["wkt"] != "changed by a caller" and list(again["scales"]) == [0.01] * 3
+    _tiny_las(path, 0.001, 4)  # the file rewritten: its new header, not the one read before
+    assert list(point_cloud_template(path)["scales"]) == [0.001] * 3
 
 
 def test_decomposed_point_cloud(tmp_path, leica, leica_dir, leica_result):

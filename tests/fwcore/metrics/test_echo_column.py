@@ -9,8 +9,12 @@ import pytest
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
-from fwcore.metrics.echo_column import (FWHM_PER_SIGMA, NO_ECHO, NOT_DECOMPOSED, echo_column_metrics,
-                                        pulse_column_metrics)
+import math
+
+from numba import njit
+
+from fwcore.metrics.echo_column import (ERFC_TWO_BELOW, ERFC_ZERO_ABOVE, FWHM_PER_SIGMA, NO_ECHO, NOT_DECOMPOSED,
+                                        _erfc, echo_column_metrics, pulse_column_metrics)
 from fwcore.metrics.pulses import batch_metrics
 from fwcore.metrics.waveform import NO_AXIS
 from fwcore.pulses import echo_positions, pulse_waveforms
@@ -24,6 +28,25 @@ def _columns(z, energy, fwhm, kept=None, decomposed=True, drop=DROP, cos_zenith=
     return echo_column_metrics(np.array([0, z.size]), np.ones(z.size, bool) if kept is None else np.asarray(kept),
                                np.arange(z.size, dtype=float), z, np.asarray(fwhm, float), np.asarray(energy, float),
                                np.array([decomposed]), np.array([drop]), np.array([cos_zenith]))
+
+
+@njit
+def _both(x):
+    ours, libm = np.empty(x.size), np.empty(x.size)
+    for i in range(x.size):
+        ours[i], libm[i] = _erfc(x[i]), math.erfc(x[i])
+    return ours, libm
+
+
+def test_the_erfc_tails_are_libms_own_values_bit_for_bit():
+    # the shortcut must not move a metric: erfc compiled as the kernels compile it, flat beyond the thresholds
+    x = np.r_[np.linspace(-60.0, 60.0, 2_000_001), -np.inf, np.inf, np.nan, ERFC_TWO_BELOW, ERFC_ZERO_ABOVE,
+              np.nextafter(ERFC_TWO_BELOW, 0.0), np.nextafter(ERFC_ZERO_ABOVE, 0.0)]
+    ours, libm = _both(x)
+    assert np.array_equal(ours, libm, equal_nan=True)
+    assert (libm[x <= ERFC_TWO_BELOW] == 2.0).all() and (libm[x >= ERFC_ZERO_ABOVE] == 0.0).all()
+    near = _both(np.array([-5.8, 27.0]))[1]  # the thresholds sit in the tails, not beyond them
+    assert near[0] < 2.0 and near[1] > 0.0
 
 
 def test_a_canopy_and_a_ground_echo_by_hand():
