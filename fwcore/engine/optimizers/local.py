@@ -103,7 +103,9 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
     built sample by sample so that it stops as soon as the partial sum reaches `bound` (the current point's: LM
     then rejects the trial whatever the rest adds). Returns the sum, or a partial one >= bound with model, jac
     and windows left part-filled. Every value it completes is model_and_jacobian's to the bit: each sample's
-    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3) scratch."""
+    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3) scratch.
+    Only the background's column and each echo's columns inside its window are written (LM's normal equations
+    read no others): the rest of `jac` keeps what it held, where model_and_jacobian writes zeros."""
     m = times.size
     if shape.tabulated:  # the system model's echoes: a table row pair each, left as they are
         model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
@@ -122,13 +124,10 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
         windows[k, 0] = searchsorted(times, u - extent)
         windows[k, 1] = searchsorted(times, u + extent, right=True)
         reach[k, 0], reach[k, 1], reach[k, 2] = h, p, cut
-    d = jac.shape[1]
     ssr = 0.0
     for i in range(m):
         value = x[0]
         jac[i, 0] = 1.0
-        for j in range(1, d):
-            jac[i, j] = 0.0
         for k in range(n_echoes):
             if i < windows[k, 0] or i >= windows[k, 1]:
                 continue
@@ -139,11 +138,12 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
             z = abs(dt) / h
             if z == 0.0:
                 value += a
-                jac[i, base] = 1.0
+                jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3] = 1.0, 0.0, 0.0, 0.0
                 continue
             lnz = math.log(z)
             zp = math.exp(p * lnz)
             if _LN2 * zp > cut:
+                jac[i, base] = jac[i, base + 1] = jac[i, base + 2] = jac[i, base + 3] = 0.0
                 continue
             e = math.exp(-_LN2 * zp)
             ae = a * e * _LN2

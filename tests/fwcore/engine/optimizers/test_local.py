@@ -228,8 +228,12 @@ def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_p
         trial_windows, reach = np.empty((3, 2), dtype=np.int64), np.empty((3, 3))
         ssr = trial_model_and_jacobian(x, 3, t, shape, y, w, np.inf, trial_model, trial_jac, trial_windows, reach)
         assert ssr == expected
-        assert np.array_equal(trial_model, model) and np.array_equal(trial_jac, jac)
-        assert np.array_equal(trial_windows, windows)
+        assert np.array_equal(trial_model, model) and np.array_equal(trial_windows, windows)
+        assert np.array_equal(trial_jac[:, 0], jac[:, 0])
+        for k, (lo, hi) in enumerate(windows):  # an echo's columns inside its window; LM reads no others
+            columns = slice(1 + 4 * k, 5 + 4 * k)
+            assert np.array_equal(trial_jac[lo:hi, columns], jac[lo:hi, columns])
+            assert np.isnan(trial_jac[:lo, columns]).all() and np.isnan(trial_jac[hi:, columns]).all()
         # a bound half way: the sum stops at the first sample that reaches it, the samples after it untouched
         partial = np.cumsum((w * (model - y)) ** 2)
         stop = int(np.searchsorted(partial, expected / 2))
