@@ -98,6 +98,69 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
 
 
 @njit(**JIT)
+def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, model, jac, windows, reach):
+    """LM's trial point: model_and_jacobian's model, Jacobian and windows, and sum (weights (model - target))**2,
+    built sample by sample so that it stops as soon as the partial sum reaches `bound` (the current point's: LM
+    then rejects the trial whatever the rest adds). Returns the sum, or a partial one >= bound with model, jac
+    and windows left part-filled. Every value it completes is model_and_jacobian's to the bit: each sample's
+    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3) scratch.
+    Only the background's column and each echo's columns inside its window are written (LM's normal equations
+    read no others): the rest of `jac` keeps what it held, where model_and_jacobian writes zeros."""
+    m = times.size
+    if shape.tabulated:  # the system model's echoes: a table row pair each, left as they are
+        model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
+        ssr = 0.0
+        for i in range(m):
+            r = weights[i] * (model[i] - target[i])
+            ssr += r * r
+        return ssr
+    for k in range(n_echoes):  # each echo's window and the constants its samples share
+        base = 1 + PARAMS_PER_ECHO * k
+        a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+        h = s * _SQRT_2LN2
+        p = alpha * alpha
+        cut = tail_cut(a, shape.tail_floor)
+        extent = h * (cut / _LN2) ** (1.0 / p)
+        windows[k, 0] = searchsorted(times, u - extent)
+        windows[k, 1] = searchsorted(times, u + extent, right=True)
+        reach[k, 0], reach[k, 1], reach[k, 2] = h, p, cut
+    ssr = 0.0
+    for i in range(m):
+        value = x[0]
+        jac[i, 0] = 1.0
+        for k in range(n_echoes):
+            if i < windows[k, 0] or i >= windows[k, 1]:
+                continue
+            base = 1 + PARAMS_PER_ECHO * k
+            a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+            h, p, cut = reach[k, 0], reach[k, 1], reach[k, 2]
+            dt = times[i] - u
+            z = abs(dt) / h
+            if z == 0.0:
+                value += a
+                jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3] = 1.0, 0.0, 0.0, 0.0
+                continue
+            lnz = math.log(z)
+            zp = math.exp(p * lnz)
+            if _LN2 * zp > cut:
+                jac[i, base] = jac[i, base + 1] = jac[i, base + 2] = jac[i, base + 3] = 0.0
+                continue
+            e = math.exp(-_LN2 * zp)
+            ae = a * e * _LN2
+            value += a * e
+            jac[i, base] = e
+            jac[i, base + 1] = ae * p * zp / z * (1.0 if dt > 0.0 else -1.0) / h
+            jac[i, base + 2] = ae * p * zp / s
+            jac[i, base + 3] = -2.0 * alpha * ae * zp * lnz
+        model[i] = value
+        r = weights[i] * (value - target[i])
+        ssr += r * r
+        if ssr >= bound:  # a sum of squares only grows: the trial is rejected
+            return ssr
+    return ssr
+
+
+@njit(**JIT)
 def squared_error(x, n_echoes, times, shape, target, weights):
     """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows."""
     model = np.full(times.size, x[0])
@@ -339,6 +402,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     model, trial_model, residual, jac, trial_jac, jtj, factor, grad, step, trial = _lm_scratch(m, d)
     both_windows = np.zeros((2, n_echoes, 2), dtype=np.int64)
     windows, trial_windows = both_windows[0], both_windows[1]
+    reach = np.empty((n_echoes, 3))
     model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for i in range(m):
@@ -368,12 +432,10 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
                 and _predicted_gain(grad, jtj, x, trial) <= chi2_tolerance:
             done = True
             break
-        model_and_jacobian(trial, n_echoes, times, shape, trial_model, trial_jac, trial_windows)
+        # a trial LM rejects stops where its sum of squares passes the current one, part of a Jacobian
+        trial_ssr = trial_model_and_jacobian(trial, n_echoes, times, shape, target, weights, ssr, trial_model,
+                                             trial_jac, trial_windows, reach)
         n_jacobians += 1
-        trial_ssr = 0.0
-        for i in range(m):
-            r = weights[i] * (trial_model[i] - target[i])
-            trial_ssr += r * r
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
             lam = _damping_after_gain(lam, gain, grad, jtj, x, trial)

@@ -210,3 +210,35 @@ def test_a_tail_floor_cuts_an_echo_where_it_falls_below_the_floor_and_no_sooner(
     assert np.abs(cut - exact).max() <= 0.01  # what is left out is below the floor
     assert np.array_equal(cut[cut != 5.0], exact[cut != 5.0])  # and where it is evaluated, exactly as before
     assert list(windows_exact[0]) == [0, 400] and np.diff(windows_cut[0])[0] < 200  # 1e-4 of it, 92 samples away
+
+
+def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_passes_the_bound():
+    from fwcore.engine.optimizers.local import trial_model_and_jacobian
+
+    rng = np.random.default_rng(3)
+    t = np.arange(300.0)
+    x = np.array([4.0, 60.0, 90.0, 5.0, 1.3, 25.0, 104.0, 7.0, 1.0, 40.0, 200.0, 3.0, 1.9])
+    y = model_of_individual(x, t) + rng.normal(0.0, 1.5, t.size)
+    w = rng.uniform(0.5, 1.0, t.size)
+    for shape in (analytic_shape(), analytic_shape()._replace(tail_floor=0.01)):
+        model, jac, windows = np.empty(t.size), np.empty((t.size, x.size)), np.empty((3, 2), dtype=np.int64)
+        model_and_jacobian(x, 3, t, shape, model, jac, windows)
+        expected = sum((w[i] * (model[i] - y[i])) ** 2 for i in range(t.size))  # in sample order, as LM sums
+        trial_model, trial_jac = np.full(t.size, np.nan), np.full((t.size, x.size), np.nan)
+        trial_windows, reach = np.empty((3, 2), dtype=np.int64), np.empty((3, 3))
+        ssr = trial_model_and_jacobian(x, 3, t, shape, y, w, np.inf, trial_model, trial_jac, trial_windows, reach)
+        assert ssr == expected
+        assert np.array_equal(trial_model, model) and np.array_equal(trial_windows, windows)
+        assert np.array_equal(trial_jac[:, 0], jac[:, 0])
+        for k, (lo, hi) in enumerate(windows):  # an echo's columns inside its window; LM reads no others
+            columns = slice(1 + 4 * k, 5 + 4 * k)
+            assert np.array_equal(trial_jac[lo:hi, columns], jac[lo:hi, columns])
+            assert np.isnan(trial_jac[:lo, columns]).all() and np.isnan(trial_jac[hi:, columns]).all()
+        # a bound half way: the sum stops at the first sample that reaches it, the samples after it untouched
+        partial = np.cumsum((w * (model - y)) ** 2)
+        stop = int(np.searchsorted(partial, expected / 2))
+        trial_model[:] = np.nan
+        ssr = trial_model_and_jacobian(x, 3, t, shape, y, w, partial[stop], trial_model, trial_jac, trial_windows,
+                                       reach)
+        assert ssr >= partial[stop] and ssr < expected
+        assert np.array_equal(trial_model[:stop + 1], model[:stop + 1]) and np.isnan(trial_model[stop + 1:]).all()
