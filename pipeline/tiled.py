@@ -281,7 +281,7 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
     """The tiles' job on the runner `beam_args` name (pipeline.options: the DirectRunner with 2 workers when none):
     `work(task)` for each task without its mark; `small` lets the default runner keep the job in the driver's
     process. `then` (work, file tasks): in the same job, each file's task once every tile that reads it (its
-    `tiles`) has ended. The tasks run."""
+    `tiles`) has ended (on Dask, a second job after the tiles'). The tasks run."""
     import apache_beam as beam
     from apache_beam.options.pipeline_options import DirectOptions
 
@@ -297,11 +297,12 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
     workers = 1 if jobs.dask else max(int(options.view_as(DirectOptions).direct_num_workers or 1), 1)
     todo = balanced_order(todo, workers)
 
+    def build_tiles(p):  # Create keeps the order, and so the shares Reshuffle deals the workers (balanced_order)
+        return (p | "Tiles" >> beam.Create(todo, reshuffle=False) | "Spread" >> beam.Reshuffle()
+                | "TileWork" >> beam.Map(_run_one, work))
+
     def build(p):
-        done = []
-        if todo:  # Create keeps the order, and so the shares Reshuffle deals the workers (balanced_order)
-            done = (p | "Tiles" >> beam.Create(todo, reshuffle=False) | "Spread" >> beam.Reshuffle()
-                    | "TileWork" >> beam.Map(_run_one, work))
+        done = build_tiles(p) if todo else []
         if later:
             readers: dict[int, list[int]] = {}
             for f in later:
@@ -314,7 +315,15 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
             (groups | "AfterTiles" >> beam.CoGroupByKey() | "FileTasks" >> beam.FlatMap(_file_task)
              | "SpreadFiles" >> beam.Reshuffle() | "FileWork" >> beam.Map(_run_one, then[0]))
 
-    jobs.run(len(todo) + len(later), build, small)
+    def files_after(p):
+        (p | "Files" >> beam.Create(later, reshuffle=False) | "SpreadFiles" >> beam.Reshuffle()
+         | "FileWork" >> beam.Map(_run_one, then[0]))
+
+    if jobs.dask and todo and later:  # Dask's CoGroupByKey, a shuffle of a bag a task, cost classify 45% at 50
+        jobs.run(len(todo), build_tiles, small)  # million echoes (docs/benchmarks.md): the files' job after the
+        jobs.run(len(later), files_after, small)  # tiles' job there
+    else:
+        jobs.run(len(todo) + len(later), build, small)
     missing = [t.name for t in [*todo, *later] if not tile_is_done(t)]
     if missing:  # a worker that ended without its mark: nothing of the tile is trusted
         raise RuntimeError(f"{(todo or later)[0].folder}: {', '.join(missing[:5])} ended without their result; run "
