@@ -319,9 +319,9 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
         (p | "Files" >> beam.Create(later, reshuffle=False) | "SpreadFiles" >> beam.Reshuffle()
          | "FileWork" >> beam.Map(_run_one, then[0]))
 
-    if jobs.dask and todo and later:  # Dask's CoGroupByKey, a shuffle of a bag a task, cost classify 45% at 50
-        jobs.run(len(todo), build_tiles, small)  # million echoes (docs/benchmarks.md): the files' job after the
-        jobs.run(len(later), files_after, small)  # tiles' job there
+    if jobs.dask and todo and later:  # Dask's CoGroupByKey is a shuffle of a bag a task: at 50 million echoes
+        jobs.run(len(todo), build_tiles, small)  # classify took 1.22x and peaked at 1.5x (docs/benchmarks.md)
+        jobs.run(len(later), files_after, small)  # with it than with the files' job after the tiles' job
     else:
         jobs.run(len(todo) + len(later), build, small)
     missing = [t.name for t in [*todo, *later] if not tile_is_done(t)]
