@@ -7,8 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[2]
 
 # arrays of 1.6 MB made and freed in turn: above the 128 KiB at which an environment-fixed glibc maps each one
@@ -43,7 +41,6 @@ def faults_in(env_trim: str | None) -> dict:
     return json.loads(out.stdout)
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_a_worker_told_to_trim_keeps_its_memory_for_the_task_and_trims_again_after():
     f = faults_in("65536")  # what a Dask nanny gives its worker
     assert f["before"] > 10_000  # 40 arrays of 391 pages, each faulted anew
@@ -52,7 +49,6 @@ def test_a_worker_told_to_trim_keeps_its_memory_for_the_task_and_trims_again_aft
     assert f["running"] == 0
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_a_process_not_told_to_trim_is_left_as_it_is():
     f = faults_in(None)
     assert 0.8 * f["before"] <= f["inside"] <= 1.2 * f["before"]  # glibc's own sliding thresholds, untouched
