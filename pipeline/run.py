@@ -137,11 +137,12 @@ class Jobs:
         runner is the default."""
         return self.direct_processes and (n == 1 or (small and self.small_in_process))
 
-    def run(self, n: int, build, small: bool = False):
-        """One job: `build(pipeline)` adds its transforms; waits for its end."""
+    def run(self, n: int, build, small: bool = False, per_partition: int = 1):
+        """One job: `build(pipeline)` adds its transforms; waits for its end. On Dask, unless the command line
+        partitions, each bag partition holds `per_partition` consecutive elements."""
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
-            self.options.view_as(DaskOptions).npartitions = max(1, n)
+            self.options.view_as(DaskOptions).npartitions = max(1, -(-n // max(1, per_partition)))
         if not self.in_process(n, small):
             return _run_job(self.options, build)
         try:

@@ -320,15 +320,26 @@ def run_tiles(work: Callable, tasks: list[TileTask] | list[FileTask], beam_args:
          | "FileWork" >> beam.Map(_run_one, then[0]))
 
     if jobs.dask and todo and later:  # Dask's CoGroupByKey is a shuffle of a bag a task: at 50 million echoes
-        jobs.run(len(todo), build_tiles, small)  # classify took 1.22x and peaked at 1.5x (docs/benchmarks.md)
-        jobs.run(len(later), files_after, small)  # with it than with the files' job after the tiles' job
+        jobs.run(len(todo), build_tiles, small, dask_share(len(todo)))  # classify took 1.22x and peaked at 1.5x
+        jobs.run(len(later), files_after, small, dask_share(len(later)))  # with it (docs/benchmarks.md)
     else:
-        jobs.run(len(todo) + len(later), build, small)
+        jobs.run(len(todo) + len(later), build, small, dask_share(len(todo) + len(later)))
     missing = [t.name for t in [*todo, *later] if not tile_is_done(t)]
     if missing:  # a worker that ended without its mark: nothing of the tile is trusted
         raise RuntimeError(f"{(todo or later)[0].folder}: {', '.join(missing[:5])} ended without their result; run "
                            f"again with --resume")
     return len(todo) + len(later)
+
+
+# At most this many bag partitions a job on Dask: its scheduler's work and memory grow with the tasks (50 million
+# echoes: 624 tiles, 1,036 files), and a few dozen workers stay busy on 128. `--dask_npartitions` overrides.
+DASK_PARTITIONS = 128
+
+
+def dask_share(n: int) -> int:
+    """Tasks a Dask bag partition holds so that a job of n has at most DASK_PARTITIONS: consecutive tasks of the
+    heaviest-first order, so the heaviest start first and the last partitions are the lightest."""
+    return max(1, -(-n // DASK_PARTITIONS))
 
 
 def balanced_order(tasks: list, workers: int) -> list:
