@@ -160,24 +160,33 @@ class PlanFile(beam.DoFn):
         log_to_file(self.output)
 
     def process(self, item: InputToPlan):
-        began = time.perf_counter()
-        try:
-            laps = Laps()
-            with laps("plan"), kept_memory():
-                plan = plan_input(item, self.config, self.points_per_range, self.limit)
-            log_timing("plan", item.name, laps)
-            with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
-                if plan.rejection:
-                    write_file_rejection(self.output, plan.rejection)
-                if plan.source is not None and plan.source.pulse.response is not None:  # before the plan: its
-                    _write_echo_tables(self.output, item.stem, plan.source.pulse)  # readers find them whole
-                write_json(plan_path(self.output, item.stem), plan.to_json())
-        except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
-            LOG.error("%s: stopped: %s", item.name, fault.said())
-            note_fault(self.output, item.stem, fault)
-            return
-        LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
-        yield item.stem
+        stem = plan_into_parts(item, self.output, self.config, self.points_per_range, self.limit)
+        if stem is not None:
+            yield stem
+
+
+def plan_into_parts(item: InputToPlan, output: str, config: DecompositionConfig, points_per_range: int,
+                    limit: int | None) -> str | None:
+    """An input's plan (pipeline.plan) to parts/plans/<stem>.json, its echo tables beside it; a file that cannot
+    be planned also to rejected/<stem>.parquet. Its stem, or None where a fault of the machine was noted."""
+    began = time.perf_counter()
+    try:
+        laps = Laps()
+        with laps("plan"), kept_memory():
+            plan = plan_input(item, config, points_per_range, limit)
+        log_timing("plan", item.name, laps)
+        with raised_as_fault(WRITING, plan_path(output, item.stem), f"planning {item.name}"):
+            if plan.rejection:
+                write_file_rejection(output, plan.rejection)
+            if plan.source is not None and plan.source.pulse.response is not None:  # before the plan: its
+                _write_echo_tables(output, item.stem, plan.source.pulse)  # readers find them whole
+            write_json(plan_path(output, item.stem), plan.to_json())
+    except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
+        LOG.error("%s: stopped: %s", item.name, fault.said())
+        note_fault(output, item.stem, fault)
+        return None
+    LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
+    return item.stem
 
 
 @dataclasses.dataclass
