@@ -241,7 +241,8 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
 
 class EarlyRanges:
     """The ranges' job started in a thread before the plans are made (pipeline.handoff): its worker processes
-    start while the driver plans, then take the ranges `finish` hands over. Only where its workers are processes
+    start while the driver plans, then take the ranges `finish` hands over, each worker the next unclaimed one as it
+    finishes its last (pipeline.handoff.claimed_ranges). Only where its workers are processes
     of this machine (the DirectRunner's) and the ranges' settings are known before the plans (no reference patch
     to calibrate on first)."""
 
@@ -253,8 +254,9 @@ class EarlyRanges:
             workers = max(1, options.view_as(DirectOptions).direct_num_workers)
             return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
                     | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
-                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
-                                                           forest=forest))
+                    # no shuffle: each worker's claims feed its own ranges' DoFn, from the hand-over on
+                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False,
+                                                           radiometry=radiometry, forest=forest))
         self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
         self.thread.start()
 

@@ -39,7 +39,7 @@ from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.allocator import kept_memory
 from pipeline.forest_settings import ForestSettings
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
-from pipeline.handoff import await_ranges
+from pipeline.handoff import claimed_ranges
 from pipeline.assemble import assemble_file
 from pipeline.layout import echo_tables_path, part_name, plan_path
 from pipeline.logs import log_to_file
@@ -206,8 +206,9 @@ class PlanFiles(beam.PTransform):
 
 
 class AwaitRanges(beam.DoFn):
-    """A worker's number -> (worker 0) the ranges the driver hands over once it has planned them
-    (pipeline.handoff): the ranges' job, started before the plans, has its workers up and their kernels loaded
+    """A worker's number -> the ranges the driver hands over once it has planned them, each taken by the first
+    worker to claim it (pipeline.handoff.claimed_ranges), one at a time as the ranges' DoFn fused after this one
+    finishes the last: the ranges' job, started before the plans, has its workers up and their kernels loaded
     (warmed up on one element each, where the runner spreads them) by then."""
 
     def __init__(self, output: str, config: DecompositionConfig):
@@ -222,8 +223,7 @@ class AwaitRanges(beam.DoFn):
         log_timing("setup", "awaiting ranges", laps)
 
     def process(self, worker: int):
-        if worker == 0:
-            yield from await_ranges(self.output)
+        yield from claimed_ranges(self.output)
 
 
 @dataclasses.dataclass
