@@ -1,6 +1,6 @@
 """Where `fwl run`'s time goes, stage by stage, against Sylva's read + decompose + write on the same file.
 
-    python bench/bench_stages.py [--riegl FILE.las] [--pulses 95000] [--skip-dask] [--workdir DIR]
+    python bench/bench_stages.py [--riegl FILE.las] [--pulses 95000] [--skip-dask] [--workdir DIR] [--checkout DIR]
 
 A RIEGL-like flight line (`fwl simulate --system-response riegl --format las14-internal`, 95,000 pulses, made
 once in the work folder unless --riegl gives a file) and the Leica sample, each through `fwl run` as a user
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -25,6 +26,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LEICA = ROOT / "examples" / "data" / "leica_als" / "leica_a.las"
+CHECKOUT = ROOT  # whose `fwl run` is measured (--checkout: another checkout's, by this script, interleaved)
 sys.path.insert(0, str(ROOT))
 from pipeline.timing import read_timings  # noqa: E402
 
@@ -59,13 +61,16 @@ def fwl_run(path: Path, out: Path, extra: list[str], script: str | None = None) 
     """One `fwl run` in its own process; its wall time, pulses, and the split its logs hold."""
     command = ([sys.executable, "-c", script, str(path), str(out)] if script else
                [sys.executable, "-m", "pipeline.cli", "run", str(path), "--output", str(out), *extra])
-    began = time.perf_counter()
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    began, started = time.perf_counter(), time.time()
+    done = subprocess.run(command, cwd=CHECKOUT, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(CHECKOUT)})
     wall = time.perf_counter() - began
     if done.returncode not in (0, 3):
         raise SystemExit(f"{' '.join(command[:6])}: exit {done.returncode}\n{done.stderr[-3000:]}")
     pulses = json.loads((out / "run.json").read_text())["counts"]["pulses_read"]
-    return {"wall": wall, "pulses": pulses, **split(read_timings(out / "logs"))}
+    timings = split(read_timings(out / "logs"))
+    # the command's start to its first range: imports, options, the plan and the workers' start together
+    return {"wall": wall, "pulses": pulses, **timings, "to first range": timings["first range"] - started}
 
 
 def split(timings: list[dict]) -> dict:
@@ -84,7 +89,7 @@ def split(timings: list[dict]) -> dict:
     return {"stages": stages, "plan": plan, "plan job": jobs["seconds"].get("plan job", 0.0),
             "startup": (first_range - job_began) if job_began else float("nan"),
             "ranges job": jobs["seconds"].get("ranges job", 0.0), "files job": jobs["seconds"].get("files job", 0.0),
-            "assembly": assembly, "after last range": max(after, 0.0), "busy": busy,
+            "assembly": assembly, "after last range": max(after, 0.0), "busy": busy, "first range": first_range,
             "engine share": stages["decompose"] / busy if busy else float("nan"), "ranges": len(ranges)}
 
 
@@ -110,6 +115,7 @@ def show(name: str, runs: dict[str, dict], reference: dict | None) -> None:
     row("plan (job) s", lambda r: r.get("plan job", float("nan")))
     row("  plan in worker s", lambda r: r.get("plan", float("nan")))
     row("start-up s", lambda r: r.get("startup", float("nan")))
+    row("command to 1st range s", lambda r: r.get("to first range", float("nan")))
     row("ranges job s", lambda r: r.get("ranges job", float("nan")))
     for stage in STAGES:
         row(f"  {stage} s", lambda r, s=stage: r["stages"][s] if "stages" in r else float("nan"))
@@ -130,7 +136,10 @@ def main() -> None:
     parser.add_argument("--skip-dask", action="store_true")
     parser.add_argument("--cases", default="defaults,fast,parquet,las,mcap", help="which runs, comma-separated")
     parser.add_argument("--workdir", default=None)
+    parser.add_argument("--checkout", default=None, help="measure this checkout's fwl run (default: this one's)")
     args = parser.parse_args()
+    global CHECKOUT
+    CHECKOUT = Path(args.checkout).resolve() if args.checkout else ROOT
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-stages-"))
     riegl = Path(args.riegl) if args.riegl else work / "riegl_line.las"
     if not riegl.exists():
