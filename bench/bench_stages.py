@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -70,7 +71,19 @@ def fwl_run(path: Path, out: Path, extra: list[str], script: str | None = None) 
     pulses = json.loads((out / "run.json").read_text())["counts"]["pulses_read"]
     timings = split(read_timings(out / "logs"))
     # the command's start to its first range: imports, options, the plan and the workers' start together
-    return {"wall": wall, "pulses": pulses, **timings, "to first range": timings["first range"] - started}
+    return {"wall": wall, "pulses": pulses, **timings, "to first range": timings["first range"] - started,
+            "workers up": workers_up(out / "logs") - timings["jobs began"]}
+
+
+HARNESS = re.compile(r'seconds: (\d+)\s+nanos: (\d+) \} message: "Python sdk harness starting')
+
+
+def workers_up(logs: Path) -> float:
+    """When the last of the DirectRunner's worker processes had its harness running (Unix s, from the lines the
+    runner copies into driver.log); NaN where no worker process started (a run in the driver's process)."""
+    text = (logs / "driver.log").read_text(errors="replace") if (logs / "driver.log").is_file() else ""
+    found = [int(m.group(1)) + int(m.group(2)) * 1e-9 for m in HARNESS.finditer(text)]
+    return max(found) if found else float("nan")
 
 
 def split(timings: list[dict]) -> dict:
@@ -79,7 +92,8 @@ def split(timings: list[dict]) -> dict:
     stages = {s: sum(t["seconds"].get(s, 0.0) for t in ranges) for s in STAGES}
     plan = sum(t["seconds"]["plan"] for t in timings if t["kind"] == "plan")
     assemble = [t for t in timings if t["kind"] == "assemble"]
-    jobs = next((t for t in timings if t["kind"] == "jobs"), {"seconds": {}})
+    jobs = next((t for t in timings if t["kind"] == "jobs"), {"seconds": {}, "began": float("nan")})
+    setups = [t for t in timings if t["kind"] == "setup"]
     job_began = jobs["seconds"].get("ranges job began")
     last_range = max((t["ended"] for t in ranges), default=0.0)
     first_range = min((t["began"] for t in ranges), default=0.0)
@@ -90,6 +104,8 @@ def split(timings: list[dict]) -> dict:
             "startup": (first_range - job_began) if job_began else float("nan"),
             "ranges job": jobs["seconds"].get("ranges job", 0.0), "files job": jobs["seconds"].get("files job", 0.0),
             "assembly": assembly, "after last range": max(after, 0.0), "busy": busy, "first range": first_range,
+            "jobs began": jobs["began"], "first range after jobs began": first_range - jobs["began"],
+            "workers warm": max((t["ended"] for t in setups), default=float("nan")) - jobs["began"],
             "engine share": stages["decompose"] / busy if busy else float("nan"), "ranges": len(ranges)}
 
 
@@ -116,6 +132,10 @@ def show(name: str, runs: dict[str, dict], reference: dict | None) -> None:
     row("  plan in worker s", lambda r: r.get("plan", float("nan")))
     row("start-up s", lambda r: r.get("startup", float("nan")))
     row("command to 1st range s", lambda r: r.get("to first range", float("nan")))
+    # from the jobs' start (after the command's imports and options): the workers' harness, their DoFns warmed
+    row("  workers up s", lambda r: r.get("workers up", float("nan")))
+    row("  workers warm s", lambda r: r.get("workers warm", float("nan")))
+    row("  first range s", lambda r: r.get("first range after jobs began", float("nan")))
     row("ranges job s", lambda r: r.get("ranges job", float("nan")))
     for stage in STAGES:
         row(f"  {stage} s", lambda r, s=stage: r["stages"][s] if "stages" in r else float("nan"))
