@@ -252,7 +252,8 @@ class EarlyRanges:
 
         def build(p):
             workers = max(1, options.view_as(DirectOptions).direct_num_workers)
-            return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
+            # Create reshuffles its elements itself (one to a worker): a second shuffle was a stage more to start
+            return (p | "Workers" >> beam.Create(list(range(workers)))
                     | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
                     # no shuffle: each worker's claims feed its own ranges' DoFn, from the hand-over on
                     | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False,
