@@ -7,7 +7,9 @@ once in the work folder unless --riegl gives a file) and the Leica sample, each 
 runs it (DirectRunner, 2 workers) with every default output, `--preset fast`, and one output at a time. Each
 run's split comes from the timing lines its workers wrote into logs/ (pipeline.timing): the plan, the runner's
 start-up (the ranges handed to the ranges' job, or that job starting, to its first range), each range's read, decompose, geolocate, radiometry,
-metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended. The
+metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended; the
+command's start to its first range, and from the jobs' start when the workers' harness was up, when their
+DoFns were warm and when the first range began (the start-up's parts). The
 engine's share is decompose over the workers' busy time (ranges, plan and assembly). Sylva (sylva-rs, 2 Rayon
 threads): read the waveforms, decompose them, write the echoes as LAS. With Dask (a `distributed`
 LocalCluster of 2 single-thread workers), the defaults again.
