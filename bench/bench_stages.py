@@ -1,13 +1,15 @@
 """Where `fwl run`'s time goes, stage by stage, against Sylva's read + decompose + write on the same file.
 
-    python bench/bench_stages.py [--riegl FILE.las] [--pulses 95000] [--skip-dask] [--workdir DIR]
+    python bench/bench_stages.py [--riegl FILE.las] [--pulses 95000] [--skip-dask] [--workdir DIR] [--checkout DIR]
 
 A RIEGL-like flight line (`fwl simulate --system-response riegl --format las14-internal`, 95,000 pulses, made
 once in the work folder unless --riegl gives a file) and the Leica sample, each through `fwl run` as a user
 runs it (DirectRunner, 2 workers) with every default output, `--preset fast`, and one output at a time. Each
 run's split comes from the timing lines its workers wrote into logs/ (pipeline.timing): the plan, the runner's
 start-up (the ranges handed to the ranges' job, or that job starting, to its first range), each range's read, decompose, geolocate, radiometry,
-metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended. The
+metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended; the
+command's start to its first range, and from the jobs' start when the workers' harness was up, when their
+DoFns were warm and when the first range began (the start-up's parts). The
 engine's share is decompose over the workers' busy time (ranges, plan and assembly). Sylva (sylva-rs, 2 Rayon
 threads): read the waveforms, decompose them, write the echoes as LAS. With Dask (a `distributed`
 LocalCluster of 2 single-thread workers), the defaults again.
@@ -17,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -25,6 +29,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LEICA = ROOT / "examples" / "data" / "leica_als" / "leica_a.las"
+CHECKOUT = ROOT  # whose `fwl run` is measured (--checkout: another checkout's, by this script, interleaved)
 sys.path.insert(0, str(ROOT))
 from pipeline.timing import read_timings  # noqa: E402
 
@@ -59,13 +64,28 @@ def fwl_run(path: Path, out: Path, extra: list[str], script: str | None = None) 
     """One `fwl run` in its own process; its wall time, pulses, and the split its logs hold."""
     command = ([sys.executable, "-c", script, str(path), str(out)] if script else
                [sys.executable, "-m", "pipeline.cli", "run", str(path), "--output", str(out), *extra])
-    began = time.perf_counter()
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    began, started = time.perf_counter(), time.time()
+    done = subprocess.run(command, cwd=CHECKOUT, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(CHECKOUT)})
     wall = time.perf_counter() - began
     if done.returncode not in (0, 3):
         raise SystemExit(f"{' '.join(command[:6])}: exit {done.returncode}\n{done.stderr[-3000:]}")
     pulses = json.loads((out / "run.json").read_text())["counts"]["pulses_read"]
-    return {"wall": wall, "pulses": pulses, **split(read_timings(out / "logs"))}
+    timings = split(read_timings(out / "logs"))
+    # the command's start to its first range: imports, options, the plan and the workers' start together
+    return {"wall": wall, "pulses": pulses, **timings, "to first range": timings["first range"] - started,
+            "workers up": workers_up(out / "logs") - timings["jobs began"]}
+
+
+HARNESS = re.compile(r'seconds: (\d+)\s+nanos: (\d+) \} message: "Python sdk harness starting')
+
+
+def workers_up(logs: Path) -> float:
+    """When the last of the DirectRunner's worker processes had its harness running (Unix s, from the lines the
+    runner copies into driver.log); NaN where no worker process started (a run in the driver's process)."""
+    text = (logs / "driver.log").read_text(errors="replace") if (logs / "driver.log").is_file() else ""
+    found = [int(m.group(1)) + int(m.group(2)) * 1e-9 for m in HARNESS.finditer(text)]
+    return max(found) if found else float("nan")
 
 
 def split(timings: list[dict]) -> dict:
@@ -74,7 +94,8 @@ def split(timings: list[dict]) -> dict:
     stages = {s: sum(t["seconds"].get(s, 0.0) for t in ranges) for s in STAGES}
     plan = sum(t["seconds"]["plan"] for t in timings if t["kind"] == "plan")
     assemble = [t for t in timings if t["kind"] == "assemble"]
-    jobs = next((t for t in timings if t["kind"] == "jobs"), {"seconds": {}})
+    jobs = next((t for t in timings if t["kind"] == "jobs"), {"seconds": {}, "began": float("nan")})
+    setups = [t for t in timings if t["kind"] == "setup"]
     job_began = jobs["seconds"].get("ranges job began")
     last_range = max((t["ended"] for t in ranges), default=0.0)
     first_range = min((t["began"] for t in ranges), default=0.0)
@@ -84,7 +105,9 @@ def split(timings: list[dict]) -> dict:
     return {"stages": stages, "plan": plan, "plan job": jobs["seconds"].get("plan job", 0.0),
             "startup": (first_range - job_began) if job_began else float("nan"),
             "ranges job": jobs["seconds"].get("ranges job", 0.0), "files job": jobs["seconds"].get("files job", 0.0),
-            "assembly": assembly, "after last range": max(after, 0.0), "busy": busy,
+            "assembly": assembly, "after last range": max(after, 0.0), "busy": busy, "first range": first_range,
+            "jobs began": jobs["began"], "first range after jobs began": first_range - jobs["began"],
+            "workers warm": max((t["ended"] for t in setups), default=float("nan")) - jobs["began"],
             "engine share": stages["decompose"] / busy if busy else float("nan"), "ranges": len(ranges)}
 
 
@@ -110,6 +133,11 @@ def show(name: str, runs: dict[str, dict], reference: dict | None) -> None:
     row("plan (job) s", lambda r: r.get("plan job", float("nan")))
     row("  plan in worker s", lambda r: r.get("plan", float("nan")))
     row("start-up s", lambda r: r.get("startup", float("nan")))
+    row("command to 1st range s", lambda r: r.get("to first range", float("nan")))
+    # from the jobs' start (after the command's imports and options): the workers' harness, their DoFns warmed
+    row("  workers up s", lambda r: r.get("workers up", float("nan")))
+    row("  workers warm s", lambda r: r.get("workers warm", float("nan")))
+    row("  first range s", lambda r: r.get("first range after jobs began", float("nan")))
     row("ranges job s", lambda r: r.get("ranges job", float("nan")))
     for stage in STAGES:
         row(f"  {stage} s", lambda r, s=stage: r["stages"][s] if "stages" in r else float("nan"))
@@ -130,7 +158,10 @@ def main() -> None:
     parser.add_argument("--skip-dask", action="store_true")
     parser.add_argument("--cases", default="defaults,fast,parquet,las,mcap", help="which runs, comma-separated")
     parser.add_argument("--workdir", default=None)
+    parser.add_argument("--checkout", default=None, help="measure this checkout's fwl run (default: this one's)")
     args = parser.parse_args()
+    global CHECKOUT
+    CHECKOUT = Path(args.checkout).resolve() if args.checkout else ROOT
     work = Path(args.workdir or tempfile.mkdtemp(prefix="fwl-stages-"))
     riegl = Path(args.riegl) if args.riegl else work / "riegl_line.las"
     if not riegl.exists():

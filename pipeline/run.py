@@ -33,7 +33,7 @@ from pipeline.forest_settings import ForestSettings
 from pipeline.faults import RunStopped, clear_faults, faults_in, noted_faults, output_fault
 from pipeline.layout import LOGS, PARTS, file_rejected, plan_path, progress_mark
 from pipeline.lock import folder_lock
-from pipeline.logs import watched_logs
+from pipeline.logs import log_to_file, watched_logs
 from pipeline.marks import counts_from_marks, range_is_complete, remove_range_files
 from pipeline.options import check_beam_args, check_formats, is_dask, pipeline_runner, runner_given
 from pipeline.outputs import (InputNames, add_to_output_folder, input_identity, mark_inputs_done, match_inputs,
@@ -46,7 +46,8 @@ from pipeline.rejections import write_file_rejection
 from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
 from pipeline.timing import Laps, log_timing
 from pipeline.handoff import hand_over, withdraw
-from pipeline.transforms import AssembleFiles, AwaitRanges, DecomposeFlight, PlanFiles
+from pipeline.transforms import (AssembleFiles, AwaitRanges, DecomposeFlight, PlanFiles, assemble_file_or_fault,
+                                 plan_into_parts)
 
 __all__ = ["Jobs", "RunStopped", "check_run_arguments", "run", "run_jobs", "run_settings"]
 
@@ -153,6 +154,17 @@ class Jobs:
             raise
 
 
+    def each(self, items: list, call, build, small: bool = False, per_partition: int = 1) -> None:
+        """A job of one plain call an element: where it would run in this process, `call(item)` for each, without
+        a Beam pipeline (0.1-0.3 s a job to build and run in memory, for nothing the calls need); elsewhere the
+        job `build` makes (run)."""
+        if not self.in_process(len(items), small):
+            self.run(len(items), build, small, per_partition)
+            return
+        for item in items:
+            call(item)
+
+
 def _in_process(options):
     """The DirectRunner's options for a job of one element (one file to plan or assemble) or a small one: run in
     this process, where starting worker processes (~2 s each, numba's kernels loaded anew) would cost more than
@@ -229,7 +241,8 @@ def calibrate(plans: dict[str, FilePlan], config: DecompositionConfig, radiometr
 
 class EarlyRanges:
     """The ranges' job started in a thread before the plans are made (pipeline.handoff): its worker processes
-    start while the driver plans, then take the ranges `finish` hands over. Only where its workers are processes
+    start while the driver plans, then take the ranges `finish` hands over, each worker the next unclaimed one as it
+    finishes its last (pipeline.handoff.claimed_ranges). Only where its workers are processes
     of this machine (the DirectRunner's) and the ranges' settings are known before the plans (no reference patch
     to calibrate on first)."""
 
@@ -239,10 +252,12 @@ class EarlyRanges:
 
         def build(p):
             workers = max(1, options.view_as(DirectOptions).direct_num_workers)
-            return (p | "Workers" >> beam.Create(list(range(workers))) | "Spread" >> beam.Reshuffle()
+            # Create reshuffles its elements itself (one to a worker): a second shuffle was a stage more to start
+            return (p | "Workers" >> beam.Create(list(range(workers)))
                     | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
-                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, radiometry=radiometry,
-                                                           forest=forest))
+                    # no shuffle: each worker's claims feed its own ranges' DoFn, from the hand-over on
+                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False,
+                                                           radiometry=radiometry, forest=forest))
         self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
         self.thread.start()
 
@@ -285,9 +300,12 @@ def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionCon
     todo = [i for i in inputs if not plan_path(output, i.stem).is_file()]
     if todo:
         small = sum(_size(i.path) for i in todo) <= IN_PROCESS_BYTES
-        jobs.run(len(todo), lambda p: (p | "Inputs" >> beam.Create(todo)
-                                       | "Plan" >> PlanFiles(str(output), config, points_per_range, limit,
-                                                             spread=not jobs.dask)), small)
+        if jobs.in_process(len(todo), small):
+            log_to_file(output)  # as PlanFile's setup: its lines in this process's worker log
+        jobs.each(todo, lambda item: plan_into_parts(item, str(output), config, points_per_range, limit),
+                  lambda p: (p | "Inputs" >> beam.Create(todo)
+                             | "Plan" >> PlanFiles(str(output), config, points_per_range, limit, spread=not jobs.dask)),
+                  small)
     return read_plans(output, inputs)
 
 
@@ -447,8 +465,9 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
             files = written_parts(str(output), tasks, formats)
             if files:  # each file assembled from its parts on disk, the reused ranges' and the new
                 with laps("files job"):
-                    jobs.run(len(files), lambda p: p | "Files" >> beam.Create(files)
-                             | AssembleFiles(str(output), laz, formats), small)
+                    jobs.each(files, lambda item: assemble_file_or_fault(item, str(output), laz, formats),
+                              lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
+                              small)
             log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
             # without Parquet tables run.json counts what the ranges' marks say, read before the parts go

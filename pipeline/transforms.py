@@ -39,7 +39,7 @@ from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.allocator import kept_memory
 from pipeline.forest_settings import ForestSettings
 from pipeline.faults import WRITING, MachineFault, note_fault, raised_as_fault
-from pipeline.handoff import await_ranges
+from pipeline.handoff import claimed_ranges
 from pipeline.assemble import assemble_file
 from pipeline.layout import echo_tables_path, part_name, plan_path
 from pipeline.logs import log_to_file
@@ -160,24 +160,33 @@ class PlanFile(beam.DoFn):
         log_to_file(self.output)
 
     def process(self, item: InputToPlan):
-        began = time.perf_counter()
-        try:
-            laps = Laps()
-            with laps("plan"), kept_memory():
-                plan = plan_input(item, self.config, self.points_per_range, self.limit)
-            log_timing("plan", item.name, laps)
-            with raised_as_fault(WRITING, plan_path(self.output, item.stem), f"planning {item.name}"):
-                if plan.rejection:
-                    write_file_rejection(self.output, plan.rejection)
-                if plan.source is not None and plan.source.pulse.response is not None:  # before the plan: its
-                    _write_echo_tables(self.output, item.stem, plan.source.pulse)  # readers find them whole
-                write_json(plan_path(self.output, item.stem), plan.to_json())
-        except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
-            LOG.error("%s: stopped: %s", item.name, fault.said())
-            note_fault(self.output, item.stem, fault)
-            return
-        LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
-        yield item.stem
+        stem = plan_into_parts(item, self.output, self.config, self.points_per_range, self.limit)
+        if stem is not None:
+            yield stem
+
+
+def plan_into_parts(item: InputToPlan, output: str, config: DecompositionConfig, points_per_range: int,
+                    limit: int | None) -> str | None:
+    """An input's plan (pipeline.plan) to parts/plans/<stem>.json, its echo tables beside it; a file that cannot
+    be planned also to rejected/<stem>.parquet. Its stem, or None where a fault of the machine was noted."""
+    began = time.perf_counter()
+    try:
+        laps = Laps()
+        with laps("plan"), kept_memory():
+            plan = plan_input(item, config, points_per_range, limit)
+        log_timing("plan", item.name, laps)
+        with raised_as_fault(WRITING, plan_path(output, item.stem), f"planning {item.name}"):
+            if plan.rejection:
+                write_file_rejection(output, plan.rejection)
+            if plan.source is not None and plan.source.pulse.response is not None:  # before the plan: its
+                _write_echo_tables(output, item.stem, plan.source.pulse)  # readers find them whole
+            write_json(plan_path(output, item.stem), plan.to_json())
+    except MachineFault as fault:  # no plan, and no rejection: the driver reads the note and stops
+        LOG.error("%s: stopped: %s", item.name, fault.said())
+        note_fault(output, item.stem, fault)
+        return None
+    LOG.info("%s planned: %d ranges in %.2f s", item.name, len(plan.ranges), time.perf_counter() - began)
+    return item.stem
 
 
 @dataclasses.dataclass
@@ -197,8 +206,9 @@ class PlanFiles(beam.PTransform):
 
 
 class AwaitRanges(beam.DoFn):
-    """A worker's number -> (worker 0) the ranges the driver hands over once it has planned them
-    (pipeline.handoff): the ranges' job, started before the plans, has its workers up and their kernels loaded
+    """A worker's number -> the ranges the driver hands over once it has planned them, each taken by the first
+    worker to claim it (pipeline.handoff.claimed_ranges), one at a time as the ranges' DoFn fused after this one
+    finishes the last: the ranges' job, started before the plans, has its workers up and their kernels loaded
     (warmed up on one element each, where the runner spreads them) by then."""
 
     def __init__(self, output: str, config: DecompositionConfig):
@@ -213,8 +223,7 @@ class AwaitRanges(beam.DoFn):
         log_timing("setup", "awaiting ranges", laps)
 
     def process(self, worker: int):
-        if worker == 0:
-            yield from await_ranges(self.output)
+        yield from claimed_ranges(self.output)
 
 
 @dataclasses.dataclass

@@ -377,8 +377,9 @@ def _file_width(pulses: PulseBatch | None, name: str) -> tuple[float, str]:
 
 
 def _pulses_system_pulse(pulses: PulseBatch | None, name: str, config: DecompositionConfig,
-                         overrides: PulseOverrides) -> SystemPulse:
-    """The system pulse of a file's head (`pulses`, None for a file without records) for one echo model."""
+                         overrides: PulseOverrides, range_offset: bool = True) -> SystemPulse:
+    """The system pulse of a file's head (`pulses`, None for a file without records) for one echo model; its
+    range offset measured unless not `range_offset` (_with_range_offset measures it later)."""
     response = overrides.response
     if response is None and pulses is not None and config.model is Model.SYSTEM:
         response = file_response(pulses)
@@ -393,24 +394,32 @@ def _pulses_system_pulse(pulses: PulseBatch | None, name: str, config: Decomposi
     pulse = SystemPulse(float(fwhm), fwhm_source, 0.0, "none measured", response=response)
     if overrides.shape_tolerance is not None:
         pulse = dataclasses.replace(pulse, shape_tolerance=float(overrides.shape_tolerance), shape_source="configured")
-    single = np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
-    return _single_returns_measures(pulses, single, config, pulse, overrides) if single.size else pulse
-
-
-def _single_returns_measures(pulses: PulseBatch, single: np.ndarray, config: DecompositionConfig,
-                             pulse: SystemPulse, overrides: PulseOverrides) -> SystemPulse:
-    """The pulse with its shape tolerance (unless given) and range offset measured on the file's single returns."""
-    seeds = pulse_waveforms(pulses, config.seed).seeds
-
-    def waveforms(rows: np.ndarray) -> WaveformBatch:
-        return WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in rows],
-                                            pulses.sample_spacing_ps[rows], seeds[rows])
-
-    if overrides.shape_tolerance is None:
-        tolerance = measure_shape_tolerance(waveforms(single), config, pulse)
+    single = _single_returns(pulses)
+    if single.size and overrides.shape_tolerance is None:
+        tolerance = measure_shape_tolerance(_rows_batch(pulses, single, config.seed), config, pulse)
         pulse = dataclasses.replace(pulse, shape_tolerance=float(tolerance), shape_source="single returns")
+    return _with_range_offset(pulses, config, pulse) if range_offset else pulse
+
+
+def _single_returns(pulses: PulseBatch | None) -> np.ndarray:
+    """The rows of a file's head whose pulse the system saw as one return."""
+    return np.flatnonzero(np.diff(pulses.return_offsets) == 1) if pulses is not None else np.zeros(0, int)
+
+
+def _rows_batch(pulses: PulseBatch, rows: np.ndarray, seed: int) -> WaveformBatch:
+    """The waveforms of pulses[rows], each with its own seed (the one its range gives it)."""
+    seeds = pulse_waveforms(pulses, seed).seeds
+    return WaveformBatch.from_waveforms([pulses.pulse_samples(i) for i in rows], pulses.sample_spacing_ps[rows],
+                                        seeds[rows])
+
+
+def _with_range_offset(pulses: PulseBatch | None, config: DecompositionConfig, pulse: SystemPulse) -> SystemPulse:
+    """The pulse with its range offset measured on the file's first single returns (unchanged without any)."""
+    single = _single_returns(pulses)
+    if not single.size:
+        return pulse
     head = single[:RANGE_OFFSET_PULSES]  # enough for a median within millimetres, cheap for any preset
-    offset, n = measure_range_offset(waveforms(head), config, pulse,
+    offset, n = measure_range_offset(_rows_batch(pulses, head, config.seed), config, pulse,
                                      pulses.return_location_ps[pulses.return_offsets[head]])
     return dataclasses.replace(pulse, range_offset_ps=offset,
                                range_offset_source=f"single returns ({n})" if n else "none measured")
@@ -428,9 +437,11 @@ def file_system_pulse(path: str | Path, point_count: int, config: DecompositionC
     name = Path(path).name
     if config.model is not Model.AUTO or pulses is None:
         return _pulses_system_pulse(pulses, name, config, overrides)
-    candidates = {model: _pulses_system_pulse(pulses, name, config.replace(model=model), overrides)
+    # the range offset, which no decomposition reads, measured for the chosen model only
+    candidates = {model: _pulses_system_pulse(pulses, name, config.replace(model=model), overrides, range_offset=False)
                   for model in AUTO_MODELS}
-    return choose_system_pulse(candidates, _head_records(pulses, MODEL_PULSES, config.seed), config)
+    chosen = choose_system_pulse(candidates, _head_records(pulses, MODEL_PULSES, config.seed), config)
+    return _with_range_offset(pulses, config.replace(model=Model(chosen.model)), chosen)
 
 
 # ---------------------------------------------------------------- a NEON-layout CSV

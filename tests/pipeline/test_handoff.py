@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 from fwcore.engine.config import DecompositionConfig
 from fwcore.radiometry.equations import RadiometryConfig
 from pipeline.forest_settings import ForestSettings
-from pipeline.handoff import await_ranges, hand_over, handoff_path, withdraw
+from pipeline.handoff import await_ranges, claimed_ranges, claims_path, hand_over, handoff_path, withdraw
 from pipeline.options import check_beam_args
 from pipeline.outputs import InputNames
 from pipeline.plan import plan_inputs
@@ -38,6 +38,20 @@ def test_a_worker_waits_for_the_ranges_handed_over(tmp_path, leica_dir):
     assert got == tasks and len(tasks) == 4
     withdraw(tmp_path)
     assert not handoff_path(tmp_path).exists()
+
+
+def test_workers_claim_each_handed_over_range_once_as_they_ask(tmp_path, leica_dir):
+    """Two workers taking ranges in turn share them: every range once, the next to whoever asks; a new hand-over
+    clears an interrupted run's claims, and withdraw removes them."""
+    tasks = _tasks(leica_dir)
+    (claims_path(tmp_path) / "0").parent.mkdir(parents=True)
+    (claims_path(tmp_path) / "0").touch()  # an interrupted run's claim
+    hand_over(tmp_path, tasks)
+    first, second = claimed_ranges(tmp_path, poll=0.01), claimed_ranges(tmp_path, poll=0.01)
+    taken = [next(first), next(second), next(second), next(first)]
+    assert taken == tasks and list(first) == [] and list(second) == []
+    withdraw(tmp_path)
+    assert not claims_path(tmp_path).exists() and not handoff_path(tmp_path).exists()
 
 
 def test_the_early_job_writes_what_the_ranges_job_writes(tmp_path, leica_dir):

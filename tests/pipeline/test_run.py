@@ -13,3 +13,23 @@ def test_a_small_job_runs_in_process_only_under_the_default_runner():
     assert runner_given(given) and not chosen.in_process(2, small=True)  # the determinism tests' workers stay
     assert not runner_given(["--crs", "EPSG:25832"]) and runner_given(["--runner=DirectRunner"])
     assert 1000 < IN_PROCESS_PULSES < 10_000  # a few seconds of work, less than starting two workers
+
+
+def test_a_job_run_here_is_its_calls_and_elsewhere_its_pipeline(tmp_path):
+    """Jobs.each: a job that would run in this process calls the plain function on each element, without building
+    a pipeline; one the runner runs elsewhere (here Beam's in-memory runner, chosen on the command line) is the
+    pipeline `build` makes."""
+    import apache_beam as beam
+
+    called, built = [], []
+    default = Jobs(check_beam_args([]), small_in_process=True)
+    default.each(["a"], called.append, built.append)
+    default.each(["b", "c"], called.append, built.append, small=True)
+    assert called == ["a", "b", "c"] and built == []
+
+    def write_each(p):
+        return p | beam.Create(["x", "y"]) | beam.Map(lambda name: (tmp_path / name).write_text(name))
+
+    memory = Jobs(check_beam_args(["--direct_running_mode=in_memory", "--direct_num_workers=1"]))
+    memory.each(["x", "y"], called.append, write_each)
+    assert called == ["a", "b", "c"] and sorted(p.name for p in tmp_path.iterdir()) == ["x", "y"]
