@@ -10,6 +10,10 @@ reported fit error stays the method's Eq. 9). Bounds are kept by projecting
 onto the box; parameters with lower == upper (alpha in the Gaussian model)
 never move. Float64 and libm throughout: a few dozen Jacobians per waveform
 do not need the SIMD tricks of the evolutionary kernels.
+On long records (a generalized Gaussian with a tail floor: GEDI, LVIS) LM
+builds W^1/2 J (weighted_trial) and its normal equations without a weight in
+their products: the exact path's values to rounding, not its bits, which
+short records (Leica, RIEGL, NEON) keep.
 
 The individual is the engine's: [b, (A, u, s, alpha) per echo], s the
 equal-FWHM Gaussian sigma, so an echo is A exp(-ln2 (|t - u| / h)**(alpha**2))
@@ -103,7 +107,7 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
     built sample by sample so that it stops as soon as the partial sum reaches `bound` (the current point's: LM
     then rejects the trial whatever the rest adds). Returns the sum, or a partial one >= bound with model, jac
     and windows left part-filled. Every value it completes is model_and_jacobian's to the bit: each sample's
-    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3) scratch.
+    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3 or more) scratch.
     Only the background's column and each echo's columns inside its window are written (LM's normal equations
     read no others): the rest of `jac` keeps what it held, where model_and_jacobian writes zeros."""
     m = times.size
