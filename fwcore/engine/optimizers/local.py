@@ -10,6 +10,10 @@ reported fit error stays the method's Eq. 9). Bounds are kept by projecting
 onto the box; parameters with lower == upper (alpha in the Gaussian model)
 never move. Float64 and libm throughout: a few dozen Jacobians per waveform
 do not need the SIMD tricks of the evolutionary kernels.
+On long records (a generalized Gaussian with a tail floor: GEDI, LVIS) LM
+builds W^1/2 J (weighted_trial) and its normal equations without a weight in
+their products: the exact path's values to rounding, not its bits, which
+short records (Leica, RIEGL, NEON) keep.
 
 The individual is the engine's: [b, (A, u, s, alpha) per echo], s the
 equal-FWHM Gaussian sigma, so an echo is A exp(-ln2 (|t - u| / h)**(alpha**2))
@@ -103,7 +107,7 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
     built sample by sample so that it stops as soon as the partial sum reaches `bound` (the current point's: LM
     then rejects the trial whatever the rest adds). Returns the sum, or a partial one >= bound with model, jac
     and windows left part-filled. Every value it completes is model_and_jacobian's to the bit: each sample's
-    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3) scratch.
+    model adds the echoes in the same order, from the same expressions. `reach` is (n_echoes x 3 or more) scratch.
     Only the background's column and each echo's columns inside its window are written (LM's normal equations
     read no others): the rest of `jac` keeps what it held, where model_and_jacobian writes zeros."""
     m = times.size
@@ -154,6 +158,59 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
             jac[i, base + 3] = -2.0 * alpha * ae * zp * lnz
         model[i] = value
         r = weights[i] * (value - target[i])
+        ssr += r * r
+        if ssr >= bound:  # a sum of squares only grows: the trial is rejected
+            return ssr
+    return ssr
+
+
+@njit(**JIT)
+def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac, windows, reach):
+    """Long records' LM point (a generalized Gaussian with a tail floor, fwcore.engine.model.EchoShape): the model,
+    windows and early-stopped sum of trial_model_and_jacobian, with the Jacobian's rows scaled by `weights` (W^1/2 J:
+    _weighted_normal_equations then needs no weight in its products) and one division an echo sample, not four.
+    Not model_and_jacobian's bits: short records (Leica, RIEGL, NEON) never come here. `reach` is (n_echoes x 6)."""
+    m = times.size
+    for k in range(n_echoes):
+        base = 1 + PARAMS_PER_ECHO * k
+        a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
+        h = s * _SQRT_2LN2
+        p = alpha * alpha
+        cut = tail_cut(a, shape.tail_floor)
+        extent = h * (cut / _LN2) ** (1.0 / p)
+        windows[k, 0] = searchsorted(times, u - extent)
+        windows[k, 1] = searchsorted(times, u + extent, right=True)
+        reach[k, 0], reach[k, 1], reach[k, 2] = 1.0 / h, p, cut
+        reach[k, 3], reach[k, 4], reach[k, 5] = _LN2 * a * p, _LN2 * a * p / s, -2.0 * alpha * _LN2 * a
+    ssr = 0.0
+    for i in range(m):
+        w = weights[i]
+        value = x[0]
+        jac[i, 0] = w
+        for k in range(n_echoes):
+            if i < windows[k, 0] or i >= windows[k, 1]:
+                continue
+            base = 1 + PARAMS_PER_ECHO * k
+            dt = times[i] - x[base + 1]
+            if dt == 0.0:
+                value += x[base]
+                jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3] = w, 0.0, 0.0, 0.0
+                continue
+            lnz = math.log(abs(dt) * reach[k, 0])
+            zp = math.exp(reach[k, 1] * lnz)
+            if _LN2 * zp > reach[k, 2]:
+                jac[i, base] = jac[i, base + 1] = jac[i, base + 2] = jac[i, base + 3] = 0.0
+                continue
+            e = math.exp(-_LN2 * zp)
+            value += x[base] * e
+            we = w * e
+            wezp = we * zp
+            jac[i, base] = we
+            jac[i, base + 1] = reach[k, 3] * wezp / dt
+            jac[i, base + 2] = reach[k, 4] * wezp
+            jac[i, base + 3] = reach[k, 5] * wezp * lnz
+        model[i] = value
+        r = w * (value - target[i])
         ssr += r * r
         if ssr >= bound:  # a sum of squares only grows: the trial is rejected
             return ssr
@@ -339,6 +396,114 @@ def _pair_block(jac, weights, lo, hi, r, c, jtj):
 
 
 @njit(**JIT)
+def _weighted_normal_equations(jw, residual, weights, windows, jtj, grad):
+    """_normal_equations from W^1/2 J (weighted_trial's rows): J^T W J = jw^T jw and J^T W r = jw^T residual, each
+    sum over the samples where both columns can be non-zero; the background's column is the weights."""
+    m, d = jw.shape
+    n_echoes = (d - 1) // PARAMS_PER_ECHO
+    g = 0.0
+    acc = 0.0
+    for i in range(m):
+        g += weights[i] * residual[i]
+        acc += weights[i] * weights[i]
+    grad[0] = g
+    jtj[0, 0] = acc
+    for k in range(n_echoes):
+        _weighted_echo_block(jw, residual, weights, windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k, jtj, grad)
+    for k in range(n_echoes):
+        for q in range(k + 1, n_echoes):
+            _weighted_pair_block(jw, max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1]),
+                                 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
+
+
+@njit(**JIT_INLINE)
+def _weighted_echo_block(jw, residual, weights, lo, hi, base, jtj, grad):
+    """_echo_block from weighted rows: no weight in the products."""
+    g1 = g2 = g3 = g4 = 0.0
+    b1 = b2 = b3 = b4 = 0.0
+    a11 = a12 = a13 = a14 = a22 = a23 = a24 = a33 = a34 = a44 = 0.0
+    for i in range(lo, hi):
+        w = weights[i]
+        r = residual[i]
+        j1, j2, j3, j4 = jw[i, base], jw[i, base + 1], jw[i, base + 2], jw[i, base + 3]
+        g1 += j1 * r
+        g2 += j2 * r
+        g3 += j3 * r
+        g4 += j4 * r
+        b1 += j1 * w
+        b2 += j2 * w
+        b3 += j3 * w
+        b4 += j4 * w
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a13 += j1 * j3
+        a14 += j1 * j4
+        a22 += j2 * j2
+        a23 += j2 * j3
+        a24 += j2 * j4
+        a33 += j3 * j3
+        a34 += j3 * j4
+        a44 += j4 * j4
+    grad[base], grad[base + 1], grad[base + 2], grad[base + 3] = g1, g2, g3, g4
+    jtj[0, base] = jtj[base, 0] = b1
+    jtj[0, base + 1] = jtj[base + 1, 0] = b2
+    jtj[0, base + 2] = jtj[base + 2, 0] = b3
+    jtj[0, base + 3] = jtj[base + 3, 0] = b4
+    jtj[base, base] = a11
+    jtj[base, base + 1] = jtj[base + 1, base] = a12
+    jtj[base, base + 2] = jtj[base + 2, base] = a13
+    jtj[base, base + 3] = jtj[base + 3, base] = a14
+    jtj[base + 1, base + 1] = a22
+    jtj[base + 1, base + 2] = jtj[base + 2, base + 1] = a23
+    jtj[base + 1, base + 3] = jtj[base + 3, base + 1] = a24
+    jtj[base + 2, base + 2] = a33
+    jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
+    jtj[base + 3, base + 3] = a44
+
+
+@njit(**JIT_INLINE)
+def _weighted_pair_block(jw, lo, hi, r, c, jtj):
+    """_pair_block from weighted rows: one product an entry and sample, not three."""
+    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
+    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
+    for i in range(lo, hi):
+        r0, r1, r2, r3 = jw[i, r], jw[i, r + 1], jw[i, r + 2], jw[i, r + 3]
+        c0, c1, c2, c3 = jw[i, c], jw[i, c + 1], jw[i, c + 2], jw[i, c + 3]
+        a00 += r0 * c0
+        a01 += r0 * c1
+        a02 += r0 * c2
+        a03 += r0 * c3
+        a10 += r1 * c0
+        a11 += r1 * c1
+        a12 += r1 * c2
+        a13 += r1 * c3
+        a20 += r2 * c0
+        a21 += r2 * c1
+        a22 += r2 * c2
+        a23 += r2 * c3
+        a30 += r3 * c0
+        a31 += r3 * c1
+        a32 += r3 * c2
+        a33 += r3 * c3
+    jtj[r, c] = jtj[c, r] = a00
+    jtj[r, c + 1] = jtj[c + 1, r] = a01
+    jtj[r, c + 2] = jtj[c + 2, r] = a02
+    jtj[r, c + 3] = jtj[c + 3, r] = a03
+    jtj[r + 1, c] = jtj[c, r + 1] = a10
+    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
+    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
+    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
+    jtj[r + 2, c] = jtj[c, r + 2] = a20
+    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
+    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
+    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
+    jtj[r + 3, c] = jtj[c, r + 3] = a30
+    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
+    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
+    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
+
+
+@njit(**JIT)
 def _predicted_gain(grad, jtj, x, trial):
     """How much the linearised model says the step x -> trial lowers the sum of squares: -(2 g.delta +
     delta' JtJ delta), g = J^T W r (the gradient's half)."""
@@ -361,6 +526,15 @@ def _damping_after_gain(lam, gain, grad, jtj, x, trial):
     # a clipped step's prediction means little: ratio 0.5 leaves the damping as it is
     ratio = gain / predicted if predicted > 0.0 else 0.5
     return max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
+
+
+@njit(**JIT_INLINE)
+def _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad):
+    """LM's normal equations from its Jacobian: weighted_trial's rows or model_and_jacobian's."""
+    if weighted:
+        _weighted_normal_equations(jac, residual, weights, windows, jtj, grad)
+    else:
+        _normal_equations(jac, residual, weights, windows, jtj, grad)
 
 
 _UNDAMPED = 1e-3  # LM's first damping, and the most at which its step is taken as the Gauss-Newton one
@@ -402,8 +576,13 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     model, trial_model, residual, jac, trial_jac, jtj, factor, grad, step, trial = _lm_scratch(m, d)
     both_windows = np.zeros((2, n_echoes, 2), dtype=np.int64)
     windows, trial_windows = both_windows[0], both_windows[1]
-    reach = np.empty((n_echoes, 3))
-    model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
+    # long records (a generalized Gaussian with a tail floor): the weighted Jacobian, cheaper normal equations
+    weighted = shape.tail_floor > 0.0 and not shape.tabulated
+    reach = np.empty((n_echoes, 6))
+    if weighted:
+        weighted_trial(x, n_echoes, times, shape, target, weights, np.inf, model, jac, windows, reach)
+    else:
+        model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
     for i in range(m):
         residual[i] = weights[i] * (model[i] - target[i])
@@ -412,7 +591,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     lam = _UNDAMPED
     growth = 2.0
     done = False
-    _normal_equations(jac, residual, weights, windows, jtj, grad)
+    _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad)
     active = free.copy()
     for _ in range(max_iterations):
         # a parameter held at a bound with the descent pushing outwards stays there for the step
@@ -433,8 +612,12 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             done = True
             break
         # a trial LM rejects stops where its sum of squares passes the current one, part of a Jacobian
-        trial_ssr = trial_model_and_jacobian(trial, n_echoes, times, shape, target, weights, ssr, trial_model,
-                                             trial_jac, trial_windows, reach)
+        if weighted:
+            trial_ssr = weighted_trial(trial, n_echoes, times, shape, target, weights, ssr, trial_model, trial_jac,
+                                       trial_windows, reach)
+        else:
+            trial_ssr = trial_model_and_jacobian(trial, n_echoes, times, shape, target, weights, ssr, trial_model,
+                                                 trial_jac, trial_windows, reach)
         n_jacobians += 1
         if trial_ssr < ssr:
             gain = ssr - trial_ssr
@@ -449,7 +632,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             if gain <= tolerance * ssr or gain <= chi2_tolerance:
                 done = True
                 break
-            _normal_equations(jac, residual, weights, windows, jtj, grad)
+            _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad)
         else:
             lam *= growth
             growth *= 2.0

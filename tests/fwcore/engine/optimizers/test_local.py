@@ -242,3 +242,48 @@ def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_p
                                        reach)
         assert ssr >= partial[stop] and ssr < expected
         assert np.array_equal(trial_model[:stop + 1], model[:stop + 1]) and np.isnan(trial_model[stop + 1:]).all()
+
+
+def test_a_long_records_weighted_point_is_the_weighted_jacobian_and_its_normal_equations_are_jt_w_j():
+    from fwcore.engine.optimizers.local import _normal_equations, _weighted_normal_equations, weighted_trial
+
+    rng = np.random.default_rng(4)
+    t = np.arange(300.0)
+    x = np.array([4.0, 60.0, 90.0, 5.0, 1.3, 25.0, 104.0, 7.0, 1.0, 40.0, 200.0, 3.0, 1.9])
+    y = model_of_individual(x, t) + rng.normal(0.0, 1.5, t.size)
+    w = rng.uniform(0.5, 1.0, t.size)
+    shape = analytic_shape()._replace(tail_floor=0.01)
+    model, jac, windows = np.empty(t.size), np.zeros((t.size, x.size)), np.empty((3, 2), dtype=np.int64)
+    model_and_jacobian(x, 3, t, shape, model, jac, windows)
+    weighted_model, jw = np.full(t.size, np.nan), np.zeros((t.size, x.size))
+    weighted_windows, reach = np.empty((3, 2), dtype=np.int64), np.empty((3, 6))
+    ssr = weighted_trial(x, 3, t, shape, y, w, np.inf, weighted_model, jw, weighted_windows, reach)
+    # z as |t - u| x (1 / h): the model to rounding, not to the bit
+    assert ssr == pytest.approx(sum((w[i] * (model[i] - y[i])) ** 2 for i in range(t.size)), rel=1e-12)
+    np.testing.assert_allclose(weighted_model, model, rtol=1e-14)
+    assert np.array_equal(weighted_windows, windows)
+    np.testing.assert_allclose(jw, w[:, None] * jac, rtol=1e-13, atol=1e-300)  # one division, not four: rounding
+    residual = w * (model - y)
+    jtj, grad, wjtj, wgrad = np.zeros((13, 13)), np.zeros(13), np.zeros((13, 13)), np.zeros(13)
+    _normal_equations(jac, residual, w, windows, jtj, grad)
+    _weighted_normal_equations(jw, residual, w, windows, wjtj, wgrad)
+    np.testing.assert_allclose(wjtj, jtj, rtol=1e-12, atol=1e-12 * np.abs(jtj).max())
+    np.testing.assert_allclose(wgrad, grad, rtol=1e-12, atol=1e-12 * np.abs(grad).max())
+    # an early stop, as the unweighted trial's: at the first sample whose partial sum reaches the bound
+    partial = np.cumsum((w * (weighted_model - y)) ** 2)
+    stop = int(np.searchsorted(partial, ssr / 2))
+    weighted_model[:] = np.nan
+    assert partial[stop] <= weighted_trial(x, 3, t, shape, y, w, partial[stop], weighted_model, jw, weighted_windows,
+                                           reach) < ssr
+    assert np.isnan(weighted_model[stop + 1:]).all()
+
+
+def test_lm_on_a_long_record_fits_as_the_exact_path_does():
+    # the weighted path (a tail floor) and the exact one (none) reach the same echoes from the same start
+    rng = np.random.default_rng(6)
+    y = model_of_individual(TRUE, T) + rng.normal(0.0, 0.5, T.size)
+    exact, _, _ = fit_levenberg_marquardt(START, 2, T, y, LOWER, UPPER)
+    weighted, _, _ = fit_levenberg_marquardt(START, 2, T, y, LOWER, UPPER, shape=analytic_shape()._replace(
+        tail_floor=1e-3))
+    np.testing.assert_allclose(weighted, exact, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(weighted[1:], TRUE[1:], rtol=0.05)
