@@ -153,7 +153,6 @@ class Jobs:
                 raise KeyboardInterrupt from err
             raise
 
-
     def each(self, items: list, call, build, small: bool = False, per_partition: int = 1) -> None:
         """A job of one plain call an element: where it would run in this process, `call(item)` for each, without
         a Beam pipeline (0.1-0.3 s a job to build and run in memory, for nothing the calls need); elsewhere the
