@@ -53,6 +53,19 @@ LOCAL_MIN_SAMPLES = 512
 # 3 and 9 % of cases, after 6-30 more Jacobians); the others refit to convergence as before.
 SCREEN_ITERATIONS = 5
 SCREEN_MARGIN = 2.5
+# PROBE: the initial estimate's threshold and flank ratio on long records (None: the config's)
+LONG_NOISE_THRESHOLD = None
+LONG_FLANK_RATIO = None
+
+
+def long_proposal(p):
+    """The kernel settings of a long record's initial estimate (LOCAL_MIN_SAMPLES samples or more)."""
+    changes = {}
+    if LONG_NOISE_THRESHOLD is not None:
+        changes["noise_threshold"] = float(LONG_NOISE_THRESHOLD)
+    if LONG_FLANK_RATIO is not None:
+        changes["flank_ratio"] = float(LONG_FLANK_RATIO)
+    return p._replace(**changes)
 
 
 
