@@ -190,7 +190,7 @@ def _select_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times
 @njit(**JIT)
 def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, proposal, shape, out, echoes):
     """One waveform end to end into its result record `out` and echo records `echoes`; a long record's initial
-    estimate (LOCAL_MIN_SAMPLES samples or more) under `proposal`'s threshold and flank ratio."""
+    estimate (LOCAL_MIN_SAMPLES samples or more) under `proposal` (fwcore.engine.selection.long_proposal)."""
     n = samples.size
     first, last = _valid_span(valid)
     pulse_fwhm = pulse_sigma * _FWHM_PER_SIGMA

@@ -20,7 +20,8 @@ least-squares fit; a waveform of few echoes refits all of them as before.
 
 On a long record (at least LOCAL_MIN_SAMPLES samples, whatever its valid window: GEDI, LVIS) a drop candidate's
 refit is screened: after SCREEN_ITERATIONS LM steps, a candidate whose chi^2 is still far above the BIC's price
-stays without the rest of its refit (most such refits end far above it; docs/benchmarks.md).
+stays without the rest of its refit (most such refits end far above it; docs/benchmarks.md). Its initial estimate
+proposes fewer of the flank peaks that the selection would refit away (long_proposal, LONG_FLANK_RATIO).
 """
 
 from __future__ import annotations
