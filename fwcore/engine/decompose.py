@@ -34,7 +34,7 @@ from fwcore.engine.estimate import initial_estimate
 from fwcore.engine.records import (ECHO_RESULT, STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_RESULT,
                             BatchDecomposition, Decomposition, WaveformBatch)
 from fwcore.engine.noise_model import add_shot_noise, noise_variance
-from fwcore.engine.selection import LOCAL_MIN_SAMPLES, add_missing_echoes, drop_unneeded_echoes, long_proposal
+from fwcore.engine.selection import LOCAL_MIN_SAMPLES, add_missing_echoes, drop_unneeded_echoes
 from fwcore.engine.strong_echo import strong_echo_fit
 
 _LN2 = math.log(2.0)
@@ -188,9 +188,8 @@ def _select_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, times
 
 
 @njit(**JIT)
-def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, proposal, shape, out, echoes):
-    """One waveform end to end into its result record `out` and echo records `echoes`; a long record's initial
-    estimate (LOCAL_MIN_SAMPLES samples or more) under `proposal` (fwcore.engine.selection.long_proposal)."""
+def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, seed, p, shape, out, echoes):
+    """One waveform end to end into its result record `out` and echo records `echoes`."""
     n = samples.size
     first, last = _valid_span(valid)
     pulse_fwhm = pulse_sigma * _FWHM_PER_SIGMA
@@ -199,8 +198,7 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
     amp0 = np.zeros(p.max_echoes)
     pos0 = np.zeros(p.max_echoes)
     sig0 = np.zeros(p.max_echoes)
-    noise, background, n_echoes = initial_estimate(samples, valid, smoothing_sigma, pulse_sigma,
-                                                   proposal if n >= LOCAL_MIN_SAMPLES else p, shape, smoothed,
+    noise, background, n_echoes = initial_estimate(samples, valid, smoothing_sigma, pulse_sigma, p, shape, smoothed,
                                                    amp0, pos0, sig0, noise_floor)
     if n >= LOCAL_MIN_SAMPLES and not shape.tabulated:
         shape = _with_tail_floor(shape, TAIL_FLOOR * noise)
@@ -267,15 +265,15 @@ def _decompose_one(samples, valid, smoothing_sigma, pulse_sigma, noise_floor, se
 
 
 @njit(**JIT)
-def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, noise_floor, seeds, p, proposal,
-                     shape, out, echoes, first, stop):
+def _decompose_range(samples, valid, offsets, status, smoothing_sigma, pulse_sigma, noise_floor, seeds, p, shape,
+                     out, echoes, first, stop):
     """Waveforms first..stop-1 of the batch (those of status 0), each into its own records."""
     for w in range(first, stop):
         if status[w] != 0:
             continue
         lo, hi = offsets[w], offsets[w + 1]
         _decompose_one(samples[lo:hi], valid[lo:hi], smoothing_sigma[w], pulse_sigma[w], noise_floor[w], seeds[w], p,
-                       proposal, shape, out[w], echoes[w])
+                       shape, out[w], echoes[w])
 
 
 # ---------------------------------------------------------------- Python API
@@ -347,7 +345,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
         kernel_args = (samples, batch.valid, batch.offsets, group.astype(np.int8),
                        smoothing_sigma_samples(config, pulse, batch.sample_spacing_ps),
                        pulse_sigma_samples(pulse, batch.sample_spacing_ps), noise_floor, batch.seeds, params,
-                       long_proposal(params), shape, out, echoes)
+                       shape, out, echoes)
         _in_threads(kernel_args, n, threads or numba.config.NUMBA_NUM_THREADS)
     counts = out["n_echoes"]
     echo_offsets = np.zeros(n + 1, dtype=np.int64)

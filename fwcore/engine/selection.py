@@ -20,8 +20,7 @@ least-squares fit; a waveform of few echoes refits all of them as before.
 
 On a long record (at least LOCAL_MIN_SAMPLES samples, whatever its valid window: GEDI, LVIS) a drop candidate's
 refit is screened: after SCREEN_ITERATIONS LM steps, a candidate whose chi^2 is still far above the BIC's price
-stays without the rest of its refit (most such refits end far above it; docs/benchmarks.md). Its initial estimate
-proposes fewer of the flank peaks that the selection would refit away (long_proposal, LONG_FLANK_RATIO).
+stays without the rest of its refit (most such refits end far above it; docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -32,7 +31,6 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.engine.config import KernelParams
 from fwcore.engine.bounds import echo_bounds
 from fwcore.engine.filter import KEPT, mark_spurious
 from fwcore.engine.model import (PARAMS_PER_ECHO, SQRT_2LN2, echo_positions_of, individual_model, table_reach,
@@ -55,18 +53,6 @@ LOCAL_MIN_SAMPLES = 512
 # 3 and 9 % of cases, after 6-30 more Jacobians); the others refit to convergence as before.
 SCREEN_ITERATIONS = 5
 SCREEN_MARGIN = 2.5
-# On a long record (LOCAL_MIN_SAMPLES samples or more: GEDI, LVIS) the initial estimate proposes no peak within
-# 0.75 pulse widths of a peeled echo and under LONG_FLANK_RATIO of its amplitude (the estimate's flank ratio, at least
-# the config's): such a flank was fitted, flagged too close and refitted away, the selection's costliest candidate.
-# GEDI savanna 74.7 -> 66.3 Jacobians a shot; simulated dense canopy's recall and precision not lower (higher on 9 of
-# 12 canopies, none lower); 0.5 and above lost precision there (docs/benchmarks.md, issue 58's seventh pass).
-LONG_FLANK_RATIO = 0.35
-
-
-def long_proposal(p: KernelParams) -> KernelParams:
-    """The kernel settings of a long record's initial estimate (decompose: LOCAL_MIN_SAMPLES samples or more): the
-    flank ratio at least LONG_FLANK_RATIO (it acts only with the selection on, as the config's does)."""
-    return p._replace(flank_ratio=max(p.flank_ratio, LONG_FLANK_RATIO))
 
 
 

@@ -10,8 +10,7 @@ from fwcore.engine.config import DecompositionConfig, Model
 from fwcore.engine.decompose import decompose_batch
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.engine.records import WaveformBatch
-from fwcore.engine import selection
-from fwcore.engine.selection import LONG_FLANK_RATIO, add_missing_echoes, drop_unneeded_echoes, long_proposal
+from fwcore.engine.selection import add_missing_echoes, drop_unneeded_echoes
 from tests.fwcore import naive
 
 PULSE_SIGMA = 3.0
@@ -175,48 +174,3 @@ def test_screened_drops_on_long_records_keep_the_truth_of_full_refits():
     assert score["full"][0] > 0.8 and score["full"][1] > 0.9  # a canopy the selection has work on
     assert score["screened"][0] >= score["full"][0] - 0.01 and score["screened"][1] >= score["full"][1] - 0.01
     assert screened.per_waveform["nfev"].sum() < short.per_waveform["nfev"].sum()
-
-
-def test_a_long_records_proposal_takes_at_least_the_long_flank_ratio():
-    default = long_proposal(CONFIG.kernel_params(Model.GENERALIZED, 0.0))
-    fast = long_proposal(DecompositionConfig(flank_ratio=0.2).kernel_params(Model.GENERALIZED, 0.0))
-    wider = long_proposal(DecompositionConfig(flank_ratio=0.6).kernel_params(Model.GENERALIZED, 0.0))
-    assert (default.flank_ratio, fast.flank_ratio, wider.flank_ratio) == (LONG_FLANK_RATIO, LONG_FLANK_RATIO, 0.6)
-    assert default._replace(flank_ratio=0.0) == CONFIG.kernel_params(Model.GENERALIZED, 0.0)  # nothing else moves
-
-
-def _scores(result, truth, shifts):
-    """(recall, precision) of the kept echoes against the true positions, within a sample."""
-    found = good = kept = 0
-    for i, pos in enumerate(truth):
-        echoes = result.waveform(i)
-        at = echoes.position[echoes.kept] + shifts[i]
-        found += sum(at.size > 0 and np.abs(at - u).min() < 1.0 for u in pos)
-        good += sum(np.abs(pos - u).min() < 1.0 for u in at)
-        kept += at.size
-    return found / sum(p.size for p in truth), good / kept
-
-
-def test_long_records_propose_no_flank_peaks_and_keep_the_truth(monkeypatch):
-    # dense canopy in 1024-sample records: with the long flank ratio fewer echoes are proposed and refitted away, and
-    # the truth is found as well as with every flank proposed (the ratio 0: the config's, as before)
-    waves, truth, windows = _dense_canopy(np.random.default_rng(5), 60)
-    pulse = nominal_pulse(3.5 * 2 * math.sqrt(2 * math.log(2)) * 1000.0)
-    long_valid = [np.zeros(w.size, bool) for w in waves]
-    for v, (lo, hi) in zip(long_valid, windows):
-        v[lo:hi] = True
-    long = WaveformBatch.from_waveforms(waves, 1000.0, np.arange(60), long_valid)
-    short = WaveformBatch.from_waveforms([w[lo:hi] for w, (lo, hi) in zip(waves, windows)], 1000.0, np.arange(60))
-    flanks_left = decompose_batch(long, CONFIG, pulse, threads=1)
-    short_left = decompose_batch(short, CONFIG, pulse, threads=1)
-    monkeypatch.setattr(selection, "LONG_FLANK_RATIO", 0.0)
-    every_flank = decompose_batch(long, CONFIG, pulse, threads=1)
-    short_every = decompose_batch(short, CONFIG, pulse, threads=1)
-    assert flanks_left.per_waveform["n_echoes_initial"].sum() < every_flank.per_waveform["n_echoes_initial"].sum()
-    assert flanks_left.per_waveform["nfev"].sum() < 0.9 * every_flank.per_waveform["nfev"].sum()
-    recall, precision = _scores(flanks_left, truth, np.zeros(60))
-    recall_before, precision_before = _scores(every_flank, truth, np.zeros(60))
-    assert recall >= recall_before and precision >= precision_before and recall > 0.8 and precision > 0.9
-    # a short record (Leica's, RIEGL's, NEON's lengths) proposes as the config says, whatever the long ratio
-    assert np.array_equal(short_left.position, short_every.position)
-    assert np.array_equal(short_left.per_waveform["nfev"], short_every.per_waveform["nfev"])
