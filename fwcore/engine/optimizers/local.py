@@ -333,6 +333,14 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
         a33 += j3 * j3 * w * w
         a34 += j3 * j4 * w * w
         a44 += j4 * j4 * w * w
+    _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33,
+                      a34, a44)
+
+
+@njit(**JIT_INLINE)
+def _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33, a34,
+                      a44):
+    """An echo's sums into its gradient entries and its symmetric rows of J^T W J (with the background, column 0)."""
     grad[base], grad[base + 1], grad[base + 2], grad[base + 3] = g1, g2, g3, g4
     jtj[0, base] = jtj[base, 0] = b1
     jtj[0, base + 1] = jtj[base + 1, 0] = b2
@@ -348,6 +356,27 @@ def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     jtj[base + 2, base + 2] = a33
     jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
     jtj[base + 3, base + 3] = a44
+
+
+@njit(**JIT_INLINE)
+def _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33):
+    """Two echoes' 16 cross sums into both of their symmetric places in J^T W J."""
+    jtj[r, c] = jtj[c, r] = a00
+    jtj[r, c + 1] = jtj[c + 1, r] = a01
+    jtj[r, c + 2] = jtj[c + 2, r] = a02
+    jtj[r, c + 3] = jtj[c + 3, r] = a03
+    jtj[r + 1, c] = jtj[c, r + 1] = a10
+    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
+    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
+    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
+    jtj[r + 2, c] = jtj[c, r + 2] = a20
+    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
+    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
+    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
+    jtj[r + 3, c] = jtj[c, r + 3] = a30
+    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
+    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
+    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
 
 
 @njit(**JIT_INLINE)
@@ -377,22 +406,7 @@ def _pair_block(jac, weights, lo, hi, r, c, jtj):
         a31 += r3 * c1 * w * w
         a32 += r3 * c2 * w * w
         a33 += r3 * c3 * w * w
-    jtj[r, c] = jtj[c, r] = a00
-    jtj[r, c + 1] = jtj[c + 1, r] = a01
-    jtj[r, c + 2] = jtj[c + 2, r] = a02
-    jtj[r, c + 3] = jtj[c + 3, r] = a03
-    jtj[r + 1, c] = jtj[c, r + 1] = a10
-    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
-    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
-    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
-    jtj[r + 2, c] = jtj[c, r + 2] = a20
-    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
-    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
-    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
-    jtj[r + 3, c] = jtj[c, r + 3] = a30
-    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
-    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
-    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
+    _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33)
 
 
 @njit(**JIT)
@@ -444,21 +458,8 @@ def _weighted_echo_block(jw, residual, weights, lo, hi, base, jtj, grad):
         a33 += j3 * j3
         a34 += j3 * j4
         a44 += j4 * j4
-    grad[base], grad[base + 1], grad[base + 2], grad[base + 3] = g1, g2, g3, g4
-    jtj[0, base] = jtj[base, 0] = b1
-    jtj[0, base + 1] = jtj[base + 1, 0] = b2
-    jtj[0, base + 2] = jtj[base + 2, 0] = b3
-    jtj[0, base + 3] = jtj[base + 3, 0] = b4
-    jtj[base, base] = a11
-    jtj[base, base + 1] = jtj[base + 1, base] = a12
-    jtj[base, base + 2] = jtj[base + 2, base] = a13
-    jtj[base, base + 3] = jtj[base + 3, base] = a14
-    jtj[base + 1, base + 1] = a22
-    jtj[base + 1, base + 2] = jtj[base + 2, base + 1] = a23
-    jtj[base + 1, base + 3] = jtj[base + 3, base + 1] = a24
-    jtj[base + 2, base + 2] = a33
-    jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
-    jtj[base + 3, base + 3] = a44
+    _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33,
+                      a34, a44)
 
 
 @njit(**JIT_INLINE)
@@ -485,22 +486,7 @@ def _weighted_pair_block(jw, lo, hi, r, c, jtj):
         a31 += r3 * c1
         a32 += r3 * c2
         a33 += r3 * c3
-    jtj[r, c] = jtj[c, r] = a00
-    jtj[r, c + 1] = jtj[c + 1, r] = a01
-    jtj[r, c + 2] = jtj[c + 2, r] = a02
-    jtj[r, c + 3] = jtj[c + 3, r] = a03
-    jtj[r + 1, c] = jtj[c, r + 1] = a10
-    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
-    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
-    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
-    jtj[r + 2, c] = jtj[c, r + 2] = a20
-    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
-    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
-    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
-    jtj[r + 3, c] = jtj[c, r + 3] = a30
-    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
-    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
-    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
+    _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33)
 
 
 @njit(**JIT)
