@@ -49,6 +49,17 @@ def tail_cut(amplitude, tail_floor):
     return _NEGLIGIBLE
 
 
+@njit(**JIT_INLINE)
+def _echo_window(a, u, s, alpha, times, tail_floor):
+    """A generalized Gaussian echo's samples [lo, hi) in the model (times ascending: above tail_cut), with its
+    half width at half maximum h, its exponent p = alpha**2 and that cut, which the samples' terms share."""
+    h = s * _SQRT_2LN2
+    p = alpha * alpha
+    cut = tail_cut(a, tail_floor)
+    extent = h * (cut / _LN2) ** (1.0 / p)
+    return searchsorted(times, u - extent), searchsorted(times, u + extent, right=True), h, p, cut
+
+
 @njit(**JIT)
 def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
     """The model at `times` (float64, ascending) and its Jacobian (len(times) x len(x)) with respect to x;
@@ -71,14 +82,8 @@ def model_and_jacobian(x, n_echoes, times, shape, model, jac, windows):
             windows[k, 1] = hi
             add_table_echo_derivatives(shape, a, u, s, times, lo, hi, model, jac, base)
             continue
-        h = s * _SQRT_2LN2
-        p = alpha * alpha
-        # only the samples where the echo is above 1e-12 of its amplitude (times are ascending), and above the
-        # shape's tail floor where it has one
-        cut = tail_cut(a, shape.tail_floor)
-        reach = h * (cut / _LN2) ** (1.0 / p)
-        lo = searchsorted(times, u - reach)
-        hi = searchsorted(times, u + reach, right=True)
+        # only the samples where the echo is above 1e-12 of its amplitude, and above the shape's tail floor
+        lo, hi, h, p, cut = _echo_window(a, u, s, alpha, times, shape.tail_floor)
         windows[k, 0] = lo
         windows[k, 1] = hi
         for i in range(lo, hi):
@@ -121,12 +126,7 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
     for k in range(n_echoes):  # each echo's window and the constants its samples share
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
-        h = s * _SQRT_2LN2
-        p = alpha * alpha
-        cut = tail_cut(a, shape.tail_floor)
-        extent = h * (cut / _LN2) ** (1.0 / p)
-        windows[k, 0] = searchsorted(times, u - extent)
-        windows[k, 1] = searchsorted(times, u + extent, right=True)
+        windows[k, 0], windows[k, 1], h, p, cut = _echo_window(a, u, s, alpha, times, shape.tail_floor)
         reach[k, 0], reach[k, 1], reach[k, 2] = h, p, cut
     ssr = 0.0
     for i in range(m):
@@ -174,12 +174,7 @@ def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
         a, u, s, alpha = x[base], x[base + 1], x[base + 2], x[base + 3]
-        h = s * _SQRT_2LN2
-        p = alpha * alpha
-        cut = tail_cut(a, shape.tail_floor)
-        extent = h * (cut / _LN2) ** (1.0 / p)
-        windows[k, 0] = searchsorted(times, u - extent)
-        windows[k, 1] = searchsorted(times, u + extent, right=True)
+        windows[k, 0], windows[k, 1], h, p, cut = _echo_window(a, u, s, alpha, times, shape.tail_floor)
         reach[k, 0], reach[k, 1], reach[k, 2] = 1.0 / h, p, cut
         reach[k, 3], reach[k, 4], reach[k, 5] = _LN2 * a * p, _LN2 * a * p / s, -2.0 * alpha * _LN2 * a
     ssr = 0.0
