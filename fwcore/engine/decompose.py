@@ -69,8 +69,6 @@ def _valid_arrays(samples, smoothed, valid, fit_denoised):
 def _measure(best, n_echoes, samples, smoothed, valid, shape, out):
     """The reported metrics, exact (float64, libm), against the denoised (Eq. 9) and raw samples."""
     n = samples.size
-    model = np.empty(n)
-    individual_model(best, n_echoes, np.arange(n).astype(np.float64), shape, model)
     m = 0
     mean = 0.0
     for i in range(n):
@@ -78,14 +76,24 @@ def _measure(best, n_echoes, samples, smoothed, valid, shape, out):
             m += 1
             mean += samples[i]
     mean /= m
+    times = np.empty(m)  # the model at the valid samples only: nothing else is read (GEDI's and LVIS's noise)
+    j = 0
+    for i in range(n):
+        if valid[i]:
+            times[j] = i
+            j += 1
+    model = np.empty(m)
+    individual_model(best, n_echoes, times, shape, model)
     err_denoised = 0.0
     err_raw = 0.0
     ss_res = 0.0
     ss_tot = 0.0
+    j = 0
     for i in range(n):
         if valid[i]:
-            err_denoised += abs(model[i] - smoothed[i])
-            r = model[i] - samples[i]
+            err_denoised += abs(model[j] - smoothed[i])
+            r = model[j] - samples[i]
+            j += 1
             err_raw += abs(r)
             ss_res += r * r
             ss_tot += (samples[i] - mean) ** 2

@@ -36,6 +36,8 @@ LN2 = math.log(2.0)
 SQRT_2LN2 = math.sqrt(2.0 * LN2)  # half width at half maximum of a unit-sigma Gaussian
 # The layout of an individual: [b, (A, u, s, alpha) per echo], s the equal-FWHM Gaussian sigma.
 PARAMS_PER_ECHO = 4
+# exp(-x) is exactly 0 in float64 for x above 745.14: past this exponent an echo's term adds nothing, to the bit
+UNDERFLOW = 746.0
 
 
 class EchoShape(NamedTuple):
@@ -170,6 +172,22 @@ def table_peak_offset(shape, s):
 
 
 @njit(**JIT_INLINE)
+def underflow_reach(h, p):
+    """|t - u| beyond which a generalized Gaussian echo of half width h and exponent p = alpha**2 is exactly 0 in
+    float64 (echo_value's exp underflows); inf where that is not finite (every sample, as without a reach)."""
+    reach = h * (UNDERFLOW / LN2) ** (1.0 / p)
+    return reach if reach < math.inf else math.inf
+
+
+@njit(**JIT_INLINE)
+def sample_span(u, reach, size):
+    """The sample indices [lo, hi) of 0..size-1 within reach of u."""
+    if not abs(u) + reach < 1e15:  # also NaN: every sample
+        return 0, size
+    return max(0, int(math.ceil(u - reach))), min(size, int(math.floor(u + reach)) + 1)
+
+
+@njit(**JIT_INLINE)
 def echo_positions_of(x, n_echoes):
     """The positions u of individual x's echoes, in its order, as an array of their own."""
     return x[2:1 + PARAMS_PER_ECHO * n_echoes:PARAMS_PER_ECHO].copy()
@@ -177,8 +195,8 @@ def echo_positions_of(x, n_echoes):
 
 @njit(**JIT)
 def individual_model(x, n_echoes, times, shape, out):
-    """The model of individual x at `times` (float64, ascending) into `out`: a generalized Gaussian over
-    every sample, a tabulated echo over its table's support (it is exactly 0 elsewhere)."""
+    """The model of individual x at `times` (float64, ascending) into `out`: a generalized Gaussian over the
+    samples where it does not underflow, a tabulated echo over its table's support (each is exactly 0 elsewhere)."""
     for i in range(times.size):
         out[i] = x[0]
     for k in range(n_echoes):
@@ -191,7 +209,11 @@ def individual_model(x, n_echoes, times, shape, out):
                            searchsorted(times, x[base + 1] - before),
                            searchsorted(times, x[base + 1] + after, right=True), out)
             continue
-        for i in range(times.size):
+        lo, hi = 0, times.size
+        reach = underflow_reach(x[base + 2] * SQRT_2LN2, x[base + 3] * x[base + 3])
+        if abs(x[base + 1]) + reach < 1e15:  # not NaN: NaN's searchsorted would skip what it adds everywhere
+            lo, hi = searchsorted(times, x[base + 1] - reach), searchsorted(times, x[base + 1] + reach, right=True)
+        for i in range(lo, hi):
             out[i] += echo_value(x[base], x[base + 1], x[base + 2], x[base + 3], times[i])
 
 
@@ -199,19 +221,33 @@ def individual_model(x, n_echoes, times, shape, out):
 def batch_model(rows, sample_offsets, echo_offsets, background, amplitude, position, sigma, alpha, shape, out):
     """The fitted model of each waveform `rows` at its sample times 0, 1, ... into out (flat like the samples):
     the background plus Chauve's generalized Gaussians (sigma, alpha), or, for a tabulated shape, the system
-    response's echoes (sigma the equal-FWHM Gaussian sigma), in each waveform's echo order."""
+    response's echoes (sigma the equal-FWHM Gaussian sigma), in each waveform's echo order. Each echo is
+    evaluated where it is not exactly 0 (echo_span): the same values as over every sample."""
     for i in rows:
         lo, hi = sample_offsets[i], sample_offsets[i + 1]
         times = np.arange(hi - lo).astype(np.float64)
         model = out[lo:hi]
         model[:] = background[i]
         for e in range(echo_offsets[i], echo_offsets[i + 1]):
+            first, stop = echo_span(shape, position[e], sigma[e], alpha[e], times.size)
             if shape.tabulated:
-                add_table_echo(shape, amplitude[e], position[e], sigma[e], times, 0, times.size, model)
+                add_table_echo(shape, amplitude[e], position[e], sigma[e], times, first, stop, model)
                 continue
             power, scale = alpha[e] * alpha[e], 2.0 * sigma[e] * sigma[e]
-            for k in range(times.size):
+            for k in range(first, stop):
                 model[k] += amplitude[e] * math.exp(-abs(times[k] - position[e]) ** power / scale)
+
+
+@njit(**JIT_INLINE)
+def echo_span(shape, position, sigma, alpha, size):
+    """The samples [lo, hi) of 0..size-1 where an echo of batch_model's (Chauve's sigma and alpha, or a tabulated
+    echo's width) may be non-zero: outside, exp underflows to 0, or the table's grid (not its support) ends."""
+    if shape.tabulated:  # grid_column's -1: before the grid's first point or at its last
+        before, after = shape.origin * shape.step, (shape.rows.shape[1] - 1 - shape.origin) * shape.step
+        return sample_span(position + 0.5 * (after - before), 0.5 * (after + before) + 1.0, size)
+    power = alpha * alpha
+    reach = (UNDERFLOW * 2.0 * sigma * sigma) ** (1.0 / power)  # |t - u|**power / (2 sigma**2) = UNDERFLOW
+    return sample_span(position, reach if reach < math.inf else math.inf, size)
 
 
 def model_of_individual(x, t) -> np.ndarray:

@@ -16,53 +16,66 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT
-from fwcore.engine.model import add_table_echo, analytic_shape, batch_model, table_peak_offset
+from fwcore._jit import JIT, JIT_INLINE
+from fwcore.engine.model import analytic_shape, batch_model, echo_span, table_peak_offset, table_value
 from fwcore.engine.records import BatchDecomposition
 
 
-@njit(**JIT)
-def _crossing(signal, k, half, step):
-    """From the peak k stepping by `step` (-1, +1): the fractional sample where the signal falls under `half`;
+@njit(**JIT_INLINE)
+def _alone(samples, model, shape, amplitude, position, sigma, alpha, first, stop, k):
+    """Sample k of the echo alone: the samples less the model plus the echo's own term, as batch_model adds it
+    (0 outside its span [first, stop), where it is exactly 0)."""
+    own = 0.0
+    if first <= k < stop:
+        if shape.tabulated:
+            own = 0.0 + table_value(shape, amplitude, position, sigma, float(k))  # add_table_echo's sum on a 0
+        else:
+            own = amplitude * math.exp(-abs(float(k) - position) ** (alpha * alpha) / (2.0 * sigma * sigma))
+    return samples[k] - (model[k] - own)
+
+
+@njit(**JIT_INLINE)
+def _crossing(samples, model, shape, amplitude, position, sigma, alpha, first, stop, k, half, step):
+    """From the peak k stepping by `step` (-1, +1): the fractional sample where the echo alone falls under `half`;
     NaN if it does not before the waveform's end."""
+    n = samples.size
     j = k
-    while 0 <= j + step < signal.size and signal[j + step] >= half:
+    inner = _alone(samples, model, shape, amplitude, position, sigma, alpha, first, stop, j)
+    while 0 <= j + step < n:
+        outer = _alone(samples, model, shape, amplitude, position, sigma, alpha, first, stop, j + step)
+        if not outer >= half:  # NaN too, as a sample under half
+            return j + step * (inner - half) / (inner - outer)
         j += step
-    if not 0 <= j + step < signal.size:
-        return math.nan
-    inner, outer = signal[j], signal[j + step]
-    return j + step * (inner - half) / (inner - outer)
+        inner = outer
+    return math.nan
 
 
 @njit(**JIT)
 def _widths(rows, sample_offsets, echo_offsets, samples, model, amplitude, position, sigma, alpha, shape, out):
     """Each echo of the waveforms `rows`: its half-maximum width (samples) on the samples less the rest of the
-    model, into out."""
+    model, into out. The echo alone is evaluated only at the samples its peak and crossings read."""
     for i in rows:
         lo, hi = sample_offsets[i], sample_offsets[i + 1]
         n = hi - lo
-        times = np.arange(n).astype(np.float64)
-        own = np.empty(n)
+        raw, fitted = samples[lo:hi], model[lo:hi]
         for e in range(echo_offsets[i], echo_offsets[i + 1]):
-            own[:] = 0.0
-            if shape.tabulated:
-                add_table_echo(shape, amplitude[e], position[e], sigma[e], times, 0, n, own)
-                peak = position[e] + table_peak_offset(shape, sigma[e])
-            else:
-                power, scale = alpha[e] * alpha[e], 2.0 * sigma[e] * sigma[e]
-                for k in range(n):
-                    own[k] = amplitude[e] * math.exp(-abs(times[k] - position[e]) ** power / scale)
-                peak = position[e]
-            signal = samples[lo:hi] - (model[lo:hi] - own)  # the echo alone, background and neighbours taken off
+            a, u, s, al = amplitude[e], position[e], sigma[e], alpha[e]
+            first, stop = echo_span(shape, u, s, al, n)
+            peak = u + table_peak_offset(shape, s) if shape.tabulated else u
             k = min(max(int(round(peak)), 0), n - 1)
-            for j in (k - 1, k + 1):  # the highest sample next to the fitted peak
-                if 0 <= j < n and signal[j] > signal[k]:
-                    k = j
-            if signal[k] <= 0.0:
+            top = _alone(raw, fitted, shape, a, u, s, al, first, stop, k)
+            centre = k
+            for j in (centre - 1, centre + 1):  # the highest sample next to the fitted peak
+                if 0 <= j < n:
+                    value = _alone(raw, fitted, shape, a, u, s, al, first, stop, j)
+                    if value > top:
+                        k, top = j, value
+            if top <= 0.0:
                 out[e] = math.nan
                 continue
-            half = 0.5 * signal[k]
-            out[e] = _crossing(signal, k, half, 1) - _crossing(signal, k, half, -1)
+            half = 0.5 * top
+            out[e] = (_crossing(raw, fitted, shape, a, u, s, al, first, stop, k, half, 1)
+                      - _crossing(raw, fitted, shape, a, u, s, al, first, stop, k, half, -1))
 
 
 def waveform_widths(samples: np.ndarray, sample_offsets: np.ndarray, result: BatchDecomposition,

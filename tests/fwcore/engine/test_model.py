@@ -5,8 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fwcore.engine.model import (echo_energy, equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width,
-                                 sigma_from_equivalent, sigma_to_time_unit, table_reach, table_value, waveform_model)
+from fwcore.engine.model import (SQRT_2LN2, analytic_shape, batch_model, echo_energy, echo_span, echo_value,
+                                 equivalent_gaussian_sigma, fwhm, generalized_gaussian, half_width, individual_model,
+                                 sigma_from_equivalent, sigma_to_time_unit, table_reach, table_value,
+                                 underflow_reach, waveform_model)
 from fwcore.instrument.shape import echo_shape
 
 
@@ -66,3 +68,63 @@ def test_a_tabulated_echo_is_zero_outside_its_reach_and_not_just_inside(leica_re
     assert not values[(t < -before) | (t > after)].any()
     inside = (t > -before + 2 * shape.step) & (t < after - 2 * shape.step)
     assert values[inside][:8].any() and values[inside][-8:].any()
+
+
+# (A, u, s, alpha): sharp and flat, narrow and wide, inside and at the record's ends (alpha 1: no sample underflows)
+ECHOES = np.array([[120.0, 40.3, 2.1, 1.0], [35.0, 300.7, 3.4, 1.3], [8.0, 310.2, 1.5, 1.9], [60.0, 700.0, 6.0, 2.6],
+                   [15.0, 1020.5, 2.5, 1.6], [0.0, 500.0, 3.0, 1.4]])
+
+
+def test_individual_model_leaves_out_only_what_underflows():
+    """Each echo evaluated within its underflow reach: the model of every sample, summed in the same order, to the
+    bit; and the reach is where the echo's term is exactly 0, far inside the record for all but alpha 1."""
+    times = np.flatnonzero(np.random.default_rng(3).random(1024) < 0.6).astype(np.float64)  # a signal window's gaps
+    x = np.concatenate([[11.5], ECHOES.ravel()])
+    got = np.empty(times.size)
+    individual_model(x, len(ECHOES), times, analytic_shape(), got)
+    expected = np.full(times.size, 11.5)
+    for a, u, s, alpha in ECHOES:
+        if a > 0.0:
+            expected += np.array([echo_value(a, u, s, alpha, t) for t in times])
+    np.testing.assert_array_equal(got, expected)
+    reach = [underflow_reach(s * SQRT_2LN2, alpha * alpha) for _, _, s, alpha in ECHOES]
+    assert reach[0] > 1024 and max(reach[2:5]) < 60
+    for (a, u, s, alpha), r in zip(ECHOES[:5], reach):
+        past = np.array([u - r - 0.01, u + r + 0.01])
+        assert not any(echo_value(a, u, s, alpha, t) for t in past)
+        assert echo_value(a, u, s, alpha, u + 0.5 * r) > 0.0 or alpha > 2.0
+
+
+def test_batch_model_is_every_sample_s_sum_to_the_bit(leica_response):
+    """batch_model evaluates each echo over its span (echo_span) alone: the sum over every sample, to the bit,
+    for Chauve's generalized Gaussians and for the tabulated response."""
+    n = 1024
+    offsets = np.array([0, n, 2 * n])
+    a, u, s, alpha = (np.ascontiguousarray(np.tile(ECHOES[:, k], 2)) for k in range(4))
+    sigma = np.sqrt((s * SQRT_2LN2) ** (alpha * alpha) / (2.0 * math.log(2.0)))  # Chauve's sigma of width s
+    echo_offsets = np.array([0, len(ECHOES), 2 * len(ECHOES)])
+    background = np.array([11.5, -2.0])
+    got = np.zeros(2 * n)
+    batch_model(np.array([0, 1]), offsets, echo_offsets, background, a, u, sigma, alpha, analytic_shape(), got)
+    expected = np.repeat(background, n)
+    t = np.arange(n, dtype=float)
+    for e in range(2 * len(ECHOES)):
+        w = e // len(ECHOES)
+        term = np.array([a[e] * math.exp(-abs(x - u[e]) ** (alpha[e] * alpha[e]) / (2.0 * sigma[e] * sigma[e]))
+                         for x in t])
+        expected[w * n:(w + 1) * n] += term
+        lo, hi = echo_span(analytic_shape(), u[e], sigma[e], alpha[e], n)
+        assert not term[:lo].any() and not term[hi:].any()
+    np.testing.assert_array_equal(got, expected)
+
+    shape = echo_shape(leica_response, 2000.0, 4.0)
+    widths = shape.s_min * np.tile([1.0, 1.37, 2.2, 3.9, 1.1, 1.5], 2)
+    got = np.zeros(2 * n)
+    batch_model(np.array([0, 1]), offsets, echo_offsets, background, a, u, widths, alpha, shape, got)
+    expected = np.repeat(background, n)
+    for e in range(2 * len(ECHOES)):
+        w = e // len(ECHOES)
+        expected[w * n:(w + 1) * n] += np.array([0.0 + table_value(shape, a[e], u[e], widths[e], x) for x in t])
+        lo, hi = echo_span(shape, u[e], widths[e], alpha[e], n)
+        assert hi - lo < 200
+    np.testing.assert_array_equal(got, expected)

@@ -10,10 +10,13 @@ from scipy.stats import spearmanr
 
 from fwcore.engine.config import DecompositionConfig
 from fwcore.engine.decompose import decompose_batch
-from fwcore.engine.model import waveform_model
-from fwcore.engine.records import WaveformBatch
+from fwcore.engine.model import table_peak_offset, table_value, waveform_model
+from fwcore.engine.records import WaveformBatch, fitted_model
 from fwcore.engine.waveform_width import waveform_widths
+from fwcore.instrument.measure import file_system_pulse
 from fwcore.instrument.pulse import nominal_pulse
+from fwcore.io import input_summary, read_pulses
+from fwcore.pulses import pulse_waveforms
 
 SPACING = 1000.0
 FWHM_PER_SIGMA = 2 * math.sqrt(2 * math.log(2))
@@ -83,3 +86,75 @@ def test_widths_rank_with_the_true_widths_at_a_digitizer_s_noise():
     assert one.mean() > 0.95
     first = result.echo_offsets[:-1][one]
     assert spearmanr(sigma[one], widths[first]).statistic > 0.95
+
+
+def _widths_every_sample(samples, offsets, result, model, shape=None, pulses=None):
+    """The widths as measured before the kernel read only the samples it walks: each echo alone over every sample,
+    its peak and crossings found on that array (the slow reference); `shape` a tabulated response's, for the
+    first `pulses` waveforms."""
+    out = np.full(result.amplitude.size, np.nan)
+    for i in np.flatnonzero(result.status[:pulses] == 0):
+        lo, hi = offsets[i], offsets[i + 1]
+        n = hi - lo
+        for e in range(result.echo_offsets[i], result.echo_offsets[i + 1]):
+            a, u, s, alpha = result.amplitude[e], result.position[e], result.sigma[e], result.alpha[e]
+            if shape is None:
+                own = np.array([a * math.exp(-abs(float(k) - u) ** (alpha * alpha) / (2.0 * s * s))
+                                for k in range(n)])
+                peak = u
+            else:
+                own = np.array([0.0 + table_value(shape, a, u, s, float(k)) for k in range(n)])
+                peak = u + table_peak_offset(shape, s)
+            signal = samples[lo:hi] - (model[lo:hi] - own)
+            k = min(max(int(round(peak)), 0), n - 1)
+            for j in (k - 1, k + 1):
+                if 0 <= j < n and signal[j] > signal[k]:
+                    k = j
+            if signal[k] <= 0.0:
+                continue
+            half = 0.5 * signal[k]
+            ends = []
+            for step in (1, -1):
+                j = k
+                while 0 <= j + step < n and signal[j + step] >= half:
+                    j += step
+                ends.append(math.nan if not 0 <= j + step < n else
+                            j + step * (signal[j] - half) / (signal[j] - signal[j + step]))
+            out[e] = ends[0] - ends[1]
+    return out
+
+
+def test_widths_read_only_the_samples_they_walk_to_the_bit():
+    """Long records of 4-7 overlapping echoes (generalized Gaussians of alpha 1-2, the noise of a digitizer): the
+    kernel evaluates each echo alone where its peak and crossings read it, and gives the widths of the echo alone
+    over every sample, to the bit."""
+    rng = np.random.default_rng(9)
+    t = np.arange(1024, dtype=float)
+    waveforms = []
+    for _ in range(6):
+        k = rng.integers(4, 8)
+        waveforms.append(waveform_model(t, 40.0, rng.uniform(15, 200, k), np.sort(rng.uniform(300, 700, k)),
+                                        rng.uniform(2.5, 5.0, k), rng.uniform(1.0, 2.0, k))
+                         + rng.normal(0, 2.0, t.size))
+    batch = WaveformBatch.from_waveforms(waveforms, SPACING, list(range(len(waveforms))))
+    result = decompose_batch(batch, DecompositionConfig(), PULSE, threads=1)
+    model = fitted_model(result, batch.offsets)
+    widths = waveform_widths(batch.samples, batch.offsets, result, model)
+    assert result.amplitude.size > 20 and np.isfinite(widths).sum() > 20
+    np.testing.assert_array_equal(widths, _widths_every_sample(batch.samples, batch.offsets, result, model))
+
+
+def test_a_tabulated_echo_s_widths_read_only_the_samples_they_walk_to_the_bit(leica_dir):
+    """The system response's echoes on the Leica file: the widths of each echo alone over every sample, to the bit."""
+    path = str(leica_dir / "leica_a.las")
+    config = DecompositionConfig(model="system", generations=5)
+    pulses = read_pulses(path)
+    result = decompose_batch(pulse_waveforms(pulses, 0), config, file_system_pulse(path, input_summary(path).records,
+                                                                                   config), threads=1)
+    (shape,) = result.shapes.values()
+    model = fitted_model(result, pulses.sample_offsets)
+    widths = waveform_widths(pulses.samples, pulses.sample_offsets, result, model)
+    first = int(result.echo_offsets[150])
+    expected = _widths_every_sample(pulses.samples, pulses.sample_offsets, result, model, shape, 150)
+    assert np.isfinite(widths[:first]).sum() > 100
+    np.testing.assert_array_equal(widths[:first], expected[:first])
