@@ -1,6 +1,7 @@
 """Where a run's jobs run: a small run under the default runner in the driver's process, real work on workers."""
 
 import os
+import socket
 from pathlib import Path
 
 from pipeline.options import check_beam_args, runner_given
@@ -59,3 +60,28 @@ def test_a_run_of_few_points_runs_its_ranges_workers_as_threads_only_under_the_d
     default.run(3, write_each, threads=True)
     pids = {(tmp_path / n).read_text() for n in "xyz"}
     assert pids == {str(os.getpid())}  # no worker process: this one's threads
+
+
+def test_a_run_on_threads_writes_what_worker_processes_write(tmp_path, monkeypatch):
+    """The default runner's threads (the Leica sample in ranges of 300 points, counted as no small run) against
+    2 worker processes given on the command line: the same tables, and no worker process's log."""
+    import pyarrow.parquet as pq
+
+    from fwcore.engine.config import DecompositionConfig
+    from pipeline.run import run
+
+    las = [str(Path(__file__).resolve().parents[2] / "examples" / "data" / "leica_als" / "leica_a.las")]
+    given = ["--direct_num_workers=2", "--direct_running_mode=multi_processing"]
+    processes = run(las, tmp_path / "processes", DecompositionConfig(), ("parquet",), None, 300, watch=False,
+                    beam_args=given)
+    monkeypatch.setattr("pipeline.run.IN_PROCESS_PULSES", 0)
+    threads = run(las, tmp_path / "threads", DecompositionConfig(), ("parquet",), None, 300, watch=False)
+    assert threads["counts"] == processes["counts"] and threads["counts"]["pulses_read"] == 924
+    for table, order in (("pulses", ["pulse_id"]), ("echoes", ["pulse_id", "echo_index"])):
+        keys = [(k, "ascending") for k in order]
+        assert pq.read_table(tmp_path / "threads" / table).sort_by(keys).equals(
+            pq.read_table(tmp_path / "processes" / table).sort_by(keys))
+    logs = {p.name for p in (tmp_path / "threads" / "logs").glob("worker-*.log")}
+    assert logs == {f"worker-{socket.gethostname()}-{os.getpid()}.log"}  # this process's only
+    driver = (tmp_path / "threads" / "logs" / "driver.log").read_text()
+    assert driver.count("apache_beam.runners.worker.sdk_worker Control channel established") == 2  # 2 harnesses here
