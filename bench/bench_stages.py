@@ -4,7 +4,8 @@
 
 A RIEGL-like flight line (`fwl simulate --system-response riegl --format las14-internal`, 95,000 pulses, made
 once in the work folder unless --riegl gives a file) and the Leica sample, each through `fwl run` as a user
-runs it (DirectRunner, 2 workers) with every default output, `--preset fast`, and one output at a time. Each
+runs it (DirectRunner, 2 workers: threads of the command's process for inputs this size, pipeline.run.Jobs.threaded)
+with every default output, `--preset fast`, and one output at a time. Each
 run's split comes from the timing lines its workers wrote into logs/ (pipeline.timing): the plan, the runner's
 start-up (the ranges handed to the ranges' job, or that job starting, to its first range), each range's read, decompose, geolocate, radiometry,
 metrics, tables, sinks, and the files' assembly, with how long assembly ran after the last range ended; the

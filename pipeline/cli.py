@@ -787,5 +787,14 @@ def main(argv: list[str] | None = None) -> int:
         return 5  # pipeline.summary.EXIT_MACHINE (pipeline.summary imports Beam)
 
 
+def entry() -> None:
+    """The `fwl` command: main, then the process leaves without the interpreter's teardown (numba's, Beam's and
+    gRPC's modules and threads), its logs and output flushed (pipeline.worker_exit.leave_now)."""
+    code = main()
+    from pipeline.worker_exit import leave_now
+
+    leave_now(code if isinstance(code, int) else 0)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -93,19 +93,22 @@ def check_run_arguments(formats, limit: int | None, points_per_range: int) -> fr
     return formats
 
 
-def _runner_name(options, in_process: bool = False) -> str:
+def _runner_name(options, in_process: bool = False, threads: bool = False) -> str:
     runner = options.view_as(StandardOptions).runner
     name = runner.rsplit(".", 1)[-1] if isinstance(runner, str) else type(runner).__name__
     if name == "DirectRunner" and in_process:
         return "DirectRunner, in this process"
     if name == "DirectRunner":
         workers = options.view_as(DirectOptions).direct_num_workers
-        return f"DirectRunner, {workers} workers"
+        threaded = threads or options.view_as(DirectOptions).direct_running_mode == "multi_threading"
+        return f"DirectRunner, {workers} worker threads" if threaded else f"DirectRunner, {workers} workers"
     return name
 
 
 IN_PROCESS_PULSES = 4000  # a run of this many pulses or fewer decomposes and assembles in the driver's process
 IN_PROCESS_BYTES = 16 << 20  # inputs of this many bytes or fewer (their point records) are planned there
+# inputs of this many point records or fewer run the ranges' workers as threads of the driver's process (threaded)
+THREADED_POINTS = 300_000
 
 
 class Jobs:
@@ -133,19 +136,29 @@ class Jobs:
         self.direct_processes = (isinstance(runner, str) and runner.rsplit(".", 1)[-1] == "DirectRunner"
                                  and options.view_as(DirectOptions).direct_running_mode == "multi_processing")
 
+    def threaded(self, paths: list[str]) -> bool:
+        """Whether the ranges' job runs its workers as threads of this process: under the default runner, when the
+        inputs hold at most THREADED_POINTS point records. Two worker processes each start Beam, our modules and
+        numba's kernels anew (3-4 s of the two cores on the RIEGL-like line's 170,130 points) before their first
+        range; threads begin at once and lose less than that to the GIL (docs/benchmarks.md, issue 60's fifth
+        pass)."""
+        return (self.small_in_process and self.direct_processes
+                and sum(_records(p) for p in paths) <= THREADED_POINTS)
+
     def in_process(self, n: int, small: bool = False) -> bool:
         """Whether a job of n elements runs in this process: one element, or a small job (`small`) when the
         runner is the default."""
         return self.direct_processes and (n == 1 or (small and self.small_in_process))
 
-    def run(self, n: int, build, small: bool = False, per_partition: int = 1):
+    def run(self, n: int, build, small: bool = False, per_partition: int = 1, threads: bool = False):
         """One job: `build(pipeline)` adds its transforms; waits for its end. On Dask, unless the command line
-        partitions, each bag partition holds `per_partition` consecutive elements."""
+        partitions, each bag partition holds `per_partition` consecutive elements. With `threads` (threaded), the
+        DirectRunner's workers are threads of this process."""
         if self.dask and self.partition_each:
             from apache_beam.runners.dask.dask_runner import DaskOptions
             self.options.view_as(DaskOptions).npartitions = max(1, -(-n // max(1, per_partition)))
         if not self.in_process(n, small):
-            return _run_job(self.options, build)
+            return _run_job(_in_threads(self.options) if threads else self.options, build)
         try:
             return _run_job(_in_process(self.options), build)
         except Exception as err:  # Beam wraps the KeyboardInterrupt raised in its bundle: an interruption still
@@ -173,6 +186,24 @@ def _in_process(options):
     single.view_as(DirectOptions).direct_num_workers = 1
     single.view_as(SetupOptions).save_main_session = False
     return single
+
+
+def _in_threads(options):
+    """The DirectRunner's options for a job whose workers (as many as asked) are threads of this process."""
+    threaded = PipelineOptions.from_dictionary(options.get_all_options(drop_default=True))
+    threaded.view_as(DirectOptions).direct_running_mode = "multi_threading"
+    threaded.view_as(SetupOptions).save_main_session = False
+    return threaded
+
+
+def _records(path: str) -> int:
+    """An input's point records, from its header; 0 where it cannot be read (its plan rejects it)."""
+    from fwcore.io import input_summary
+
+    try:
+        return int(input_summary(path).records)
+    except Exception:  # noqa: BLE001  any unreadable input: its plan says why
+        return 0
 
 
 def _run_job(options, build) -> object:
@@ -261,9 +292,10 @@ class EarlyRanges:
         self.thread.start()
 
     @staticmethod
-    def wanted(jobs: "Jobs", paths: list[str], radiometry: RadiometryConfig) -> bool:
-        """Whether to start the ranges' job early: DirectRunner processes, inputs too big to plan in this process."""
-        return (jobs.direct_processes and not jobs.dask and radiometry.calibration_reference is None
+    def wanted(jobs: "Jobs", paths: list[str], radiometry: RadiometryConfig, threads: bool = False) -> bool:
+        """Whether to start the ranges' job early: DirectRunner processes (not `threads`: Jobs.threaded), inputs
+        too big to plan in this process."""
+        return (jobs.direct_processes and not jobs.dask and not threads and radiometry.calibration_reference is None
                 and sum(_size(p) for p in paths) > IN_PROCESS_BYTES)
 
     def _run(self, options, build) -> None:
@@ -294,11 +326,12 @@ class EarlyRanges:
 
 
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
-               limit: int | None, jobs: Jobs) -> dict[str, FilePlan]:
-    """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker."""
+               limit: int | None, jobs: Jobs, threads: bool = False) -> dict[str, FilePlan]:
+    """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker (in
+    this process where the ranges' workers are its `threads`)."""
     todo = [i for i in inputs if not plan_path(output, i.stem).is_file()]
     if todo:
-        small = sum(_size(i.path) for i in todo) <= IN_PROCESS_BYTES
+        small = threads or sum(_size(i.path) for i in todo) <= IN_PROCESS_BYTES
         if jobs.in_process(len(todo), small):
             log_to_file(output)  # as PlanFile's setup: its lines in this process's worker log
         jobs.each(todo, lambda item: plan_into_parts(item, str(output), config, points_per_range, limit),
@@ -418,12 +451,13 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
     try:
         with _quiet_after_interrupt(), watched_logs(output, verbose) as (say, terminal):
             clear_faults(output)  # an earlier attempt's notes: a fault that stays is noted again
-            if EarlyRanges.wanted(jobs, paths, radiometry):  # its workers start while the inputs are planned
+            threads = jobs.threaded(paths)  # the ranges' workers threads of this process: all jobs run here
+            if EarlyRanges.wanted(jobs, paths, radiometry, threads):  # its workers start while the inputs are planned
                 early = EarlyRanges(options, output, config, formats, radiometry, forest)
             laps = Laps()
             with laps("plan job"):
                 to_plan = inputs_to_plan(paths, names, crs_wkt, overrides, forest.l2a_algorithms)
-                plans = plan_files(output, to_plan, config, points_per_range, limit, jobs)
+                plans = plan_files(output, to_plan, config, points_per_range, limit, jobs, threads)
             stop_on_noted_faults(output)  # before a lost plan would read as a rejected input
             _warn_unmeasured(plans)
             ranges_from, no_range = _ranges_from(plans, radiometry)
@@ -442,7 +476,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 method = f"{config.optimizer.value}/{_models(config, plans)}"
                 say.write(f"fwl run: {len(paths)} file(s){said}, {total:,} pulses in {len(todo)} ranges{kept} -> "
                           f"{output} ({', '.join(sorted(formats))}); {method}; "
-                          f"{_runner_name(options, jobs.in_process(len(todo), small))}; logs in {output / LOGS}\n")
+                          f"{_runner_name(options, jobs.in_process(len(todo), small), threads)}; "
+                          f"logs in {output / LOGS}\n")
                 for why in no_range:  # once per input, and in run.json
                     say.write(f"fwl run: no radiometry: {why}\n")
                 crs_said = crs_line(plans)
@@ -457,7 +492,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                         result = early.finish(todo) if early else jobs.run(len(todo), lambda p: (
                             p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
                                 config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
-                                forest=forest)), small)
+                                forest=forest)), small, threads=threads)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
@@ -466,7 +501,7 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                 with laps("files job"):
                     jobs.each(files, lambda item: assemble_file_or_fault(item, str(output), laz, formats),
                               lambda p: p | "Files" >> beam.Create(files) | AssembleFiles(str(output), laz, formats),
-                              small)
+                              small or threads)
             log_timing("jobs", str(output), laps)
             stop_on_noted_faults(output)  # the parts stay for a resumed run to assemble
             # without Parquet tables run.json counts what the ranges' marks say, read before the parts go

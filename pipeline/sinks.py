@@ -10,6 +10,7 @@ renamed, so a reader never sees half a file and a retry overwrites.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from datetime import datetime, timezone
@@ -309,13 +310,57 @@ def assemble_mcap(parts: list[Path], path: Path, adjusted_standard: bool) -> Pat
     tmp = temporary_path(path)
     with open(tmp, "wb") as f:
         out = _McapFile(f, adjusted_standard, crs)
-        for part in parts:
-            with open(part, "rb") as p:
-                for _, channel, message in make_reader(p).iter_messages(log_time_order=False):
-                    out.add(channel.topic, message.log_time, message.data)
+        for topic, log_time, data in _read_ahead(_part_messages(parts)):
+            out.add(topic, log_time, data)
         out.writer.finish()
     tmp.replace(path)
     return path
+
+
+def _part_messages(parts: list[Path]):
+    """(topic, log time, data) of every message of the parts, in the order given, each part in its own order."""
+    from mcap.reader import make_reader
+
+    for part in parts:
+        with open(part, "rb") as p:
+            for _, channel, message in make_reader(p).iter_messages(log_time_order=False):
+                yield channel.topic, message.log_time, message.data
+
+
+def _read_ahead(items, depth: int = 32):
+    """The items of `items` in order, made by a thread of their own up to `depth` ahead: the parts' reading
+    (Python) runs while the writer compresses a chunk (zstd, without the GIL). An error there is raised here.
+    A range's messages are batches of pulses (28 a range of the RIEGL line, 170 KB on average): 32 are ~5 MiB."""
+    import queue
+    import threading
+
+    made: queue.Queue = queue.Queue(depth)
+    end, failed, stop = object(), [], threading.Event()
+
+    def produce():
+        try:
+            for item in items:
+                if stop.is_set():  # the reader below stopped (its writer failed)
+                    return
+                made.put(item)
+        except BaseException as err:  # noqa: BLE001  handed to the reader below
+            failed.append(err)
+        finally:
+            made.put(end)
+
+    thread = threading.Thread(target=produce, name="mcap-parts", daemon=True)
+    thread.start()
+    try:
+        while (item := made.get()) is not end:
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # room for its last put
+            with contextlib.suppress(queue.Empty):
+                made.get(timeout=0.05)
+        thread.join()
+    if failed:
+        raise failed[0]
 
 
 def remove_parts(paths: list[Path]) -> None:

@@ -6,6 +6,9 @@ modules, gRPC's threads): on the RIEGL-like line the ranges' job ended 4-8 s aft
 workers' exits one after the other. `leave_quickly_at_exit()` (called in a DoFn's setup) makes the worker's
 exit, once its harness returned, an os._exit with the code it would have had, after its logs are flushed.
 Nothing changes in any other process: the driver, Dask's workers, a job run in the driver's process.
+
+The `fwl` command itself (pipeline.cli.entry) leaves the same way once its work is done and said: `leave_now`,
+with the command's exit code. After `fwl run` on the RIEGL-like line its interpreter's teardown took 1.2 s.
 """
 
 from __future__ import annotations
@@ -25,12 +28,23 @@ def is_subprocess_worker() -> bool:
     return bool(os.environ.get(HARNESS_VARIABLE)) and sys.argv[0].endswith("sdk_worker_main.py")
 
 
-def _leave() -> None:
+def _flush() -> None:
     for handler in logging.getLogger().handlers + logging.getLogger("fwl").handlers:
         handler.flush()
     sys.stdout.flush()
     sys.stderr.flush()
+
+
+def _leave() -> None:
+    _flush()
     os._exit(1 if _failed else 0)
+
+
+def leave_now(code: int) -> None:
+    """This process ends at once with `code`, its logs and output flushed, without the interpreter's teardown:
+    for a command whose work is done (every file it wrote is closed)."""
+    _flush()
+    os._exit(code)
 
 
 def leave_quickly_at_exit(force: bool = False) -> bool:

@@ -206,3 +206,23 @@ def test_a_file_whose_parts_hold_no_point_is_assembled_with_no_min_or_max(tmp_pa
     structs = {s.format_name(): s for s in las.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs}
     assert structs["radiometry"].min is None and structs["radiometry"].max is None
     assert np.isnan(structs["amplitude"].min).all() and np.isnan(structs["amplitude"].max).all()
+
+
+def test_the_parts_are_read_ahead_in_order_and_a_reading_error_reaches_the_writer():
+    import threading
+
+    from pipeline.sinks import _read_ahead
+
+    assert list(_read_ahead(iter(range(10_000)), depth=8)) == list(range(10_000))
+
+    def broken():
+        yield 1
+        raise OSError("a part cannot be read")
+
+    with pytest.raises(OSError, match="cannot be read"):
+        list(_read_ahead(broken()))
+    before = threading.active_count()
+    ahead = _read_ahead(iter(range(10_000)), depth=2)
+    assert next(ahead) == 0
+    ahead.close()  # the writer failed: the reading thread ends too
+    assert threading.active_count() == before

@@ -43,3 +43,15 @@ def test_a_worker_leaves_at_once_with_its_logs_flushed_and_its_exit_code(tmp_pat
 def test_any_other_process_keeps_its_exit(tmp_path):
     code, log, teardown = _exit_of("sys.exit(3)", tmp_path, worker=False)
     assert code == 3 and "registered False" in log and teardown
+
+
+def test_a_command_leaves_now_with_its_code_and_its_output_flushed(tmp_path):
+    code, log, teardown = _exit_of("""
+        from pipeline.worker_exit import leave_now
+        logging.getLogger('fwl').info('done')
+        sys.stdout = open(sys.argv[0] + ".out", "w")  # a file: buffered until flushed
+        print('said', end='')
+        leave_now(3)
+    """, tmp_path, worker=False)
+    assert code == 3 and "done" in log and not teardown
+    assert (tmp_path / "sdk_worker_main.py.out").read_text() == "said"
