@@ -46,7 +46,7 @@ DESCRIPTOR_IDS = range(200001, 200256)
 TABLE_IDS = range(300001, 300256)
 AVLR_TERMINATOR = 0xFFFFFFFF
 VARIES = 0x8FFFFFFF  # optical centre to anchor: "no constant offset"
-_HEADER = struct.Struct("<16sII I HH 8s 64s 64s HH BB H qq IIII q Ii dd qq 3d 3d 6d")
+PULSE_HEADER = struct.Struct("<16sII I HH 8s 64s 64s HH BB H qq IIII q Ii dd qq 3d 3d 6d")
 PULSE_RECORD = np.dtype([("T", "<i8"), ("offset", "<i8"), ("anchor", "<i4", 3), ("target", "<i4", 3),
                          ("first_returning", "<i2"), ("last_returning", "<i2"), ("descriptor", "u1"),
                          ("flags", "u1"), ("intensity", "u1"), ("classification", "u1")])
@@ -202,9 +202,9 @@ def _text(raw: bytes) -> str:
 # ---------------------------------------------------------------- header and records
 
 def _parse_header(path: Path, data: bytes) -> PulseHeader:
-    if len(data) < _HEADER.size:
-        raise WaveformFileError(f"{path}: {len(data)} bytes, shorter than a PulseWaves header ({_HEADER.size})")
-    f = _HEADER.unpack_from(data)
+    if len(data) < PULSE_HEADER.size:
+        raise WaveformFileError(f"{path}: {len(data)} bytes, shorter than a PulseWaves header ({PULSE_HEADER.size})")
+    f = PULSE_HEADER.unpack_from(data)
     if f[0] != PULSE_SIGNATURE:
         raise WaveformFileError(f"{path}: not a PulseWaves pulse file (signature {f[0][:15]!r})")
     (_, _, _, _, _, _, _, system, software, _, _, major, minor, header_size, offset_to_pulses, n_pulses,
@@ -389,12 +389,12 @@ def open_pulsewaves(path: str | Path) -> PulseWavesFile:
 def _head_and_tail(path: Path) -> bytes:
     """Large files: the header and VLRs only (AVLRs of large files are read from the tail separately)."""
     with open(path, "rb") as f:
-        head = f.read(_HEADER.size)
-        if len(head) < _HEADER.size:
+        head = f.read(PULSE_HEADER.size)
+        if len(head) < PULSE_HEADER.size:
             return head
         offset_to_pulses = struct.unpack_from("<q", head, 176)[0]
         f.seek(0)
-        return f.read(max(offset_to_pulses, _HEADER.size))
+        return f.read(max(offset_to_pulses, PULSE_HEADER.size))
 
 
 # ---------------------------------------------------------------- waves

@@ -16,14 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from fwcore.io.pulsewaves import PULSE_HEADER, PULSE_RECORD, VARIES, WAVES_HEADER_BYTES
 from fwcore.io.records import PulseBatch
+from fwcore.io.signatures import PULSE_SIGNATURE, WAVES_SIGNATURE
 
-_HEADER = struct.Struct("<16sII I HH 8s 64s 64s HH BB H qq IIII q Ii dd qq 3d 3d 6d")  # 352 bytes
 _COMPOSITION = struct.Struct("<IIiHHfII64s")  # 92 bytes
 _SAMPLING = struct.Struct("<IIBBBBffBBHIHHfI64s")  # 104 bytes
-_RECORD = struct.Struct("<qq3i3ihhBBBB")  # pulse format 0, 48 bytes
-WAVES_HEAD = b"PulseWavesWaves\0" + struct.pack("<I", 0) + bytes(40)  # 60 bytes: uncompressed
-VARIES = 0x8FFFFFFF - (1 << 32)  # optical centre to anchor: not constant (0x8FFFFFFF as a signed field)
 T_SCALE = 1e-6  # GPS time in microseconds
 MAX_DESCRIPTORS = 255
 
@@ -36,7 +34,8 @@ def vlr(user: str, record_id: int, payload: bytes, description: str = "") -> byt
 def returning_descriptor(spacing_ps: float, bits: int) -> bytes:
     """A composition of one returning sampling: units of 1 ns, each sample `spacing_ps` apart, one segment a pulse
     of up to 65,535 samples, no duration bits (every segment starts at the anchor)."""
-    out = _COMPOSITION.pack(_COMPOSITION.size, 0, VARIES, 0, 1, 1.0, 0, 0, b"fwcore.io.pulsewaves_writer")
+    varies = VARIES - (1 << 32)  # the optical centre's offset "varies", in the signed field
+    out = _COMPOSITION.pack(_COMPOSITION.size, 0, varies, 0, 1, 1.0, 0, 0, b"fwcore.io.pulsewaves_writer")
     return out + _SAMPLING.pack(_SAMPLING.size, 0, 2, 0, 0, 0, 1.0, 0.0, 0, 16, 1, 0, bits, 0, spacing_ps / 1000.0, 0,
                                 b"returning waveform")
 
@@ -83,7 +82,7 @@ def write_pulsewaves(path: str | Path, pulses: PulseBatch, bits: int = 16, round
     codes = np.stack(codes, axis=1)
 
     dtype = np.uint8 if bits == 8 else np.dtype("<u2")
-    waves = bytearray(WAVES_HEAD)
+    waves = bytearray(WAVES_SIGNATURE.ljust(WAVES_HEADER_BYTES, b"\0"))  # compression 0: uncompressed
     wave_offsets = np.empty(n, np.int64)
     for i in range(n):  # one segment: its sample count, then the samples
         wave_offsets[i] = len(waves)
@@ -93,13 +92,17 @@ def write_pulsewaves(path: str | Path, pulses: PulseBatch, bits: int = 16, round
 
     vlrs = b"".join(vlr("PulseWaves_Spec", 200001 + d, returning_descriptor(s, bits), f"{s:g} ps a sample")
                     for d, s in enumerate(spacings))
-    t = np.round(pulses.gps_time / T_SCALE).astype(np.int64)
-    records = b"".join(_RECORD.pack(t[i], wave_offsets[i], *codes[i], *codes[n + i], 0, min(int(lengths[i]) - 1, 32767),
-                                    int(descriptor[i]) + 1, 0, 0, 0) for i in range(n))
+    records = np.zeros(n, PULSE_RECORD)
+    records["T"] = np.round(pulses.gps_time / T_SCALE)
+    records["offset"] = wave_offsets
+    records["anchor"], records["target"] = codes[:n], codes[n:]
+    records["last_returning"] = np.minimum(lengths - 1, 32767)
+    records["descriptor"] = descriptor + 1
     lo, hi = np.nanmin(both, axis=0), np.nanmax(both, axis=0)
-    header = _HEADER.pack(b"PulseWavesPulse\0", 0, 0, 0, 0, 0, bytes(8), system.encode()[:63],
-                          b"fwcore.io.pulsewaves_writer", 1, 2026, 0, 3, _HEADER.size, _HEADER.size + len(vlrs), n,
-                          0, 0, _RECORD.size, 0, 0, spacings.size, 0, T_SCALE, 0.0, int(t.min()), int(t.max()),
-                          *scales, *offsets, lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
-    path.write_bytes(header + vlrs + records)
+    header = PULSE_HEADER.pack(PULSE_SIGNATURE, 0, 0, 0, 0, 0, bytes(8), system.encode()[:63],
+                               b"fwcore.io.pulsewaves_writer", 1, 2026, 0, 3, PULSE_HEADER.size,
+                               PULSE_HEADER.size + len(vlrs), n, 0, 0, PULSE_RECORD.itemsize, 0, 0, spacings.size, 0,
+                               T_SCALE, 0.0, int(records["T"].min()), int(records["T"].max()),
+                               *scales, *offsets, lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
+    path.write_bytes(header + vlrs + records.tobytes())
     return path

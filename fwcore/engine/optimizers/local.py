@@ -168,7 +168,7 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
 def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac, windows, reach):
     """Long records' LM point (a generalized Gaussian with a tail floor, fwcore.engine.model.EchoShape): the model,
     windows and early-stopped sum of trial_model_and_jacobian, with the Jacobian's rows scaled by `weights` (W^1/2 J:
-    _weighted_normal_equations then needs no weight in its products) and one division an echo sample, not four.
+    _normal_equations then needs no weight in its products) and one division an echo sample, not four.
     Not model_and_jacobian's bits: short records (Leica, RIEGL, NEON) never come here. `reach` is (n_echoes x 6)."""
     m = times.size
     for k in range(n_echoes):
@@ -270,30 +270,6 @@ def _solve_damped(jtj, grad, lam, free, step, a):
             acc -= a[q, r] * step[q]
         step[r] = acc / a[r, r]
     return True
-
-
-@njit(**JIT)
-def _normal_equations(jac, residual, weights, windows, jtj, grad):
-    """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. Each sum runs only
-    over the samples where both columns can be non-zero (their echoes' windows): the terms left
-    out are exact zeros, so the result is the full sum's, bit for bit. An echo's own block (its columns
-    with each other and with the background's) is summed in one pass over its window, every sum in
-    its own accumulator and in the same order as alone: the same bits, without a pass per pair."""
-    m, d = jac.shape
-    n_echoes = (d - 1) // PARAMS_PER_ECHO
-    g = 0.0
-    acc = 0.0
-    for i in range(m):  # the background's column is 1 everywhere: its products are exact without it
-        g += weights[i] * residual[i]
-        acc += weights[i] * weights[i]
-    grad[0] = g
-    jtj[0, 0] = acc
-    for k in range(n_echoes):
-        _echo_block(jac, residual, weights, windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k, jtj, grad)
-    for k in range(n_echoes):  # two echoes' columns meet where their windows overlap
-        for q in range(k + 1, n_echoes):
-            _pair_block(jac, weights, max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1]),
-                        1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
 
 
 assert PARAMS_PER_ECHO == 4, "_echo_block and _pair_block keep one accumulator per pair of an echo's 4 columns"
@@ -405,24 +381,35 @@ def _pair_block(jac, weights, lo, hi, r, c, jtj):
 
 
 @njit(**JIT)
-def _weighted_normal_equations(jw, residual, weights, windows, jtj, grad):
-    """_normal_equations from W^1/2 J (weighted_trial's rows): J^T W J = jw^T jw and J^T W r = jw^T residual, each
-    sum over the samples where both columns can be non-zero; the background's column is the weights."""
-    m, d = jw.shape
+def _normal_equations(jac, residual, weights, windows, jtj, grad, weighted=False):
+    """J^T W J and J^T W r, W = diag(weights**2); `residual` is already weighted. `jac` is J (model_and_jacobian's
+    rows), or W^1/2 J where `weighted` (weighted_trial's: J^T W J = jac^T jac, its products need no weight).
+    Each sum runs only over the samples where both columns can be non-zero (their echoes' windows): the terms
+    left out are exact zeros, so the result is the full sum's, bit for bit. An echo's own block (its columns
+    with each other and with the background's) is summed in one pass over its window, every sum in
+    its own accumulator and in the same order as alone: the same bits, without a pass per pair."""
+    m, d = jac.shape
     n_echoes = (d - 1) // PARAMS_PER_ECHO
     g = 0.0
     acc = 0.0
-    for i in range(m):
+    for i in range(m):  # the background's column is 1 everywhere (W^1/2 J's: the weights): exact without it
         g += weights[i] * residual[i]
         acc += weights[i] * weights[i]
     grad[0] = g
     jtj[0, 0] = acc
     for k in range(n_echoes):
-        _weighted_echo_block(jw, residual, weights, windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k, jtj, grad)
-    for k in range(n_echoes):
+        lo, hi, col = windows[k, 0], windows[k, 1], 1 + PARAMS_PER_ECHO * k
+        if weighted:
+            _weighted_echo_block(jac, residual, weights, lo, hi, col, jtj, grad)
+        else:
+            _echo_block(jac, residual, weights, lo, hi, col, jtj, grad)
+    for k in range(n_echoes):  # two echoes' columns meet where their windows overlap
         for q in range(k + 1, n_echoes):
-            _weighted_pair_block(jw, max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1]),
-                                 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
+            lo, hi = max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1])
+            if weighted:
+                _weighted_pair_block(jac, lo, hi, 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
+            else:
+                _pair_block(jac, weights, lo, hi, 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
 
 
 @njit(**JIT_INLINE)
@@ -509,15 +496,6 @@ def _damping_after_gain(lam, gain, grad, jtj, x, trial):
     return max(lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-9)
 
 
-@njit(**JIT_INLINE)
-def _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad):
-    """LM's normal equations from its Jacobian: weighted_trial's rows or model_and_jacobian's."""
-    if weighted:
-        _weighted_normal_equations(jac, residual, weights, windows, jtj, grad)
-    else:
-        _normal_equations(jac, residual, weights, windows, jtj, grad)
-
-
 _UNDAMPED = 1e-3  # LM's first damping, and the most at which its step is taken as the Gauss-Newton one
 
 
@@ -572,7 +550,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     lam = _UNDAMPED
     growth = 2.0
     done = False
-    _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad)
+    _normal_equations(jac, residual, weights, windows, jtj, grad, weighted)
     active = free.copy()
     for _ in range(max_iterations):
         # a parameter held at a bound with the descent pushing outwards stays there for the step
@@ -613,7 +591,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
             if gain <= tolerance * ssr or gain <= chi2_tolerance:
                 done = True
                 break
-            _lm_normal_equations(weighted, jac, residual, weights, windows, jtj, grad)
+            _normal_equations(jac, residual, weights, windows, jtj, grad, weighted)
         else:
             lam *= growth
             growth *= 2.0

@@ -212,14 +212,18 @@ def test_a_tail_floor_cuts_an_echo_where_it_falls_below_the_floor_and_no_sooner(
     assert list(windows_exact[0]) == [0, 400] and np.diff(windows_cut[0])[0] < 200  # 1e-4 of it, 92 samples away
 
 
+def _three_echoes(rng):
+    """Three overlapping echoes of different shapes over 300 samples, with noise and per-sample weights:
+    (times, individual, samples, weights)."""
+    t = np.arange(300.0)
+    x = np.array([4.0, 60.0, 90.0, 5.0, 1.3, 25.0, 104.0, 7.0, 1.0, 40.0, 200.0, 3.0, 1.9])
+    return t, x, model_of_individual(x, t) + rng.normal(0.0, 1.5, t.size), rng.uniform(0.5, 1.0, t.size)
+
+
 def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_passes_the_bound():
     from fwcore.engine.optimizers.local import trial_model_and_jacobian
 
-    rng = np.random.default_rng(3)
-    t = np.arange(300.0)
-    x = np.array([4.0, 60.0, 90.0, 5.0, 1.3, 25.0, 104.0, 7.0, 1.0, 40.0, 200.0, 3.0, 1.9])
-    y = model_of_individual(x, t) + rng.normal(0.0, 1.5, t.size)
-    w = rng.uniform(0.5, 1.0, t.size)
+    t, x, y, w = _three_echoes(np.random.default_rng(3))
     for shape in (analytic_shape(), analytic_shape()._replace(tail_floor=0.01)):
         model, jac, windows = np.empty(t.size), np.empty((t.size, x.size)), np.empty((3, 2), dtype=np.int64)
         model_and_jacobian(x, 3, t, shape, model, jac, windows)
@@ -245,13 +249,9 @@ def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_p
 
 
 def test_a_long_records_weighted_point_is_the_weighted_jacobian_and_its_normal_equations_are_jt_w_j():
-    from fwcore.engine.optimizers.local import _normal_equations, _weighted_normal_equations, weighted_trial
+    from fwcore.engine.optimizers.local import _normal_equations, weighted_trial
 
-    rng = np.random.default_rng(4)
-    t = np.arange(300.0)
-    x = np.array([4.0, 60.0, 90.0, 5.0, 1.3, 25.0, 104.0, 7.0, 1.0, 40.0, 200.0, 3.0, 1.9])
-    y = model_of_individual(x, t) + rng.normal(0.0, 1.5, t.size)
-    w = rng.uniform(0.5, 1.0, t.size)
+    t, x, y, w = _three_echoes(np.random.default_rng(4))
     shape = analytic_shape()._replace(tail_floor=0.01)
     model, jac, windows = np.empty(t.size), np.zeros((t.size, x.size)), np.empty((3, 2), dtype=np.int64)
     model_and_jacobian(x, 3, t, shape, model, jac, windows)
@@ -266,7 +266,7 @@ def test_a_long_records_weighted_point_is_the_weighted_jacobian_and_its_normal_e
     residual = w * (model - y)
     jtj, grad, wjtj, wgrad = np.zeros((13, 13)), np.zeros(13), np.zeros((13, 13)), np.zeros(13)
     _normal_equations(jac, residual, w, windows, jtj, grad)
-    _weighted_normal_equations(jw, residual, w, windows, wjtj, wgrad)
+    _normal_equations(jw, residual, w, windows, wjtj, wgrad, True)
     np.testing.assert_allclose(wjtj, jtj, rtol=1e-12, atol=1e-12 * np.abs(jtj).max())
     np.testing.assert_allclose(wgrad, grad, rtol=1e-12, atol=1e-12 * np.abs(grad).max())
     # an early stop, as the unweighted trial's: at the first sample whose partial sum reaches the bound
