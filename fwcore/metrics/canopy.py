@@ -72,24 +72,34 @@ def _extended_gaussian_at(amplitude, centre, sigma, gamma, x):
 
 
 @njit(**JIT)
-def _cost(p, x, y):
+def _terms(p, x, y, limit, growth, tail):
+    """_cost, keeping each sample's exp and erfc terms (growth, tail) for the Jacobian at p; it stops once the sum
+    reaches `limit` (a rejected trial: the terms left only add to it)."""
+    amplitude, centre, sigma, gamma = p[0], p[1], p[2], p[3]
+    spread = gamma * sigma * sigma
+    scale = max(1e-12, math.sqrt(2.0) * sigma)
     total = 0.0
     for i in range(x.size):
-        r = _extended_gaussian_at(p[0], p[1], p[2], p[3], x[i]) - y[i]
+        growth[i] = math.exp(gamma * (centre + 0.5 * spread - x[i]))
+        tail[i] = math.erfc((centre + spread - x[i]) / scale)
+        value = amplitude * 0.5 * gamma * growth[i] * tail[i]  # _extended_gaussian_at's, in its order
+        r = (value if math.isfinite(value) else 0.0) - y[i]
         total += r * r
+        if total >= limit:
+            return total
     return total
 
 
 @njit(**JIT)
-def _residual_and_jacobian(p, x, y, residual, jac):
-    """The model minus y at x, and its derivatives in amplitude, centre, sigma and gamma (analytic)."""
+def _residual_and_jacobian(p, x, y, growth, tail, residual, jac):
+    """The model minus y at x, and its derivatives in amplitude, centre, sigma and gamma (analytic), from the exp
+    and erfc terms _terms kept at p."""
     amplitude, centre, sigma, gamma = p[0], p[1], p[2], p[3]
     root2 = math.sqrt(2.0)
     for i in range(x.size):
-        u = gamma * (centre + 0.5 * gamma * sigma * sigma - x[i])
         v = (centre + gamma * sigma * sigma - x[i]) / max(1e-12, root2 * sigma)
-        e = math.exp(u)
-        f = math.erfc(v)
+        e = growth[i]
+        f = tail[i]
         df = -2.0 / math.sqrt(math.pi) * math.exp(-v * v)  # d erfc(v) / dv
         half = 0.5 * amplitude * gamma * e
         value = half * f
@@ -142,10 +152,12 @@ def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
     residual = np.empty(n)
     trial = np.empty(k)
     delta = np.empty(k)
-    cost = _cost(p, x, y)
+    # the exp and erfc terms at p, and at the trial: an accepted trial's are the next Jacobian's
+    growth, tail, trial_growth, trial_tail = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    cost = _terms(p, x, y, np.inf, growth, tail)
     damping = 1e-3
     for _ in range(iterations):
-        _residual_and_jacobian(p, x, y, residual, jac)
+        _residual_and_jacobian(p, x, y, growth, tail, residual, jac)
         normal = np.zeros((k, k))
         gradient = np.zeros(k)
         for i in range(n):
@@ -171,9 +183,11 @@ def _fit_extended_gaussian(x, y, p, lower, upper, iterations):
             _solve4(a, -gradient, delta)
             for j in range(k):
                 trial[j] = min(max(p[j] + delta[j], lower[j]), upper[j])
-            new_cost = _cost(trial, x, y)
+            new_cost = _terms(trial, x, y, cost, trial_growth, trial_tail)
             if new_cost < cost:
                 improved = True
+                growth, trial_growth = trial_growth, growth
+                tail, trial_tail = trial_tail, tail
                 break
             damping *= 10.0
         if not improved:

@@ -21,9 +21,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from numba import njit
 
+from fwcore._jit import JIT
+from fwcore.metrics.kernel import _at, _cumulative, _relative_heights, _smooth
 from fwcore.metrics.rh import energy_positions, relative_heights
-from fwcore.metrics.signal import SIGMA_PER_WIDTH, gaussian_smooth, subbin_grid
+from fwcore.metrics.signal import SIGMA_PER_WIDTH, gaussian_smooth, smoothing_kernel, subbin_grid
 from fwcore.metrics.waveform import GEDI_ALGORITHM_1, NO_SIGNAL, MetricSettings, WaveformMetrics, waveform_metrics
 
 
@@ -70,6 +73,34 @@ def lvis_relative_heights(samples: np.ndarray, noise_mean: float, start: float, 
     return relative_heights(energy_positions(x, energy, start, end), ground, metres_per_sample)
 
 
+@njit(**JIT)
+def _starts_and_heights(samples, offsets, measured, noise_mean, noise_sd, ground, botloc, drop, start_kernel,
+                        pulse_kernel, subbins, start_sd, energy_above_noise, start, rh):
+    """signal_start and lvis_relative_heights of every measured waveform (the kernel's steps: fwcore.metrics.kernel),
+    into start (NaN where nothing rises above the threshold) and rh (only where the start is over the ground)."""
+    for i in range(offsets.size - 1):
+        if not measured[i]:
+            continue
+        wave = samples[offsets[i]:offsets[i + 1]]
+        smoothed = np.empty(wave.size)
+        _smooth(wave, start_kernel[0], int(start_kernel[1]), smoothed)
+        threshold = noise_mean[i] + start_sd * noise_sd[i]
+        top = -1
+        for k in range((wave.size - 1) * subbins + 1):
+            if _at(smoothed, k / subbins) > threshold:
+                top = k
+                break
+        if top < 0:
+            continue
+        start[i] = top / subbins
+        if not start[i] <= ground[i]:
+            continue
+        _smooth(wave, pulse_kernel[0], int(pulse_kernel[1]), smoothed)
+        bottom = int(round(botloc[i] * subbins))
+        cumulative = _cumulative(smoothed, noise_mean[i] if energy_above_noise else 0.0, top, bottom, subbins)
+        _relative_heights(cumulative, start[i], botloc[i], ground[i], drop[i], subbins, rh[i])
+
+
 def lvis_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.ndarray, noise_sd: np.ndarray,
                  first_z: np.ndarray, metres_per_sample: np.ndarray, cos_zenith: np.ndarray, pulse: np.ndarray,
                  pulse_sigma: float, settings: LvisSettings = LVIS_L2) -> WaveformMetrics:
@@ -80,15 +111,21 @@ def lvis_metrics(samples: np.ndarray, offsets: np.ndarray, noise_mean: np.ndarra
                             settings.mode_settings(pulse_sigma))
     values = {f.name: getattr(base, f.name).copy() for f in dataclasses.fields(base) if f.name != "reason"}
     reason = list(base.reason)
-    for i in np.flatnonzero(np.array([r == "" for r in reason], dtype=bool)):
-        wave = samples[offsets[i]:offsets[i + 1]]
-        start = signal_start(wave, noise_mean[i], noise_sd[i], settings)
-        if not start <= base.ground_index[i]:  # nothing above the start threshold over the ground: no metrics
-            for array in values.values():
-                array[i] = np.nan
-            reason[i] = NO_SIGNAL
-            continue
-        values["toploc"][i] = start
-        values["rh"][i] = lvis_relative_heights(wave, noise_mean[i], start, base.botloc[i], base.ground_index[i],
-                                                metres_per_sample[i], pulse_sigma, settings)
+    measured = np.array([r == "" for r in reason], dtype=bool)
+    start = np.full(measured.size, np.nan)
+    rh = np.ascontiguousarray(values["rh"])
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    _starts_and_heights(f64(samples), np.ascontiguousarray(offsets, dtype=np.int64), measured, f64(noise_mean),
+                        f64(noise_sd), f64(base.ground_index), f64(base.botloc), f64(metres_per_sample),
+                        np.array(smoothing_kernel(settings.start_smoothing_sigma / SIGMA_PER_WIDTH), dtype=np.float64),
+                        np.array(smoothing_kernel(pulse_sigma / SIGMA_PER_WIDTH), dtype=np.float64),
+                        int(settings.subbins), float(settings.start_threshold_sd), bool(settings.energy_above_noise),
+                        start, rh)
+    values["rh"] = rh
+    no_start = measured & ~(start <= base.ground_index)  # nothing above the start threshold over the ground
+    for array in values.values():
+        array[no_start] = np.nan
+    for i in np.flatnonzero(no_start):
+        reason[i] = NO_SIGNAL
+    values["toploc"] = np.where(measured & ~no_start, start, values["toploc"])
     return WaveformMetrics(**values, reason=reason)

@@ -10,7 +10,7 @@ import pytest
 
 from fwcore.instrument.width import recorded_pulse_fwhm_ps
 from fwcore.io.lvis import read_lvis
-from fwcore.metrics.lvis import LVIS_L2, LvisSettings, lvis_metrics, signal_start
+from fwcore.metrics.lvis import LVIS_L2, LvisSettings, lvis_metrics, lvis_relative_heights, signal_start
 from fwcore.metrics.pulses import FWHM_PER_SIGMA, top_heights, vertical_axis, zenith_cosine
 from fwcore.metrics.waveform import NO_SIGNAL
 from tests.fwcore.io.lvis_files import read_level2
@@ -110,3 +110,25 @@ def test_a_shot_without_signal_is_null_with_its_reason():
     _, metrics, _ = clip_metrics(pulses=quiet)
     assert metrics.reason[0] == NO_SIGNAL and np.isnan(metrics.ground_z[0]) and np.isnan(metrics.rh[0]).all()
     assert metrics.reason[1:] == [""] * (len(pulses) - 1)
+
+
+@pytest.mark.parametrize("name", ["lvis_level1_clip_shared.h5", "LVIS_Mondah_level1b.SPLIT.8.h5"])
+def test_the_kernel_gives_signal_start_and_lvis_relative_heights(name):
+    """lvis_metrics' kernel against the NumPy steps it replaces (signal_start, lvis_relative_heights), a shot at a
+    time, on the clip and on Mondah's tall forest (RH100 to 51 m)."""
+    pulses, metrics, sigma = clip_metrics(pulses=read_lvis(LVIS / name))
+    first_z, drop = vertical_axis(pulses)
+    checked = 0
+    for i, reason in enumerate(metrics.reason):
+        wave = pulses.pulse_samples(i)
+        start = signal_start(wave, pulses.noise_mean[i], pulses.noise_sd[i])
+        if reason == NO_SIGNAL:
+            assert not start <= metrics.ground_index[i] or np.isnan(metrics.ground_index[i])
+            continue
+        assert metrics.toploc[i] == start
+        rh = lvis_relative_heights(wave, pulses.noise_mean[i], start, metrics.botloc[i], metrics.ground_index[i],
+                                   drop[i], sigma)
+        assert np.allclose(metrics.rh[i], rh, rtol=0, atol=0.01 + 1e-9)  # within the cm L2 truncates to
+        assert np.mean(metrics.rh[i] == rh) >= 0.99
+        checked += 1
+    assert checked >= 10
