@@ -1,6 +1,6 @@
 """Box-query benchmark: how much of the echo table a query for a small box reads, and how fast DuckDB answers it.
 
-    flock /tmp/fwl-heavy.lock python bench/bench_query.py [--pulses 200000] [--seed 7] [--workdir out/bench_query]
+    flock $LOCK python bench/bench_query.py [--pulses 200000] [--seed 7] [--workdir out/bench_query]
                                                           [--compact] [--sweep 512,1024,2048,4096,8192]
 
 A simulated flight (`fwl simulate --pulses N --seed S`) run with `fwl run --preset fast --formats parquet` (both

@@ -1,6 +1,6 @@
 """Reading benchmark: pulses/s and MB/s of fwcore.io.read_pulses, one core, per encoding.
 
-    flock /tmp/fwl/bench.lock python bench/bench_read.py [--repeat N] [--copies K]
+    flock $LOCK python bench/bench_read.py [--repeat N] [--copies K]
 
 Inputs: the Leica sample as .las+.wdp and .laz+.wdz (924 pulses each); the Leica
 sample tiled K times and written by our writer as LAS 1.3 + .wdp and as LAS 1.4
