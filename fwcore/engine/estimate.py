@@ -16,9 +16,9 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE
+from fwcore._jit import JIT, JIT_INLINE, searchsorted
 from fwcore.engine.config import DecompositionConfig, Model
-from fwcore.engine.model import add_table_echo, analytic_shape, table_peak_offset
+from fwcore.engine.model import add_table_echo, analytic_shape, table_peak_offset, table_reach
 from fwcore.engine.smoothing import as_waveform, denoise, smoothing_support
 from fwcore.instrument.peak import half_height_crossings, parabola_height, parabola_vertex
 
@@ -174,7 +174,9 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
     A peak within FLANK_REACH_W pulse widths of an echo and under flank_ratio x its amplitude is never one."""
     n = smoothed.size
     residual = smoothed - background
-    sample_times = np.arange(n).astype(np.float64)
+    sample_times = np.empty(n)
+    for i in range(n):
+        sample_times[i] = i
     returns = np.empty(n, dtype=np.int64)
     _label_returns(residual, valid, threshold, returns)
     echo_return = np.zeros(max_echoes, dtype=np.int64)
@@ -209,7 +211,11 @@ def _progressive_echoes(smoothed, valid, background, threshold, max_echoes, fall
             amplitude[count] = top
             position[count] = centre - table_peak_offset(shape, s)  # an echo's position is its lobe's centroid
             sigma[count] = s
-            add_table_echo(shape, -top, position[count], s, sample_times, 0, n, residual)
+            # over its table's support only: the rows are exactly 0 outside it, so the other samples keep their bits
+            before, after = table_reach(shape, s)
+            add_table_echo(shape, -top, position[count], s, sample_times,
+                           searchsorted(sample_times, position[count] - before),
+                           searchsorted(sample_times, position[count] + after, right=True), residual)
             count += 1
             continue
         s = _echo_sigma(residual, valid, peak, fallback_sigma)

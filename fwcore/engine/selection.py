@@ -271,8 +271,8 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
     chi2 = np.nan  # computed once a candidate is found: most fits have none
     n = samples.size
     model = np.empty(times.size)
-    residual = np.zeros(n)
-    standard = np.zeros(n)
+    residual = np.zeros(0)  # made (zeros where invalid) once a residual rises above the score: most fits have none
+    standard = np.zeros(0)
     # the noise of a Gaussian-smoothed white residual: sqrt(sum w^2) / sum w
     w = gaussian_weights(pulse_sigma)
     filtered_noise = math.sqrt(np.sum(w * w)) / np.sum(w)
@@ -286,14 +286,19 @@ def add_missing_echoes(p, shape, best, lower, upper, n_echoes, samples, valid, t
         highest = 0.0  # the residual's largest sample (0 where invalid)
         spread = 0.0  # and its largest magnitude
         for j in range(times.size):
+            r = raw[j] - model[j]
+            top = max(top, r * weights[j])
+            highest = max(highest, r)
+            spread = max(spread, abs(r))
+        if top <= score:
+            break  # a smoothing (a weighted mean) of the standardized residual cannot rise above its largest sample
+        if residual.size == 0:
+            residual = np.zeros(n)
+            standard = np.zeros(n)
+        for j in range(times.size):
             i = int(times[j])
             residual[i] = raw[j] - model[j]
             standard[i] = residual[i] * weights[j]
-            top = max(top, standard[i])
-            highest = max(highest, residual[i])
-            spread = max(spread, abs(residual[i]))
-        if top <= score:
-            break  # a smoothing (a weighted mean) of the standardized residual cannot rise above its largest sample
         # an echo the filter would call weak is not a missed return: only candidates above its floor
         largest = 0.0
         for k in range(n_echoes):

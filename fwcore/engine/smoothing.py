@@ -281,6 +281,7 @@ def _baseline(samples, valid, noise):
     # the samples up to a level are the k smallest: each median is a selection (values keep their order)
     scratch = values[:m].copy()
     level = _median_in_place(scratch, m)
+    counted = m  # the level is the median of the `counted` smallest
     for _ in range(8):
         threshold = level + 3.0 * noise
         k = m  # a NaN threshold counts every sample, as np.searchsorted sorts NaN last
@@ -288,6 +289,9 @@ def _baseline(samples, valid, noise):
             k = 0
             for i in range(m):
                 k += values[i] <= threshold
+        if k == counted:  # the same samples: their median is the level (a selection less a waveform)
+            break
+        counted = k
         new = _median_of_smallest(scratch, m, k)
         if new == level:
             break

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from fwcore.engine.config import DecompositionConfig
-from fwcore.engine.decompose import decompose_batch, decompose_waveform, echo_shapes
+from fwcore.engine.decompose import checked_samples, decompose_batch, decompose_waveform, echo_shapes
 from fwcore.engine.model import fwhm, tabulated_model, waveform_model
-from fwcore.engine.records import WAVEFORM_FIELDS, Decomposition, WaveformBatch
+from fwcore.engine.records import (STATUS_NO_VALID_SAMPLES, STATUS_NON_FINITE, WAVEFORM_FIELDS, Decomposition,
+                                  WaveformBatch)
 from fwcore.instrument.pulse import nominal_pulse
 from fwcore.instrument.response import named_response
 from fwcore.instrument.shape import echo_shape
@@ -130,6 +131,35 @@ def test_bad_waveforms_get_a_status_and_the_rest_are_decomposed():
     assert [r.waveform(i).status for i in range(3)] == ["", "non_finite_samples", "no_valid_samples"]
     assert r.waveform(0).amplitude.size >= 1
     assert r.waveform(1).amplitude.size == 0 and r.waveform(2).amplitude.size == 0
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_checked_samples_are_numpys_masks_and_cumulative_sums_to_the_bit(dtype):
+    rng = np.random.default_rng(58)
+    waveforms = [rng.normal(100.0, 5.0, size).astype(dtype) for size in (7, 0, 5, 9, 3, 6)]
+    waveforms[0][2], waveforms[3][4], waveforms[5][1] = np.nan, np.inf, -np.inf
+    valid = [rng.random(w.size) < 0.7 for w in waveforms]
+    valid[2][:] = False  # no valid sample; waveform 1 has no sample at all
+    valid[0][2] = valid[3][4] = True  # NaN, inf where valid: not finite
+    valid[4][0] = valid[5][0] = True
+    valid[5][1] = False  # -inf where invalid: still decomposable
+    batch = WaveformBatch.from_waveforms(waveforms, SPACING, range(6), valid)
+    batch = dataclasses.replace(batch, samples=batch.samples.astype(dtype))
+    # the computation it replaces (decompose_batch before issue 58's ninth pass)
+    running = np.concatenate(([0], np.cumsum(batch.valid & ~np.isfinite(batch.samples), dtype=np.int64)))
+    non_finite = running[batch.offsets[1:]] - running[batch.offsets[:-1]]
+    running = np.concatenate(([0], np.cumsum(batch.valid, dtype=np.int64)))
+    n_valid = running[batch.offsets[1:]] - running[batch.offsets[:-1]]
+    expected = np.zeros(len(batch), dtype=np.int8)
+    expected[non_finite > 0] = STATUS_NON_FINITE
+    expected[n_valid == 0] = STATUS_NO_VALID_SAMPLES
+    cleaned = np.where(batch.valid, batch.samples, 0.0)
+    cleaned[~np.isfinite(cleaned)] = 0.0
+    status, samples = checked_samples(batch)
+    assert status.dtype == np.int8 and status.tolist() == expected.tolist()
+    assert status.tolist() == [STATUS_NON_FINITE, STATUS_NO_VALID_SAMPLES, STATUS_NO_VALID_SAMPLES,
+                               STATUS_NON_FINITE, 0, 0]
+    assert samples.dtype == cleaned.dtype and samples.tobytes() == cleaned.tobytes()
 
 
 def test_both_result_classes_have_every_field_of_the_result_record():
