@@ -3,12 +3,13 @@
 numba has no SVML on this kind of machine and a libm call blocks SIMD, so the
 hot model loop uses its own exp2/log2 built from float bit tricks and short
 polynomials; LLVM vectorizes them over the samples axis.
+The float64 kernels call libm's exp, log and pow through its IEEE cores
+(bind_libm_cores, called by the engine before it links its kernels).
 """
 
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 
 import numpy as np
@@ -44,9 +45,8 @@ def bind_libm_cores() -> tuple[str, ...]:
     import llvmlite.binding as ll
     from numba.core.registry import cpu_target
 
-    path = ctypes.util.find_library("m")
     try:
-        libm = ctypes.CDLL(path)
+        libm = ctypes.CDLL("libm.so.6")  # glibc's soname (ctypes.util.find_library would run ldconfig)
         dlvsym = ctypes.CDLL(None).dlvsym
     except (OSError, AttributeError, TypeError):  # not glibc (musl, macOS, Windows): numba's binding stays
         return ()
