@@ -3,9 +3,14 @@
 numba has no SVML on this kind of machine and a libm call blocks SIMD, so the
 hot model loop uses its own exp2/log2 built from float bit tricks and short
 polynomials; LLVM vectorizes them over the samples axis.
+The float64 kernels call libm's exp, log and pow through its IEEE cores
+(bind_libm_cores, called by the engine before it links its kernels).
 """
 
 from __future__ import annotations
+
+import ctypes
+import functools
 
 import numpy as np
 from numba import njit, types
@@ -24,6 +29,37 @@ SIMD_JIT = dict(JIT, fastmath=set(FASTMATH))
 JIT_INLINE = dict(JIT, inline="always")
 
 _F32 = np.float32
+
+# numba binds libm's names to the copies its C helper module was linked against (numba.core.externals): on glibc the
+# pre-2.29 entry points, wrappers that test every result for errno's sake around the IEEE core. They were a tenth of
+# the engine's CPU on GEDI savanna (perf, 2026-12-07); glibc exports the cores themselves as __exp_finite etc.
+_LIBM_CORES = {"exp": "__exp_finite", "log": "__log_finite", "pow": "__pow_finite"}
+_LIBM_CORES_VERSION = b"GLIBC_2.15"
+
+
+@functools.cache
+def bind_libm_cores() -> tuple[str, ...]:
+    """Bind exp, log and pow in the kernels numba links from now on (compiled or loaded from its cache) to glibc's
+    IEEE cores: the same bits as the wrappers numba binds, without their checks. Returns the names bound: none where
+    libm is not glibc's (the kernels keep numba's binding). Kernels linked before the call keep theirs."""
+    import llvmlite.binding as ll
+    from numba.core.registry import cpu_target
+
+    try:
+        libm = ctypes.CDLL("libm.so.6")  # glibc's soname (ctypes.util.find_library would run ldconfig)
+        dlvsym = ctypes.CDLL(None).dlvsym
+    except (OSError, AttributeError, TypeError):  # not glibc (musl, macOS, Windows): numba's binding stays
+        return ()
+    dlvsym.restype = ctypes.c_void_p
+    dlvsym.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p]
+    cpu_target.target_context  # numba's own binding, once a process, comes first: it would replace ours
+    bound = []
+    for name, core in _LIBM_CORES.items():
+        address = dlvsym(libm._handle, core.encode(), _LIBM_CORES_VERSION)
+        if address:
+            ll.add_symbol(name, address)
+            bound.append(name)
+    return tuple(bound)
 
 
 @intrinsic

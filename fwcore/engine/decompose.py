@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT
+from fwcore._jit import JIT, bind_libm_cores
 from fwcore.engine.bounds import parameter_bounds
 from fwcore.engine.config import LOCAL_LM, LOCAL_NONE, MSG_CONVERGED, OPT_NONE, DecompositionConfig, Model, Optimizer
 from fwcore.engine.filter import mark_spurious
@@ -348,6 +348,7 @@ def decompose_batch(batch: WaveformBatch, config: DecompositionConfig, pulse: Sy
     decomposed: its status says why and it has no echoes. Under the system model the echoes have the
     shape of pulse.echo_response() at each waveform's sample spacing (one table per spacing).
     """
+    bind_libm_cores()  # before the kernels below are linked: libm's cores, not its wrappers (the same bits)
     n = len(batch)
     status, samples = checked_samples(batch)
     out = np.zeros(n, dtype=WAVEFORM_RESULT)

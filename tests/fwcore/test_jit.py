@@ -49,3 +49,45 @@ def test_inlined_searches_are_numpys_including_ties_and_nan():
         for key in keys:
             assert searchsorted(ordered, key) == np.searchsorted(ordered, key)
             assert searchsorted(ordered, key, right=True) == np.searchsorted(ordered, key, side="right")
+
+
+def test_kernels_bound_to_libm_cores_give_libm_bits():
+    # exp, log and pow over the IEEE cores: every bit of glibc's exported functions, underflow, overflow,
+    # subnormals, infinities and NaN included (the engine's results do not move: bench/output_hash.py)
+    import ctypes
+    import math
+
+    import llvmlite.binding as ll
+    import pytest
+    from numba import njit
+
+    from fwcore._jit import bind_libm_cores
+
+    bound = bind_libm_cores()
+    if not bound:
+        pytest.skip("libm is not glibc's: numba's own binding stays")
+    assert bound == ("exp", "log", "pow")
+    libm = ctypes.CDLL("libm.so.6")
+    for name in bound:
+        getattr(libm, name).restype = ctypes.c_double
+        getattr(libm, name).argtypes = [ctypes.c_double] * (2 if name == "pow" else 1)
+    core = ctypes.CDLL(None).dlvsym
+    core.restype = ctypes.c_void_p
+    core.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p]
+    assert ll.address_of_symbol("exp") == core(libm._handle, b"__exp_finite", b"GLIBC_2.15")
+
+    @njit(cache=False)  # linked after the binding
+    def apply(x, y, out):
+        for i in range(x.size):
+            out[0, i] = math.exp(x[i])
+            out[1, i] = math.log(y[i])
+            out[2, i] = math.pow(y[i], x[i] / 50.0)
+
+    rng = np.random.default_rng(3)
+    x = np.r_[rng.uniform(-760, 760, 4000), -745.2, -708.4, 0.0, -0.0, 709.8, np.inf, -np.inf, np.nan]
+    y = np.r_[rng.uniform(0, 1e3, x.size - 8), 5e-324, 1e-310, 0.0, 1.0, np.inf, 2.0, 3.0, np.nan]
+    out = np.empty((3, x.size))
+    apply(x, y, out)
+    expected = np.array([[libm.exp(a) for a in x], [libm.log(b) for b in y],
+                         [libm.pow(b, a / 50.0) for a, b in zip(x, y)]])
+    assert np.array_equal(out.view(np.int64), expected.view(np.int64))
