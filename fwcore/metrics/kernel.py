@@ -64,14 +64,19 @@ def _at(values, position):
 
 
 @njit(**JIT)
+def _first_above(smoothed, subbins, threshold):
+    """The first sub-bin where the smoothed waveform rises above `threshold`; -1 where it never does."""
+    for k in range((smoothed.size - 1) * subbins + 1):
+        if _at(smoothed, k / subbins) > threshold:
+            return k
+    return -1
+
+
+@njit(**JIT)
 def _extent(smoothed, subbins, front, back):
     """signal_extent on the sub-bin grid: (toploc, botloc), NaN where the waveform never rises above them."""
     m = (smoothed.size - 1) * subbins + 1
-    top = -1
-    for k in range(m):
-        if _at(smoothed, k / subbins) > front:
-            top = k
-            break
+    top = _first_above(smoothed, subbins, front)
     bottom = -1
     for k in range(m - 1, -1, -1):
         if _at(smoothed, k / subbins) > back:

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT
-from fwcore.metrics.kernel import _at, _cumulative, _relative_heights, _smooth
+from fwcore.metrics.kernel import _cumulative, _first_above, _relative_heights, _smooth
 from fwcore.metrics.rh import energy_positions, relative_heights
 from fwcore.metrics.signal import SIGMA_PER_WIDTH, gaussian_smooth, smoothing_kernel, subbin_grid
 from fwcore.metrics.waveform import GEDI_ALGORITHM_1, NO_SIGNAL, MetricSettings, WaveformMetrics, waveform_metrics
@@ -84,12 +84,7 @@ def _starts_and_heights(samples, offsets, measured, noise_mean, noise_sd, ground
         wave = samples[offsets[i]:offsets[i + 1]]
         smoothed = np.empty(wave.size)
         _smooth(wave, start_kernel[0], int(start_kernel[1]), smoothed)
-        threshold = noise_mean[i] + start_sd * noise_sd[i]
-        top = -1
-        for k in range((wave.size - 1) * subbins + 1):
-            if _at(smoothed, k / subbins) > threshold:
-                top = k
-                break
+        top = _first_above(smoothed, subbins, noise_mean[i] + start_sd * noise_sd[i])
         if top < 0:
             continue
         start[i] = top / subbins
