@@ -122,3 +122,37 @@ def _block_sums(weighted_rows: bool):
 block_sums = _block_sums(weighted_rows=False)
 # rows of W^1/2 J: outer = sum j_a j_b, with_residual = sum j r, with_weight = sum j w
 weighted_block_sums = _block_sums(weighted_rows=True)
+
+
+CHOLESKY_LANES = 8
+
+
+@intrinsic
+def cholesky_lanes(typingctx, factor, c, r, pivot):
+    """Entries r..r + 7 of column c of a Cholesky factor kept transposed (factor[q, r] = L[r, q]), in place:
+    factor[c, r + k] = (factor[c, r + k] - sum over q < c of factor[q, r + k] factor[q, c]) / pivot, the
+    subtractions in q order in each lane, as the scalar loop takes them."""
+    _check_rows(factor)
+    sig = types.void(factor, c, r, pivot)
+
+    def codegen(context, builder, signature, args):
+        data, (row_stride, _) = _array_parts(context, builder, signature.args[0], args[0])
+        column, first = (context.cast(builder, args[k], signature.args[k], types.int64) for k in (1, 2))
+        eight = ir.Constant(ir.IntType(64), 8)
+        address = builder.gep(data, [builder.add(builder.mul(column, row_stride), builder.mul(first, eight))])
+        target = builder.bitcast(address, _V8.as_pointer())
+        sums = cgutils.alloca_once_value(builder, builder.load(target, align=8))
+        zero, one = ir.Constant(ir.IntType(64), 0), ir.Constant(ir.IntType(64), 1)
+        with cgutils.for_range_slice(builder, zero, column, one, inc=True) as (q, _):
+            row = builder.mul(q, row_stride)
+            lanes = builder.load(builder.bitcast(builder.gep(data, [builder.add(row, builder.mul(first, eight))]),
+                                                 _V8.as_pointer()), align=8)
+            x = builder.load(builder.bitcast(builder.gep(data, [builder.add(row, builder.mul(column, eight))]),
+                                             _F64.as_pointer()))
+            builder.store(builder.fsub(builder.load(sums), builder.fmul(lanes, _broadcast(builder, x, _BROADCAST8))),
+                          sums)
+        divisor = _broadcast(builder, context.cast(builder, args[3], signature.args[3], types.float64), _BROADCAST8)
+        builder.store(builder.fdiv(builder.load(sums), divisor), target, align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE, searchsorted
-from fwcore._simd import block_sums, weighted_block_sums
+from fwcore._simd import CHOLESKY_LANES, block_sums, cholesky_lanes, weighted_block_sums
 from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, analytic_shape,
                                  echo_value, table_reach)
 
@@ -237,7 +237,9 @@ def squared_error(x, n_echoes, times, shape, target, weights):
 @njit(**JIT)
 def _solve_damped(jtj, grad, lam, free, step, a):
     """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky, `a` (d x d) its
-    scratch; False if singular."""
+    scratch; False if singular. The factor L is kept transposed (a[q, r] = L[r, q], q <= r): column c's
+    entries are then finished as one loop over contiguous rows a q at a time, which LLVM vectorizes, each
+    entry's sum still taken in q order (the bits of the row-by-row dot products)."""
     d = grad.size
     largest = 0.0
     for j in range(d):
@@ -247,40 +249,33 @@ def _solve_damped(jtj, grad, lam, free, step, a):
         for c in range(d):
             a[r, c] = jtj[r, c] if free[r] and free[c] else 0.0
         a[r, r] = (jtj[r, r] * (1.0 + lam) + floor) if free[r] else 1.0
-    # in-place Cholesky, lower triangle
+    # in-place Cholesky into the upper triangle (the system is symmetric: row c's upper part is column c)
     for c in range(d):
         acc = a[c, c]
         for q in range(c):
-            acc -= a[c, q] * a[c, q]
+            acc -= a[q, c] * a[q, c]
         if acc <= 0.0:
             return False
         pivot = math.sqrt(acc)
         a[c, c] = pivot
         r = c + 1
-        while r + 3 < d:  # four rows' sums at once: independent chains (each in q order, the same bits), not one
-            a0, a1, a2, a3 = a[r, c], a[r + 1, c], a[r + 2, c], a[r + 3, c]
+        while r + CHOLESKY_LANES <= d:
+            cholesky_lanes(a, c, r, pivot)
+            r += CHOLESKY_LANES
+        for rest in range(r, d):  # the last few entries, the same expression a lane at a time
+            acc = a[c, rest]
             for q in range(c):
-                x = a[c, q]
-                a0 -= a[r, q] * x
-                a1 -= a[r + 1, q] * x
-                a2 -= a[r + 2, q] * x
-                a3 -= a[r + 3, q] * x
-            a[r, c], a[r + 1, c], a[r + 2, c], a[r + 3, c] = a0 / pivot, a1 / pivot, a2 / pivot, a3 / pivot
-            r += 4
-        for rest in range(r, d):
-            acc = a[rest, c]
-            for q in range(c):
-                acc -= a[rest, q] * a[c, q]
-            a[rest, c] = acc / pivot
+                acc -= a[q, rest] * a[q, c]
+            a[c, rest] = acc / pivot
     for r in range(d):  # forward: L y = -grad
         acc = -grad[r] if free[r] else 0.0
         for q in range(r):
-            acc -= a[r, q] * step[q]
+            acc -= a[q, r] * step[q]
         step[r] = acc / a[r, r]
     for r in range(d - 1, -1, -1):  # back: L^T step = y
         acc = step[r]
         for q in range(r + 1, d):
-            acc -= a[q, r] * step[q]
+            acc -= a[r, q] * step[q]
         step[r] = acc / a[r, r]
     return True
 
