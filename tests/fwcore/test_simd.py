@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from fwcore._simd import block_sums, weighted_block_sums
+from fwcore._simd import CHOLESKY_LANES, block_sums, cholesky_lanes, weighted_block_sums
 
 
 @njit
@@ -15,6 +15,11 @@ def _pair(jac, weights, lo, hi, r, c):
 @njit
 def _weighted_pair(jac, weights, lo, hi, r, c):
     return weighted_block_sums(jac, weights, None, lo, hi, r, c)
+
+
+@njit
+def _lanes(factor, c, r, pivot):
+    cholesky_lanes(factor, c, r, pivot)
 
 
 @njit
@@ -90,3 +95,19 @@ def test_a_strided_jacobian_is_refused():
     jac = np.ones((4, 10))[:, ::2]
     with pytest.raises(Exception, match="C-contiguous"):
         _pair(jac, np.ones(4), 0, 4, 0, 0)
+
+
+def test_cholesky_lanes_are_the_scalar_column_update():
+    rng = np.random.default_rng(11)
+    d = 29
+    for c, r in [(0, 1), (3, 4), (10, 11), (12, 20), (20, 21)]:
+        factor = rng.standard_normal((d, d)) * 10.0 ** rng.uniform(-4, 4, (d, d))
+        pivot = float(rng.uniform(0.5, 3.0))
+        expected = factor.copy()
+        for k in range(r, r + CHOLESKY_LANES):
+            acc = float(expected[c, k])
+            for q in range(c):
+                acc -= float(expected[q, k]) * float(expected[q, c])
+            expected[c, k] = acc / pivot
+        _lanes(factor, c, r, pivot)
+        assert factor.tobytes() == expected.tobytes()  # only row c's eight entries change, to the scalar bits
