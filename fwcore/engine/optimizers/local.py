@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE, searchsorted
+from fwcore._simd import CHOLESKY_LANES, block_sums, cholesky_lanes, weighted_block_sums
 from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, analytic_shape,
                                  echo_value, table_reach)
 
@@ -236,7 +237,9 @@ def squared_error(x, n_echoes, times, shape, target, weights):
 @njit(**JIT)
 def _solve_damped(jtj, grad, lam, free, step, a):
     """Solve (JtJ + lam diag(JtJ)) step = -grad over the free parameters by Cholesky, `a` (d x d) its
-    scratch; False if singular."""
+    scratch; False if singular. The factor L is kept transposed (a[q, r] = L[r, q], q <= r): column c's
+    entries are then finished as one loop over contiguous rows a q at a time, which LLVM vectorizes, each
+    entry's sum still taken in q order (the bits of the row-by-row dot products)."""
     d = grad.size
     largest = 0.0
     for j in range(d):
@@ -246,28 +249,33 @@ def _solve_damped(jtj, grad, lam, free, step, a):
         for c in range(d):
             a[r, c] = jtj[r, c] if free[r] and free[c] else 0.0
         a[r, r] = (jtj[r, r] * (1.0 + lam) + floor) if free[r] else 1.0
-    # in-place Cholesky, lower triangle
+    # in-place Cholesky into the upper triangle (the system is symmetric: row c's upper part is column c)
     for c in range(d):
         acc = a[c, c]
         for q in range(c):
-            acc -= a[c, q] * a[c, q]
+            acc -= a[q, c] * a[q, c]
         if acc <= 0.0:
             return False
-        a[c, c] = math.sqrt(acc)
-        for r in range(c + 1, d):
-            acc = a[r, c]
+        pivot = math.sqrt(acc)
+        a[c, c] = pivot
+        r = c + 1
+        while r + CHOLESKY_LANES <= d:
+            cholesky_lanes(a, c, r, pivot)
+            r += CHOLESKY_LANES
+        for rest in range(r, d):  # the last few entries, the same expression a lane at a time
+            acc = a[c, rest]
             for q in range(c):
-                acc -= a[r, q] * a[c, q]
-            a[r, c] = acc / a[c, c]
+                acc -= a[q, rest] * a[q, c]
+            a[c, rest] = acc / pivot
     for r in range(d):  # forward: L y = -grad
         acc = -grad[r] if free[r] else 0.0
         for q in range(r):
-            acc -= a[r, q] * step[q]
+            acc -= a[q, r] * step[q]
         step[r] = acc / a[r, r]
     for r in range(d - 1, -1, -1):  # back: L^T step = y
         acc = step[r]
         for q in range(r + 1, d):
-            acc -= a[q, r] * step[q]
+            acc -= a[r, q] * step[q]
         step[r] = acc / a[r, r]
     return True
 
@@ -278,106 +286,37 @@ assert PARAMS_PER_ECHO == 4, "_echo_block and _pair_block keep one accumulator p
 @njit(**JIT_INLINE)
 def _echo_block(jac, residual, weights, lo, hi, base, jtj, grad):
     """One echo's gradient entries and its rows of J^T W J with itself and the background (columns 0 and
-    base..base + 3), summed over its window [lo, hi)."""
-    g1 = g2 = g3 = g4 = 0.0
-    b1 = b2 = b3 = b4 = 0.0  # with the background's column
-    a11 = a12 = a13 = a14 = a22 = a23 = a24 = a33 = a34 = a44 = 0.0
-    for i in range(lo, hi):
-        w = weights[i]
-        r = residual[i]
-        j1, j2, j3, j4 = jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3]
-        g1 += j1 * w * r
-        g2 += j2 * w * r
-        g3 += j3 * w * r
-        g4 += j4 * w * r
-        b1 += j1 * w * w  # the background's column is 1: 1 * j1 is j1 exactly
-        b2 += j2 * w * w
-        b3 += j3 * w * w
-        b4 += j4 * w * w
-        a11 += j1 * j1 * w * w
-        a12 += j1 * j2 * w * w
-        a13 += j1 * j3 * w * w
-        a14 += j1 * j4 * w * w
-        a22 += j2 * j2 * w * w
-        a23 += j2 * j3 * w * w
-        a24 += j2 * j4 * w * w
-        a33 += j3 * j3 * w * w
-        a34 += j3 * j4 * w * w
-        a44 += j4 * j4 * w * w
-    _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33,
-                      a34, a44)
+    base..base + 3), summed over its window [lo, hi): each sum in sample order as (j j w) w, (j w) r and (j w) w,
+    a sample's sums in vector lanes (fwcore._simd)."""
+    sums = block_sums(jac, weights, residual, lo, hi, base, base)
+    _store_echo_block(jtj, grad, base, sums)
 
 
 @njit(**JIT_INLINE)
-def _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33, a34,
-                      a44):
-    """An echo's sums into its gradient entries and its symmetric rows of J^T W J (with the background, column 0)."""
-    grad[base], grad[base + 1], grad[base + 2], grad[base + 3] = g1, g2, g3, g4
-    jtj[0, base] = jtj[base, 0] = b1
-    jtj[0, base + 1] = jtj[base + 1, 0] = b2
-    jtj[0, base + 2] = jtj[base + 2, 0] = b3
-    jtj[0, base + 3] = jtj[base + 3, 0] = b4
-    jtj[base, base] = a11
-    jtj[base, base + 1] = jtj[base + 1, base] = a12
-    jtj[base, base + 2] = jtj[base + 2, base] = a13
-    jtj[base, base + 3] = jtj[base + 3, base] = a14
-    jtj[base + 1, base + 1] = a22
-    jtj[base + 1, base + 2] = jtj[base + 2, base + 1] = a23
-    jtj[base + 1, base + 3] = jtj[base + 3, base + 1] = a24
-    jtj[base + 2, base + 2] = a33
-    jtj[base + 2, base + 3] = jtj[base + 3, base + 2] = a34
-    jtj[base + 3, base + 3] = a44
+def _store_echo_block(jtj, grad, base, sums):
+    """An echo's block_sums into its gradient entries and its symmetric rows of J^T W J (with the background,
+    column 0): sums[4 a + b] its columns' products, sums[16 + a] with the residual, sums[20 + a] with the weight."""
+    for a in range(4):
+        grad[base + a] = sums[16 + a]
+        jtj[0, base + a] = jtj[base + a, 0] = sums[20 + a]
+        for b in range(a, 4):
+            jtj[base + a, base + b] = jtj[base + b, base + a] = sums[4 * a + b]
 
 
 @njit(**JIT_INLINE)
-def _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33):
-    """Two echoes' 16 cross sums into both of their symmetric places in J^T W J."""
-    jtj[r, c] = jtj[c, r] = a00
-    jtj[r, c + 1] = jtj[c + 1, r] = a01
-    jtj[r, c + 2] = jtj[c + 2, r] = a02
-    jtj[r, c + 3] = jtj[c + 3, r] = a03
-    jtj[r + 1, c] = jtj[c, r + 1] = a10
-    jtj[r + 1, c + 1] = jtj[c + 1, r + 1] = a11
-    jtj[r + 1, c + 2] = jtj[c + 2, r + 1] = a12
-    jtj[r + 1, c + 3] = jtj[c + 3, r + 1] = a13
-    jtj[r + 2, c] = jtj[c, r + 2] = a20
-    jtj[r + 2, c + 1] = jtj[c + 1, r + 2] = a21
-    jtj[r + 2, c + 2] = jtj[c + 2, r + 2] = a22
-    jtj[r + 2, c + 3] = jtj[c + 3, r + 2] = a23
-    jtj[r + 3, c] = jtj[c, r + 3] = a30
-    jtj[r + 3, c + 1] = jtj[c + 1, r + 3] = a31
-    jtj[r + 3, c + 2] = jtj[c + 2, r + 3] = a32
-    jtj[r + 3, c + 3] = jtj[c + 3, r + 3] = a33
+def _store_pair_block(jtj, r, c, sums):
+    """Two echoes' 16 cross sums (sums[4 a + b]: columns r + a and c + b) into both of their places in J^T W J."""
+    for a in range(4):
+        for b in range(4):
+            jtj[r + a, c + b] = jtj[c + b, r + a] = sums[4 * a + b]
 
 
 @njit(**JIT_INLINE)
 def _pair_block(jac, weights, lo, hi, r, c, jtj):
     """The rows of J^T W J of two echoes' columns (r..r + 3 with c..c + 3), summed over [lo, hi) in one pass: 16
-    accumulators, each summed in sample order with the product taken as jac jac w w, so the bits are those of a
-    pass per pair of columns (which were strided and each bound by one accumulator's latency)."""
-    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
-    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
-    for i in range(lo, hi):
-        w = weights[i]
-        r0, r1, r2, r3 = jac[i, r], jac[i, r + 1], jac[i, r + 2], jac[i, r + 3]
-        c0, c1, c2, c3 = jac[i, c], jac[i, c + 1], jac[i, c + 2], jac[i, c + 3]
-        a00 += r0 * c0 * w * w
-        a01 += r0 * c1 * w * w
-        a02 += r0 * c2 * w * w
-        a03 += r0 * c3 * w * w
-        a10 += r1 * c0 * w * w
-        a11 += r1 * c1 * w * w
-        a12 += r1 * c2 * w * w
-        a13 += r1 * c3 * w * w
-        a20 += r2 * c0 * w * w
-        a21 += r2 * c1 * w * w
-        a22 += r2 * c2 * w * w
-        a23 += r2 * c3 * w * w
-        a30 += r3 * c0 * w * w
-        a31 += r3 * c1 * w * w
-        a32 += r3 * c2 * w * w
-        a33 += r3 * c3 * w * w
-    _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33)
+    sums, each in sample order with the product taken as jac jac w w, a sample's 16 in vector lanes
+    (fwcore._simd), so the bits are those of a pass per pair of columns."""
+    _store_pair_block(jtj, r, c, block_sums(jac, weights, None, lo, hi, r, c))
 
 
 @njit(**JIT)
@@ -407,68 +346,21 @@ def _normal_equations(jac, residual, weights, windows, jtj, grad, weighted=False
         for q in range(k + 1, n_echoes):
             lo, hi = max(windows[k, 0], windows[q, 0]), min(windows[k, 1], windows[q, 1])
             if weighted:
-                _weighted_pair_block(jac, lo, hi, 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
+                _weighted_pair_block(jac, weights, lo, hi, 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
             else:
                 _pair_block(jac, weights, lo, hi, 1 + PARAMS_PER_ECHO * k, 1 + PARAMS_PER_ECHO * q, jtj)
 
 
 @njit(**JIT_INLINE)
 def _weighted_echo_block(jw, residual, weights, lo, hi, base, jtj, grad):
-    """_echo_block from weighted rows: no weight in the products."""
-    g1 = g2 = g3 = g4 = 0.0
-    b1 = b2 = b3 = b4 = 0.0
-    a11 = a12 = a13 = a14 = a22 = a23 = a24 = a33 = a34 = a44 = 0.0
-    for i in range(lo, hi):
-        w = weights[i]
-        r = residual[i]
-        j1, j2, j3, j4 = jw[i, base], jw[i, base + 1], jw[i, base + 2], jw[i, base + 3]
-        g1 += j1 * r
-        g2 += j2 * r
-        g3 += j3 * r
-        g4 += j4 * r
-        b1 += j1 * w
-        b2 += j2 * w
-        b3 += j3 * w
-        b4 += j4 * w
-        a11 += j1 * j1
-        a12 += j1 * j2
-        a13 += j1 * j3
-        a14 += j1 * j4
-        a22 += j2 * j2
-        a23 += j2 * j3
-        a24 += j2 * j4
-        a33 += j3 * j3
-        a34 += j3 * j4
-        a44 += j4 * j4
-    _store_echo_block(jtj, grad, base, g1, g2, g3, g4, b1, b2, b3, b4, a11, a12, a13, a14, a22, a23, a24, a33,
-                      a34, a44)
+    """_echo_block from weighted rows: no weight in the products (j j, j r and j w)."""
+    _store_echo_block(jtj, grad, base, weighted_block_sums(jw, weights, residual, lo, hi, base, base))
 
 
 @njit(**JIT_INLINE)
-def _weighted_pair_block(jw, lo, hi, r, c, jtj):
+def _weighted_pair_block(jw, weights, lo, hi, r, c, jtj):
     """_pair_block from weighted rows: one product an entry and sample, not three."""
-    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
-    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
-    for i in range(lo, hi):
-        r0, r1, r2, r3 = jw[i, r], jw[i, r + 1], jw[i, r + 2], jw[i, r + 3]
-        c0, c1, c2, c3 = jw[i, c], jw[i, c + 1], jw[i, c + 2], jw[i, c + 3]
-        a00 += r0 * c0
-        a01 += r0 * c1
-        a02 += r0 * c2
-        a03 += r0 * c3
-        a10 += r1 * c0
-        a11 += r1 * c1
-        a12 += r1 * c2
-        a13 += r1 * c3
-        a20 += r2 * c0
-        a21 += r2 * c1
-        a22 += r2 * c2
-        a23 += r2 * c3
-        a30 += r3 * c0
-        a31 += r3 * c1
-        a32 += r3 * c2
-        a33 += r3 * c3
-    _store_pair_block(jtj, r, c, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33)
+    _store_pair_block(jtj, r, c, weighted_block_sums(jw, weights, None, lo, hi, r, c))
 
 
 @njit(**JIT)

@@ -287,3 +287,27 @@ def test_lm_on_a_long_record_fits_as_the_exact_path_does():
         tail_floor=1e-3))
     np.testing.assert_allclose(weighted, exact, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(weighted[1:], TRUE[1:], rtol=0.05)
+
+
+def test_damped_solve_is_the_damped_systems_solution_over_the_free_parameters():
+    from fwcore.engine.optimizers.local import _solve_damped
+
+    rng = np.random.default_rng(4)
+    for d in (5, 13, 29, 49):  # under, at and past the factor's vector lanes (eight rows)
+        jac = rng.standard_normal((3 * d, d))
+        jtj = jac.T @ jac
+        grad = rng.standard_normal(d)
+        free = rng.random(d) > 0.2
+        lam = 0.3
+        step, scratch = np.zeros(d), np.zeros((d, d))
+        assert _solve_damped(jtj, grad, lam, free, step, scratch)
+        system = jtj[np.ix_(free, free)] + lam * np.diag(np.diag(jtj)[free])
+        np.testing.assert_allclose(step[free], np.linalg.solve(system, -grad[free]), rtol=1e-8, atol=1e-10)
+        np.testing.assert_array_equal(step[~free], 0.0)
+
+
+def test_damped_solve_refuses_an_indefinite_system():
+    from fwcore.engine.optimizers.local import _solve_damped
+
+    jtj = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and -1
+    assert not _solve_damped(jtj, np.ones(2), 0.0, np.ones(2, np.bool_), np.zeros(2), np.zeros((2, 2)))
