@@ -167,25 +167,28 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
 # weighted_trial's block of samples: its echo terms are computed a block at a time into contiguous scratch, in a loop
 # LLVM vectorizes, and its early stop is checked after each block
 TRIAL_BLOCK = 64
+_LANES = 8  # float64 lanes of AVX-512 (twice AVX2's): a loop of a multiple of it leaves no scalar remainder
 
 
 @njit(**JIT_INLINE)
-def _weighted_echo_terms(times, weights, lo, hi, start, a, u, inv_h, p, cut, da, ds, dalpha, block):
-    """Echo terms for samples [lo, hi) of the block at `start`: a e added into block[0] (the block's model) and the
-    Jacobian's row entries w (e, da ezp / dt, ds ezp, dalpha ezp lnz) into block[1:5]. No branch (selects), so it
-    vectorizes: at the centre (dt == 0) e = 1 and the rest 0, beyond the cut everything 0."""
+def _weighted_echo_terms(times, weights, first, last, lo, hi, start, a, u, inv_h, p, cut, da, ds, dalpha, block):
+    """Echo terms for samples [first, last) of the block at `start`, 0 outside [lo, hi): a e added into block[0] (the
+    block's model) and the Jacobian's row entries w (e, da ezp / dt, ds ezp, dalpha ezp lnz) into block[1:5].
+    No branch (selects), so it vectorizes: at the centre (dt == 0) e = 1 and the rest 0, beyond the cut all 0."""
     value, d_amplitude, d_position, d_width, d_shape = block[0], block[1], block[2], block[3], block[4]
     # unsigned indices: numba wraps a signed one that may be negative, a select per access that blocks SIMD
-    for i in range(np.uint64(lo), np.uint64(hi)):
+    lo, hi = np.uint64(lo), np.uint64(hi)
+    for i in range(np.uint64(first), np.uint64(last)):
         j = i - np.uint64(start)
+        inside = i >= lo and i < hi
         dt = times[i] - u
         centre = dt == 0.0
         z = 1.0 if centre else abs(dt) * inv_h  # z = 1: lnz = 0, finite, masked below
         lnz = log_ieee(z)
         zp = exp_ieee(p * lnz)
-        kept = _LN2 * zp <= cut and not centre
+        kept = _LN2 * zp <= cut and inside and not centre
         e = exp_ieee(-_LN2 * zp)
-        e = 1.0 if centre else (e if kept else 0.0)
+        e = 1.0 if centre and inside else (e if kept else 0.0)
         value[j] += a * e
         we = weights[i] * e
         wezp = we * zp if kept else 0.0
@@ -223,8 +226,11 @@ def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac
             if lo >= hi:
                 continue
             base = 1 + PARAMS_PER_ECHO * k
-            _weighted_echo_terms(times, weights, lo, hi, start, x[base], x[base + 1], reach[k, 0], reach[k, 1],
-                                 reach[k, 2], reach[k, 3], reach[k, 4], reach[k, 5], block)
+            # a multiple of the vector width of samples inside the block (the rest masked): no scalar remainder
+            width = (hi - lo + _LANES - 1) // _LANES * _LANES
+            first = max(min(lo, stop - width), start)
+            _weighted_echo_terms(times, weights, first, min(first + width, stop), lo, hi, start, x[base], x[base + 1],
+                                 reach[k, 0], reach[k, 1], reach[k, 2], reach[k, 3], reach[k, 4], reach[k, 5], block)
             for i in range(np.uint64(lo), np.uint64(hi)):
                 j = i - np.uint64(start)
                 jac[i, base], jac[i, base + 1] = block[1, j], block[2, j]
