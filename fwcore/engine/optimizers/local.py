@@ -30,8 +30,8 @@ import numpy as np
 from numba import njit
 
 from fwcore._jit import JIT, JIT_INLINE, exp_ieee, log_ieee, searchsorted
-from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, analytic_shape,
-                                 echo_value, table_reach)
+from fwcore.engine.model import (PARAMS_PER_ECHO, add_echo_vectorized, add_table_echo, add_table_echo_derivatives,
+                                 analytic_shape, echo_value, table_reach)
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
@@ -247,7 +247,8 @@ def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac
 
 @njit(**JIT)
 def squared_error(x, n_echoes, times, shape, target, weights):
-    """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows."""
+    """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows. With a tail
+    floor (long records) the echoes take fwcore._jit's vectorizable exp and log (model.add_echo_vectorized)."""
     model = np.full(times.size, x[0])
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
@@ -258,7 +259,11 @@ def squared_error(x, n_echoes, times, shape, target, weights):
                            searchsorted(times, u + after, right=True), model)
             continue
         reach = s * _SQRT_2LN2 * (tail_cut(a, shape.tail_floor) / _LN2) ** (1.0 / (alpha * alpha))
-        for i in range(searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)):
+        lo, hi = searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)
+        if shape.tail_floor > 0.0 and abs(u) + reach < 1e15:  # long records (finite): the vectorizable exp and log
+            add_echo_vectorized(a, u, s, alpha, times, lo, hi, model)
+            continue
+        for i in range(lo, hi):
             model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0
     for i in range(times.size):

@@ -289,3 +289,15 @@ def test_lm_on_a_long_record_fits_as_the_exact_path_does():
         tail_floor=1e-3))
     np.testing.assert_allclose(weighted, exact, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(weighted[1:], TRUE[1:], rtol=0.05)
+
+
+def test_a_long_records_squared_error_is_its_trial_point_s_sum():
+    # both take the vectorizable exp and log over the same windows: the same sum to rounding
+    from fwcore.engine.optimizers.local import TRIAL_BLOCK, squared_error, weighted_trial
+
+    t, x, y, w = _three_echoes(np.random.default_rng(5))
+    shape = analytic_shape()._replace(tail_floor=0.01)
+    model, jw = np.empty(t.size), np.empty((t.size, x.size))
+    windows, reach, block = np.empty((3, 2), dtype=np.int64), np.empty((3, 6)), np.empty((5, TRIAL_BLOCK))
+    ssr = weighted_trial(x, 3, t, shape, y, w, np.inf, model, jw, windows, reach, block)
+    assert squared_error(x, 3, t, shape, y, w) == pytest.approx(ssr, rel=1e-13)
