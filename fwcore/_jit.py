@@ -4,7 +4,9 @@ numba has no SVML on this kind of machine and a libm call blocks SIMD, so the
 hot model loop uses its own exp2/log2 built from float bit tricks and short
 polynomials; LLVM vectorizes them over the samples axis.
 The float64 kernels call libm's exp, log and pow through its IEEE cores
-(bind_libm_cores, called by the engine before it links its kernels).
+(bind_libm_cores, called by the engine before it links its kernels), except the
+long records' LM trial and model, which take exp_ieee and log_ieee: float64,
+branch-free and strict IEEE, within an ulp of glibc's, so their loops vectorize.
 """
 
 from __future__ import annotations
