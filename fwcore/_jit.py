@@ -179,10 +179,12 @@ def exp_ieee(x):
     shifted = y * _INV_LN2 + _ROUND
     n = shifted - _ROUND  # round(y / ln 2)
     r = (y - n * _LN2_HI) - n * _LN2_LO  # Cody and Waite: |r| <= ln2 / 2, to well below an ulp
-    q = _T10 + r * (_T11 + r * (_T12 + r * _T13))
-    q = _T6 + r * (_T7 + r * (_T8 + r * (_T9 + r * q)))
-    q = _T2 + r * (_T3 + r * (_T4 + r * (_T5 + r * q)))
-    p = 1.0 + (r + r * r * q)
+    # Estrin's scheme, not Horner's: a loop over lanes is bound by the chain's latency, which this quarters
+    r2 = r * r
+    r4 = r2 * r2
+    q = ((_T2 + _T3 * r) + (_T4 + _T5 * r) * r2) + ((_T6 + _T7 * r) + (_T8 + _T9 * r) * r2) * r4
+    q = q + ((_T10 + _T11 * r) + (_T12 + _T13 * r) * r2) * (r4 * r4)
+    p = 1.0 + (r + r2 * q)
     # 2**n as two normal powers of two, so n from -1022 to 1024 needs no special case
     k = bits_of_f64(shifted) - _ROUND_BITS
     half = k >> np.int64(1)
