@@ -92,3 +92,77 @@ def test_kernels_bound_to_libm_cores_give_libm_bits():
     expected = np.array([[libm.exp(a) for a in x], [libm.log(b) for b in y],
                          [libm.pow(b, a / 50.0) for a, b in zip(x, y)]])
     assert np.array_equal(out.view(np.int64), expected.view(np.int64))
+
+
+def _ulps(got, expected):
+    """Distance in units in the last place between float64 arrays of one sign."""
+    return np.abs(got.view(np.int64) - expected.view(np.int64))
+
+
+def _glibc(name, x):
+    # libm's, through a kernel as the engine's (bound to glibc's cores: the same bits as its wrappers)
+    from numba import njit
+
+    import math
+
+    function = getattr(math, name)
+
+    @njit
+    def apply(values, out):
+        for i in range(values.size):
+            out[i] = function(values[i])
+
+    out = np.empty_like(x)
+    apply(x, out)
+    return out
+
+
+def test_vectorizable_exp_is_within_an_ulp_of_libm_and_flushes_below_the_normal_range():
+    from fwcore._jit import exp_vectorizable
+
+    rng = np.random.default_rng(0)
+    smallest_normal = np.finfo(np.float64).tiny
+    lowest = np.log(smallest_normal)
+    edges = [-745.0, lowest, np.nextafter(lowest, 0.0), -np.log(2.0) / 2, 0.0, -0.0, 1e-300, -1e-300, 5e-324,
+             np.log(2.0) / 2, 10.0, 709.78]
+    x = np.concatenate([rng.uniform(-745.0, 10.0, 10**6), rng.uniform(-1.0, 1.0, 10**5), edges])
+    expected = _glibc("exp", x)
+    normal = expected >= smallest_normal
+    assert _ulps(exp_vectorizable(x[normal]), expected[normal]).max() <= 1
+    assert (exp_vectorizable(x[~normal]) == 0.0).all() and (~normal).sum() > 1000
+    assert exp_vectorizable(np.array([0.0]))[0] == 1.0
+    assert exp_vectorizable(np.array([710.0, -1e4])).tolist() == [np.inf, 0.0]
+
+
+def test_vectorizable_log_is_within_an_ulp_of_libm_over_the_positive_normal_numbers():
+    from fwcore._jit import log_vectorizable
+
+    rng = np.random.default_rng(1)
+    tiny, largest = np.finfo(np.float64).tiny, np.finfo(np.float64).max
+    edges = [tiny, largest, 1.0, np.nextafter(1.0, 2.0), np.nextafter(1.0, 0.0), np.sqrt(0.5), np.sqrt(2.0),
+             np.nextafter(np.sqrt(0.5), 0.0), 2.0, 0.5]
+    x = np.concatenate([np.exp(rng.uniform(np.log(tiny), np.log(largest), 10**6)), rng.uniform(0.5, 2.0, 10**5),
+                        1.0 + rng.uniform(-1e-8, 1e-8, 10**4), edges])
+    assert _ulps(log_vectorizable(x), _glibc("log", x)).max() <= 1
+    assert log_vectorizable(np.array([1.0, 2.0]))[0] == 0.0
+
+
+def test_a_loop_over_the_vectorizable_exp_and_log_is_simd():
+    import re
+
+    from numba import njit
+
+    from fwcore._jit import exp_ieee, log_ieee
+
+    @njit(error_model="numpy")  # a fresh kernel: cached code cannot be inspected
+    def terms(x, out):
+        for i in range(x.size):
+            out[i] = exp_ieee(-exp_ieee(1.2 * log_ieee(x[i])))
+
+    x = np.linspace(0.1, 5.0, 100)
+    out = np.empty_like(x)
+    terms(x, out)
+    assembly = terms.inspect_asm(terms.signatures[0])
+    # a packed float64 multiply: x86's (v)mulpd, AArch64's fmul on .2d lanes
+    assert re.search(r"\bv?mulpd\b", assembly) or re.search(r"\bfmul\s+v\d+\.2d", assembly)
+    np.testing.assert_allclose(out, np.exp(-(x ** 1.2)), rtol=1e-14)

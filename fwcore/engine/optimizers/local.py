@@ -29,10 +29,10 @@ import math
 import numpy as np
 from numba import njit
 
-from fwcore._jit import JIT, JIT_INLINE, searchsorted
+from fwcore._jit import JIT, JIT_INLINE, exp_ieee, log_ieee, searchsorted
 from fwcore._simd import CHOLESKY_LANES, block_sums, cholesky_lanes, weighted_block_sums
-from fwcore.engine.model import (PARAMS_PER_ECHO, add_table_echo, add_table_echo_derivatives, analytic_shape,
-                                 echo_value, table_reach)
+from fwcore.engine.model import (PARAMS_PER_ECHO, add_echo_vectorized, add_table_echo, add_table_echo_derivatives,
+                                 analytic_shape, echo_value, table_reach)
 
 _LN2 = math.log(2.0)
 _SQRT_2LN2 = math.sqrt(2.0 * _LN2)
@@ -165,12 +165,50 @@ def trial_model_and_jacobian(x, n_echoes, times, shape, target, weights, bound, 
     return ssr
 
 
+# weighted_trial's block of samples: its echo terms are computed a block at a time into contiguous scratch, in a loop
+# LLVM vectorizes, and its early stop is checked after each block
+TRIAL_BLOCK = 64
+_LANES = 8  # float64 lanes of AVX-512 (twice AVX2's): a loop of a multiple of it leaves no scalar remainder
+
+
+@njit(**JIT_INLINE)
+def _weighted_echo_terms(times, weights, first, last, lo, hi, start, a, u, inv_h, p, cut, da, ds, dalpha, block):
+    """Echo terms for samples [first, last) of the block at `start`, 0 outside [lo, hi): a e added into block[0] (the
+    block's model) and the Jacobian's row entries w (e, da ezp / dt, ds ezp, dalpha ezp lnz) into block[1:5].
+    No branch (selects), so it vectorizes: at the centre (dt == 0) e = 1 and the rest 0, beyond the cut all 0."""
+    value, d_amplitude, d_position, d_width, d_shape = block[0], block[1], block[2], block[3], block[4]
+    # unsigned indices: numba wraps a signed one that may be negative, a select per access that blocks SIMD
+    lo, hi = np.uint64(lo), np.uint64(hi)
+    for i in range(np.uint64(first), np.uint64(last)):
+        j = i - np.uint64(start)
+        inside = i >= lo and i < hi
+        dt = times[i] - u
+        centre = dt == 0.0
+        z = 1.0 if centre else abs(dt) * inv_h  # z = 1: lnz = 0, finite, masked below
+        lnz = log_ieee(z)
+        zp = exp_ieee(p * lnz)
+        kept = _LN2 * zp <= cut and inside and not centre
+        e = exp_ieee(-_LN2 * zp)
+        e = 1.0 if centre and inside else (e if kept else 0.0)
+        value[j] += a * e
+        we = weights[i] * e
+        wezp = we * zp if kept else 0.0
+        d_amplitude[j] = we
+        d_position[j] = da * wezp / (1.0 if centre else dt)
+        d_width[j] = ds * wezp
+        d_shape[j] = dalpha * wezp * lnz
+
+
 @njit(**JIT)
-def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac, windows, reach):
+def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac, windows, reach, block):
     """Long records' LM point (a generalized Gaussian with a tail floor, fwcore.engine.model.EchoShape): the model,
-    windows and early-stopped sum of trial_model_and_jacobian, with the Jacobian's rows scaled by `weights` (W^1/2 J:
+    windows and sum of trial_model_and_jacobian, with the Jacobian's rows scaled by `weights` (W^1/2 J:
     _normal_equations then needs no weight in its products) and one division an echo sample, not four.
-    Not model_and_jacobian's bits: short records (Leica, RIEGL, NEON) never come here. `reach` is (n_echoes x 6)."""
+    The exps and log are fwcore._jit's vectorizable ones, over TRIAL_BLOCK samples at a time; each sample's model adds
+    its echoes in echo order. The sum stops early, after the first block where it reaches `bound`, with model, jac
+    and windows left part-filled. Only the background's column and each echo's columns inside its window are
+    written. Not model_and_jacobian's bits: short records (Leica, RIEGL, NEON) never come here.
+    `reach` is (n_echoes x 6) scratch, `block` (5 x TRIAL_BLOCK)."""
     m = times.size
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
@@ -179,35 +217,30 @@ def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac
         reach[k, 0], reach[k, 1], reach[k, 2] = 1.0 / h, p, cut
         reach[k, 3], reach[k, 4], reach[k, 5] = _LN2 * a * p, _LN2 * a * p / s, -2.0 * alpha * _LN2 * a
     ssr = 0.0
-    for i in range(m):
-        w = weights[i]
-        value = x[0]
-        jac[i, 0] = w
+    for start in range(0, m, TRIAL_BLOCK):
+        stop = min(start + TRIAL_BLOCK, m)
+        for i in range(start, stop):
+            block[0, i - start] = x[0]
+            jac[i, 0] = weights[i]
         for k in range(n_echoes):
-            if i < windows[k, 0] or i >= windows[k, 1]:
+            lo, hi = max(windows[k, 0], start), min(windows[k, 1], stop)
+            if lo >= hi:
                 continue
             base = 1 + PARAMS_PER_ECHO * k
-            dt = times[i] - x[base + 1]
-            if dt == 0.0:
-                value += x[base]
-                jac[i, base], jac[i, base + 1], jac[i, base + 2], jac[i, base + 3] = w, 0.0, 0.0, 0.0
-                continue
-            lnz = math.log(abs(dt) * reach[k, 0])
-            zp = math.exp(reach[k, 1] * lnz)
-            if _LN2 * zp > reach[k, 2]:
-                jac[i, base] = jac[i, base + 1] = jac[i, base + 2] = jac[i, base + 3] = 0.0
-                continue
-            e = math.exp(-_LN2 * zp)
-            value += x[base] * e
-            we = w * e
-            wezp = we * zp
-            jac[i, base] = we
-            jac[i, base + 1] = reach[k, 3] * wezp / dt
-            jac[i, base + 2] = reach[k, 4] * wezp
-            jac[i, base + 3] = reach[k, 5] * wezp * lnz
-        model[i] = value
-        r = w * (value - target[i])
-        ssr += r * r
+            # a multiple of the vector width of samples inside the block (the rest masked): no scalar remainder
+            width = (hi - lo + _LANES - 1) // _LANES * _LANES
+            first = max(min(lo, stop - width), start)
+            _weighted_echo_terms(times, weights, first, min(first + width, stop), lo, hi, start, x[base], x[base + 1],
+                                 reach[k, 0], reach[k, 1], reach[k, 2], reach[k, 3], reach[k, 4], reach[k, 5], block)
+            for i in range(np.uint64(lo), np.uint64(hi)):
+                j = i - np.uint64(start)
+                jac[i, base], jac[i, base + 1] = block[1, j], block[2, j]
+                jac[i, base + 2], jac[i, base + 3] = block[3, j], block[4, j]
+        for i in range(start, stop):  # the sum in sample order, as an unblocked loop adds it
+            value = block[0, i - start]
+            model[i] = value
+            r = weights[i] * (value - target[i])
+            ssr += r * r
         if ssr >= bound:  # a sum of squares only grows: the trial is rejected
             return ssr
     return ssr
@@ -215,7 +248,8 @@ def weighted_trial(x, n_echoes, times, shape, target, weights, bound, model, jac
 
 @njit(**JIT)
 def squared_error(x, n_echoes, times, shape, target, weights):
-    """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows."""
+    """sum (weights (model(x, times) - target))**2, the model alone (no Jacobian), over the echo windows. With a tail
+    floor (long records) the echoes take fwcore._jit's vectorizable exp and log (model.add_echo_vectorized)."""
     model = np.full(times.size, x[0])
     for k in range(n_echoes):
         base = 1 + PARAMS_PER_ECHO * k
@@ -226,7 +260,11 @@ def squared_error(x, n_echoes, times, shape, target, weights):
                            searchsorted(times, u + after, right=True), model)
             continue
         reach = s * _SQRT_2LN2 * (tail_cut(a, shape.tail_floor) / _LN2) ** (1.0 / (alpha * alpha))
-        for i in range(searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)):
+        lo, hi = searchsorted(times, u - reach), searchsorted(times, u + reach, right=True)
+        if shape.tail_floor > 0.0 and abs(u) + reach < 1e15:  # long records (finite): the vectorizable exp and log
+            add_echo_vectorized(a, u, s, alpha, times, lo, hi, model)
+            continue
+        for i in range(lo, hi):
             model[i] += echo_value(a, u, s, alpha, times[i])
     acc = 0.0
     for i in range(times.size):
@@ -430,8 +468,9 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     # long records (a generalized Gaussian with a tail floor): the weighted Jacobian, cheaper normal equations
     weighted = shape.tail_floor > 0.0 and not shape.tabulated
     reach = np.empty((n_echoes, 6))
+    block = np.empty((5, TRIAL_BLOCK))  # weighted_trial's scratch
     if weighted:
-        weighted_trial(x, n_echoes, times, shape, target, weights, np.inf, model, jac, windows, reach)
+        weighted_trial(x, n_echoes, times, shape, target, weights, np.inf, model, jac, windows, reach, block)
     else:
         model_and_jacobian(x, n_echoes, times, shape, model, jac, windows)
     ssr = 0.0
@@ -465,7 +504,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
         # a trial LM rejects stops where its sum of squares passes the current one, part of a Jacobian
         if weighted:
             trial_ssr = weighted_trial(trial, n_echoes, times, shape, target, weights, ssr, trial_model, trial_jac,
-                                       trial_windows, reach)
+                                       trial_windows, reach, block)
         else:
             trial_ssr = trial_model_and_jacobian(trial, n_echoes, times, shape, target, weights, ssr, trial_model,
                                                  trial_jac, trial_windows, reach)

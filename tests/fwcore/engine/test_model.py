@@ -95,6 +95,22 @@ def test_individual_model_leaves_out_only_what_underflows():
         assert echo_value(a, u, s, alpha, u + 0.5 * r) > 0.0 or alpha > 2.0
 
 
+def test_individual_model_of_a_long_record_is_libm_s_to_a_few_ulp_and_the_centre_exact():
+    """With a tail floor (GEDI, LVIS) the echoes take the vectorizable exp and log: each sample within a few ulp
+    of echo_value's sum, the centre (t == u) exactly the amplitude, the reach the same."""
+    times = np.flatnonzero(np.random.default_rng(3).random(1024) < 0.6).astype(np.float64)
+    x = np.concatenate([[11.5], ECHOES.ravel()])
+    exact, got = np.empty(times.size), np.empty(times.size)
+    individual_model(x, len(ECHOES), times, analytic_shape(), exact)
+    individual_model(x, len(ECHOES), times, analytic_shape()._replace(tail_floor=0.5), got)
+    np.testing.assert_allclose(got, exact, rtol=1e-13, atol=0.0)
+    assert not np.array_equal(got, exact)  # another exp and log: not libm's bits
+    one = np.array([0.0, 5.0, 200.0, 2.0, 1.4])  # b, A, u, s, alpha
+    centre = np.array([199.0, 200.0, 201.0])
+    individual_model(one, 1, centre, analytic_shape()._replace(tail_floor=0.5), got[:3])
+    assert got[1] == 5.0 and got[0] == got[2] == pytest.approx(echo_value(5.0, 200.0, 2.0, 1.4, 199.0), rel=1e-15)
+
+
 def test_batch_model_is_every_sample_s_sum_to_the_bit(leica_response):
     """batch_model evaluates each echo over its span (echo_span) alone: the sum over every sample, to the bit,
     for Chauve's generalized Gaussians and for the tabulated response."""

@@ -249,15 +249,15 @@ def test_a_trial_point_is_model_and_jacobian_to_the_bit_and_stops_once_its_sum_p
 
 
 def test_a_long_records_weighted_point_is_the_weighted_jacobian_and_its_normal_equations_are_jt_w_j():
-    from fwcore.engine.optimizers.local import _normal_equations, weighted_trial
+    from fwcore.engine.optimizers.local import TRIAL_BLOCK, _normal_equations, weighted_trial
 
     t, x, y, w = _three_echoes(np.random.default_rng(4))
     shape = analytic_shape()._replace(tail_floor=0.01)
     model, jac, windows = np.empty(t.size), np.zeros((t.size, x.size)), np.empty((3, 2), dtype=np.int64)
     model_and_jacobian(x, 3, t, shape, model, jac, windows)
     weighted_model, jw = np.full(t.size, np.nan), np.zeros((t.size, x.size))
-    weighted_windows, reach = np.empty((3, 2), dtype=np.int64), np.empty((3, 6))
-    ssr = weighted_trial(x, 3, t, shape, y, w, np.inf, weighted_model, jw, weighted_windows, reach)
+    weighted_windows, reach, block = np.empty((3, 2), dtype=np.int64), np.empty((3, 6)), np.empty((5, TRIAL_BLOCK))
+    ssr = weighted_trial(x, 3, t, shape, y, w, np.inf, weighted_model, jw, weighted_windows, reach, block)
     # z as |t - u| x (1 / h): the model to rounding, not to the bit
     assert ssr == pytest.approx(sum((w[i] * (model[i] - y[i])) ** 2 for i in range(t.size)), rel=1e-12)
     np.testing.assert_allclose(weighted_model, model, rtol=1e-14)
@@ -269,13 +269,15 @@ def test_a_long_records_weighted_point_is_the_weighted_jacobian_and_its_normal_e
     _normal_equations(jw, residual, w, windows, wjtj, wgrad, True)
     np.testing.assert_allclose(wjtj, jtj, rtol=1e-12, atol=1e-12 * np.abs(jtj).max())
     np.testing.assert_allclose(wgrad, grad, rtol=1e-12, atol=1e-12 * np.abs(grad).max())
-    # an early stop, as the unweighted trial's: at the first sample whose partial sum reaches the bound
+    # an early stop: after the first block of samples whose partial sum reaches the bound, the rest untouched
     partial = np.cumsum((w * (weighted_model - y)) ** 2)
     stop = int(np.searchsorted(partial, ssr / 2))
+    block_end = min((stop // TRIAL_BLOCK + 1) * TRIAL_BLOCK, t.size)
+    assert block_end < t.size  # the record is longer than a block: the stop leaves samples untouched
     weighted_model[:] = np.nan
-    assert partial[stop] <= weighted_trial(x, 3, t, shape, y, w, partial[stop], weighted_model, jw, weighted_windows,
-                                           reach) < ssr
-    assert np.isnan(weighted_model[stop + 1:]).all()
+    stopped = weighted_trial(x, 3, t, shape, y, w, partial[stop], weighted_model, jw, weighted_windows, reach, block)
+    assert stopped == pytest.approx(partial[block_end - 1], rel=1e-14) and stopped < ssr
+    assert not np.isnan(weighted_model[:block_end]).any() and np.isnan(weighted_model[block_end:]).all()
 
 
 def test_lm_on_a_long_record_fits_as_the_exact_path_does():
@@ -311,3 +313,15 @@ def test_damped_solve_refuses_an_indefinite_system():
 
     jtj = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and -1
     assert not _solve_damped(jtj, np.ones(2), 0.0, np.ones(2, np.bool_), np.zeros(2), np.zeros((2, 2)))
+
+
+def test_a_long_records_squared_error_is_its_trial_point_s_sum():
+    # both take the vectorizable exp and log over the same windows: the same sum to rounding
+    from fwcore.engine.optimizers.local import TRIAL_BLOCK, squared_error, weighted_trial
+
+    t, x, y, w = _three_echoes(np.random.default_rng(5))
+    shape = analytic_shape()._replace(tail_floor=0.01)
+    model, jw = np.empty(t.size), np.empty((t.size, x.size))
+    windows, reach, block = np.empty((3, 2), dtype=np.int64), np.empty((3, 6)), np.empty((5, TRIAL_BLOCK))
+    ssr = weighted_trial(x, 3, t, shape, y, w, np.inf, model, jw, windows, reach, block)
+    assert squared_error(x, 3, t, shape, y, w) == pytest.approx(ssr, rel=1e-13)
