@@ -467,8 +467,7 @@ def levenberg_marquardt(x, n_echoes, times, shape, target, weights, lower, upper
     windows, trial_windows = both_windows[0], both_windows[1]
     # long records (a generalized Gaussian with a tail floor): the weighted Jacobian, cheaper normal equations
     weighted = shape.tail_floor > 0.0 and not shape.tabulated
-    reach = np.empty((n_echoes, 6))
-    block = np.empty((5, TRIAL_BLOCK))  # weighted_trial's scratch
+    reach, block = np.empty((n_echoes, 6)), np.empty((5, TRIAL_BLOCK))  # the trials' scratch (block: weighted_trial's)
     if weighted:
         weighted_trial(x, n_echoes, times, shape, target, weights, np.inf, model, jac, windows, reach, block)
     else:
