@@ -214,60 +214,38 @@ def log_ieee(x):
     return s * (hfsq + (t2 + t1)) + dk * _LN2_LO - hfsq + f + dk * _LN2_HI
 
 
-@njit(**JIT)
-def _exp_ieee_array(x, out):
+@njit(error_model="numpy")  # not cached: a function argument's specialisation is not numba-cacheable
+def _each(function, x, out):
     for i in range(x.size):
-        out[i] = exp_ieee(x[i])
+        out[i] = function(x[i])
 
 
-@njit(**JIT)
-def _log_ieee_array(x, out):
-    for i in range(x.size):
-        out[i] = log_ieee(x[i])
+def _over_array(function, x: np.ndarray, dtype) -> np.ndarray:
+    """One of the kernels' scalar functions over an array, as a kernel calls it (for tests)."""
+    x = np.ascontiguousarray(x, dtype=dtype)
+    out = np.empty_like(x)
+    _each(function, x.ravel(), out.ravel())
+    return out
 
 
 def exp_vectorizable(x: np.ndarray) -> np.ndarray:
     """The kernels' float64 exp (exp_ieee), over an array (for tests)."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    out = np.empty_like(x)
-    _exp_ieee_array(x.ravel(), out.ravel())
-    return out
+    return _over_array(exp_ieee, x, np.float64)
 
 
 def log_vectorizable(x: np.ndarray) -> np.ndarray:
     """The kernels' float64 log (log_ieee), over an array of positive normal values (for tests)."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    out = np.empty_like(x)
-    _log_ieee_array(x.ravel(), out.ravel())
-    return out
-
-
-@njit(**JIT)
-def _exp2_array(x, out):
-    for i in range(x.size):
-        out[i] = fast_exp2(x[i])
-
-
-@njit(**JIT)
-def _log2_array(x, out):
-    for i in range(x.size):
-        out[i] = fast_log2(x[i])
+    return _over_array(log_ieee, x, np.float64)
 
 
 def exp2_approx(x: np.ndarray) -> np.ndarray:
     """The kernels' exp2, over an array (for tests)."""
-    x = np.ascontiguousarray(x, dtype=np.float32)
-    out = np.empty_like(x)
-    _exp2_array(x.ravel(), out.ravel())
-    return out
+    return _over_array(fast_exp2, x, np.float32)
 
 
 def log2_approx(x: np.ndarray) -> np.ndarray:
     """The kernels' log2, over an array of positive values (for tests)."""
-    x = np.ascontiguousarray(x, dtype=np.float32)
-    out = np.empty_like(x)
-    _log2_array(x.ravel(), out.ravel())
-    return out
+    return _over_array(fast_log2, x, np.float32)
 
 
 # np.searchsorted, inlined. numba's is a call, and a kernel that calls any function increfs (atomically) every

@@ -8,28 +8,16 @@ from fwcore._simd import CHOLESKY_LANES, block_sums, cholesky_lanes, weighted_bl
 
 
 @njit
-def _pair(jac, weights, lo, hi, r, c):
-    return block_sums(jac, weights, None, lo, hi, r, c)
-
-
-@njit
-def _weighted_pair(jac, weights, lo, hi, r, c):
-    return weighted_block_sums(jac, weights, None, lo, hi, r, c)
+def _sums(weighted_rows, jac, weights, residual, lo, hi, r, c):
+    """The intrinsics as the engine calls them (residual None: a pair block)."""
+    if weighted_rows:
+        return weighted_block_sums(jac, weights, residual, lo, hi, r, c)
+    return block_sums(jac, weights, residual, lo, hi, r, c)
 
 
 @njit
 def _lanes(factor, c, r, pivot):
     cholesky_lanes(factor, c, r, pivot)
-
-
-@njit
-def _echo(jac, weights, residual, lo, hi, r):
-    return block_sums(jac, weights, residual, lo, hi, r, r)
-
-
-@njit
-def _weighted_echo(jac, weights, residual, lo, hi, r):
-    return weighted_block_sums(jac, weights, residual, lo, hi, r, r)
 
 
 def _scalar_sums(jac, weights, residual, lo, hi, r, c, weighted_rows):
@@ -61,15 +49,14 @@ def test_block_sums_are_the_scalar_loops_bits(weighted_rows):
     jac = _jacobian(rng, m, 1 + 4 * n_echoes)
     weights = rng.uniform(0.05, 4.0, m)
     residual = rng.standard_normal(m) * 100.0
-    pair, echo = (_weighted_pair, _weighted_echo) if weighted_rows else (_pair, _echo)
     windows = [(0, m), (0, 0), (5, 6), (13, 90), (96, 97)] + [tuple(sorted(rng.integers(0, m + 1, 2))) for _ in range(40)]
     for lo, hi in windows:
         k, q = rng.integers(0, n_echoes, 2)
         r, c = 1 + 4 * int(k), 1 + 4 * int(q)
         expected = _scalar_sums(jac, weights, None, lo, hi, r, c, weighted_rows)
-        assert np.array(pair(jac, weights, lo, hi, r, c)).tobytes() == np.array(expected).tobytes()
+        assert np.array(_sums(weighted_rows, jac, weights, None, lo, hi, r, c)).tobytes() == np.array(expected).tobytes()
         expected = _scalar_sums(jac, weights, residual, lo, hi, r, r, weighted_rows)
-        assert np.array(echo(jac, weights, residual, lo, hi, r)).tobytes() == np.array(expected).tobytes()
+        assert np.array(_sums(weighted_rows, jac, weights, residual, lo, hi, r, r)).tobytes() == np.array(expected).tobytes()
 
 
 def test_a_pair_block_is_its_outer_products_summed():
@@ -78,23 +65,23 @@ def test_a_pair_block_is_its_outer_products_summed():
     jac[:, 1:5] = [[1, 2, 3, 4], [0.5, 0, 1, 2], [2, 2, 2, 2]]
     jac[:, 5:9] = [[1, 0, 0, 1], [4, 4, 4, 4], [0.25, 0.5, 1, 2]]
     weights = np.array([1.0, 2.0, 0.5])
-    sums = np.array(_pair(jac, weights, 0, 3, 1, 5))
+    sums = np.array(_sums(False, jac, weights, None, 0, 3, 1, 5))
     expected = sum(np.outer(jac[i, 1:5], jac[i, 5:9]) * weights[i] ** 2 for i in range(3))
     np.testing.assert_array_equal(sums[:16].reshape(4, 4), expected)
     np.testing.assert_array_equal(sums[16:], 0.0)  # no residual: no gradient sums
-    np.testing.assert_array_equal(np.array(_weighted_pair(jac, weights, 1, 2, 1, 5))[:16].reshape(4, 4),
+    np.testing.assert_array_equal(np.array(_sums(True, jac, weights, None, 1, 2, 1, 5))[:16].reshape(4, 4),
                                   np.outer(jac[1, 1:5], jac[1, 5:9]))
 
 
 def test_an_empty_window_sums_to_zero():
     jac = np.ones((4, 5))
-    assert _echo(jac, np.ones(4), np.ones(4), 2, 2, 1) == (0.0,) * 24
+    assert _sums(False, jac, np.ones(4), np.ones(4), 2, 2, 1, 1) == (0.0,) * 24
 
 
 def test_a_strided_jacobian_is_refused():
     jac = np.ones((4, 10))[:, ::2]
     with pytest.raises(Exception, match="C-contiguous"):
-        _pair(jac, np.ones(4), 0, 4, 0, 0)
+        _sums(False, jac, np.ones(4), None, 0, 4, 0, 0)
 
 
 def test_cholesky_lanes_are_the_scalar_column_update():
