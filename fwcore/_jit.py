@@ -64,44 +64,21 @@ def bind_libm_cores() -> tuple[str, ...]:
     return tuple(bound)
 
 
-@intrinsic
-def bits_of_f32(typingctx, x):
-    sig = types.int32(types.float32)
+def _bitcast(source, target):
+    """An intrinsic reading a `source` value's bits as a `target` of the same width (the float bit tricks)."""
 
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int32))
+    def typer(typingctx, x):
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(target))
 
-    return sig, codegen
+        return target(source), codegen
 
-
-@intrinsic
-def _f32_of_bits(typingctx, x):
-    sig = types.float32(types.int32)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float32))
-
-    return sig, codegen
+    typer.__name__ = f"bits_{source}_as_{target}"
+    return intrinsic(typer)
 
 
-@intrinsic
-def bits_of_f64(typingctx, x):
-    sig = types.int64(types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int64))
-
-    return sig, codegen
-
-
-@intrinsic
-def _f64_of_bits(typingctx, x):
-    sig = types.float64(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-
-    return sig, codegen
+bits_of_f32, _f32_of_bits = _bitcast(types.float32, types.int32), _bitcast(types.int32, types.float32)
+bits_of_f64, _f64_of_bits = _bitcast(types.float64, types.int64), _bitcast(types.int64, types.float64)
 
 
 # 2**f on [0, 1): degree-3 Chebyshev fit, relative error 1.0e-4. The population methods' objective
