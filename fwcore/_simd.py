@@ -40,8 +40,9 @@ _BROADCAST4, _BROADCAST8 = _mask([0] * 4), _mask([0] * 8)
 
 
 def _check_rows(jac) -> None:
+    """Rows read as vectors: contiguous float64 rows."""
     if not (isinstance(jac, types.Array) and jac.ndim == 2 and jac.dtype == types.float64 and jac.layout == "C"):
-        raise TypeError(f"block sums need a C-contiguous 2-d float64 Jacobian, not {jac}")
+        raise TypeError(f"the vector lanes need a C-contiguous 2-d float64 array, not {jac}")
 
 
 def _row_quad(builder, data, row_offset, column):
@@ -115,6 +116,7 @@ def _block_sums(weighted_rows: bool):
 
         return sig, codegen
 
+    typer.__name__ = "weighted_block_sums" if weighted_rows else "block_sums"
     return intrinsic(typer)
 
 
