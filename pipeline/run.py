@@ -510,9 +510,10 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     laps.seconds["ranges job began"] = time.time()
                     with laps("ranges job"):
-                        ordered = longest_first(todo, config, _workers(options)) if threads and not early else None
+                        # the costliest ranges first, for workers that claim them (never for Dask's partitions)
+                        ordered = longest_first(todo, config, _workers(options)) if threads or early else None
                         if early:
-                            result = early.finish(todo)
+                            result = early.finish(ordered or todo)
                         elif ordered:
                             result = _claimed_in_order(jobs, ordered, output, config, formats, radiometry, forest,
                                                        small)
