@@ -26,6 +26,9 @@ from pipeline.plan import planned_pulses
 from pipeline.records import ReadTask
 
 SAMPLE_SHOTS = 16  # a range's shots decomposed for its estimate: ~20 ms of a savanna range's 6-15 s
+# beyond this many ranges a worker, its last range is a small part of its work, and the estimates (a fixed cost a
+# range, in the driver before any range) would cost more than the order saves
+MAX_RANGES_A_WORKER = 16
 
 
 def estimated(task: ReadTask) -> bool:
@@ -51,10 +54,16 @@ def range_cost(task: ReadTask, config: DecompositionConfig, sample: int = SAMPLE
 def longest_first(tasks: list[ReadTask], config: DecompositionConfig, workers: int,
                   sample: int = SAMPLE_SHOTS) -> list[ReadTask] | None:
     """The ranges costliest first (a stable sort: equal costs in their file order), for workers that each claim
-    the next as they finish; None where the order cannot help (no more ranges than workers) or a range's cost
-    cannot be estimated (estimated)."""
-    if len(tasks) <= workers or not all(estimated(t) for t in tasks):
+    the next as they finish; None where the order cannot help (no more ranges than workers, or so many that a
+    worker's last range is a small part of its work: MAX_RANGES_A_WORKER) or a range's cost cannot be estimated
+    (estimated; a sample that cannot be read: its range's own reading rejects what it must)."""
+    if not workers < len(tasks) <= MAX_RANGES_A_WORKER * workers:
         return None
-    costs = [range_cost(t, config, sample) for t in tasks]
+    try:
+        if not all(estimated(t) for t in tasks):
+            return None
+        costs = [range_cost(t, config, sample) for t in tasks]
+    except Exception:  # noqa: BLE001  only an order is lost: the ranges run as dealt, and fail there if they must
+        return None
     order = sorted(range(len(tasks)), key=lambda i: -costs[i])
     return [tasks[i] for i in order]

@@ -2,6 +2,7 @@
 first; none for small-footprint files or as few ranges as workers; a run whose workers claim in that order writes
 the same tables as one whose ranges Beam deals."""
 
+import dataclasses
 from pathlib import Path
 
 import pyarrow.dataset as ds
@@ -10,7 +11,7 @@ import pytest
 from fwcore.engine.config import DecompositionConfig
 from pipeline.cli import main
 from pipeline.plan import plan_file
-from pipeline.schedule import estimated, longest_first, range_cost
+from pipeline.schedule import MAX_RANGES_A_WORKER, estimated, longest_first, range_cost
 
 DATA = Path(__file__).resolve().parents[2] / "examples" / "data"
 L1B = DATA / "gedi" / "GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.h5"
@@ -42,8 +43,14 @@ def test_longest_first_puts_the_costliest_ranges_first_and_keeps_ties_in_file_or
     assert [t.start for t in ordered] != [t.start for t in gedi_tasks]  # this granule's beams are not in cost order
 
 
-def test_no_order_for_as_few_ranges_as_workers_nor_for_small_footprints(gedi_tasks):
+def test_no_order_for_as_few_ranges_as_workers_nor_for_small_footprints(gedi_tasks, tmp_path):
     assert longest_first(gedi_tasks[:2], CONFIG, workers=2) is None
+    assert len(gedi_tasks) > MAX_RANGES_A_WORKER // 4 and longest_first(gedi_tasks, CONFIG, workers=1) is not None
+    many = gedi_tasks * (MAX_RANGES_A_WORKER // len(gedi_tasks) + 1)  # more than MAX_RANGES_A_WORKER for one worker
+    assert longest_first(many, CONFIG, workers=1) is None
+    gone = [dataclasses.replace(t, source=dataclasses.replace(t.source, path=str(tmp_path / "gone.h5")))
+            for t in gedi_tasks]  # a sample that cannot be read: no order, and no error
+    assert longest_first(gone, CONFIG, workers=2) is None
     leica = plan_file(str(LEICA), LEICA.name, LEICA.stem, CONFIG, 300, None)
     assert len(leica) > 2 and not estimated(leica[0])
     assert longest_first(leica, CONFIG, workers=2) is None
