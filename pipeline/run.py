@@ -43,6 +43,7 @@ from pipeline.assemble import written_parts
 from pipeline.plan import FilePlan, InputToPlan, inputs_to_plan, planned_pulses, read_plans
 from pipeline.progress import ProgressBar
 from pipeline.rejections import write_file_rejection
+from pipeline.schedule import longest_first
 from pipeline.summary import JobsDone, beam_metrics, planned_of, summarise
 from pipeline.timing import Laps, log_timing
 from pipeline.handoff import hand_over, withdraw
@@ -325,6 +326,26 @@ class EarlyRanges:
         withdraw(self.output)
 
 
+def _workers(options) -> int:
+    return max(1, options.view_as(DirectOptions).direct_num_workers)
+
+
+def _claimed_in_order(jobs: Jobs, ordered: list, output: Path, config: DecompositionConfig, formats: frozenset[str],
+                      radiometry: RadiometryConfig, forest: ForestSettings, small: bool) -> object:
+    """The ranges' job on threads, each worker claiming the next of `ordered` (pipeline.schedule.longest_first) as
+    it finishes its last (pipeline.handoff), instead of Beam's deal of equal numbers of ranges before any runs."""
+    workers = _workers(options=jobs.options)
+    hand_over(output, ordered)
+    try:
+        return jobs.run(len(ordered), lambda p: (
+            p | "Workers" >> beam.Create(list(range(workers)))
+            | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
+            | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False, radiometry=radiometry,
+                                                   forest=forest)), small, threads=True)
+    finally:
+        withdraw(output)
+
+
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
                limit: int | None, jobs: Jobs, threads: bool = False) -> dict[str, FilePlan]:
     """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker (in
@@ -489,10 +510,18 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     laps.seconds["ranges job began"] = time.time()
                     with laps("ranges job"):
-                        result = early.finish(todo) if early else jobs.run(len(todo), lambda p: (
-                            p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
-                                config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
-                                forest=forest)), small, threads=threads)
+                        # the costliest ranges first, for workers that claim them (never for Dask's partitions)
+                        ordered = longest_first(todo, config, _workers(options)) if threads or early else None
+                        if early:
+                            result = early.finish(ordered or todo)
+                        elif ordered:
+                            result = _claimed_in_order(jobs, ordered, output, config, formats, radiometry, forest,
+                                                       small)
+                        else:
+                            result = jobs.run(len(todo), lambda p: (
+                                p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
+                                    config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
+                                    forest=forest)), small, threads=threads)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
