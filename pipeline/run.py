@@ -346,6 +346,23 @@ def _claimed_in_order(jobs: Jobs, ordered: list, output: Path, config: Decomposi
         withdraw(output)
 
 
+def _ranges_job(jobs: Jobs, todo: list, early: EarlyRanges | None, threads: bool, small: bool, output: Path,
+                config: DecompositionConfig, formats: frozenset[str], radiometry: RadiometryConfig,
+                forest: ForestSettings) -> object:
+    """The ranges' job: on the early workers, on threaded workers claiming the costliest ranges first, or as Beam
+    deals them (Dask's partitions, worker processes, ranges whose cost is not estimated)."""
+    # the costliest ranges first, for workers that claim them (never for Dask's partitions)
+    ordered = longest_first(todo, config, _workers(jobs.options)) if threads or early else None
+    if early:
+        return early.finish(ordered or todo)
+    if ordered:
+        return _claimed_in_order(jobs, ordered, output, config, formats, radiometry, forest, small)
+    return jobs.run(len(todo), lambda p: (
+        p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
+            config, str(output), formats, spread=not jobs.dask, radiometry=radiometry, forest=forest)),
+        small, threads=threads)
+
+
 def plan_files(output: Path, inputs: list[InputToPlan], config: DecompositionConfig, points_per_range: int,
                limit: int | None, jobs: Jobs, threads: bool = False) -> dict[str, FilePlan]:
     """The plan job: each input without a plan yet (a resumed run keeps those it has) planned on a worker (in
@@ -510,18 +527,8 @@ def run_jobs(output: Path, paths: list[str], names: InputNames, config: Decompos
                                  line_every=60.0 if watch else float("inf"), already=reused):
                     laps.seconds["ranges job began"] = time.time()
                     with laps("ranges job"):
-                        # the costliest ranges first, for workers that claim them (never for Dask's partitions)
-                        ordered = longest_first(todo, config, _workers(options)) if threads or early else None
-                        if early:
-                            result = early.finish(ordered or todo)
-                        elif ordered:
-                            result = _claimed_in_order(jobs, ordered, output, config, formats, radiometry, forest,
-                                                       small)
-                        else:
-                            result = jobs.run(len(todo), lambda p: (
-                                p | "Ranges" >> beam.Create(todo) | "DecomposeFlight" >> DecomposeFlight(
-                                    config, str(output), formats, spread=not jobs.dask, radiometry=radiometry,
-                                    forest=forest)), small, threads=threads)
+                        result = _ranges_job(jobs, todo, early, threads, small, output, config, formats, radiometry,
+                                             forest)
             unfinished = [t for t in todo if not range_is_complete(output, t)]
             if unfinished:  # the machine's faults (noted by the workers), or a worker lost without a word
                 stop_on_noted_faults(output, len(unfinished), len(tasks))
