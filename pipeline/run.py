@@ -282,13 +282,7 @@ class EarlyRanges:
         self.output, self.result, self.error, self.handed = output, None, None, False
 
         def build(p):
-            workers = max(1, options.view_as(DirectOptions).direct_num_workers)
-            # Create reshuffles its elements itself (one to a worker): a second shuffle was a stage more to start
-            return (p | "Workers" >> beam.Create(list(range(workers)))
-                    | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
-                    # no shuffle: each worker's claims feed its own ranges' DoFn, from the hand-over on
-                    | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False,
-                                                           radiometry=radiometry, forest=forest))
+            return _claiming_workers(p, options, output, config, formats, radiometry, forest)
         self.thread = threading.Thread(target=self._run, args=(options, build), name="ranges-job", daemon=True)
         self.thread.start()
 
@@ -330,18 +324,26 @@ def _workers(options) -> int:
     return max(1, options.view_as(DirectOptions).direct_num_workers)
 
 
+def _claiming_workers(p, options, output: Path, config: DecompositionConfig, formats: frozenset[str],
+                      radiometry: RadiometryConfig, forest: ForestSettings):
+    """A job of one element a worker, each claiming the handed-over ranges one at a time as it finishes its last
+    (pipeline.handoff.claimed_ranges) and decomposing them."""
+    # Create reshuffles its elements itself (one to a worker): a second shuffle was a stage more to start
+    return (p | "Workers" >> beam.Create(list(range(_workers(options))))
+            | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
+            # no shuffle: each worker's claims feed its own ranges' DoFn, from the hand-over on
+            | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False, radiometry=radiometry,
+                                                   forest=forest))
+
+
 def _claimed_in_order(jobs: Jobs, ordered: list, output: Path, config: DecompositionConfig, formats: frozenset[str],
                       radiometry: RadiometryConfig, forest: ForestSettings, small: bool) -> object:
     """The ranges' job on threads, each worker claiming the next of `ordered` (pipeline.schedule.longest_first) as
     it finishes its last (pipeline.handoff), instead of Beam's deal of equal numbers of ranges before any runs."""
-    workers = _workers(options=jobs.options)
     hand_over(output, ordered)
     try:
-        return jobs.run(len(ordered), lambda p: (
-            p | "Workers" >> beam.Create(list(range(workers)))
-            | "AwaitRanges" >> beam.ParDo(AwaitRanges(str(output), config))
-            | "DecomposeFlight" >> DecomposeFlight(config, str(output), formats, spread=False, radiometry=radiometry,
-                                                   forest=forest)), small, threads=True)
+        return jobs.run(len(ordered), lambda p: _claiming_workers(p, jobs.options, output, config, formats, radiometry,
+                                                                  forest), small, threads=True)
     finally:
         withdraw(output)
 
